@@ -1,0 +1,254 @@
+// Input preparation: validation, triangulation (holes, orientation), attribute seams, normals.
+#include "tessera/builder.h"
+
+#include <cmath>
+#include <unordered_map>
+
+namespace tessera {
+namespace {
+
+struct Vec3 {
+    float x, y, z;
+};
+Vec3 operator-(Vec3 a, Vec3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+Vec3 cross(Vec3 a, Vec3 b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
+float length(Vec3 a) { return std::sqrt(a.x * a.x + a.y * a.y + a.z * a.z); }
+
+// Where a primvar's value for one corner comes from: the value index, or -1 when the primvar has none there.
+class PrimvarLookup {
+public:
+    PrimvarLookup(const PrimvarView& view, const MeshView& mesh, const char* what, size_t pointCount,
+                  std::vector<std::string>& warnings)
+        : view_(view) {
+        if (view.interpolation == Interpolation::None || view.values.empty()) {
+            active_ = false;
+            return;
+        }
+        const size_t valueCount = view.values.size() / size_t(view.components);
+        size_t slots = 0;
+        switch (view.interpolation) {
+            case Interpolation::Constant: slots = 1; break;
+            case Interpolation::Uniform: slots = mesh.faceVertexCounts.size(); break;
+            case Interpolation::Vertex:
+            case Interpolation::Varying: slots = pointCount; break;
+            case Interpolation::FaceVarying: slots = mesh.faceVertexIndices.size(); break;
+            case Interpolation::None: break;
+        }
+        const size_t available = view.indices.empty() ? valueCount : view.indices.size();
+        if (available < slots) {
+            warnings.push_back(mesh.name + ": " + what + " has " + std::to_string(available) +
+                               " elements but its interpolation needs " + std::to_string(slots) + "; ignored");
+            active_ = false;
+            return;
+        }
+        for (int32_t index : view.indices) {
+            if (index < 0 || size_t(index) >= valueCount) {
+                warnings.push_back(mesh.name + ": " + what + " has an index out of range (" +
+                                   std::to_string(index) + "); ignored");
+                active_ = false;
+                return;
+            }
+        }
+        active_ = true;
+    }
+
+    bool active() const { return active_; }
+
+    int64_t value_index(size_t face, size_t corner, size_t point) const {
+        if (!active_) return -1;
+        size_t slot = 0;
+        switch (view_.interpolation) {
+            case Interpolation::Constant: slot = 0; break;
+            case Interpolation::Uniform: slot = face; break;
+            case Interpolation::Vertex:
+            case Interpolation::Varying: slot = point; break;
+            case Interpolation::FaceVarying: slot = corner; break;
+            case Interpolation::None: return -1;
+        }
+        return view_.indices.empty() ? int64_t(slot) : int64_t(view_.indices[slot]);
+    }
+
+    const float* value(int64_t index) const { return view_.values.data() + index * view_.components; }
+
+private:
+    const PrimvarView& view_;
+    bool active_ = false;
+};
+
+struct CornerKey {
+    uint32_t point;
+    int64_t normal;
+    int64_t color;
+    bool operator==(const CornerKey&) const = default;
+};
+struct CornerKeyHash {
+    size_t operator()(const CornerKey& k) const {
+        uint64_t h = k.point * 0x9E3779B97F4A7C15ull;
+        h ^= uint64_t(k.normal + 1) * 0xC2B2AE3D27D4EB4Full + (h << 6) + (h >> 2);
+        h ^= uint64_t(k.color + 1) * 0x165667B19E3779F9ull + (h << 6) + (h >> 2);
+        return size_t(h);
+    }
+};
+
+}  // namespace
+
+PreparedMesh prepare_mesh(const MeshView& mesh) {
+    PreparedMesh out;
+    auto& warnings = out.warnings;
+    const std::string& name = mesh.name;
+
+    if (mesh.points.size() % 3 != 0) throw MeshError(name + ": points array length is not a multiple of 3");
+    const size_t pointCount = mesh.points.size() / 3;
+    if (pointCount == 0) throw MeshError(name + ": mesh has no points");
+    size_t indexTotal = 0;
+    for (int32_t count : mesh.faceVertexCounts) {
+        if (count < 0) throw MeshError(name + ": faceVertexCounts has a negative count (" + std::to_string(count) + ")");
+        indexTotal += size_t(count);
+    }
+    if (indexTotal != mesh.faceVertexIndices.size())
+        throw MeshError(name + ": faceVertexCounts sum to " + std::to_string(indexTotal) + " but faceVertexIndices has " +
+                        std::to_string(mesh.faceVertexIndices.size()) + " entries");
+
+    auto point = [&](size_t i) { return Vec3{mesh.points[3 * i], mesh.points[3 * i + 1], mesh.points[3 * i + 2]}; };
+    std::vector<uint8_t> pointFinite(pointCount);
+    size_t nonFinitePoints = 0;
+    for (size_t i = 0; i < pointCount; ++i) {
+        Vec3 p = point(i);
+        pointFinite[i] = std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
+        nonFinitePoints += !pointFinite[i];
+    }
+
+    std::vector<uint8_t> isHole(mesh.faceVertexCounts.size());
+    for (int32_t hole : mesh.holeIndices) {
+        if (hole < 0 || size_t(hole) >= isHole.size())
+            warnings.push_back(name + ": holeIndices entry " + std::to_string(hole) + " is not a face; ignored");
+        else
+            isHole[hole] = 1;
+    }
+
+    PrimvarLookup normals(mesh.normals, mesh, "normals", pointCount, warnings);
+    PrimvarLookup colors(mesh.displayColor, mesh, "primvars:displayColor", pointCount, warnings);
+    if (colors.active() && mesh.displayColor.interpolation == Interpolation::Constant) {
+        const float* c = colors.value(colors.value_index(0, 0, 0));
+        out.constantColor = {c[0], c[1], c[2]};
+        out.hasConstantColor = true;
+    }
+    const bool vertexColors = colors.active() && !out.hasConstantColor;
+
+    // Triangulate (a fan per polygon, as Hydra does) and split vertices at attribute seams.
+    std::unordered_map<CornerKey, uint32_t, CornerKeyHash> vertexOf;
+    std::vector<uint32_t> vertexPoint;
+    std::vector<int64_t> vertexNormal, vertexColor;
+    size_t droppedFaces = 0, droppedDegenerate = 0, firstBadFace = SIZE_MAX;
+    std::string firstBadReason;
+    auto corner_vertex = [&](size_t face, size_t corner) {
+        const uint32_t p = uint32_t(mesh.faceVertexIndices[corner]);
+        CornerKey key{p, normals.value_index(face, corner, p), vertexColors ? colors.value_index(face, corner, p) : -1};
+        auto [it, inserted] = vertexOf.try_emplace(key, uint32_t(vertexPoint.size()));
+        if (inserted) {
+            vertexPoint.push_back(p);
+            vertexNormal.push_back(key.normal);
+            vertexColor.push_back(key.color);
+        }
+        return it->second;
+    };
+
+    size_t faceStart = 0;
+    for (size_t face = 0; face < mesh.faceVertexCounts.size(); ++face) {
+        const size_t count = size_t(mesh.faceVertexCounts[face]);
+        const size_t start = faceStart;
+        faceStart += count;
+        if (isHole[face]) continue;
+        const char* bad = nullptr;
+        if (count < 3) bad = "fewer than 3 vertices";
+        for (size_t c = start; c < start + count && !bad; ++c) {
+            const int32_t p = mesh.faceVertexIndices[c];
+            if (p < 0 || size_t(p) >= pointCount) bad = "a vertex index out of range";
+            else if (!pointFinite[p]) bad = "a non-finite point";
+        }
+        if (bad) {
+            if (droppedFaces++ == 0) {
+                firstBadFace = face;
+                firstBadReason = bad;
+            }
+            continue;
+        }
+        for (size_t i = 1; i + 1 < count; ++i) {
+            size_t c0 = start, c1 = start + i, c2 = start + i + 1;
+            if (mesh.leftHanded) std::swap(c1, c2);
+            const uint32_t p0 = mesh.faceVertexIndices[c0], p1 = mesh.faceVertexIndices[c1], p2 = mesh.faceVertexIndices[c2];
+            if (p0 == p1 || p1 == p2 || p0 == p2 || length(cross(point(p1) - point(p0), point(p2) - point(p0))) == 0.0f) {
+                ++droppedDegenerate;
+                continue;
+            }
+            out.indices.push_back(corner_vertex(face, c0));
+            out.indices.push_back(corner_vertex(face, c1));
+            out.indices.push_back(corner_vertex(face, c2));
+            out.sourceFaces.push_back(uint32_t(face));
+        }
+    }
+    if (droppedFaces)
+        warnings.push_back(name + ": dropped " + std::to_string(droppedFaces) + " invalid face(s); first is face " +
+                           std::to_string(firstBadFace) + " with " + firstBadReason);
+    if (nonFinitePoints)
+        warnings.push_back(name + ": " + std::to_string(nonFinitePoints) + " point(s) are NaN or infinite");
+    if (out.indices.empty())
+        throw MeshError(name + ": no drawable faces" + (droppedFaces ? " (every face is invalid: " + firstBadReason + ")" : ""));
+    (void)droppedDegenerate;  // zero-area triangles draw nothing; dropping them is not worth a warning
+
+    // Vertex streams.
+    const size_t vertexCount = vertexPoint.size();
+    out.positions.resize(3 * vertexCount);
+    for (size_t v = 0; v < vertexCount; ++v) {
+        Vec3 p = point(vertexPoint[v]);
+        out.positions[3 * v] = p.x;
+        out.positions[3 * v + 1] = p.y;
+        out.positions[3 * v + 2] = p.z;
+    }
+
+    // Smooth normals per point (area weighted) where none are authored, and as the fallback for bad ones.
+    std::vector<float> pointNormals(3 * pointCount, 0.0f);
+    for (size_t t = 0; t < out.indices.size(); t += 3) {
+        const uint32_t a = vertexPoint[out.indices[t]], b = vertexPoint[out.indices[t + 1]], c = vertexPoint[out.indices[t + 2]];
+        const Vec3 n = cross(point(b) - point(a), point(c) - point(a));
+        for (uint32_t p : {a, b, c}) {
+            pointNormals[3 * p] += n.x;
+            pointNormals[3 * p + 1] += n.y;
+            pointNormals[3 * p + 2] += n.z;
+        }
+    }
+    out.normals.resize(3 * vertexCount);
+    for (size_t v = 0; v < vertexCount; ++v) {
+        Vec3 n{0, 0, 0};
+        if (vertexNormal[v] >= 0) {
+            const float* value = normals.value(vertexNormal[v]);
+            n = {value[0], value[1], value[2]};
+        }
+        float len = length(n);
+        if (!(len > 0.0f) || !std::isfinite(len)) {
+            const float* accum = &pointNormals[3 * vertexPoint[v]];
+            n = {accum[0], accum[1], accum[2]};
+            len = length(n);
+        }
+        if (!(len > 0.0f) || !std::isfinite(len)) {
+            n = {0, 0, 1};
+            len = 1;
+        }
+        out.normals[3 * v] = n.x / len;
+        out.normals[3 * v + 1] = n.y / len;
+        out.normals[3 * v + 2] = n.z / len;
+    }
+
+    if (vertexColors) {
+        out.colors.resize(3 * vertexCount);
+        for (size_t v = 0; v < vertexCount; ++v) {
+            const float* c = colors.value(vertexColor[v]);
+            out.colors[3 * v] = c[0];
+            out.colors[3 * v + 1] = c[1];
+            out.colors[3 * v + 2] = c[2];
+        }
+    }
+    return out;
+}
+
+}  // namespace tessera

@@ -1,0 +1,225 @@
+// Tessera's Hydra-style delegate API (see docs/overview.md for sync, commit and execute).
+//
+// A scene delegate (the USD stage reader, in Python) answers questions about prims by id. The render index
+// holds the prims the render delegate created and a dirty mask per prim; sync_all() asks each dirty prim to
+// pull only what its dirty bits name, then commit_resources() pushes the changes into the GPU scene, and
+// execute() renders. The shapes follow Hydra's HdSceneDelegate / HdRenderIndex / HdRprim / HdSprim /
+// HdBprim / HdRenderDelegate so that a real Hydra adapter can stay thin.
+#pragma once
+
+#include "tessera/builder.h"
+#include "tessera/renderer.h"
+
+#include <map>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+namespace tessera::hd {
+
+using PrimId = std::string;  // an SdfPath string
+
+// What changed on a prim (Hydra's HdChangeTracker bits, reduced to what Tessera reads).
+enum DirtyBits : uint32_t {
+    Clean = 0,
+    DirtyPoints = 1u << 0,
+    DirtyTopology = 1u << 1,
+    DirtyTransform = 1u << 2,
+    DirtyVisibility = 1u << 3,
+    DirtyPrimvar = 1u << 4,
+    DirtyMaterialId = 1u << 5,
+    DirtyInstancer = 1u << 6,
+    DirtyDoubleSided = 1u << 7,
+    DirtyParams = 1u << 8,  // sprim parameters (material, light, camera)
+    AllDirty = 0xffffffffu,
+};
+
+// A mesh as authored. The views borrow arrays owned by `keepAlive` (numpy arrays over USD's buffers).
+struct MeshSource {
+    MeshView view;
+    bool doubleSided = false;
+    std::shared_ptr<const void> keepAlive;
+};
+
+// Row-major 4x4 matrices (column vectors), 16 doubles each, owned by `keepAlive`.
+struct MatrixArray {
+    std::span<const double> values;
+    std::shared_ptr<const void> keepAlive;
+    size_t size() const { return values.size() / 16; }
+};
+
+class SceneDelegate {
+public:
+    virtual ~SceneDelegate() = default;
+    virtual MeshSource get_mesh(const PrimId& id) = 0;
+    virtual Matrix4d get_transform(const PrimId& id) = 0;  // mesh space -> world
+    virtual bool get_visible(const PrimId& id) = 0;
+    virtual PrimId get_material_id(const PrimId& id) = 0;  // "" when none is bound
+    // World transforms of every copy of `prototypeId` drawn by `instancerId` (nesting already composed).
+    virtual MatrixArray get_instance_transforms(const PrimId& instancerId, const PrimId& prototypeId) = 0;
+    virtual MaterialDesc get_material(const PrimId& id) = 0;
+    virtual LightDesc get_light(const PrimId& id) = 0;
+    virtual CameraDesc get_camera(const PrimId& id) = 0;
+};
+
+class RenderDelegate;
+
+// Where prims report what they could not use; messages name the prim.
+struct RenderParam {
+    std::vector<std::string> warnings;
+    std::vector<std::string> errors;
+};
+
+// Base of every prim kind.
+class Prim {
+public:
+    explicit Prim(PrimId id) : id_(std::move(id)) {}
+    virtual ~Prim() = default;
+    const PrimId& id() const { return id_; }
+    virtual void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) = 0;
+
+private:
+    PrimId id_;
+};
+
+// The geometry prim (Hydra's Rprim "mesh"): holds its built mesh in the GPU scene.
+class Mesh : public Prim {
+public:
+    Mesh(PrimId id, PrimId instancerId, uint32_t primId, GpuScene& scene)
+        : Prim(std::move(id)), instancerId_(std::move(instancerId)), primId_(primId), scene_(scene) {}
+    ~Mesh() override;
+    void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
+
+    const PrimId& instancer_id() const { return instancerId_; }
+    const PrimId& material_id() const { return materialId_; }
+    uint32_t prim_id() const { return primId_; }
+    bool visible() const { return visible_; }
+    bool double_sided() const { return doubleSided_; }
+    std::optional<uint32_t> gpu_mesh() const { return gpuMesh_; }
+    const Matrix4d& transform() const { return transform_; }
+    const MatrixArray& instance_transforms() const { return instances_; }
+    const BuiltMesh* built() const { return gpuMesh_ ? scene_.mesh(*gpuMesh_).get() : nullptr; }
+
+private:
+    PrimId instancerId_, materialId_;
+    uint32_t primId_;
+    GpuScene& scene_;
+    std::optional<uint32_t> gpuMesh_;
+    Matrix4d transform_ = identity_matrix();
+    MatrixArray instances_;
+    bool visible_ = true, doubleSided_ = false;
+};
+
+// Sprims: state prims with parameters.
+class Material : public Prim {
+public:
+    using Prim::Prim;
+    void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
+    const MaterialDesc& desc() const { return desc_; }
+
+private:
+    MaterialDesc desc_;
+};
+
+class Light : public Prim {
+public:
+    using Prim::Prim;
+    void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
+    const LightDesc& desc() const { return desc_; }
+
+private:
+    LightDesc desc_;
+};
+
+class Camera : public Prim {
+public:
+    using Prim::Prim;
+    void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
+    const CameraDesc& desc() const { return desc_; }
+
+private:
+    CameraDesc desc_;
+};
+
+// Bprim: an AOV's image, written by execute().
+class RenderBuffer : public Prim {
+public:
+    using Prim::Prim;
+    void sync(SceneDelegate&, RenderParam&, uint32_t) override {}
+    Image image;
+};
+
+// Creates prims of the types it supports and owns the device, renderer and GPU scene they feed.
+class RenderDelegate {
+public:
+    explicit RenderDelegate(const DeviceOptions& options = DeviceOptions::from_environment());
+    static const std::vector<std::string>& supported_rprim_types();  // {"mesh"}
+    static const std::vector<std::string>& supported_sprim_types();  // {"material", "camera", "distantLight", "domeLight"}
+    static const std::vector<std::string>& supported_bprim_types();  // {"renderBuffer"}
+
+    std::unique_ptr<Mesh> create_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t primId);
+    std::unique_ptr<Prim> create_sprim(const std::string& type, const PrimId& id);
+    std::unique_ptr<RenderBuffer> create_bprim(const std::string& type, const PrimId& id);
+
+    Device& device() { return device_; }
+    Renderer& renderer() { return renderer_; }
+    GpuScene& scene() { return scene_; }
+
+private:
+    Device device_;
+    Renderer renderer_;
+    GpuScene scene_;
+};
+
+// Settings of one render pass (Hydra's render pass state plus the render settings map).
+struct RenderPassSettings {
+    PrimId cameraId;                      // a camera sprim, or "" to use `camera`
+    CameraDesc camera;
+    RenderSettings render;
+    std::vector<Aov> aovs{Aov::Color};
+};
+
+class RenderIndex {
+public:
+    explicit RenderIndex(RenderDelegate& delegate) : delegate_(delegate) {}
+
+    void insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId = "");
+    void insert_sprim(const std::string& type, const PrimId& id);
+    void insert_bprim(const std::string& type, const PrimId& id);
+    void remove_prim(const PrimId& id);
+    void mark_dirty(const PrimId& id, uint32_t bits);
+    void mark_all_dirty(uint32_t bits);
+
+    // Syncs every dirty prim (sprims first: rprims refer to materials), then commits to the GPU scene.
+    void sync_all(SceneDelegate& scene);
+    // Renders the synced scene; the images also land in the render buffers named "aov:<name>".
+    std::vector<Image> execute(const RenderPassSettings& settings, FrameStats* stats = nullptr);
+
+    // Path of the prim whose primId AOV value is `primId` ("" if none).
+    PrimId prim_path(uint32_t primId) const;
+    // Syncs performed per prim type since construction (tests use this to see that only dirty prims sync).
+    const std::map<std::string, uint64_t>& sync_counts() const { return syncCounts_; }
+    RenderParam take_diagnostics() { return std::exchange(param_, {}); }
+    size_t rprim_count() const { return rprims_.size(); }
+
+private:
+    void commit_resources();
+
+    struct Entry {
+        std::string type;
+        std::unique_ptr<Prim> prim;
+        uint32_t dirty = AllDirty;
+    };
+    RenderDelegate& delegate_;
+    std::map<PrimId, Entry> rprims_, sprims_, bprims_;
+    std::vector<PrimId> primPaths_;  // primId -> path
+    std::map<std::string, uint64_t> syncCounts_;
+    RenderParam param_;
+    bool sceneDirty_ = true;
+};
+
+}  // namespace tessera::hd

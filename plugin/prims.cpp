@@ -1,0 +1,45 @@
+// Sync of each prim kind: pull only what the dirty bits name.
+#include "tessera/delegate.h"
+
+namespace tessera::hd {
+
+Mesh::~Mesh() {
+    if (gpuMesh_) scene_.remove_mesh(*gpuMesh_);
+}
+
+void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
+    if (dirtyBits & (DirtyPoints | DirtyTopology | DirtyPrimvar | DirtyDoubleSided)) {
+        if (gpuMesh_) {
+            scene_.remove_mesh(*gpuMesh_);
+            gpuMesh_.reset();
+        }
+        try {
+            MeshSource source = scene.get_mesh(id());
+            doubleSided_ = source.doubleSided;
+            if (source.view.name.empty()) source.view.name = id();
+            PreparedMesh prepared = prepare_mesh(source.view);
+            for (auto& w : prepared.warnings) param.warnings.push_back(std::move(w));
+            gpuMesh_ = scene_.add_mesh(std::make_shared<BuiltMesh>(build_clusters(prepared)));
+        } catch (const MeshError& e) {
+            param.errors.push_back(std::string(e.what()) + "; the mesh is skipped");
+        }
+    }
+    if (dirtyBits & DirtyTransform) transform_ = scene.get_transform(id());
+    if (dirtyBits & DirtyVisibility) visible_ = scene.get_visible(id());
+    if (dirtyBits & DirtyMaterialId) materialId_ = scene.get_material_id(id());
+    if ((dirtyBits & DirtyInstancer) && !instancerId_.empty()) instances_ = scene.get_instance_transforms(instancerId_, id());
+}
+
+void Material::sync(SceneDelegate& scene, RenderParam&, uint32_t dirtyBits) {
+    if (dirtyBits & DirtyParams) desc_ = scene.get_material(id());
+}
+
+void Light::sync(SceneDelegate& scene, RenderParam&, uint32_t dirtyBits) {
+    if (dirtyBits & (DirtyParams | DirtyTransform)) desc_ = scene.get_light(id());
+}
+
+void Camera::sync(SceneDelegate& scene, RenderParam&, uint32_t dirtyBits) {
+    if (dirtyBits & (DirtyParams | DirtyTransform)) desc_ = scene.get_camera(id());
+}
+
+}  // namespace tessera::hd

@@ -1,0 +1,164 @@
+// The render delegate (prim factory) and the render index (prims, dirty bits, sync, commit, execute).
+#include "tessera/delegate.h"
+
+#include <cmath>
+
+namespace tessera::hd {
+
+RenderDelegate::RenderDelegate(const DeviceOptions& options) : device_(options), renderer_(device_) {}
+
+const std::vector<std::string>& RenderDelegate::supported_rprim_types() {
+    static const std::vector<std::string> types{"mesh"};
+    return types;
+}
+const std::vector<std::string>& RenderDelegate::supported_sprim_types() {
+    static const std::vector<std::string> types{"material", "camera", "distantLight", "domeLight"};
+    return types;
+}
+const std::vector<std::string>& RenderDelegate::supported_bprim_types() {
+    static const std::vector<std::string> types{"renderBuffer"};
+    return types;
+}
+
+std::unique_ptr<Mesh> RenderDelegate::create_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t primId) {
+    if (type != "mesh") return nullptr;
+    return std::make_unique<Mesh>(id, instancerId, primId, scene_);
+}
+
+std::unique_ptr<Prim> RenderDelegate::create_sprim(const std::string& type, const PrimId& id) {
+    if (type == "material") return std::make_unique<Material>(id);
+    if (type == "camera") return std::make_unique<Camera>(id);
+    if (type == "distantLight" || type == "domeLight") return std::make_unique<Light>(id);
+    return nullptr;
+}
+
+std::unique_ptr<RenderBuffer> RenderDelegate::create_bprim(const std::string& type, const PrimId& id) {
+    if (type != "renderBuffer") return nullptr;
+    return std::make_unique<RenderBuffer>(id);
+}
+
+void RenderIndex::insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId) {
+    auto prim = delegate_.create_rprim(type, id, instancerId, uint32_t(primPaths_.size()));
+    if (!prim) throw std::invalid_argument("unsupported rprim type '" + type + "' for " + id);
+    primPaths_.push_back(id);
+    rprims_[id] = {type, std::move(prim), AllDirty};
+    sceneDirty_ = true;
+}
+
+void RenderIndex::insert_sprim(const std::string& type, const PrimId& id) {
+    auto prim = delegate_.create_sprim(type, id);
+    if (!prim) throw std::invalid_argument("unsupported sprim type '" + type + "' for " + id);
+    sprims_[id] = {type, std::move(prim), AllDirty};
+    sceneDirty_ = true;
+}
+
+void RenderIndex::insert_bprim(const std::string& type, const PrimId& id) {
+    auto prim = delegate_.create_bprim(type, id);
+    if (!prim) throw std::invalid_argument("unsupported bprim type '" + type + "' for " + id);
+    bprims_[id] = {type, std::move(prim), AllDirty};
+}
+
+void RenderIndex::remove_prim(const PrimId& id) {
+    sceneDirty_ |= rprims_.erase(id) + sprims_.erase(id) > 0;
+    bprims_.erase(id);
+}
+
+void RenderIndex::mark_dirty(const PrimId& id, uint32_t bits) {
+    for (auto* prims : {&rprims_, &sprims_, &bprims_}) {
+        auto it = prims->find(id);
+        if (it != prims->end()) {
+            it->second.dirty |= bits;
+            sceneDirty_ = true;
+        }
+    }
+}
+
+void RenderIndex::mark_all_dirty(uint32_t bits) {
+    for (auto* prims : {&rprims_, &sprims_})
+        for (auto& [id, entry] : *prims) entry.dirty |= bits;
+    sceneDirty_ = true;
+}
+
+void RenderIndex::sync_all(SceneDelegate& scene) {
+    for (auto* prims : {&sprims_, &rprims_})
+        for (auto& [id, entry] : *prims) {
+            if (entry.dirty == Clean) continue;
+            entry.prim->sync(scene, param_, entry.dirty);
+            entry.dirty = Clean;
+            ++syncCounts_[entry.type];
+        }
+    if (sceneDirty_) commit_resources();
+    sceneDirty_ = false;
+}
+
+// Rebuilds the instance, material and light lists of the GPU scene from the synced prims.
+void RenderIndex::commit_resources() {
+    GpuScene& scene = delegate_.scene();
+    scene.clear_materials();
+    std::unordered_map<PrimId, uint32_t> materialHandles;
+    for (auto& [id, entry] : sprims_)
+        if (entry.type == "material") materialHandles[id] = scene.add_material(static_cast<Material&>(*entry.prim).desc());
+
+    std::vector<InstanceDesc> instances;
+    for (auto& [id, entry] : rprims_) {
+        const Mesh& mesh = static_cast<Mesh&>(*entry.prim);
+        if (!mesh.visible() || !mesh.gpu_mesh()) continue;
+        InstanceDesc instance;
+        instance.mesh = *mesh.gpu_mesh();
+        instance.primId = mesh.prim_id();
+        instance.doubleSided = mesh.double_sided();
+        auto material = materialHandles.find(mesh.material_id());
+        if (material != materialHandles.end()) {
+            instance.material = material->second;
+        } else {  // no bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey
+            const BuiltMesh* built = mesh.built();
+            MaterialDesc fallback;
+            fallback.diffuseColor = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
+            fallback.useDisplayColor = !built->colors.empty();
+            instance.material = scene.add_material(fallback);
+        }
+        if (mesh.instancer_id().empty()) {
+            instance.transform = mesh.transform();
+            instances.push_back(instance);
+        } else {
+            const MatrixArray& transforms = mesh.instance_transforms();
+            for (size_t i = 0; i < transforms.size(); ++i) {
+                std::copy_n(transforms.values.data() + 16 * i, 16, instance.transform.begin());
+                instances.push_back(instance);
+            }
+        }
+    }
+    scene.set_instances(std::move(instances));
+}
+
+std::vector<Image> RenderIndex::execute(const RenderPassSettings& settings, FrameStats* stats) {
+    CameraDesc camera = settings.camera;
+    if (!settings.cameraId.empty()) {
+        auto it = sprims_.find(settings.cameraId);
+        if (it == sprims_.end() || it->second.type != "camera") throw std::invalid_argument("no camera prim " + settings.cameraId);
+        camera = static_cast<Camera&>(*it->second.prim).desc();
+    }
+    std::vector<LightDesc> lights;
+    for (auto& [id, entry] : sprims_)
+        if (entry.type == "distantLight" || entry.type == "domeLight") lights.push_back(static_cast<Light&>(*entry.prim).desc());
+    if (lights.empty()) {
+        // The default rig when a stage has no lights: a key light over the camera's shoulder and a dim dome.
+        const Matrix4d& c = camera.cameraToWorld;
+        std::array<double, 3> direction;
+        for (int k = 0; k < 3; ++k) direction[k] = -c[k * 4 + 2] - 0.35 * c[k * 4 + 1] + 0.2 * c[k * 4 + 0];
+        lights.push_back({LightType::Distant, direction, {0.85f, 0.85f, 0.85f}});
+        lights.push_back({LightType::Dome, {0, 0, -1}, {0.15f, 0.15f, 0.15f}});
+    }
+    delegate_.scene().set_lights(std::move(lights));
+    std::vector<Image> images = delegate_.renderer().render(delegate_.scene(), camera, settings.render, settings.aovs, stats);
+    for (const Image& image : images) {
+        const PrimId bufferId = std::string("aov:") + aov_name(image.aov);
+        if (!bprims_.count(bufferId)) insert_bprim("renderBuffer", bufferId);
+        static_cast<RenderBuffer&>(*bprims_[bufferId].prim).image = image;
+    }
+    return images;
+}
+
+PrimId RenderIndex::prim_path(uint32_t primId) const { return primId < primPaths_.size() ? primPaths_[primId] : PrimId(); }
+
+}  // namespace tessera::hd

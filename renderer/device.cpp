@@ -1,0 +1,330 @@
+#include "tessera/device.h"
+
+#include <algorithm>
+#include <cstdlib>
+#include <cstring>
+#include <iostream>
+#include <utility>
+
+namespace tessera {
+
+void check_vk(VkResult result, const char* what) {
+    if (result != VK_SUCCESS) throw DeviceError(std::string("Vulkan call failed: ") + what + " (VkResult " + std::to_string(int(result)) + ")");
+}
+
+DeviceOptions DeviceOptions::from_environment() {
+    DeviceOptions options;
+    if (const char* select = std::getenv("TESSERA_DEVICE")) options.select = select;
+    if (const char* validation = std::getenv("TESSERA_VALIDATION")) options.validation = std::strcmp(validation, "0") != 0 && *validation;
+    return options;
+}
+
+Buffer& Buffer::operator=(Buffer&& other) noexcept {
+    if (this != &other) {
+        reset();
+        std::swap(handle, other.handle);
+        std::swap(address, other.address);
+        std::swap(size, other.size);
+        std::swap(mapped, other.mapped);
+        std::swap(device_, other.device_);
+        std::swap(memory_, other.memory_);
+    }
+    return *this;
+}
+
+void Buffer::reset() {
+    if (device_) {
+        vkDestroyBuffer(device_, handle, nullptr);
+        vkFreeMemory(device_, memory_, nullptr);
+    }
+    handle = VK_NULL_HANDLE;
+    memory_ = VK_NULL_HANDLE;
+    device_ = VK_NULL_HANDLE;
+    address = 0;
+    size = 0;
+    mapped = nullptr;
+}
+
+namespace {
+
+VKAPI_ATTR VkBool32 VKAPI_CALL on_validation_message(VkDebugUtilsMessageSeverityFlagBitsEXT severity, VkDebugUtilsMessageTypeFlagsEXT,
+                                                     const VkDebugUtilsMessengerCallbackDataEXT* data, void* user) {
+    const bool error = severity & VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT;
+    static_cast<Device*>(user)->record_validation_message(error, data->pMessage);
+    return VK_FALSE;
+}
+
+bool has_layer(const char* name) {
+    uint32_t count = 0;
+    vkEnumerateInstanceLayerProperties(&count, nullptr);
+    std::vector<VkLayerProperties> layers(count);
+    vkEnumerateInstanceLayerProperties(&count, layers.data());
+    return std::any_of(layers.begin(), layers.end(), [&](const VkLayerProperties& l) { return std::strcmp(l.layerName, name) == 0; });
+}
+
+int type_rank(VkPhysicalDeviceType type) {
+    switch (type) {
+        case VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU: return 4;
+        case VK_PHYSICAL_DEVICE_TYPE_INTEGRATED_GPU: return 3;
+        case VK_PHYSICAL_DEVICE_TYPE_VIRTUAL_GPU: return 2;
+        case VK_PHYSICAL_DEVICE_TYPE_CPU: return 1;
+        default: return 0;
+    }
+}
+
+// The features Tessera needs; returns the names of those the device lacks.
+std::vector<std::string> missing_features(VkPhysicalDevice device) {
+    VkPhysicalDeviceVulkan13Features f13{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_3_FEATURES};
+    VkPhysicalDeviceVulkan12Features f12{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES, &f13};
+    VkPhysicalDeviceFeatures2 f{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &f12};
+    vkGetPhysicalDeviceFeatures2(device, &f);
+    std::vector<std::string> missing;
+    auto need = [&](VkBool32 have, const char* name) { if (!have) missing.push_back(name); };
+    need(f.features.shaderInt64, "shaderInt64");
+    need(f.features.fragmentStoresAndAtomics, "fragmentStoresAndAtomics");
+    need(f12.bufferDeviceAddress, "bufferDeviceAddress");
+    need(f12.shaderBufferInt64Atomics, "shaderBufferInt64Atomics");
+    need(f13.dynamicRendering, "dynamicRendering");
+    need(f13.synchronization2, "synchronization2");
+    return missing;
+}
+
+}  // namespace
+
+void Device::record_validation_message(bool error, const char* message) {
+    std::lock_guard lock(messagesMutex_);
+    if (error) ++validationErrors_;
+    messages_.push_back(std::string(error ? "validation error: " : "validation warning: ") + message);
+}
+
+std::vector<std::string> Device::take_validation_messages() {
+    std::lock_guard lock(messagesMutex_);
+    return std::exchange(messages_, {});
+}
+
+Device::Device(const DeviceOptions& options) {
+    uint32_t loaderVersion = 0;
+    if (vkEnumerateInstanceVersion(&loaderVersion) != VK_SUCCESS || loaderVersion < VK_API_VERSION_1_3)
+        throw DeviceError("the Vulkan loader is older than 1.3 (install libvulkan1 from Debian 12 or newer)");
+
+    const char* validationLayer = "VK_LAYER_KHRONOS_validation";
+    std::vector<const char*> layers, extensions;
+    if (options.validation) {
+        if (!has_layer(validationLayer))
+            throw DeviceError("validation was requested but VK_LAYER_KHRONOS_validation is not installed (apt-get install vulkan-validationlayers)");
+        layers.push_back(validationLayer);
+        extensions.push_back(VK_EXT_DEBUG_UTILS_EXTENSION_NAME);
+    }
+    VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
+    app.pApplicationName = "tessera";
+    app.apiVersion = VK_API_VERSION_1_3;
+    VkValidationFeatureEnableEXT enables[] = {VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT};
+    VkValidationFeaturesEXT validationFeatures{VK_STRUCTURE_TYPE_VALIDATION_FEATURES_EXT};
+    validationFeatures.enabledValidationFeatureCount = 1;
+    validationFeatures.pEnabledValidationFeatures = enables;
+    VkInstanceCreateInfo instanceInfo{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO};
+    instanceInfo.pNext = options.validation ? &validationFeatures : nullptr;
+    instanceInfo.pApplicationInfo = &app;
+    instanceInfo.enabledLayerCount = uint32_t(layers.size());
+    instanceInfo.ppEnabledLayerNames = layers.data();
+    instanceInfo.enabledExtensionCount = uint32_t(extensions.size());
+    instanceInfo.ppEnabledExtensionNames = extensions.data();
+    if (vkCreateInstance(&instanceInfo, nullptr, &instance_) != VK_SUCCESS)
+        throw DeviceError("no Vulkan driver could be loaded (install mesa-vulkan-drivers for the CPU device)");
+
+    if (options.validation) {
+        VkDebugUtilsMessengerCreateInfoEXT info{VK_STRUCTURE_TYPE_DEBUG_UTILS_MESSENGER_CREATE_INFO_EXT};
+        info.messageSeverity = VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT | VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT;
+        info.messageType = VK_DEBUG_UTILS_MESSAGE_TYPE_VALIDATION_BIT_EXT | VK_DEBUG_UTILS_MESSAGE_TYPE_PERFORMANCE_BIT_EXT;
+        info.pfnUserCallback = on_validation_message;
+        info.pUserData = this;
+        auto create = reinterpret_cast<PFN_vkCreateDebugUtilsMessengerEXT>(vkGetInstanceProcAddr(instance_, "vkCreateDebugUtilsMessengerEXT"));
+        check_vk(create(instance_, &info, nullptr, &messenger_), "vkCreateDebugUtilsMessengerEXT");
+    }
+
+    uint32_t count = 0;
+    vkEnumeratePhysicalDevices(instance_, &count, nullptr);
+    std::vector<VkPhysicalDevice> devices(count);
+    vkEnumeratePhysicalDevices(instance_, &count, devices.data());
+    if (devices.empty()) throw DeviceError("no Vulkan device found (install mesa-vulkan-drivers for the CPU device)");
+
+    // Candidates that can run Tessera, best first.
+    struct Candidate {
+        VkPhysicalDevice device;
+        VkPhysicalDeviceProperties properties;
+        uint32_t index;
+    };
+    std::vector<Candidate> usable;
+    std::string rejected;
+    for (uint32_t i = 0; i < devices.size(); ++i) {
+        VkPhysicalDeviceProperties properties;
+        vkGetPhysicalDeviceProperties(devices[i], &properties);
+        std::vector<std::string> missing;
+        if (properties.apiVersion < VK_API_VERSION_1_3) missing.push_back("Vulkan 1.3");
+        for (auto& m : missing_features(devices[i])) missing.push_back(m);
+        if (missing.empty()) {
+            usable.push_back({devices[i], properties, i});
+        } else {
+            std::string list;
+            for (auto& m : missing) list += (list.empty() ? "" : ", ") + m;
+            rejected += std::string(rejected.empty() ? "" : "; ") + properties.deviceName + " lacks " + list;
+        }
+    }
+    std::stable_sort(usable.begin(), usable.end(), [](const Candidate& a, const Candidate& b) {
+        return type_rank(a.properties.deviceType) > type_rank(b.properties.deviceType);
+    });
+    const std::string& select = options.select;
+    auto chosen = usable.end();
+    if (select.empty()) {
+        chosen = usable.begin();
+    } else {
+        chosen = std::find_if(usable.begin(), usable.end(), [&](const Candidate& c) {
+            const bool cpu = c.properties.deviceType == VK_PHYSICAL_DEVICE_TYPE_CPU;
+            if (select == "cpu") return cpu;
+            if (select == "gpu") return !cpu;
+            if (!select.empty() && std::all_of(select.begin(), select.end(), ::isdigit)) return c.index == uint32_t(std::stoul(select));
+            return std::string(c.properties.deviceName).find(select) != std::string::npos;
+        });
+    }
+    if (chosen == usable.end()) {
+        std::string why = usable.empty() ? "no Vulkan device has the features Tessera needs" : "no usable Vulkan device matches TESSERA_DEVICE=" + select;
+        throw DeviceError(why + (rejected.empty() ? "" : " (" + rejected + ")"));
+    }
+    physical_ = chosen->device;
+    name_ = chosen->properties.deviceName;
+    software_ = chosen->properties.deviceType == VK_PHYSICAL_DEVICE_TYPE_CPU;
+    timestampPeriod_ = chosen->properties.limits.timestampPeriod;
+    vkGetPhysicalDeviceMemoryProperties(physical_, &memoryProperties_);
+
+    uint32_t familyCount = 0;
+    vkGetPhysicalDeviceQueueFamilyProperties(physical_, &familyCount, nullptr);
+    std::vector<VkQueueFamilyProperties> families(familyCount);
+    vkGetPhysicalDeviceQueueFamilyProperties(physical_, &familyCount, families.data());
+    queueFamily_ = UINT32_MAX;
+    for (uint32_t i = 0; i < familyCount && queueFamily_ == UINT32_MAX; ++i)
+        if ((families[i].queueFlags & (VK_QUEUE_GRAPHICS_BIT | VK_QUEUE_COMPUTE_BIT)) == (VK_QUEUE_GRAPHICS_BIT | VK_QUEUE_COMPUTE_BIT)) queueFamily_ = i;
+    if (queueFamily_ == UINT32_MAX) throw DeviceError(name_ + " has no graphics + compute queue");
+
+    VkPhysicalDeviceVulkan13Features f13{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_3_FEATURES};
+    f13.dynamicRendering = VK_TRUE;
+    f13.synchronization2 = VK_TRUE;
+    VkPhysicalDeviceVulkan12Features f12{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES, &f13};
+    f12.bufferDeviceAddress = VK_TRUE;
+    f12.shaderBufferInt64Atomics = VK_TRUE;
+    VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &f12};
+    features.features.shaderInt64 = VK_TRUE;
+    features.features.fragmentStoresAndAtomics = VK_TRUE;
+    const float priority = 1.0f;
+    VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO};
+    queueInfo.queueFamilyIndex = queueFamily_;
+    queueInfo.queueCount = 1;
+    queueInfo.pQueuePriorities = &priority;
+    VkDeviceCreateInfo deviceInfo{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &features};
+    deviceInfo.queueCreateInfoCount = 1;
+    deviceInfo.pQueueCreateInfos = &queueInfo;
+    check_vk(vkCreateDevice(physical_, &deviceInfo, nullptr, &device_), "vkCreateDevice");
+    vkGetDeviceQueue(device_, queueFamily_, 0, &queue_);
+
+    VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+    poolInfo.flags = VK_COMMAND_POOL_CREATE_TRANSIENT_BIT | VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT;
+    poolInfo.queueFamilyIndex = queueFamily_;
+    check_vk(vkCreateCommandPool(device_, &poolInfo, nullptr, &commandPool_), "vkCreateCommandPool");
+    VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
+    check_vk(vkCreateFence(device_, &fenceInfo, nullptr, &fence_), "vkCreateFence");
+}
+
+Device::~Device() {
+    if (device_) {
+        vkDeviceWaitIdle(device_);
+        vkDestroyFence(device_, fence_, nullptr);
+        vkDestroyCommandPool(device_, commandPool_, nullptr);
+        vkDestroyDevice(device_, nullptr);
+    }
+    if (messenger_) {
+        auto destroy = reinterpret_cast<PFN_vkDestroyDebugUtilsMessengerEXT>(vkGetInstanceProcAddr(instance_, "vkDestroyDebugUtilsMessengerEXT"));
+        destroy(instance_, messenger_, nullptr);
+    }
+    if (instance_) vkDestroyInstance(instance_, nullptr);
+}
+
+uint32_t Device::find_memory_type(uint32_t typeBits, MemoryUse use) const {
+    // Preferred properties first, then the minimum that works.
+    std::vector<VkMemoryPropertyFlags> wanted;
+    const VkMemoryPropertyFlags host = VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+    switch (use) {
+        case MemoryUse::Device: wanted = {VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT, 0}; break;
+        case MemoryUse::Upload: wanted = {host | VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT, host}; break;
+        case MemoryUse::Readback: wanted = {host | VK_MEMORY_PROPERTY_HOST_CACHED_BIT, host}; break;
+    }
+    for (VkMemoryPropertyFlags flags : wanted)
+        for (uint32_t i = 0; i < memoryProperties_.memoryTypeCount; ++i)
+            if ((typeBits & (1u << i)) && (memoryProperties_.memoryTypes[i].propertyFlags & flags) == flags) return i;
+    throw DeviceError("no suitable Vulkan memory type on " + name_);
+}
+
+Buffer Device::create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlags extraUsage) {
+    Buffer buffer;
+    buffer.device_ = device_;
+    buffer.size = std::max<VkDeviceSize>(size, 16);
+    VkBufferCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO};
+    info.size = buffer.size;
+    info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
+                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | extraUsage;
+    check_vk(vkCreateBuffer(device_, &info, nullptr, &buffer.handle), "vkCreateBuffer");
+    VkMemoryRequirements requirements;
+    vkGetBufferMemoryRequirements(device_, buffer.handle, &requirements);
+    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO};
+    flags.flags = VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT;
+    VkMemoryAllocateInfo allocate{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags};
+    allocate.allocationSize = requirements.size;
+    allocate.memoryTypeIndex = find_memory_type(requirements.memoryTypeBits, use);
+    if (vkAllocateMemory(device_, &allocate, nullptr, &buffer.memory_) != VK_SUCCESS)
+        throw DeviceError("out of device memory allocating " + std::to_string(size >> 20) + " MiB on " + name_);
+    check_vk(vkBindBufferMemory(device_, buffer.handle, buffer.memory_, 0), "vkBindBufferMemory");
+    if (memoryProperties_.memoryTypes[allocate.memoryTypeIndex].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
+        check_vk(vkMapMemory(device_, buffer.memory_, 0, VK_WHOLE_SIZE, 0, &buffer.mapped), "vkMapMemory");
+    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO};
+    addressInfo.buffer = buffer.handle;
+    buffer.address = vkGetBufferDeviceAddress(device_, &addressInfo);
+    return buffer;
+}
+
+void Device::upload(Buffer& buffer, const void* data, size_t bytes) {
+    if (bytes == 0) return;
+    if (buffer.mapped) {
+        std::memcpy(buffer.mapped, data, bytes);
+        return;
+    }
+    Buffer staging = create_buffer(bytes, MemoryUse::Upload);
+    std::memcpy(staging.mapped, data, bytes);
+    run([&](VkCommandBuffer cmd) {
+        VkBufferCopy region{0, 0, bytes};
+        vkCmdCopyBuffer(cmd, staging.handle, buffer.handle, 1, &region);
+    });
+}
+
+void Device::run(const std::function<void(VkCommandBuffer)>& record) {
+    VkCommandBufferAllocateInfo allocate{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
+    allocate.commandPool = commandPool_;
+    allocate.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
+    allocate.commandBufferCount = 1;
+    VkCommandBuffer cmd;
+    check_vk(vkAllocateCommandBuffers(device_, &allocate, &cmd), "vkAllocateCommandBuffers");
+    VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
+    begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+    check_vk(vkBeginCommandBuffer(cmd, &begin), "vkBeginCommandBuffer");
+    record(cmd);
+    check_vk(vkEndCommandBuffer(cmd), "vkEndCommandBuffer");
+    VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO};
+    submit.commandBufferCount = 1;
+    submit.pCommandBuffers = &cmd;
+    check_vk(vkResetFences(device_, 1, &fence_), "vkResetFences");
+    check_vk(vkQueueSubmit(queue_, 1, &submit, fence_), "vkQueueSubmit");
+    // A bounded wait: a hung GPU becomes an error, never a hang.
+    const VkResult waited = vkWaitForFences(device_, 1, &fence_, VK_TRUE, 120ull * 1000 * 1000 * 1000);
+    vkFreeCommandBuffers(device_, commandPool_, 1, &cmd);
+    if (waited == VK_TIMEOUT) throw DeviceError("the GPU did not finish a submission within 120 s on " + name_);
+    check_vk(waited, "vkWaitForFences");
+}
+
+}  // namespace tessera

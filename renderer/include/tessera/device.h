@@ -1,0 +1,103 @@
+// The Vulkan device: headless, a real GPU when present, else lavapipe (Mesa's CPU device).
+#pragma once
+
+#include <vulkan/vulkan.h>
+
+#include <cstdint>
+#include <functional>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace tessera {
+
+// No usable device, or a required feature is missing: one line that says which.
+struct DeviceError : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+struct DeviceOptions {
+    // "" picks the best device (discrete > integrated > virtual > cpu); "gpu", "cpu", an index, or a
+    // substring of the device name forces one. Defaults to $TESSERA_DEVICE.
+    std::string select;
+    // Enables the Khronos validation layer (core + synchronization). Defaults to $TESSERA_VALIDATION=1.
+    bool validation = false;
+    static DeviceOptions from_environment();
+};
+
+enum class MemoryUse { Device, Upload, Readback };
+
+// A buffer with its own memory, reachable from shaders by device address. Move-only.
+class Buffer {
+public:
+    Buffer() = default;
+    Buffer(Buffer&& other) noexcept { *this = std::move(other); }
+    Buffer& operator=(Buffer&& other) noexcept;
+    ~Buffer() { reset(); }
+    void reset();
+
+    VkBuffer handle = VK_NULL_HANDLE;
+    VkDeviceAddress address = 0;
+    VkDeviceSize size = 0;
+    void* mapped = nullptr;  // host pointer for Upload / Readback memory (and Device memory that is host visible)
+
+private:
+    friend class Device;
+    VkDevice device_ = VK_NULL_HANDLE;
+    VkDeviceMemory memory_ = VK_NULL_HANDLE;
+};
+
+class Device {
+public:
+    explicit Device(const DeviceOptions& options = DeviceOptions::from_environment());
+    ~Device();
+    Device(const Device&) = delete;
+    Device& operator=(const Device&) = delete;
+
+    VkDevice handle() const { return device_; }
+    VkPhysicalDevice physical() const { return physical_; }
+    const std::string& name() const { return name_; }
+    bool is_software() const { return software_; }
+    float timestamp_period_ns() const { return timestampPeriod_; }
+
+    Buffer create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlags extraUsage = 0);
+    // Copies `bytes` into a Device buffer (directly when mapped, else through a staging buffer).
+    void upload(Buffer& buffer, const void* data, size_t bytes);
+
+    // Records commands into a one-time command buffer, submits it and waits.
+    void run(const std::function<void(VkCommandBuffer)>& record);
+
+    // Validation messages (errors and warnings) since the last call; empty when validation is off.
+    std::vector<std::string> take_validation_messages();
+    size_t validation_error_count() const { return validationErrors_; }
+    bool validation_enabled() const { return messenger_ != VK_NULL_HANDLE; }
+
+    // Called by the debug messenger.
+    void record_validation_message(bool error, const char* message);
+
+private:
+    uint32_t find_memory_type(uint32_t typeBits, MemoryUse use) const;
+
+    VkInstance instance_ = VK_NULL_HANDLE;
+    VkDebugUtilsMessengerEXT messenger_ = VK_NULL_HANDLE;
+    VkPhysicalDevice physical_ = VK_NULL_HANDLE;
+    VkDevice device_ = VK_NULL_HANDLE;
+    VkQueue queue_ = VK_NULL_HANDLE;
+    uint32_t queueFamily_ = 0;
+    VkCommandPool commandPool_ = VK_NULL_HANDLE;
+    VkFence fence_ = VK_NULL_HANDLE;
+    VkPhysicalDeviceMemoryProperties memoryProperties_{};
+    std::string name_;
+    bool software_ = false;
+    float timestampPeriod_ = 1.0f;
+
+    std::mutex messagesMutex_;
+    std::vector<std::string> messages_;
+    size_t validationErrors_ = 0;
+};
+
+// Throws DeviceError naming the call when a Vulkan call fails.
+void check_vk(VkResult result, const char* what);
+
+}  // namespace tessera

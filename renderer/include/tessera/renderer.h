@@ -1,0 +1,129 @@
+// The renderer: a GPU scene of built meshes and their instances, and the passes that draw a frame
+// into the 64-bit visibility buffer and resolve it into an AOV. Knows nothing of USD.
+#pragma once
+
+#include "tessera/builder.h"
+#include "tessera/device.h"
+
+#include <array>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace tessera {
+
+// 4x4 matrices are row-major and act on column vectors (p' = M p); Python converts from Gf's row vectors.
+using Matrix4d = std::array<double, 16>;
+Matrix4d identity_matrix();
+Matrix4d multiply(const Matrix4d& a, const Matrix4d& b);
+
+struct MaterialDesc {
+    std::array<float, 3> diffuseColor{0.18f, 0.18f, 0.18f};
+    std::array<float, 3> emissiveColor{0, 0, 0};
+    float opacity = 1.0f;
+    bool useDisplayColor = false;  // diffuse from the mesh's displayColor instead of diffuseColor
+};
+
+struct InstanceDesc {
+    uint32_t mesh = 0;        // a handle from GpuScene::add_mesh
+    Matrix4d transform{};     // mesh space -> world, in double
+    uint32_t primId = 0;      // reported by the primId AOV
+    uint32_t material = 0;    // a handle from GpuScene::add_material
+    bool doubleSided = false;
+};
+
+enum class LightType { Distant, Dome };
+struct LightDesc {
+    LightType type = LightType::Distant;
+    std::array<double, 3> direction{0, 0, -1};  // world direction the light travels (distant lights)
+    std::array<float, 3> radiance{1, 1, 1};     // colour * intensity * 2^exposure
+};
+
+// A camera: where it is, and how it projects (USD's UsdGeomCamera model: apertures and focal length in the
+// same units; orthographic apertures in scene units).
+struct CameraDesc {
+    Matrix4d cameraToWorld = identity_matrix();  // camera looks down -Z with +Y up
+    bool orthographic = false;
+    double focalLength = 50.0;
+    double horizontalAperture = 36.0, verticalAperture = 24.0;
+    double horizontalApertureOffset = 0.0, verticalApertureOffset = 0.0;
+    double nearClip = 0.1, farClip = 1.0e6;  // farClip may be infinity
+};
+
+enum class Aov { Color, Depth, Normal, PrimId, InstanceId, ClusterId, TriangleId };
+const char* aov_name(Aov aov);
+bool aov_is_id(Aov aov);
+
+// An AOV read back from the GPU: 4 floats per pixel, top row first. For id AOVs, channel 0 holds the
+// id's bits (uint32; 0xffffffff where nothing was drawn). For depth, channel 0 is the distance along the
+// view direction (infinity where nothing was drawn).
+struct Image {
+    uint32_t width = 0, height = 0;
+    Aov aov = Aov::Color;
+    std::vector<float> pixels;
+};
+
+struct RenderSettings {
+    uint32_t width = 960, height = 540;
+    std::array<float, 4> background{0, 0, 0, 0};  // linear RGBA where nothing is drawn
+};
+
+struct FrameStats {
+    uint32_t instances = 0, visibleInstances = 0;
+    uint32_t clusters = 0, visibleClusters = 0;
+    uint64_t sourceTriangles = 0;   // every triangle of every instance
+    uint64_t visibleTriangles = 0;  // triangles of visible clusters (drawn by hardware raster)
+    uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
+    uint32_t visibleClusterCapacity = 0;
+    double cullMs = 0, rasterMs = 0, resolveMs = 0;  // GPU time per pass
+};
+
+// The GPU scene: meshes shared by any number of instances. Changes are uploaded by the next render.
+class GpuScene {
+public:
+    uint32_t add_mesh(std::shared_ptr<const BuiltMesh> mesh);
+    void remove_mesh(uint32_t handle);
+    uint32_t add_material(const MaterialDesc& material);
+    void clear_materials();
+    void set_instances(std::vector<InstanceDesc> instances);
+    void set_lights(std::vector<LightDesc> lights);
+
+    const std::vector<InstanceDesc>& instances() const { return instances_; }
+    const std::vector<LightDesc>& lights() const { return lights_; }
+    const std::shared_ptr<const BuiltMesh>& mesh(uint32_t handle) const { return meshes_.at(handle); }
+    size_t mesh_count() const { return meshes_.size(); }
+
+private:
+    friend class Renderer;
+    std::vector<std::shared_ptr<const BuiltMesh>> meshes_;  // null where removed
+    std::vector<uint32_t> freeMeshes_;
+    std::vector<MaterialDesc> materials_;
+    std::vector<InstanceDesc> instances_;
+    std::vector<LightDesc> lights_;
+    // Bumped on every change; each renderer uploads what moved past the versions it last saw.
+    uint64_t geometryVersion_ = 1, instancesVersion_ = 1, materialsVersion_ = 1;
+};
+
+class Renderer {
+public:
+    explicit Renderer(Device& device);
+    ~Renderer();
+    Renderer(const Renderer&) = delete;
+    Renderer& operator=(const Renderer&) = delete;
+
+    // Draws the scene from the camera into the visibility buffer and resolves each requested AOV.
+    std::vector<Image> render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings,
+                              const std::vector<Aov>& aovs, FrameStats* stats = nullptr);
+
+    // Starts the visible-cluster list at this many entries (tests use tiny values to force overflow).
+    void set_visible_cluster_capacity(uint32_t capacity);
+
+    Device& device() { return device_; }
+
+private:
+    struct Impl;
+    Device& device_;
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace tessera

@@ -1,0 +1,589 @@
+// A frame: upload what changed, cull instances and clusters, raster visible clusters into the 64-bit
+// visibility buffer, resolve each requested AOV, read back. The visible-cluster list is fixed-size: when the
+// cull pass counts more clusters than fit, the list grows and the frame is drawn again.
+#include "tessera/renderer.h"
+
+#include "shared.h"
+#include "spirv/cull_comp.h"
+#include "spirv/raster_frag.h"
+#include "spirv/raster_vert.h"
+#include "spirv/resolve_comp.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+namespace tessera {
+
+static_assert(kClusterMaxTriangles == TS_CLUSTER_MAX_TRIANGLES && kClusterMaxVertices == TS_CLUSTER_MAX_VERTICES,
+              "builder and shaders must agree on the cluster budget");
+static_assert((1u << TS_VIS_TRIANGLE_BITS) == TS_CLUSTER_MAX_TRIANGLES, "the visibility buffer addresses every triangle of a cluster");
+
+const char* aov_name(Aov aov) {
+    switch (aov) {
+        case Aov::Color: return "color";
+        case Aov::Depth: return "depth";
+        case Aov::Normal: return "normal";
+        case Aov::PrimId: return "primId";
+        case Aov::InstanceId: return "instanceId";
+        case Aov::ClusterId: return "clusterId";
+        case Aov::TriangleId: return "triangleId";
+    }
+    return "?";
+}
+
+bool aov_is_id(Aov aov) { return aov == Aov::PrimId || aov == Aov::InstanceId || aov == Aov::ClusterId || aov == Aov::TriangleId; }
+
+namespace {
+
+struct PushConstants {  // matches `Push` in shaders/frame.h
+    gpu::address frame;
+    uint32_t aov;
+    uint32_t pad;
+};
+
+using Matrix3d = std::array<double, 9>;
+
+// Largest singular value of a 3x3 matrix: the most it stretches any length (closed-form eigenvalue of MᵀM).
+double max_stretch(const Matrix3d& m) {
+    double a[3][3];
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) a[i][j] = m[0 + i] * m[0 + j] + m[3 + i] * m[3 + j] + m[6 + i] * m[6 + j];
+    const double p1 = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+    double largest;
+    if (p1 == 0) {
+        largest = std::max({a[0][0], a[1][1], a[2][2]});
+    } else {
+        const double q = (a[0][0] + a[1][1] + a[2][2]) / 3;
+        const double p2 = (a[0][0] - q) * (a[0][0] - q) + (a[1][1] - q) * (a[1][1] - q) + (a[2][2] - q) * (a[2][2] - q) + 2 * p1;
+        const double p = std::sqrt(p2 / 6);
+        double b[3][3];
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) b[i][j] = (a[i][j] - (i == j ? q : 0)) / p;
+        const double det = b[0][0] * (b[1][1] * b[2][2] - b[1][2] * b[2][1]) - b[0][1] * (b[1][0] * b[2][2] - b[1][2] * b[2][0]) +
+                           b[0][2] * (b[1][0] * b[2][1] - b[1][1] * b[2][0]);
+        const double phi = std::acos(std::clamp(det / 2, -1.0, 1.0)) / 3;
+        largest = q + 2 * p * std::cos(phi);
+    }
+    return std::sqrt(std::max(largest, 0.0)) * (1 + 1e-6);
+}
+
+double determinant3(const Matrix3d& m) {
+    return m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6]) + m[2] * (m[3] * m[7] - m[4] * m[6]);
+}
+
+bool invert(const Matrix4d& m, Matrix4d& out) {
+    // Cofactor expansion, in double.
+    Matrix4d inv;
+    inv[0] = m[5] * m[10] * m[15] - m[5] * m[11] * m[14] - m[9] * m[6] * m[15] + m[9] * m[7] * m[14] + m[13] * m[6] * m[11] - m[13] * m[7] * m[10];
+    inv[4] = -m[4] * m[10] * m[15] + m[4] * m[11] * m[14] + m[8] * m[6] * m[15] - m[8] * m[7] * m[14] - m[12] * m[6] * m[11] + m[12] * m[7] * m[10];
+    inv[8] = m[4] * m[9] * m[15] - m[4] * m[11] * m[13] - m[8] * m[5] * m[15] + m[8] * m[7] * m[13] + m[12] * m[5] * m[11] - m[12] * m[7] * m[9];
+    inv[12] = -m[4] * m[9] * m[14] + m[4] * m[10] * m[13] + m[8] * m[5] * m[14] - m[8] * m[6] * m[13] - m[12] * m[5] * m[10] + m[12] * m[6] * m[9];
+    inv[1] = -m[1] * m[10] * m[15] + m[1] * m[11] * m[14] + m[9] * m[2] * m[15] - m[9] * m[3] * m[14] - m[13] * m[2] * m[11] + m[13] * m[3] * m[10];
+    inv[5] = m[0] * m[10] * m[15] - m[0] * m[11] * m[14] - m[8] * m[2] * m[15] + m[8] * m[3] * m[14] + m[12] * m[2] * m[11] - m[12] * m[3] * m[10];
+    inv[9] = -m[0] * m[9] * m[15] + m[0] * m[11] * m[13] + m[8] * m[1] * m[15] - m[8] * m[3] * m[13] - m[12] * m[1] * m[11] + m[12] * m[3] * m[9];
+    inv[13] = m[0] * m[9] * m[14] - m[0] * m[10] * m[13] - m[8] * m[1] * m[14] + m[8] * m[2] * m[13] + m[12] * m[1] * m[10] - m[12] * m[2] * m[9];
+    inv[2] = m[1] * m[6] * m[15] - m[1] * m[7] * m[14] - m[5] * m[2] * m[15] + m[5] * m[3] * m[14] + m[13] * m[2] * m[7] - m[13] * m[3] * m[6];
+    inv[6] = -m[0] * m[6] * m[15] + m[0] * m[7] * m[14] + m[4] * m[2] * m[15] - m[4] * m[3] * m[14] - m[12] * m[2] * m[7] + m[12] * m[3] * m[6];
+    inv[10] = m[0] * m[5] * m[15] - m[0] * m[7] * m[13] - m[4] * m[1] * m[15] + m[4] * m[3] * m[13] + m[12] * m[1] * m[7] - m[12] * m[3] * m[5];
+    inv[14] = -m[0] * m[5] * m[14] + m[0] * m[6] * m[13] + m[4] * m[1] * m[14] - m[4] * m[2] * m[13] - m[12] * m[1] * m[6] + m[12] * m[2] * m[5];
+    inv[3] = -m[1] * m[6] * m[11] + m[1] * m[7] * m[10] + m[5] * m[2] * m[11] - m[5] * m[3] * m[10] - m[9] * m[2] * m[7] + m[9] * m[3] * m[6];
+    inv[7] = m[0] * m[6] * m[11] - m[0] * m[7] * m[10] - m[4] * m[2] * m[11] + m[4] * m[3] * m[10] + m[8] * m[2] * m[7] - m[8] * m[3] * m[6];
+    inv[11] = -m[0] * m[5] * m[11] + m[0] * m[7] * m[9] + m[4] * m[1] * m[11] - m[4] * m[3] * m[9] - m[8] * m[1] * m[7] + m[8] * m[3] * m[5];
+    inv[15] = m[0] * m[5] * m[10] - m[0] * m[6] * m[9] - m[4] * m[1] * m[10] + m[4] * m[2] * m[9] + m[8] * m[1] * m[6] - m[8] * m[2] * m[5];
+    const double det = m[0] * inv[0] + m[1] * inv[4] + m[2] * inv[8] + m[3] * inv[12];
+    if (det == 0 || !std::isfinite(det)) return false;
+    for (int i = 0; i < 16; ++i) out[i] = inv[i] / det;
+    return true;
+}
+
+gpu::mat4 to_gpu(const Matrix4d& m) {  // row-major double -> column-major float
+    gpu::mat4 r;
+    for (int c = 0; c < 4; ++c) r.columns[c] = {float(m[0 * 4 + c]), float(m[1 * 4 + c]), float(m[2 * 4 + c]), float(m[3 * 4 + c])};
+    return r;
+}
+
+void split_double(double value, float& high, float& low) {
+    high = float(value);
+    low = float(value - double(high));
+}
+
+struct CameraMatrices {
+    Matrix4d viewProjection;  // camera-relative world -> clip
+    Matrix4d inverseViewProjection;
+    std::array<double, 3> position, forward;
+};
+
+// Reversed-Z projection (near -> 1, far -> 0), Vulkan clip space with +Y down, the window fit to the image.
+CameraMatrices camera_matrices(const CameraDesc& camera, uint32_t width, uint32_t height) {
+    CameraMatrices out;
+    const Matrix4d& c2w = camera.cameraToWorld;
+    out.position = {c2w[3], c2w[7], c2w[11]};
+    // World -> camera rotation: the transpose of the camera's orthonormalised axes.
+    std::array<std::array<double, 3>, 3> axis;
+    for (int a = 0; a < 3; ++a) {
+        std::array<double, 3> v = {c2w[0 * 4 + a], c2w[1 * 4 + a], c2w[2 * 4 + a]};
+        const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        for (double& x : v) x /= (len > 0 ? len : 1);
+        axis[a] = v;
+    }
+    out.forward = {-axis[2][0], -axis[2][1], -axis[2][2]};
+    Matrix4d view{};
+    for (int r = 0; r < 3; ++r)
+        for (int k = 0; k < 3; ++k) view[r * 4 + k] = axis[r][k];
+    view[15] = 1;
+
+    // Fit: widen whichever aperture is too small for the image's aspect ratio.
+    double hAp = camera.horizontalAperture, vAp = camera.verticalAperture;
+    const double imageAspect = double(width) / double(height);
+    if (hAp / vAp < imageAspect) hAp = vAp * imageAspect;
+    else vAp = hAp / imageAspect;
+    const double n = camera.nearClip, f = camera.farClip;
+    Matrix4d proj{};
+    if (!camera.orthographic) {
+        // Screen window at unit distance.
+        const double x0 = (-0.5 * hAp + camera.horizontalApertureOffset) / camera.focalLength;
+        const double x1 = (0.5 * hAp + camera.horizontalApertureOffset) / camera.focalLength;
+        const double y0 = (-0.5 * vAp + camera.verticalApertureOffset) / camera.focalLength;
+        const double y1 = (0.5 * vAp + camera.verticalApertureOffset) / camera.focalLength;
+        proj[0] = 2 / (x1 - x0);
+        proj[2] = 2 * x0 / (x1 - x0) + 1;
+        proj[5] = -2 / (y1 - y0);
+        proj[6] = -(2 * y0 / (y1 - y0) + 1);
+        if (std::isinf(f)) {
+            proj[10] = 0;
+            proj[11] = n;
+        } else {
+            proj[10] = n / (f - n);
+            proj[11] = n * f / (f - n);
+        }
+        proj[14] = -1;
+    } else {
+        const double x0 = -0.5 * hAp + camera.horizontalApertureOffset, x1 = 0.5 * hAp + camera.horizontalApertureOffset;
+        const double y0 = -0.5 * vAp + camera.verticalApertureOffset, y1 = 0.5 * vAp + camera.verticalApertureOffset;
+        const double far = std::isinf(f) ? 1e30 : f;
+        proj[0] = 2 / (x1 - x0);
+        proj[3] = -(x1 + x0) / (x1 - x0);
+        proj[5] = -2 / (y1 - y0);
+        proj[7] = (y1 + y0) / (y1 - y0);
+        proj[10] = 1 / (far - n);
+        proj[11] = far / (far - n);
+        proj[15] = 1;
+    }
+    out.viewProjection = multiply(proj, view);
+    if (!invert(out.viewProjection, out.inverseViewProjection)) throw std::runtime_error("camera projection is singular");
+    return out;
+}
+
+VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes) {
+    VkShaderModuleCreateInfo info{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
+    info.codeSize = bytes;
+    info.pCode = code;
+    VkShaderModule module;
+    check_vk(vkCreateShaderModule(device, &info, nullptr, &module), "vkCreateShaderModule");
+    return module;
+}
+
+void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2 srcAccess, VkPipelineStageFlags2 dstStage, VkAccessFlags2 dstAccess) {
+    VkMemoryBarrier2 memory{VK_STRUCTURE_TYPE_MEMORY_BARRIER_2};
+    memory.srcStageMask = srcStage;
+    memory.srcAccessMask = srcAccess;
+    memory.dstStageMask = dstStage;
+    memory.dstAccessMask = dstAccess;
+    VkDependencyInfo dependency{VK_STRUCTURE_TYPE_DEPENDENCY_INFO};
+    dependency.memoryBarrierCount = 1;
+    dependency.pMemoryBarriers = &memory;
+    vkCmdPipelineBarrier2(cmd, &dependency);
+}
+
+template <typename T>
+void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
+    const size_t bytes = data.size() * sizeof(T);
+    if (buffer.size < bytes || !buffer.handle) buffer = device.create_buffer(bytes, MemoryUse::Device);
+    device.upload(buffer, data.data(), bytes);
+}
+
+}  // namespace
+
+struct Renderer::Impl {
+    Device& device;
+    VkPipelineLayout layout = VK_NULL_HANDLE;
+    VkPipeline cull = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, resolve = VK_NULL_HANDLE;
+    VkQueryPool timestamps = VK_NULL_HANDLE;
+
+    // Scene streams.
+    Buffer instances, meshes, clusters, positions, normals, colors, triangles, materials;
+    uint32_t instanceCount = 0, clusterCount = 0;
+    uint64_t sourceTriangles = 0;
+    const GpuScene* uploadedScene = nullptr;
+    std::vector<gpu::GpuInstance> gpuInstances;
+    std::vector<std::array<double, 3>> translations;  // world translation per instance, in double
+    std::array<double, 3> relativeTo{NAN, NAN, NAN};  // camera position the uploaded translations are relative to
+    uint64_t geometryVersion = 0, instancesVersion = 0, materialsVersion = 0;
+    // Frame resources.
+    Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
+    uint32_t capacity = 1u << 16;
+    uint32_t width = 0, height = 0;
+
+    explicit Impl(Device& d) : device(d) {}
+
+    ~Impl() {
+        VkDevice vk = device.handle();
+        vkDeviceWaitIdle(vk);
+        vkDestroyPipeline(vk, cull, nullptr);
+        vkDestroyPipeline(vk, raster, nullptr);
+        vkDestroyPipeline(vk, resolve, nullptr);
+        vkDestroyPipelineLayout(vk, layout, nullptr);
+        vkDestroyQueryPool(vk, timestamps, nullptr);
+    }
+
+    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes) {
+        VkShaderModule module = create_module(device.handle(), code, bytes);
+        VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
+        info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main"};
+        info.layout = layout;
+        VkPipeline pipeline;
+        const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
+        vkDestroyShaderModule(device.handle(), module, nullptr);
+        check_vk(result, "vkCreateComputePipelines");
+        return pipeline;
+    }
+
+    void create_pipelines() {
+        VkPushConstantRange range{VK_SHADER_STAGE_ALL, 0, sizeof(PushConstants)};
+        VkPipelineLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
+        layoutInfo.pushConstantRangeCount = 1;
+        layoutInfo.pPushConstantRanges = &range;
+        check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
+        cull = compute_pipeline(cull_comp, sizeof(cull_comp));
+        resolve = compute_pipeline(resolve_comp, sizeof(resolve_comp));
+
+        // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
+        VkShaderModule vert = create_module(device.handle(), raster_vert, sizeof(raster_vert));
+        VkShaderModule frag = create_module(device.handle(), raster_frag, sizeof(raster_frag));
+        VkPipelineShaderStageCreateInfo stages[2] = {
+            {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
+            {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
+        VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
+        VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
+        assembly.topology = VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST;
+        VkPipelineViewportStateCreateInfo viewport{VK_STRUCTURE_TYPE_PIPELINE_VIEWPORT_STATE_CREATE_INFO};
+        viewport.viewportCount = 1;
+        viewport.scissorCount = 1;
+        VkPipelineRasterizationStateCreateInfo rasterization{VK_STRUCTURE_TYPE_PIPELINE_RASTERIZATION_STATE_CREATE_INFO};
+        rasterization.polygonMode = VK_POLYGON_MODE_FILL;
+        rasterization.cullMode = VK_CULL_MODE_NONE;  // per instance, in the fragment shader (double-sided varies)
+        rasterization.frontFace = VK_FRONT_FACE_COUNTER_CLOCKWISE;
+        rasterization.lineWidth = 1.0f;
+        VkPipelineMultisampleStateCreateInfo multisample{VK_STRUCTURE_TYPE_PIPELINE_MULTISAMPLE_STATE_CREATE_INFO};
+        multisample.rasterizationSamples = VK_SAMPLE_COUNT_1_BIT;
+        VkPipelineColorBlendStateCreateInfo blend{VK_STRUCTURE_TYPE_PIPELINE_COLOR_BLEND_STATE_CREATE_INFO};
+        VkPipelineDepthStencilStateCreateInfo depth{VK_STRUCTURE_TYPE_PIPELINE_DEPTH_STENCIL_STATE_CREATE_INFO};
+        VkDynamicState dynamicStates[] = {VK_DYNAMIC_STATE_VIEWPORT, VK_DYNAMIC_STATE_SCISSOR};
+        VkPipelineDynamicStateCreateInfo dynamic{VK_STRUCTURE_TYPE_PIPELINE_DYNAMIC_STATE_CREATE_INFO};
+        dynamic.dynamicStateCount = 2;
+        dynamic.pDynamicStates = dynamicStates;
+        VkPipelineRenderingCreateInfo rendering{VK_STRUCTURE_TYPE_PIPELINE_RENDERING_CREATE_INFO};
+        VkGraphicsPipelineCreateInfo info{VK_STRUCTURE_TYPE_GRAPHICS_PIPELINE_CREATE_INFO, &rendering};
+        info.stageCount = 2;
+        info.pStages = stages;
+        info.pVertexInputState = &vertexInput;
+        info.pInputAssemblyState = &assembly;
+        info.pViewportState = &viewport;
+        info.pRasterizationState = &rasterization;
+        info.pMultisampleState = &multisample;
+        info.pDepthStencilState = &depth;
+        info.pColorBlendState = &blend;
+        info.pDynamicState = &dynamic;
+        info.layout = layout;
+        const VkResult result = vkCreateGraphicsPipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &raster);
+        vkDestroyShaderModule(device.handle(), vert, nullptr);
+        vkDestroyShaderModule(device.handle(), frag, nullptr);
+        check_vk(result, "vkCreateGraphicsPipelines");
+
+        VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
+        queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
+        queryInfo.queryCount = 4;
+        check_vk(vkCreateQueryPool(device.handle(), &queryInfo, nullptr, &timestamps), "vkCreateQueryPool");
+    }
+
+    void upload_geometry(GpuScene& scene) {
+        std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
+        std::vector<gpu::GpuCluster> gpuClusters;
+        std::vector<float> gpuPositions;
+        std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles;
+        for (size_t m = 0; m < scene.meshes_.size(); ++m) {
+            const BuiltMesh* mesh = scene.meshes_[m].get();
+            gpu::GpuMesh& g = gpuMeshes[m];
+            g = {};
+            g.colorOffset = TS_NO_STREAM;
+            if (!mesh) continue;
+            const uint32_t vertexBase = uint32_t(gpuPositions.size() / 3), triangleBase = uint32_t(gpuTriangles.size());
+            g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
+            g.clusterOffset = uint32_t(gpuClusters.size());
+            g.clusterCount = uint32_t(mesh->clusters.size());
+            g.vertexOffset = vertexBase;
+            if (!mesh->colors.empty()) g.colorOffset = uint32_t(gpuColors.size() / 2);
+            for (const Cluster& c : mesh->clusters)
+                gpuClusters.push_back({{c.sphere[0], c.sphere[1], c.sphere[2], c.sphere[3]}, vertexBase + c.vertexOffset,
+                                       triangleBase + c.triangleOffset, c.triangleCount, uint32_t(m)});
+            gpuPositions.insert(gpuPositions.end(), mesh->positions.begin(), mesh->positions.end());
+            gpuNormals.insert(gpuNormals.end(), mesh->normals.begin(), mesh->normals.end());
+            gpuColors.insert(gpuColors.end(), mesh->colors.begin(), mesh->colors.end());
+            gpuTriangles.insert(gpuTriangles.end(), mesh->triangles.begin(), mesh->triangles.end());
+        }
+        upload_vector(device, meshes, gpuMeshes);
+        upload_vector(device, clusters, gpuClusters);
+        upload_vector(device, positions, gpuPositions);
+        upload_vector(device, normals, gpuNormals);
+        upload_vector(device, colors, gpuColors);
+        upload_vector(device, triangles, gpuTriangles);
+    }
+
+    void upload_instances(GpuScene& scene) {
+        gpuInstances.clear();
+        translations.clear();
+        gpuInstances.reserve(scene.instances_.size());
+        clusterCount = 0;
+        sourceTriangles = 0;
+        for (const InstanceDesc& desc : scene.instances_) {
+            const BuiltMesh* mesh = desc.mesh < scene.meshes_.size() ? scene.meshes_[desc.mesh].get() : nullptr;
+            if (!mesh) continue;
+            const Matrix4d& m = desc.transform;
+            // Fold the mesh's origin into the translation, in double.
+            double t[3];
+            for (int r = 0; r < 3; ++r) t[r] = m[r * 4 + 3] + m[r * 4 + 0] * mesh->origin[0] + m[r * 4 + 1] * mesh->origin[1] + m[r * 4 + 2] * mesh->origin[2];
+            const Matrix3d linear = {m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]};
+            gpu::GpuInstance g{};
+            for (int r = 0; r < 3; ++r) g.rows[r] = {float(m[r * 4]), float(m[r * 4 + 1]), float(m[r * 4 + 2]), 0.0f};
+            g.translationLow = {0, 0, 0, float(max_stretch(linear))};
+            translations.push_back({t[0], t[1], t[2]});
+            g.meshIndex = desc.mesh;
+            g.primId = desc.primId;
+            g.materialIndex = std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
+            g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u);
+            gpuInstances.push_back(g);
+            clusterCount += uint32_t(mesh->clusters.size());
+            sourceTriangles += mesh->sourceTriangles;
+        }
+        instanceCount = uint32_t(gpuInstances.size());
+        relativeTo = {NAN, NAN, NAN};
+    }
+
+    // Camera-relative rendering: translations minus the camera position, subtracted in double, so geometry far
+    // from the origin renders like geometry at the origin. Re-uploaded only when the camera moves.
+    void upload_relative_translations(const std::array<double, 3>& camera) {
+        if (camera == relativeTo) return;
+        for (size_t i = 0; i < gpuInstances.size(); ++i)
+            for (int r = 0; r < 3; ++r) {
+                float high, low;
+                split_double(translations[i][r] - camera[r], high, low);
+                gpuInstances[i].rows[r].w = high;
+                (&gpuInstances[i].translationLow.x)[r] = low;
+            }
+        upload_vector(device, instances, gpuInstances);
+        relativeTo = camera;
+    }
+
+    void upload_materials(GpuScene& scene) {
+        std::vector<gpu::GpuMaterial> gpuMaterials;
+        for (const MaterialDesc& m : scene.materials_) {
+            gpu::GpuMaterial g{};
+            g.diffuseColor = {m.diffuseColor[0], m.diffuseColor[1], m.diffuseColor[2], m.opacity};
+            g.emissiveColor = {m.emissiveColor[0], m.emissiveColor[1], m.emissiveColor[2], 0};
+            g.flags = m.useDisplayColor ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u;
+            gpuMaterials.push_back(g);
+        }
+        if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 0}, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0, 0});
+        upload_vector(device, materials, gpuMaterials);
+    }
+
+    void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount) {
+        if (!frame.handle) frame = device.create_buffer(sizeof(gpu::GpuFrame), MemoryUse::Upload);
+        if (!drawState.handle) drawState = device.create_buffer(sizeof(gpu::GpuDrawState), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
+        if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) visibleClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
+        const uint64_t pixels = uint64_t(w) * h;
+        if (w != width || h != height || !visibility.handle) {
+            visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
+            aovOutput = device.create_buffer(pixels * 16, MemoryUse::Device);
+            width = w;
+            height = h;
+        }
+        const uint64_t readbackBytes = sizeof(gpu::GpuDrawState) + aovCount * pixels * 16;
+        if (readback.size < readbackBytes) readback = device.create_buffer(readbackBytes, MemoryUse::Readback);
+    }
+};
+
+Renderer::Renderer(Device& device) : device_(device), impl_(std::make_unique<Impl>(device)) { impl_->create_pipelines(); }
+Renderer::~Renderer() = default;
+
+void Renderer::set_visible_cluster_capacity(uint32_t capacity) { impl_->capacity = std::max(capacity, 1u); }
+
+std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs, FrameStats* stats) {
+    Impl& s = *impl_;
+    if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
+        throw std::invalid_argument("resolution must be between 1x1 and 16384x16384");
+    if (s.uploadedScene != &scene || s.geometryVersion != scene.geometryVersion_) {
+        s.upload_geometry(scene);
+        s.instancesVersion = 0;  // instance counts depend on the meshes
+    }
+    if (s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_) s.upload_instances(scene);
+    if (s.uploadedScene != &scene || s.materialsVersion != scene.materialsVersion_) s.upload_materials(scene);
+    s.uploadedScene = &scene;
+    s.geometryVersion = scene.geometryVersion_;
+    s.instancesVersion = scene.instancesVersion_;
+    s.materialsVersion = scene.materialsVersion_;
+
+    const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
+    s.upload_relative_translations(cam.position);
+    FrameStats frameStats;
+    frameStats.instances = uint32_t(scene.instances_.size());
+    frameStats.clusters = s.clusterCount;
+    frameStats.sourceTriangles = s.sourceTriangles;
+    const uint64_t pixels = uint64_t(settings.width) * settings.height;
+
+    for (;;) {
+        s.ensure_frame_buffers(settings.width, settings.height, aovs.size());
+
+        gpu::GpuFrame f{};
+        f.viewProjection = to_gpu(cam.viewProjection);
+        f.inverseViewProjection = to_gpu(cam.inverseViewProjection);
+        f.cameraForward = {float(cam.forward[0]), float(cam.forward[1]), float(cam.forward[2]), 0};
+        // Frustum planes from the rows of the view-projection (Vulkan clip: -w<=x,y<=w, 0<=z<=w).
+        const Matrix4d& vp = cam.viewProjection;
+        auto row = [&](int r, int k) { return vp[r * 4 + k]; };
+        const double planes[6][4] = {
+            {row(3, 0) + row(0, 0), row(3, 1) + row(0, 1), row(3, 2) + row(0, 2), row(3, 3) + row(0, 3)},
+            {row(3, 0) - row(0, 0), row(3, 1) - row(0, 1), row(3, 2) - row(0, 2), row(3, 3) - row(0, 3)},
+            {row(3, 0) + row(1, 0), row(3, 1) + row(1, 1), row(3, 2) + row(1, 2), row(3, 3) + row(1, 3)},
+            {row(3, 0) - row(1, 0), row(3, 1) - row(1, 1), row(3, 2) - row(1, 2), row(3, 3) - row(1, 3)},
+            {row(2, 0), row(2, 1), row(2, 2), row(2, 3)},
+            {row(3, 0) - row(2, 0), row(3, 1) - row(2, 1), row(3, 2) - row(2, 2), row(3, 3) - row(2, 3)}};
+        for (int i = 0; i < 6; ++i) {
+            const double len = std::sqrt(planes[i][0] * planes[i][0] + planes[i][1] * planes[i][1] + planes[i][2] * planes[i][2]);
+            f.frustumPlanes[i] = len > 1e-300 ? gpu::vec4{float(planes[i][0] / len), float(planes[i][1] / len), float(planes[i][2] / len), float(planes[i][3] / len)}
+                                              : gpu::vec4{0, 0, 0, 1};  // an infinite far plane culls nothing
+        }
+        f.background = {settings.background[0], settings.background[1], settings.background[2], settings.background[3]};
+        const auto& lights = scene.lights_;
+        const uint32_t lightCount = uint32_t(std::min<size_t>(lights.size(), TS_MAX_LIGHTS));
+        f.viewport = {settings.width, settings.height, 0, lightCount};
+        for (uint32_t i = 0; i < lightCount; ++i) {
+            const LightDesc& l = lights[i];
+            double d[3] = {l.direction[0], l.direction[1], l.direction[2]};
+            const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            for (double& x : d) x /= (len > 0 ? len : 1);
+            f.lights[i].directionType = {float(d[0]), float(d[1]), float(d[2]), float(l.type == LightType::Distant ? TS_LIGHT_DISTANT : TS_LIGHT_DOME)};
+            f.lights[i].radiance = {l.radiance[0], l.radiance[1], l.radiance[2], 0};
+        }
+        f.counts = {s.instanceCount, s.capacity, 0, 0};
+        f.instances = s.instances.address;
+        f.meshes = s.meshes.address;
+        f.clusters = s.clusters.address;
+        f.positions = s.positions.address;
+        f.normals = s.normals.address;
+        f.colors = s.colors.address;
+        f.triangles = s.triangles.address;
+        f.materials = s.materials.address;
+        f.visibleClusters = s.visibleClusters.address;
+        f.drawState = s.drawState.address;
+        f.visibility = s.visibility.address;
+        f.aovOutput = s.aovOutput.address;
+        std::memcpy(s.frame.mapped, &f, sizeof(f));
+
+        device_.run([&](VkCommandBuffer cmd) {
+            vkCmdResetQueryPool(cmd, s.timestamps, 0, 4);
+            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_NONE, s.timestamps, 0);
+            gpu::GpuDrawState initial{TS_CLUSTER_MAX_TRIANGLES * 3, 0, 0, 0, 0, 0, 0, 0};
+            vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
+            vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
+            barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
+                    VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
+                    VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+
+            PushConstants push{s.frame.address, 0, 0};
+            vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+            vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
+            if (s.instanceCount) {
+                const uint32_t groupsX = std::min(s.instanceCount, 65535u);
+                vkCmdDispatch(cmd, groupsX, (s.instanceCount + groupsX - 1) / groupsX, 1);
+            }
+            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, s.timestamps, 1);
+            barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                    VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
+                    VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+
+            VkRenderingInfo rendering{VK_STRUCTURE_TYPE_RENDERING_INFO};
+            rendering.renderArea = {{0, 0}, {settings.width, settings.height}};
+            rendering.layerCount = 1;
+            vkCmdBeginRendering(cmd, &rendering);
+            VkViewport viewport{0, 0, float(settings.width), float(settings.height), 0, 1};
+            VkRect2D scissor{{0, 0}, {settings.width, settings.height}};
+            vkCmdSetViewport(cmd, 0, 1, &viewport);
+            vkCmdSetScissor(cmd, 0, 1, &scissor);
+            vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.raster);
+            vkCmdDrawIndirect(cmd, s.drawState.handle, 0, 1, sizeof(VkDrawIndirectCommand));
+            vkCmdEndRendering(cmd);
+            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_GRAPHICS_BIT, s.timestamps, 2);
+            barrier(cmd, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                    VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+
+            vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.resolve);
+            for (size_t i = 0; i < aovs.size(); ++i) {
+                if (i > 0)  // the previous copy must finish reading before the next resolve overwrites
+                    barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                            VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                PushConstants resolvePush{s.frame.address, uint32_t(aovs[i]), 0};
+                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(resolvePush), &resolvePush);
+                vkCmdDispatch(cmd, (settings.width + TS_RESOLVE_TILE - 1) / TS_RESOLVE_TILE, (settings.height + TS_RESOLVE_TILE - 1) / TS_RESOLVE_TILE, 1);
+                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
+                        VK_ACCESS_2_TRANSFER_READ_BIT);
+                VkBufferCopy region{0, sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
+                vkCmdCopyBuffer(cmd, s.aovOutput.handle, s.readback.handle, 1, &region);
+            }
+            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, 3);
+            barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
+                    VK_ACCESS_2_TRANSFER_READ_BIT);
+            VkBufferCopy stateRegion{0, 0, sizeof(gpu::GpuDrawState)};
+            vkCmdCopyBuffer(cmd, s.drawState.handle, s.readback.handle, 1, &stateRegion);
+            barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_READ_BIT);
+        });
+
+        gpu::GpuDrawState state;
+        std::memcpy(&state, s.readback.mapped, sizeof(state));
+        if (state.visibleClusters > s.capacity) {
+            if (state.visibleClusters > TS_VIS_MAX_VISIBLE_CLUSTERS)
+                throw std::runtime_error("more than 2^25 visible clusters in one frame: the visibility buffer cannot address them");
+            ++frameStats.overflowRedraws;
+            s.capacity = std::min<uint32_t>(TS_VIS_MAX_VISIBLE_CLUSTERS, std::max(s.capacity * 2, state.visibleClusters + state.visibleClusters / 4));
+            continue;
+        }
+        frameStats.visibleInstances = state.visibleInstances;
+        frameStats.visibleClusters = state.visibleClusters;
+        frameStats.visibleTriangles = state.visibleTriangles;
+        frameStats.visibleClusterCapacity = s.capacity;
+        uint64_t ticks[4] = {};
+        if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, 4, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
+            const double ms = device_.timestamp_period_ns() * 1e-6;
+            frameStats.cullMs = double(ticks[1] - ticks[0]) * ms;
+            frameStats.rasterMs = double(ticks[2] - ticks[1]) * ms;
+            frameStats.resolveMs = double(ticks[3] - ticks[2]) * ms;
+        }
+        break;
+    }
+
+    std::vector<Image> images;
+    for (size_t i = 0; i < aovs.size(); ++i) {
+        Image image;
+        image.width = settings.width;
+        image.height = settings.height;
+        image.aov = aovs[i];
+        image.pixels.resize(pixels * 4);
+        std::memcpy(image.pixels.data(), static_cast<const char*>(s.readback.mapped) + sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16);
+        images.push_back(std::move(image));
+    }
+    if (stats) *stats = frameStats;
+    return images;
+}
+
+}  // namespace tessera

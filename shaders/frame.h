@@ -1,0 +1,52 @@
+// GLSL side of shared.h: buffer references to the frame's data and helpers used by several passes.
+// Include after `#extension GL_GOOGLE_include_directive : require`.
+#extension GL_EXT_buffer_reference : require
+#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
+#include "shared.h"
+
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer FrameRef { GpuFrame f; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceRef { GpuInstance data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MeshRef { GpuMesh data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer ClusterRef { GpuCluster data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MaterialRef { GpuMaterial data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer FloatRef { float data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer UintRef { uint data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibleClusterRef { uvec2 data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) buffer DrawStateRef { GpuDrawState state; };
+layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibilityRef { uint64_t data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputRef { vec4 data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputIdRef { uvec4 data[]; };
+
+layout(push_constant) uniform Push { FrameRef frame; uint aov; } push;  // layout: renderer.cpp PushConstants
+
+// Instance translation relative to the camera (already subtracted in double on the CPU).
+vec3 camera_relative_translation(GpuInstance instance, GpuFrame frame) {
+    return vec3(instance.rows[0].w, instance.rows[1].w, instance.rows[2].w) + instance.translationLow.xyz;
+}
+
+// Mesh-space point -> camera-relative world.
+vec3 to_camera_relative(GpuInstance instance, vec3 translation, vec3 p) {
+    return vec3(dot(instance.rows[0].xyz, p), dot(instance.rows[1].xyz, p), dot(instance.rows[2].xyz, p)) + translation;
+}
+
+vec3 vertex_position(GpuFrame frame, uint vertex) {
+    FloatRef positions = FloatRef(frame.positions);
+    return vec3(positions.data[3 * vertex], positions.data[3 * vertex + 1], positions.data[3 * vertex + 2]);
+}
+
+// Vertex of a triangle corner. The winding is reversed for flipped instances so that every triangle reaches
+// the rasterizer counter-clockwise when seen from its front.
+uint corner_vertex(GpuFrame frame, GpuCluster cluster, uint triangle, uint corner, bool flip) {
+    uint packed = UintRef(frame.triangles).data[cluster.triangleOffset + triangle];
+    if (flip && corner != 0u) corner = 3u - corner;
+    return cluster.vertexOffset + ((packed >> (8u * corner)) & 0xffu);
+}
+
+// Largest factor by which the instance transform stretches a length (kept by the CPU in translationLow.w).
+float instance_scale(GpuInstance instance) { return instance.translationLow.w; }
+
+bool sphere_in_frustum(GpuFrame frame, vec3 center, float radius) {
+    for (int i = 0; i < 6; ++i)
+        if (dot(frame.frustumPlanes[i].xyz, center) + frame.frustumPlanes[i].w < -radius) return false;
+    return true;
+}

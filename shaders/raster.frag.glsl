@@ -1,0 +1,17 @@
+// Hardware raster, fragment stage: 64-bit atomic max of (depth | payload) into the visibility buffer.
+// Reversed Z makes the nearest fragment the largest value.
+#version 460
+#extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_shader_atomic_int64 : require
+#include "frame.h"
+
+layout(location = 0) flat in uint inPayload;
+layout(location = 1) flat in uint inFlags;
+
+void main() {
+    if (!gl_FrontFacing && (inFlags & TS_INSTANCE_DOUBLE_SIDED) == 0u) return;  // single-sided: back faces are culled
+    GpuFrame frame = push.frame.f;
+    uint pixel = uint(gl_FragCoord.y) * frame.viewport.x + uint(gl_FragCoord.x);
+    uint64_t value = (uint64_t(floatBitsToUint(gl_FragCoord.z)) << 32) | uint64_t(inPayload);
+    atomicMax(VisibilityRef(frame.visibility).data[pixel], value);
+}

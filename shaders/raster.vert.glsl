@@ -1,0 +1,28 @@
+// Hardware raster, vertex stage: one draw instance per visible cluster, 128 triangles' worth of vertices
+// each; vertices are pulled from the cluster's streams and unused triangle slots are sent off screen.
+#version 460
+#extension GL_GOOGLE_include_directive : require
+#include "frame.h"
+
+layout(location = 0) flat out uint outPayload;  // visible cluster << 7 | triangle
+layout(location = 1) flat out uint outFlags;
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[gl_InstanceIndex];
+    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    uint triangle = uint(gl_VertexIndex) / 3u;
+    if (triangle >= cluster.triangleCount) {
+        gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // outside the clip volume: the triangle is discarded
+        outPayload = 0u;
+        outFlags = 0u;
+        return;
+    }
+    GpuInstance instance = InstanceRef(frame.instances).data[visible.x];
+    bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
+    uint vertex = corner_vertex(frame, cluster, triangle, uint(gl_VertexIndex) % 3u, flip);
+    vec3 p = to_camera_relative(instance, camera_relative_translation(instance, frame), vertex_position(frame, vertex));
+    gl_Position = frame.viewProjection * vec4(p, 1.0);
+    outPayload = (uint(gl_InstanceIndex) << TS_VIS_TRIANGLE_BITS) | triangle;
+    outFlags = instance.flags;
+}

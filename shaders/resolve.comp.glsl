@@ -1,0 +1,122 @@
+// Resolve: one thread per pixel reads the visibility buffer, refetches its triangle, finds the
+// barycentrics where the pixel's ray meets it, and writes the requested AOV. Every visible pixel is
+// shaded exactly once, whatever the overdraw.
+#version 460
+#extension GL_GOOGLE_include_directive : require
+#include "frame.h"
+
+layout(local_size_x = TS_RESOLVE_TILE, local_size_y = TS_RESOLVE_TILE) in;
+
+vec3 decode_octahedral(uint packed) {
+    vec2 e = unpackSnorm2x16(packed);
+    vec3 n = vec3(e, 1.0 - abs(e.x) - abs(e.y));
+    if (n.z < 0.0) n.xy = (1.0 - abs(n.yx)) * vec2(n.x >= 0.0 ? 1.0 : -1.0, n.y >= 0.0 ? 1.0 : -1.0);
+    return normalize(n);
+}
+
+vec3 vertex_color(GpuFrame frame, GpuMesh mesh, uint vertex) {
+    uint i = vertex - mesh.vertexOffset + mesh.colorOffset;
+    UintRef colors = UintRef(frame.colors);
+    return vec3(unpackHalf2x16(colors.data[2u * i]), unpackHalf2x16(colors.data[2u * i + 1u]).x);
+}
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    uvec2 pixel = gl_GlobalInvocationID.xy;
+    if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
+    uint index = pixel.y * frame.viewport.x + pixel.x;
+    uint aov = push.aov;
+    bool idAov = aov >= TS_AOV_PRIM_ID;
+    uint64_t value = VisibilityRef(frame.visibility).data[index];
+
+    if (value == 0ul) {
+        if (idAov) OutputIdRef(frame.aovOutput).data[index] = uvec4(0xffffffffu);
+        else if (aov == TS_AOV_COLOR) OutputRef(frame.aovOutput).data[index] = frame.background;
+        else if (aov == TS_AOV_DEPTH) OutputRef(frame.aovOutput).data[index] = vec4(uintBitsToFloat(0x7f800000u));
+        else OutputRef(frame.aovOutput).data[index] = vec4(0.0);
+        return;
+    }
+
+    uint payload = uint(value & 0xfffffffful);
+    uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
+    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[payload >> TS_VIS_TRIANGLE_BITS];
+    GpuInstance instance = InstanceRef(frame.instances).data[visible.x];
+    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    if (idAov) {
+        uint id = aov == TS_AOV_PRIM_ID ? instance.primId
+                : aov == TS_AOV_INSTANCE_ID ? visible.x
+                : aov == TS_AOV_CLUSTER_ID ? visible.y
+                : cluster.triangleOffset + triangle;
+        OutputIdRef(frame.aovOutput).data[index] = uvec4(id, 0u, 0u, 0u);
+        return;
+    }
+
+    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
+    vec3 translation = camera_relative_translation(instance, frame);
+    uint v0 = corner_vertex(frame, cluster, triangle, 0u, flip);
+    uint v1 = corner_vertex(frame, cluster, triangle, 1u, flip);
+    uint v2 = corner_vertex(frame, cluster, triangle, 2u, flip);
+    vec3 p0 = to_camera_relative(instance, translation, vertex_position(frame, v0));
+    vec3 p1 = to_camera_relative(instance, translation, vertex_position(frame, v1));
+    vec3 p2 = to_camera_relative(instance, translation, vertex_position(frame, v2));
+
+    // The pixel's ray, from the inverse view-projection (works for perspective and orthographic).
+    vec2 ndc = (vec2(pixel) + 0.5) / vec2(frame.viewport.xy) * 2.0 - 1.0;
+    vec4 nearPoint = frame.inverseViewProjection * vec4(ndc, 1.0, 1.0);
+    vec4 midPoint = frame.inverseViewProjection * vec4(ndc, 0.5, 1.0);
+    vec3 origin = nearPoint.xyz / nearPoint.w;
+    vec3 direction = normalize(midPoint.xyz / midPoint.w - origin);
+
+    // Barycentrics where the ray meets the triangle's plane (Moller-Trumbore, unclamped).
+    vec3 e1 = p1 - p0, e2 = p2 - p0;
+    vec3 pv = cross(direction, e2);
+    float det = dot(e1, pv);
+    vec3 bary = vec3(1.0 / 3.0);
+    float t = dot(p0 - origin, cross(e1, e2)) / dot(direction, cross(e1, e2));
+    if (abs(det) > 0.0) {
+        vec3 tv = origin - p0;
+        float u = dot(tv, pv) / det;
+        float v = dot(direction, cross(tv, e1)) / det;
+        bary = vec3(1.0 - u - v, u, v);
+    }
+    if (!(t > 0.0) || isinf(t)) t = 0.0;  // edge-on triangle: the plane test is meaningless
+    vec3 hit = origin + t * direction;
+
+    if (aov == TS_AOV_DEPTH) {
+        OutputRef(frame.aovOutput).data[index] = vec4(dot(hit, frame.cameraForward.xyz));
+        return;
+    }
+
+    mat3 toWorld = transpose(mat3(instance.rows[0].xyz, instance.rows[1].xyz, instance.rows[2].xyz));
+    mat3 normalMatrix = transpose(inverse(toWorld));
+    UintRef normals = UintRef(frame.normals);
+    vec3 objectNormal = bary.x * decode_octahedral(normals.data[v0]) + bary.y * decode_octahedral(normals.data[v1]) +
+                        bary.z * decode_octahedral(normals.data[v2]);
+    vec3 n = normalize(normalMatrix * objectNormal);
+    vec3 geometric = normalize(cross(e1, e2));
+    if (dot(geometric, direction) > 0.0) {  // the back of a double-sided surface: shade its other side
+        geometric = -geometric;
+        n = -n;
+    }
+    if (dot(n, geometric) < 0.0) n = geometric;  // an interpolated normal facing away would shade black
+    if (aov == TS_AOV_NORMAL) {
+        OutputRef(frame.aovOutput).data[index] = vec4(n, 1.0);
+        return;
+    }
+
+    GpuMaterial material = MaterialRef(frame.materials).data[instance.materialIndex];
+    vec3 albedo = material.diffuseColor.rgb;
+    if ((material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
+        albedo = bary.x * vertex_color(frame, mesh, v0) + bary.y * vertex_color(frame, mesh, v1) + bary.z * vertex_color(frame, mesh, v2);
+
+    vec3 color = material.emissiveColor.rgb;
+    for (uint i = 0u; i < frame.viewport.w; ++i) {
+        GpuLight light = frame.lights[i];
+        if (uint(light.directionType.w) == TS_LIGHT_DISTANT)
+            color += albedo * light.radiance.rgb * max(dot(n, -light.directionType.xyz), 0.0);
+        else
+            color += albedo * light.radiance.rgb;  // dome: uniform environment, no occlusion yet
+    }
+    OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
+}

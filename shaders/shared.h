@@ -1,0 +1,146 @@
+// Types and constants shared by C++ (renderer/) and GLSL (shaders/): every GPU struct is defined here once.
+// Layouts follow std430 with only 4-byte scalars and 16-byte vectors, so C++ and GLSL agree without padding
+// rules; C++ checks each size with a static_assert.
+#ifndef TESSERA_SHARED_H
+#define TESSERA_SHARED_H
+
+#ifdef __cplusplus
+#include <cstdint>
+namespace tessera::gpu {
+using uint = uint32_t;
+struct vec4 { float x, y, z, w; };
+struct uvec4 { uint x, y, z, w; };
+struct mat4 { vec4 columns[4]; };
+using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
+#define TS_CHECK_SIZE(type, bytes) static_assert(sizeof(type) == (bytes), #type " must match its GLSL layout")
+#else
+#define TS_CHECK_SIZE(type, bytes)
+#define address uint64_t
+#endif
+
+// Clusters: the unit of culling and of the visibility buffer's id.
+#define TS_CLUSTER_MAX_TRIANGLES 128
+#define TS_CLUSTER_MAX_VERTICES 256
+
+// Visibility buffer texel (64 bits): depth (32, reversed-Z float bits) | visible cluster (25) | triangle (7).
+// Larger depth is nearer, so an atomic max keeps the nearest triangle; 0 means background.
+#define TS_VIS_TRIANGLE_BITS 7
+#define TS_VIS_CLUSTER_BITS 25
+#define TS_VIS_MAX_VISIBLE_CLUSTERS (1u << TS_VIS_CLUSTER_BITS)
+
+// Instance flags.
+#define TS_INSTANCE_DOUBLE_SIDED 1u
+#define TS_INSTANCE_FLIP_WINDING 2u  // the transform mirrors (negative determinant); leftHanded is fixed by the builder
+
+// Material flags.
+#define TS_MATERIAL_USE_DISPLAY_COLOR 1u  // diffuse comes from the mesh's displayColor primvar
+
+// Mesh vertex streams.
+#define TS_NO_STREAM 0xffffffffu
+
+// What the resolve pass writes (push constant `aov`).
+#define TS_AOV_COLOR 0u
+#define TS_AOV_DEPTH 1u
+#define TS_AOV_NORMAL 2u
+#define TS_AOV_PRIM_ID 3u
+#define TS_AOV_INSTANCE_ID 4u
+#define TS_AOV_CLUSTER_ID 5u
+#define TS_AOV_TRIANGLE_ID 6u
+
+#define TS_MAX_LIGHTS 8u
+#define TS_LIGHT_DISTANT 0u
+#define TS_LIGHT_DOME 1u
+
+// Workgroup sizes.
+#define TS_CULL_GROUP_SIZE 64
+#define TS_RESOLVE_TILE 8
+
+// One cluster of a built mesh: at most 128 triangles over at most 256 cluster-local vertices.
+struct GpuCluster {
+    vec4 sphere;         // bounding sphere in mesh space (xyz centre, w radius)
+    uint vertexOffset;   // first vertex in the scene's vertex streams
+    uint triangleOffset; // first triangle in the scene's triangle stream (3 x 8-bit local indices per uint)
+    uint triangleCount;
+    uint meshIndex;
+};
+TS_CHECK_SIZE(GpuCluster, 32);
+
+struct GpuMesh {
+    vec4 sphere;         // bounding sphere in mesh space
+    uint clusterOffset;
+    uint clusterCount;
+    uint colorOffset;    // first entry of the colour stream, or TS_NO_STREAM when the mesh has no vertex colours
+    uint vertexOffset;   // first vertex (the colour stream is indexed by vertex - vertexOffset + colorOffset)
+};
+TS_CHECK_SIZE(GpuMesh, 32);
+
+// A drawn copy of a mesh. The transform maps mesh space to camera-relative world space: the CPU subtracts
+// the camera position from the translation in double and stores the result as a high and a low float, so
+// geometry far from the origin renders like geometry at the origin.
+struct GpuInstance {
+    vec4 rows[3];          // rows of the 3x4 mesh->world matrix; w holds the high part of the translation
+    vec4 translationLow;   // xyz: low part of the translation; w: largest stretch of the matrix (for bounds)
+    uint meshIndex;
+    uint primId;
+    uint materialIndex;
+    uint flags;            // TS_INSTANCE_*
+};
+TS_CHECK_SIZE(GpuInstance, 80);
+
+struct GpuMaterial {
+    vec4 diffuseColor;     // linear RGB; a is opacity
+    vec4 emissiveColor;
+    uint flags;            // TS_MATERIAL_*
+    uint pad0, pad1, pad2;
+};
+TS_CHECK_SIZE(GpuMaterial, 48);
+
+struct GpuLight {
+    vec4 directionType;    // xyz: direction the light travels (world); w: TS_LIGHT_* as float
+    vec4 radiance;         // rgb: colour * intensity * 2^exposure
+};
+TS_CHECK_SIZE(GpuLight, 32);
+
+// Indirect draw arguments for the hardware rasterizer (VkDrawIndirectCommand) plus the culling counters.
+struct GpuDrawState {
+    uint vertexCount;      // TS_CLUSTER_MAX_TRIANGLES * 3: one instance of the draw per visible cluster
+    uint instanceCount;    // visible clusters, clamped to capacity
+    uint firstVertex;
+    uint firstInstance;
+    uint visibleClusters;  // visible clusters found, may exceed capacity (overflow is detected on the CPU)
+    uint visibleInstances;
+    uint visibleTriangles;  // triangles of the visible clusters (32-bit: saturates past 4 G)
+    uint pad0;
+};
+TS_CHECK_SIZE(GpuDrawState, 32);
+
+// Per-frame constants, reached through the single pointer in the push constants.
+struct GpuFrame {
+    mat4 viewProjection;     // camera-relative world -> clip (reversed Z)
+    mat4 inverseViewProjection;
+    vec4 cameraForward;      // xyz: view direction (world)
+    vec4 frustumPlanes[6];   // camera-relative world; dot(plane.xyz, p) + plane.w >= 0 inside
+    vec4 background;         // linear RGBA of pixels no geometry covers
+    uvec4 viewport;          // x: width, y: height, z: unused, w: light count
+    uvec4 counts;            // x: instances, y: visible-cluster capacity
+    GpuLight lights[TS_MAX_LIGHTS];
+    address instances;       // GpuInstance[]
+    address meshes;          // GpuMesh[]
+    address clusters;        // GpuCluster[]
+    address positions;       // float[3 * vertices], mesh space
+    address normals;         // uint[vertices], octahedral snorm16x2
+    address colors;          // uint[2 * colours], rgba16f
+    address triangles;       // uint[triangles], 3 x 8-bit cluster-local indices
+    address materials;       // GpuMaterial[]
+    address visibleClusters; // uvec2[capacity]: (instance, cluster)
+    address drawState;       // GpuDrawState
+    address visibility;      // uint64[width * height]
+    address aovOutput;       // vec4[width * height]
+};
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 1 + 16 * 6 + 16 * 3 + 32 * TS_MAX_LIGHTS + 8 * 12);
+
+#ifdef __cplusplus
+}  // namespace tessera::gpu
+#undef TS_CHECK_SIZE
+#endif
+#endif

@@ -1,0 +1,201 @@
+// Builder: validation, triangulation, seams, clusters, encodings.
+#include "tessera/builder.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <set>
+
+using namespace tessera;
+
+namespace {
+struct Quad {  // a unit quad in the XY plane, facing +Z when wound counter-clockwise
+    std::vector<float> points{0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
+    std::vector<int32_t> counts{4};
+    std::vector<int32_t> indices{0, 1, 2, 3};
+    MeshView view(const char* name = "/Quad") {
+        MeshView v;
+        v.name = name;
+        v.points = points;
+        v.faceVertexCounts = counts;
+        v.faceVertexIndices = indices;
+        return v;
+    }
+};
+
+std::array<float, 3> triangle_normal(const PreparedMesh& m, size_t t) {
+    auto p = [&](size_t c) { const float* q = &m.positions[3 * m.indices[3 * t + c]]; return std::array<float, 3>{q[0], q[1], q[2]}; };
+    auto a = p(0), b = p(1), c = p(2);
+    float e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    return {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+}
+}  // namespace
+
+TEST(Prepare, FanTriangulatesPolygons) {
+    Quad q;
+    PreparedMesh m = prepare_mesh(q.view());
+    ASSERT_EQ(m.indices.size(), 6u);
+    EXPECT_EQ(m.sourceFaces, (std::vector<uint32_t>{0, 0}));
+    for (size_t t = 0; t < 2; ++t) EXPECT_GT(triangle_normal(m, t)[2], 0.0f);
+    EXPECT_TRUE(m.warnings.empty());
+}
+
+TEST(Prepare, LeftHandedReversesWinding) {
+    Quad q;
+    q.indices = {0, 3, 2, 1};  // the same quad listed clockwise
+    MeshView v = q.view();
+    v.leftHanded = true;
+    PreparedMesh m = prepare_mesh(v);
+    ASSERT_EQ(m.indices.size(), 6u);
+    for (size_t t = 0; t < 2; ++t) EXPECT_GT(triangle_normal(m, t)[2], 0.0f) << "leftHanded faces must come out front-facing";
+    EXPECT_GT(m.normals[2], 0.99f);
+}
+
+TEST(Prepare, HolesAreNotDrawn) {
+    Quad q;
+    q.points.insert(q.points.end(), {2, 0, 0, 2, 1, 0});
+    q.counts = {4, 4};
+    q.indices = {0, 1, 2, 3, 1, 4, 5, 2};
+    std::vector<int32_t> holes{0};
+    MeshView v = q.view();
+    v.holeIndices = holes;
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_EQ(m.indices.size(), 6u);
+    EXPECT_EQ(m.sourceFaces, (std::vector<uint32_t>{1, 1}));
+}
+
+TEST(Prepare, BadFacesAreDroppedWithAWarningNamingTheMesh) {
+    Quad q;
+    q.points.insert(q.points.end(), {NAN, 0, 0});
+    q.counts = {4, 3, 2, 3};
+    q.indices = {0, 1, 2, 3, 0, 1, 99, 0, 1, 0, 1, 4};
+    PreparedMesh m = prepare_mesh(q.view("/World/Broken"));
+    EXPECT_EQ(m.indices.size(), 6u);
+    ASSERT_FALSE(m.warnings.empty());
+    EXPECT_NE(m.warnings[0].find("/World/Broken"), std::string::npos);
+    EXPECT_NE(m.warnings[0].find("dropped 3 invalid face"), std::string::npos) << m.warnings[0];
+}
+
+TEST(Prepare, UnusableMeshThrowsNamingTheProblem) {
+    Quad q;
+    q.indices = {0, 1, 2};  // counts say 4
+    try {
+        prepare_mesh(q.view("/World/Short"));
+        FAIL() << "expected MeshError";
+    } catch (const MeshError& e) {
+        EXPECT_NE(std::string(e.what()).find("/World/Short"), std::string::npos);
+        EXPECT_NE(std::string(e.what()).find("sum to 4"), std::string::npos);
+    }
+    Quad all;
+    all.indices = {0, 1, 2, 7};
+    EXPECT_THROW(prepare_mesh(all.view()), MeshError);
+}
+
+TEST(Prepare, FaceVaryingSeamsSplitVertices) {
+    Quad q;  // two quads sharing an edge, with a colour seam along it
+    q.points = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 2, 0, 0, 2, 1, 0};
+    q.counts = {4, 4};
+    q.indices = {0, 1, 2, 3, 1, 4, 5, 2};
+    std::vector<float> colors{1, 0, 0, 0, 0, 1};
+    MeshView v = q.view();
+    v.displayColor = {Interpolation::Uniform, 3, colors, {}};
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_EQ(m.positions.size() / 3, 8u) << "the two shared points are split by the colour seam";
+    ASSERT_EQ(m.colors.size(), 24u);
+    // Vertex-interpolated colours need no split.
+    std::vector<float> perPoint(18, 0.5f);
+    v.displayColor = {Interpolation::Vertex, 3, perPoint, {}};
+    EXPECT_EQ(prepare_mesh(v).positions.size() / 3, 6u);
+    // A primvar too short for its interpolation is ignored with a warning, not a crash.
+    std::vector<float> tooShort{1, 0, 0};
+    v.displayColor = {Interpolation::FaceVarying, 3, tooShort, {}};
+    PreparedMesh ignored = prepare_mesh(v);
+    EXPECT_TRUE(ignored.colors.empty());
+    EXPECT_FALSE(ignored.warnings.empty());
+}
+
+namespace {
+// A grid of n x n quads with jittered heights.
+struct Grid {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    explicit Grid(int n, double offset = 0.0) {
+        std::mt19937 rng(7);
+        std::uniform_real_distribution<float> jitter(-0.01f, 0.01f);
+        for (int y = 0; y <= n; ++y)
+            for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(offset + x), float(y), jitter(rng)});
+        for (int y = 0; y < n; ++y)
+            for (int x = 0; x < n; ++x) {
+                counts.push_back(4);
+                const int a = y * (n + 1) + x;
+                indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+            }
+    }
+    MeshView view() {
+        MeshView v;
+        v.name = "/Grid";
+        v.points = points;
+        v.faceVertexCounts = counts;
+        v.faceVertexIndices = indices;
+        return v;
+    }
+};
+}  // namespace
+
+TEST(Clusters, RespectBudgetsAndCoverEveryTriangle) {
+    Grid g(100);
+    BuiltMesh b = build_clusters(prepare_mesh(g.view()));
+    EXPECT_EQ(b.sourceTriangles, 20000u);
+    size_t triangles = 0;
+    for (const Cluster& c : b.clusters) {
+        EXPECT_LE(c.triangleCount, kClusterMaxTriangles);
+        EXPECT_LE(c.vertexCount, kClusterMaxVertices);
+        triangles += c.triangleCount;
+        // Every vertex of the cluster lies inside its sphere.
+        for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) {
+            float d2 = 0;
+            for (int k = 0; k < 3; ++k) d2 += std::pow(b.positions[3 * v + k] - c.sphere[k], 2.0f);
+            EXPECT_LE(std::sqrt(d2), c.sphere[3]);
+        }
+        for (uint32_t t = c.triangleOffset; t < c.triangleOffset + c.triangleCount; ++t)
+            for (int k = 0; k < 3; ++k) EXPECT_LT((b.triangles[t] >> (8 * k)) & 0xff, c.vertexCount);
+    }
+    EXPECT_EQ(triangles, 20000u);
+    EXPECT_GE(double(triangles) / b.clusters.size(), 110.0) << "clusters of a regular grid should be nearly full";
+}
+
+TEST(Clusters, FarFromOriginKeepsPrecisionInTheOrigin) {
+    Grid g(10, 1.0e6);
+    BuiltMesh b = build_clusters(prepare_mesh(g.view()));
+    EXPECT_NEAR(b.origin[0], 1.0e6 + 5.0, 1e-9);
+    for (size_t i = 0; i < b.positions.size(); i += 3) EXPECT_LE(std::fabs(b.positions[i]), 5.0f + 1e-6f);
+}
+
+TEST(Clusters, DeterministicOutput) {
+    Grid g(40);
+    BuiltMesh a = build_clusters(prepare_mesh(g.view())), b = build_clusters(prepare_mesh(g.view()));
+    EXPECT_EQ(a.positions, b.positions);
+    EXPECT_EQ(a.triangles, b.triangles);
+    EXPECT_EQ(a.normals, b.normals);
+}
+
+TEST(Encoding, OctahedralRoundTrip) {
+    std::mt19937 rng(3);
+    std::normal_distribution<float> d;
+    for (int i = 0; i < 10000; ++i) {
+        float n[3] = {d(rng), d(rng), d(rng)};
+        const float len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        for (float& x : n) x /= len;
+        auto r = decode_octahedral(encode_octahedral(n[0], n[1], n[2]));
+        EXPECT_GT(r[0] * n[0] + r[1] * n[1] + r[2] * n[2], 0.99999f);
+    }
+}
+
+TEST(Encoding, HalfFloat) {
+    EXPECT_EQ(float_to_half(1.0f), 0x3c00);
+    EXPECT_EQ(float_to_half(0.5f), 0x3800);
+    EXPECT_EQ(float_to_half(-2.0f), 0xc000);
+    EXPECT_EQ(float_to_half(0.0f), 0x0000);
+    EXPECT_EQ(float_to_half(1e6f), 0x7c00);
+}
