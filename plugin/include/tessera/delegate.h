@@ -157,6 +157,8 @@ public:
 class RenderDelegate {
 public:
     explicit RenderDelegate(const DeviceOptions& options = DeviceOptions::from_environment());
+    RenderDelegate(const RenderDelegate&) = delete;
+    RenderDelegate& operator=(const RenderDelegate&) = delete;
     static const std::vector<std::string>& supported_rprim_types();  // {"mesh"}
     static const std::vector<std::string>& supported_sprim_types();  // {"material", "camera", "distantLight", "domeLight"}
     static const std::vector<std::string>& supported_bprim_types();  // {"renderBuffer"}
@@ -186,6 +188,8 @@ struct RenderPassSettings {
 class RenderIndex {
 public:
     explicit RenderIndex(RenderDelegate& delegate) : delegate_(delegate) {}
+    RenderIndex(const RenderIndex&) = delete;
+    RenderIndex& operator=(const RenderIndex&) = delete;
 
     void insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId = "");
     void insert_sprim(const std::string& type, const PrimId& id);

@@ -1,0 +1,304 @@
+// tessera._tessera: the C++ delegate, renderer and builder as seen from Python.
+// The USD scene delegate is a Python subclass of SceneDelegate; its arrays reach C++ without copies:
+// a MeshSource borrows numpy buffers (views of USD's VtArrays) and keeps them alive.
+#include "tessera/delegate.h"
+#include "tessera/image_io.h"
+
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/array.h>
+#include <nanobind/stl/map.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/pair.h>
+#include <nanobind/stl/shared_ptr.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+#include <nanobind/trampoline.h>
+
+#include <cstring>
+
+namespace nb = nanobind;
+using namespace nb::literals;
+using namespace tessera;
+using namespace tessera::hd;
+
+namespace {
+
+template <typename T>
+using Array1 = nb::ndarray<const T, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+
+// Owns Python objects from C++; releasing them takes the GIL, wherever the last owner lets go.
+std::shared_ptr<const void> keep_alive(nb::object object) {
+    auto* held = new nb::object(std::move(object));
+    return std::shared_ptr<const void>(held, [](const void* p) {
+        nb::gil_scoped_acquire gil;
+        delete static_cast<const nb::object*>(p);
+    });
+}
+
+template <typename T>
+std::span<const T> span_of(const std::optional<Array1<T>>& array) {
+    if (!array) return {};
+    return {array->data(), array->shape(0)};
+}
+
+Interpolation interpolation_from(const std::string& name) {
+    if (name == "constant") return Interpolation::Constant;
+    if (name == "uniform") return Interpolation::Uniform;
+    if (name == "vertex") return Interpolation::Vertex;
+    if (name == "varying") return Interpolation::Varying;
+    if (name == "faceVarying") return Interpolation::FaceVarying;
+    return Interpolation::None;
+}
+
+Aov aov_from(const std::string& name) {
+    static const std::map<std::string, Aov> names{{"color", Aov::Color},           {"depth", Aov::Depth},
+                                                  {"normal", Aov::Normal},         {"primId", Aov::PrimId},
+                                                  {"instanceId", Aov::InstanceId}, {"clusterId", Aov::ClusterId},
+                                                  {"triangleId", Aov::TriangleId}};
+    auto it = names.find(name);
+    if (it == names.end()) throw std::invalid_argument("unknown AOV '" + name + "' (color, depth, normal, primId, instanceId, clusterId, triangleId)");
+    return it->second;
+}
+
+struct PySceneDelegate : SceneDelegate {
+    NB_TRAMPOLINE(SceneDelegate, 8);
+    MeshSource get_mesh(const PrimId& id) override { NB_OVERRIDE_PURE(get_mesh, id); }
+    Matrix4d get_transform(const PrimId& id) override { NB_OVERRIDE_PURE(get_transform, id); }
+    bool get_visible(const PrimId& id) override { NB_OVERRIDE_PURE(get_visible, id); }
+    PrimId get_material_id(const PrimId& id) override { NB_OVERRIDE_PURE(get_material_id, id); }
+    MatrixArray get_instance_transforms(const PrimId& instancerId, const PrimId& prototypeId) override {
+        NB_OVERRIDE_PURE(get_instance_transforms, instancerId, prototypeId);
+    }
+    MaterialDesc get_material(const PrimId& id) override { NB_OVERRIDE_PURE(get_material, id); }
+    LightDesc get_light(const PrimId& id) override { NB_OVERRIDE_PURE(get_light, id); }
+    CameraDesc get_camera(const PrimId& id) override { NB_OVERRIDE_PURE(get_camera, id); }
+};
+
+nb::dict stats_dict(const FrameStats& s) {
+    nb::dict d;
+    d["instances"] = s.instances;
+    d["visible_instances"] = s.visibleInstances;
+    d["clusters"] = s.clusters;
+    d["visible_clusters"] = s.visibleClusters;
+    d["source_triangles"] = s.sourceTriangles;
+    d["visible_triangles"] = s.visibleTriangles;
+    d["overflow_redraws"] = s.overflowRedraws;
+    d["visible_cluster_capacity"] = s.visibleClusterCapacity;
+    nb::dict gpuMs;
+    gpuMs["cull"] = s.cullMs;
+    gpuMs["raster"] = s.rasterMs;
+    gpuMs["resolve"] = s.resolveMs;
+    d["gpu_ms"] = gpuMs;
+    return d;
+}
+
+}  // namespace
+
+NB_MODULE(_tessera, m) {
+    m.doc() = "Tessera's C++ core: Hydra-style delegate, renderer and builder";
+    nb::exception<DeviceError>(m, "DeviceError");
+    nb::exception<MeshError>(m, "MeshError", PyExc_ValueError);
+    nb::exception<ImageIoError>(m, "ImageIoError", PyExc_IOError);
+
+    nb::class_<MeshSource>(m, "MeshSource");
+    m.def(
+        "mesh_source",
+        [](const std::string& name, Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices,
+           std::optional<Array1<int32_t>> holes, bool leftHanded, bool doubleSided, std::optional<Array1<float>> normals,
+           const std::string& normalsInterpolation, std::optional<Array1<int32_t>> normalsIndices, std::optional<Array1<float>> displayColor,
+           const std::string& displayColorInterpolation, std::optional<Array1<int32_t>> displayColorIndices) {
+            MeshSource source;
+            source.view.name = name;
+            source.view.points = {points.data(), points.shape(0)};
+            source.view.faceVertexCounts = {counts.data(), counts.shape(0)};
+            source.view.faceVertexIndices = {indices.data(), indices.shape(0)};
+            source.view.holeIndices = span_of(holes);
+            source.view.leftHanded = leftHanded;
+            source.doubleSided = doubleSided;
+            if (normals) source.view.normals = {interpolation_from(normalsInterpolation), 3, span_of(normals), span_of(normalsIndices)};
+            if (displayColor)
+                source.view.displayColor = {interpolation_from(displayColorInterpolation), 3, span_of(displayColor), span_of(displayColorIndices)};
+            nb::list owners;
+            for (nb::handle h : {nb::cast(points), nb::cast(counts), nb::cast(indices)}) owners.append(h);
+            for (auto* o : {&holes, &normalsIndices, &displayColorIndices})
+                if (*o) owners.append(nb::cast(**o));
+            for (auto* o : {&normals, &displayColor})
+                if (*o) owners.append(nb::cast(**o));
+            source.keepAlive = keep_alive(owners);
+            return source;
+        },
+        "name"_a, "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "hole_indices"_a = nb::none(), "left_handed"_a = false,
+        "double_sided"_a = false, "normals"_a = nb::none(), "normals_interpolation"_a = "vertex", "normals_indices"_a = nb::none(),
+        "display_color"_a = nb::none(), "display_color_interpolation"_a = "constant", "display_color_indices"_a = nb::none(),
+        "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples).");
+
+    nb::class_<MatrixArray>(m, "MatrixArray").def_prop_ro("size", &MatrixArray::size);
+    m.def(
+        "matrix_array",
+        [](nb::ndarray<const double, nb::shape<-1, 4, 4>, nb::c_contig, nb::device::cpu> matrices) {
+            MatrixArray array;
+            array.values = {matrices.data(), matrices.shape(0) * 16};
+            array.keepAlive = keep_alive(nb::cast(matrices));
+            return array;
+        },
+        "matrices"_a, "Row-major (N, 4, 4) float64 matrices acting on column vectors.");
+
+    nb::class_<MaterialDesc>(m, "MaterialDesc")
+        .def(nb::init<>())
+        .def_rw("diffuse_color", &MaterialDesc::diffuseColor)
+        .def_rw("emissive_color", &MaterialDesc::emissiveColor)
+        .def_rw("opacity", &MaterialDesc::opacity)
+        .def_rw("use_display_color", &MaterialDesc::useDisplayColor);
+
+    nb::enum_<LightType>(m, "LightType").value("distant", LightType::Distant).value("dome", LightType::Dome);
+    nb::class_<LightDesc>(m, "LightDesc")
+        .def(nb::init<>())
+        .def_rw("type", &LightDesc::type)
+        .def_rw("direction", &LightDesc::direction)
+        .def_rw("radiance", &LightDesc::radiance);
+
+    nb::class_<CameraDesc>(m, "CameraDesc")
+        .def(nb::init<>())
+        .def_rw("camera_to_world", &CameraDesc::cameraToWorld)
+        .def_rw("orthographic", &CameraDesc::orthographic)
+        .def_rw("focal_length", &CameraDesc::focalLength)
+        .def_rw("horizontal_aperture", &CameraDesc::horizontalAperture)
+        .def_rw("vertical_aperture", &CameraDesc::verticalAperture)
+        .def_rw("horizontal_aperture_offset", &CameraDesc::horizontalApertureOffset)
+        .def_rw("vertical_aperture_offset", &CameraDesc::verticalApertureOffset)
+        .def_rw("near_clip", &CameraDesc::nearClip)
+        .def_rw("far_clip", &CameraDesc::farClip);
+
+    nb::class_<SceneDelegate, PySceneDelegate>(m, "SceneDelegate")
+        .def(nb::init<>())
+        .def("get_mesh", &SceneDelegate::get_mesh)
+        .def("get_transform", &SceneDelegate::get_transform)
+        .def("get_visible", &SceneDelegate::get_visible)
+        .def("get_material_id", &SceneDelegate::get_material_id)
+        .def("get_instance_transforms", &SceneDelegate::get_instance_transforms)
+        .def("get_material", &SceneDelegate::get_material)
+        .def("get_light", &SceneDelegate::get_light)
+        .def("get_camera", &SceneDelegate::get_camera);
+
+    nb::class_<Image>(m, "Image")
+        .def_ro("width", &Image::width)
+        .def_ro("height", &Image::height)
+        .def_prop_ro("aov", [](const Image& i) { return std::string(aov_name(i.aov)); })
+        .def_prop_ro(
+            "pixels",
+            [](const Image& i) {
+                // A read-only float32 (height, width, 4) view; ids are in channel 0 as uint32 bits (see ids()).
+                return nb::ndarray<const float, nb::numpy, nb::shape<-1, -1, 4>>(i.pixels.data(), {i.height, i.width, 4}, nb::handle());
+            },
+            nb::rv_policy::reference_internal)
+        .def(
+            "ids",
+            [](const Image& i) {
+                auto* ids = new std::vector<uint32_t>(size_t(i.width) * i.height);
+                for (size_t p = 0; p < ids->size(); ++p) std::memcpy(&(*ids)[p], &i.pixels[4 * p], 4);
+                nb::capsule owner(ids, [](void* v) noexcept { delete static_cast<std::vector<uint32_t>*>(v); });
+                return nb::ndarray<uint32_t, nb::numpy, nb::shape<-1, -1>>(ids->data(), {i.height, i.width}, owner);
+            },
+            "The id AOV as uint32 (height, width); 0xffffffff where nothing was drawn.")
+        .def(
+            "write",
+            [](const Image& i, const std::string& path, const std::string& ocioConfig, const std::string& display, const std::string& view) {
+                write_image(path, i, ocioConfig, display, view);
+            },
+            "path"_a, "ocio_config"_a, "display"_a = "", "view"_a = "");
+
+    m.def(
+        "read_image",
+        [](const std::string& path) {
+            auto* image = new LoadedImage(read_image(path));
+            nb::capsule owner(image, [](void* v) noexcept { delete static_cast<LoadedImage*>(v); });
+            return nb::ndarray<float, nb::numpy, nb::shape<-1, -1, 4>>(image->pixels.data(), {image->height, image->width, 4}, owner);
+        },
+        "path"_a, "Reads an image as float32 RGBA (height, width, 4).");
+
+    nb::class_<RenderDelegate>(m, "RenderDelegate")
+        .def(
+            "__init__",
+            [](RenderDelegate* self, std::optional<std::string> device, std::optional<bool> validation) {
+                DeviceOptions options = DeviceOptions::from_environment();
+                if (device) options.select = *device;
+                if (validation) options.validation = *validation;
+                new (self) RenderDelegate(options);
+            },
+            "device"_a = nb::none(), "validation"_a = nb::none())
+        .def_prop_ro("device_name", [](RenderDelegate& d) { return d.device().name(); })
+        .def_prop_ro("software_device", [](RenderDelegate& d) { return d.device().is_software(); })
+        .def_prop_ro("validation_enabled", [](RenderDelegate& d) { return d.device().validation_enabled(); })
+        .def("take_validation_messages", [](RenderDelegate& d) { return d.device().take_validation_messages(); })
+        .def_prop_ro("validation_error_count", [](RenderDelegate& d) { return d.device().validation_error_count(); })
+        .def("set_visible_cluster_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_visible_cluster_capacity(c); })
+        .def_static("supported_rprim_types", &RenderDelegate::supported_rprim_types)
+        .def_static("supported_sprim_types", &RenderDelegate::supported_sprim_types)
+        .def_static("supported_bprim_types", &RenderDelegate::supported_bprim_types);
+
+    nb::class_<RenderIndex>(m, "RenderIndex")
+        .def(nb::init<RenderDelegate&>(), "delegate"_a, nb::keep_alive<1, 2>())
+        .def("insert_rprim", &RenderIndex::insert_rprim, "type"_a, "id"_a, "instancer_id"_a = "")
+        .def("insert_sprim", &RenderIndex::insert_sprim, "type"_a, "id"_a)
+        .def("remove_prim", &RenderIndex::remove_prim, "id"_a)
+        .def("mark_dirty", &RenderIndex::mark_dirty, "id"_a, "bits"_a)
+        .def("mark_all_dirty", &RenderIndex::mark_all_dirty, "bits"_a)
+        .def("sync_all", &RenderIndex::sync_all, "scene_delegate"_a)
+        .def(
+            "execute",
+            [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
+               const std::vector<std::string>& aovs, std::array<float, 4> background) {
+                RenderPassSettings settings;
+                settings.cameraId = cameraId;
+                settings.camera = camera;
+                settings.render.width = width;
+                settings.render.height = height;
+                settings.render.background = background;
+                settings.aovs.clear();
+                for (auto& a : aovs) settings.aovs.push_back(aov_from(a));
+                FrameStats stats;
+                std::vector<Image> images = index.execute(settings, &stats);
+                return std::make_pair(images, stats_dict(stats));
+            },
+            "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a)
+        .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
+        .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
+        .def_prop_ro("rprim_count", &RenderIndex::rprim_count)
+        .def("take_diagnostics", [](RenderIndex& index) {
+            RenderParam p = index.take_diagnostics();
+            return std::make_pair(p.warnings, p.errors);
+        });
+
+    nb::module_ dirty = m.def_submodule("dirty", "Dirty bits (Hydra's change-tracker bits Tessera reads)");
+    dirty.attr("POINTS") = uint32_t(DirtyPoints);
+    dirty.attr("TOPOLOGY") = uint32_t(DirtyTopology);
+    dirty.attr("TRANSFORM") = uint32_t(DirtyTransform);
+    dirty.attr("VISIBILITY") = uint32_t(DirtyVisibility);
+    dirty.attr("PRIMVAR") = uint32_t(DirtyPrimvar);
+    dirty.attr("MATERIAL_ID") = uint32_t(DirtyMaterialId);
+    dirty.attr("INSTANCER") = uint32_t(DirtyInstancer);
+    dirty.attr("DOUBLE_SIDED") = uint32_t(DirtyDoubleSided);
+    dirty.attr("PARAMS") = uint32_t(DirtyParams);
+    dirty.attr("ALL") = uint32_t(AllDirty);
+
+    m.def(
+        "build_mesh",
+        [](Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices, const std::string& name) {
+            MeshView view;
+            view.name = name;
+            view.points = {points.data(), points.shape(0)};
+            view.faceVertexCounts = {counts.data(), counts.shape(0)};
+            view.faceVertexIndices = {indices.data(), indices.shape(0)};
+            PreparedMesh prepared = prepare_mesh(view);
+            BuiltMesh built = build_clusters(prepared);
+            nb::dict d;
+            d["source_triangles"] = built.sourceTriangles;
+            d["vertices"] = built.positions.size() / 3;
+            d["clusters"] = built.clusters.size();
+            d["warnings"] = prepared.warnings;
+            return d;
+        },
+        "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "name"_a = "mesh",
+        "Prepares and clusters a mesh; returns its statistics.");
+}

@@ -1,0 +1,79 @@
+"""The `tessera` command: `tessera render STAGE -o OUT ...` in the manner of usdrecord and husk."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+from .session import AOVS
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not WIDTHxHEIGHT (for example 1920x1080)") from None
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise argparse.ArgumentTypeError(f"'{text}': width and height must be between 1 and 16384")
+    return w, h
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="tessera", description="Tessera: virtualized-geometry renderer for USD stages")
+    parser.add_argument("--version", action="version", version="tessera 0.1.0")
+    commands = parser.add_subparsers(dest="command", required=True)
+    render = commands.add_parser("render", help="render a stage to an image")
+    render.add_argument("stage", help="USD stage (.usd, .usda, .usdc, .usdz)")
+    render.add_argument("-o", "--output", required=True, help="image file: .exr (linear float), .tif, .png, .jpg")
+    render.add_argument("--camera", help="camera prim path (default: the stage's first camera, else one framing the stage)")
+    render.add_argument("--resolution", type=_resolution, default=(960, 540), help="WIDTHxHEIGHT (default 960x540)")
+    render.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
+    render.add_argument("--aov", choices=AOVS, default="color", help="what to write (default color)")
+    render.add_argument("--stats", help="write frame statistics to this JSON file")
+    render.add_argument("--device", help="Vulkan device: gpu, cpu, an index or part of its name (default: $TESSERA_DEVICE, else the best)")
+    return parser
+
+
+def _render(args) -> int:
+    from . import Session
+
+    started = time.perf_counter()
+    session = Session(args.stage, frame=args.frame, device=args.device)
+    loaded = time.perf_counter()
+    camera = args.camera or (session.camera_paths()[0] if session.camera_paths() else None)
+    result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov])
+    rendered = time.perf_counter()
+    for message in result.warnings:
+        print(f"tessera: warning: {message}", file=sys.stderr)
+    for message in result.errors:
+        print(f"tessera: error: {message}", file=sys.stderr)
+    out_dir = os.path.dirname(os.path.abspath(args.output))
+    os.makedirs(out_dir, exist_ok=True)
+    result.write(args.output, args.aov)
+    if args.stats:
+        stats = dict(result.stats)
+        stats.update(camera=camera or "(framing)", resolution=list(args.resolution), aov=args.aov,
+                     seconds={"load": loaded - started, "render": rendered - loaded, "total": time.perf_counter() - started},
+                     warnings=result.warnings, errors=result.errors)
+        with open(args.stats, "w") as f:
+            json.dump(stats, f, indent=2)
+    validation_errors = [e for e in result.errors if e.startswith("validation error")]
+    return 1 if validation_errors else 0
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == "render":
+            return _render(args)
+    except Exception as error:  # one line, never a traceback, for anything the user can fix
+        print(f"tessera: error: {error}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

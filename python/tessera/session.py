@@ -1,0 +1,108 @@
+"""A render session: one stage, one render index, renders on demand."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import _tessera
+
+AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triangleId")
+
+
+class StageError(RuntimeError):
+    """The stage cannot be opened or rendered as asked (names the file or prim)."""
+
+
+def ocio_config_path() -> str:
+    """The colour configuration shipped with Tessera ($OCIO, when set, takes precedence at write time)."""
+    return str(Path(__file__).parent / "ocio" / "config.ocio")
+
+
+@dataclass
+class RenderResult:
+    images: dict[str, _tessera.Image]
+    stats: dict
+    warnings: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+    index: object = None
+
+    def __getitem__(self, aov: str) -> _tessera.Image:
+        return self.images[aov]
+
+    def write(self, path: str | os.PathLike, aov: str = "color") -> None:
+        self.images[aov].write(str(path), ocio_config_path())
+
+    def prim_path(self, prim_id: int) -> str:
+        return self.index.prim_path(prim_id)
+
+
+def _open_stage(stage):
+    from pxr import Tf, Usd
+
+    if isinstance(stage, Usd.Stage):
+        return stage
+    path = os.fspath(stage)
+    if not os.path.exists(path):
+        raise StageError(f"{path}: no such file")
+    try:
+        opened = Usd.Stage.Open(path)
+    except Tf.ErrorException as error:
+        detail = str(error).strip().splitlines()
+        raise StageError(f"{path}: cannot be opened as a USD stage: {detail[-1].strip() if detail else error}") from None
+    if opened is None:
+        raise StageError(f"{path}: cannot be opened as a USD stage")
+    return opened
+
+
+class Session:
+    """Opens a stage and renders it; the render delegate and the GPU scene live as long as the session."""
+
+    def __init__(self, stage, *, frame: float | None = None, device: str | None = None, validation: bool | None = None):
+        from pxr import Usd
+
+        from .usd import UsdSceneDelegate
+
+        self.stage = _open_stage(stage)
+        self.time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
+        self.delegate = _tessera.RenderDelegate(device=device, validation=validation)
+        self.index = _tessera.RenderIndex(self.delegate)
+        self.scene = UsdSceneDelegate(self.stage, self.index, self.time)
+        self.scene.populate()
+
+    @property
+    def device_name(self) -> str:
+        return self.delegate.device_name
+
+    def camera_paths(self) -> list[str]:
+        return list(self.scene.cameras)
+
+    def render(self, *, camera: str | None = None, resolution: tuple[int, int] = (960, 540),
+               aovs=("color",), background=(0.0, 0.0, 0.0, 0.0)) -> RenderResult:
+        from .usd import framing_camera
+
+        width, height = resolution
+        aovs = list(aovs)
+        for aov in aovs:
+            if aov not in AOVS:
+                raise StageError(f"unknown AOV '{aov}' (choose from {', '.join(AOVS)})")
+        self.index.sync_all(self.scene)
+        camera_id = ""
+        if camera:
+            if camera not in self.scene.cameras:
+                raise StageError(f"{camera}: not a camera on this stage (cameras: {', '.join(self.scene.cameras) or 'none'})")
+            camera_id = camera
+        fallback = framing_camera(self.stage, self.time, width, height)
+        images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background))
+        warnings, errors = self.index.take_diagnostics()
+        warnings = list(self.scene.warnings) + list(warnings)
+        self.scene.warnings.clear()
+        messages = self.delegate.take_validation_messages()
+        if messages:
+            errors = list(errors) + messages
+        stats["device"] = self.delegate.device_name
+        stats["rprims"] = self.index.rprim_count
+        return RenderResult(dict(zip(aovs, images)), stats, warnings, list(errors), self.index)
