@@ -2,6 +2,7 @@
 #include "tessera/delegate.h"
 
 #include <cmath>
+#include <sstream>
 
 namespace tessera::hd {
 
@@ -41,21 +42,21 @@ void RenderIndex::insert_rprim(const std::string& type, const PrimId& id, const 
     auto prim = delegate_.create_rprim(type, id, instancerId, uint32_t(primPaths_.size()));
     if (!prim) throw std::invalid_argument("unsupported rprim type '" + type + "' for " + id);
     primPaths_.push_back(id);
-    rprims_[id] = {type, std::move(prim), AllDirty};
+    rprims_[id] = {type, std::move(prim), AllDirty, false};
     sceneDirty_ = true;
 }
 
 void RenderIndex::insert_sprim(const std::string& type, const PrimId& id) {
     auto prim = delegate_.create_sprim(type, id);
     if (!prim) throw std::invalid_argument("unsupported sprim type '" + type + "' for " + id);
-    sprims_[id] = {type, std::move(prim), AllDirty};
+    sprims_[id] = {type, std::move(prim), AllDirty, false};
     sceneDirty_ = true;
 }
 
 void RenderIndex::insert_bprim(const std::string& type, const PrimId& id) {
     auto prim = delegate_.create_bprim(type, id);
     if (!prim) throw std::invalid_argument("unsupported bprim type '" + type + "' for " + id);
-    bprims_[id] = {type, std::move(prim), AllDirty};
+    bprims_[id] = {type, std::move(prim), AllDirty, false};
 }
 
 void RenderIndex::remove_prim(const PrimId& id) {
@@ -68,6 +69,7 @@ void RenderIndex::mark_dirty(const PrimId& id, uint32_t bits) {
         auto it = prims->find(id);
         if (it != prims->end()) {
             it->second.dirty |= bits;
+            it->second.failed = false;  // a changed prim gets another chance
             sceneDirty_ = true;
         }
     }
@@ -79,11 +81,27 @@ void RenderIndex::mark_all_dirty(uint32_t bits) {
     sceneDirty_ = true;
 }
 
+namespace {
+// Scene delegate errors (USD's among them) can span lines; a diagnostic is one line that names the prim.
+std::string one_line(const std::string& text) {
+    std::istringstream in(text);
+    std::string word, out;
+    while (in >> word) out += (out.empty() ? "" : " ") + word;
+    return out;
+}
+}  // namespace
+
 void RenderIndex::sync_all(SceneDelegate& scene) {
     for (auto* prims : {&sprims_, &rprims_})
         for (auto& [id, entry] : *prims) {
             if (entry.dirty == Clean) continue;
-            entry.prim->sync(scene, param_, entry.dirty);
+            try {
+                entry.prim->sync(scene, param_, entry.dirty);
+            } catch (const std::exception& e) {
+                // One bad prim never stops the stage: report it and leave it out of the frame.
+                param_.errors.push_back(id + ": " + one_line(e.what()) + "; the prim is skipped");
+                entry.failed = true;
+            }
             entry.dirty = Clean;
             ++syncCounts_[entry.type];
         }
@@ -102,7 +120,7 @@ void RenderIndex::commit_resources() {
     std::vector<InstanceDesc> instances;
     for (auto& [id, entry] : rprims_) {
         const Mesh& mesh = static_cast<Mesh&>(*entry.prim);
-        if (!mesh.visible() || !mesh.gpu_mesh()) continue;
+        if (entry.failed || !mesh.visible() || !mesh.gpu_mesh()) continue;
         InstanceDesc instance;
         instance.mesh = *mesh.gpu_mesh();
         instance.primId = mesh.prim_id();

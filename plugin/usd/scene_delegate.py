@@ -83,7 +83,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if purpose in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
                     it.PruneChildren()
                     continue
-            if prim.IsInstance() and prim != root:
+            if prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
                 world = self._relative(prim, frame)
                 if copies is None:
                     prototypes.setdefault(str(prim.GetPrototype().GetPath()), []).append(world)
@@ -137,8 +137,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         bad = (proto_indices < 0) | (proto_indices >= len(prototypes))
         if bad.any():
             self.warnings.append(f"{path}: {int(bad.sum())} protoIndices out of range (0..{len(prototypes) - 1}); those instances are skipped")
-        # Per-instance transforms relative to the instancer (row vectors), with invisibleIds applied.
-        transforms = instancer.ComputeInstanceTransformsAtTime(self.time, self.time)
+        # Per-instance transforms relative to the instancer (row vectors). The prototype root's own transform
+        # is applied by visiting the prototype relative to its parent; the mask (invisibleIds) below.
+        transforms = instancer.ComputeInstanceTransformsAtTime(
+            self.time, self.time, UsdGeom.PointInstancer.ExcludeProtoXform, UsdGeom.PointInstancer.IgnoreMask)
         if transforms is None or len(transforms) != len(proto_indices):
             self.warnings.append(f"{path}: positions and protoIndices disagree in length; the instancer is skipped")
             return

@@ -95,7 +95,8 @@ class Session:
             if camera not in self.scene.cameras:
                 raise StageError(f"{camera}: not a camera on this stage (cameras: {', '.join(self.scene.cameras) or 'none'})")
             camera_id = camera
-        fallback = framing_camera(self.stage, self.time, width, height)
+        # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
+        fallback = framing_camera(self.stage, self.time, width, height) if not camera_id else _tessera.CameraDesc()
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background))
         warnings, errors = self.index.take_diagnostics()
         warnings = list(self.scene.warnings) + list(warnings)

@@ -217,6 +217,7 @@ private:
         std::string type;
         std::unique_ptr<Prim> prim;
         uint32_t dirty = AllDirty;
+        bool failed = false;  // its last sync threw; left out of the frame until it is dirtied again
     };
     RenderDelegate& delegate_;
     std::map<PrimId, Entry> rprims_, sprims_, bprims_;

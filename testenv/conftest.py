@@ -1,0 +1,39 @@
+"""Shared test set-up: every render runs with the Khronos validation layer and fails on any message."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("TESSERA_VALIDATION", "1")
+
+TESTENV = Path(__file__).parent
+SHARED_ASSETS = (TESTENV.parent.parent / "shared" / "assets").resolve()
+
+
+def shared_asset(relative: str) -> Path:
+    """A file under ../shared/assets, or a skip that says what is missing."""
+    path = SHARED_ASSETS / relative
+    if not path.exists():
+        pytest.skip(f"shared asset {path} is not present (expected beside the project in ../shared/assets)")
+    return path
+
+
+@pytest.fixture
+def render():
+    """Renders a stage with validation on and asserts that no validation message and no error came out."""
+    import tessera
+
+    def _render(stage, *, resolution=(256, 256), camera="auto", aovs=("color",), expect_errors=False, **session_args):
+        session = tessera.Session(stage, validation=True, **session_args)
+        if camera == "auto":
+            camera = session.camera_paths()[0] if session.camera_paths() else None
+        result = session.render(camera=camera, resolution=resolution, aovs=aovs)
+        validation = [e for e in result.errors if e.startswith("validation")]
+        assert not validation, "\n".join(validation)
+        if not expect_errors:
+            assert not result.errors, "\n".join(result.errors)
+        result.session = session
+        return result
+
+    return _render

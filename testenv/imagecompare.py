@@ -1,0 +1,65 @@
+"""Image comparison for image tests, with the semantics of OpenImageIO's idiff as OpenUSD's testenv uses it.
+
+A pixel *fails* when any channel differs from the baseline by more than `fail`; the test fails when more than
+`fail_percent` of the pixels fail. `warn` / `warn_percent` report smaller drifts without failing. Set
+TESSERA_UPDATE_BASELINES=1 to (re)write baselines from the current renders instead of comparing.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+import tessera
+
+
+@dataclass
+class Comparison:
+    failing_percent: float
+    warning_percent: float
+    max_difference: float
+    mean_difference: float
+
+    def __str__(self) -> str:
+        return (f"{self.failing_percent:.3f}% of pixels over the fail threshold, {self.warning_percent:.3f}% over the warn "
+                f"threshold, max difference {self.max_difference:.4f}, mean {self.mean_difference:.5f}")
+
+
+def compare_arrays(result: np.ndarray, baseline: np.ndarray, fail: float, warn: float) -> Comparison:
+    if result.shape != baseline.shape:
+        raise AssertionError(f"image size {result.shape[:2]} differs from the baseline's {baseline.shape[:2]}")
+    difference = np.abs(result.astype(np.float64) - baseline.astype(np.float64)).max(axis=-1)
+    return Comparison(100.0 * float((difference > fail).mean()), 100.0 * float((difference > warn).mean()),
+                      float(difference.max()), float(difference.mean()))
+
+
+def assert_matches_baseline(image_path: Path, baseline_path: Path, *, fail: float = 0.02, fail_percent: float = 0.5,
+                            warn: float = 0.004, warn_percent: float = 1.0) -> Comparison:
+    if os.environ.get("TESSERA_UPDATE_BASELINES") == "1":
+        baseline_path.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(image_path, baseline_path)
+    if not baseline_path.exists():
+        raise AssertionError(f"no baseline {baseline_path}; render one with TESSERA_UPDATE_BASELINES=1 and review it")
+    comparison = compare_arrays(tessera.read_image(str(image_path)), tessera.read_image(str(baseline_path)), fail, warn)
+    if comparison.failing_percent > fail_percent:
+        raise AssertionError(f"{image_path.name} does not match {baseline_path}: {comparison}")
+    if comparison.warning_percent > warn_percent:
+        warnings.warn(f"{image_path.name} drifts from its baseline: {comparison}")
+    return comparison
+
+
+def coverage_mask(rgba: np.ndarray, background_rgb=None, tolerance: float = 0.06) -> np.ndarray:
+    """Pixels covered by geometry: by alpha when the image has it, else those far from a background colour."""
+    if background_rgb is None:
+        return rgba[..., 3] > 0.5
+    return np.abs(rgba[..., :3] - np.asarray(background_rgb)).max(axis=-1) > tolerance
+
+
+def intersection_over_union(a: np.ndarray, b: np.ndarray) -> float:
+    union = np.logical_or(a, b).sum()
+    return float(np.logical_and(a, b).sum() / union) if union else 1.0

@@ -1,0 +1,72 @@
+"""The `tessera` command: outputs, options, and one-line errors for bad input."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+import tessera
+from conftest import TESTENV
+
+CUBE = TESTENV / "testCube" / "cube.usda"
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "tessera.cli", *map(str, args)], capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("extension", ["png", "exr", "tif", "jpg"])
+def test_render_writes_each_format(tmp_path, extension):
+    out = tmp_path / f"cube.{extension}"
+    done = run("render", CUBE, "-o", out, "--resolution", "64x48")
+    assert done.returncode == 0, done.stderr
+    image = tessera.read_image(str(out))
+    assert image.shape == (48, 64, 4)
+    assert image[24, 32, :3].max() > 0.05, "the cube covers the centre"
+
+
+def test_exr_holds_linear_colour_and_png_the_display_transform(tmp_path):
+    assert run("render", CUBE, "-o", tmp_path / "c.exr", "--resolution", "64x64").returncode == 0
+    assert run("render", CUBE, "-o", tmp_path / "c.png", "--resolution", "64x64").returncode == 0
+    linear = tessera.read_image(str(tmp_path / "c.exr"))[32, 32, :3]
+    display = tessera.read_image(str(tmp_path / "c.png"))[32, 32, :3]
+    encoded = [1.055 * c ** (1 / 2.4) - 0.055 if c > 0.0031308 else 12.92 * c for c in linear]
+    assert display == pytest.approx(encoded, abs=2.5 / 255)
+
+
+def test_stats_and_camera_options(tmp_path):
+    stats_file = tmp_path / "stats.json"
+    done = run("render", CUBE, "-o", tmp_path / "a.png", "--camera", "/World/Camera", "--resolution", "80x60", "--aov", "primId",
+               "--stats", stats_file)
+    assert done.returncode == 0, done.stderr
+    stats = json.loads(stats_file.read_text())
+    assert stats["camera"] == "/World/Camera" and stats["resolution"] == [80, 60]
+    assert stats["instances"] == 1 and stats["visible_clusters"] == 1 and stats["errors"] == []
+    assert set(stats["gpu_ms"]) == {"cull", "raster", "resolve"}
+
+
+@pytest.mark.parametrize("args,message", [
+    (["render", "/no/such/stage.usda", "-o", "x.png"], "/no/such/stage.usda: no such file"),
+    (["render", TESTENV / "testBadInput" / "malformed.usda", "-o", "x.png"], "malformed.usda: cannot be opened as a USD stage"),
+    (["render", CUBE, "-o", "x.png", "--camera", "/World/Nope"], "/World/Nope: not a camera on this stage"),
+    (["render", CUBE, "-o", "x.bmp"], "unsupported image format '.bmp'"),
+])
+def test_errors_are_one_line_naming_the_culprit(tmp_path, args, message):
+    args = [str(tmp_path / a) if a in ("x.png", "x.bmp") else a for a in args]
+    done = run(*args)
+    assert done.returncode == 1
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("tessera: error:"), done.stderr
+    assert message in lines[0]
+
+
+def test_bad_resolution_is_rejected(tmp_path):
+    done = run("render", CUBE, "-o", tmp_path / "x.png", "--resolution", "big")
+    assert done.returncode == 2 and "WIDTHxHEIGHT" in done.stderr
+
+
+def test_forcing_a_device_that_does_not_exist_is_one_clear_line(tmp_path):
+    done = run("render", CUBE, "-o", tmp_path / "x.png", "--device", "no-such-gpu")
+    assert done.returncode == 1
+    assert "no usable Vulkan device matches TESSERA_DEVICE=no-such-gpu" in done.stderr

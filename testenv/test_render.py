@@ -1,0 +1,136 @@
+"""Image tests: each scene in testenv/<test>/ renders on the Vulkan device and matches its baseline."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom
+
+import tessera
+from conftest import TESTENV
+from imagecompare import assert_matches_baseline
+
+NO_HIT = 0xFFFFFFFF
+
+
+def render_and_compare(render, tmp_path, test, stage_file, **kwargs):
+    result = render(TESTENV / test / stage_file, **kwargs)
+    out = tmp_path / f"{Path(stage_file).stem}.png"
+    result.write(out)
+    assert_matches_baseline(out, TESTENV / test / "baseline" / out.name)
+    return result
+
+
+def test_cube(render, tmp_path):
+    result = render_and_compare(render, tmp_path, "testCube", "cube.usda")
+    assert result.stats["instances"] == 1
+    assert result.stats["source_triangles"] == 12
+
+
+def test_holes_and_left_handed_orientation(render, tmp_path):
+    result = render_and_compare(render, tmp_path, "testHolesLeftHanded", "holes_left_handed.usda", resolution=(320, 200),
+                                aovs=("color", "primId"))
+    ids = result["primId"].ids()
+    paths = {result.prim_path(int(i)) for i in np.unique(ids) if i != NO_HIT}
+    assert paths == {"/RightHandedWithHole", "/LeftHanded"}, "both single-sided grids face the camera"
+    # The hole (the left grid's centre face) shows the background; the faces around it do not.
+    left_centre_x = int(round(320 * (0.5 - 2.0 / (2 * 9 * 36 / 35 / 2))))  # x = -2 at distance 9, 36 mm / 35 mm
+    row = ids[100]
+    assert row[left_centre_x] == NO_HIT
+    assert row[left_centre_x - 22] != NO_HIT and row[left_centre_x + 22] != NO_HIT
+
+
+def test_point_instancer(render, tmp_path):
+    result = render_and_compare(render, tmp_path, "testPointInstancer", "point_instancer.usda", resolution=(320, 240))
+    # 48 instances, 2 masked by invisibleIds; the nested "Pair" prototype draws 2 cubes per instance.
+    assert result.stats["instances"] == 15 + 15 + 16 * 2
+    assert result.stats["rprims"] == 3, "one rprim per prototype mesh, however many instances"
+
+
+def test_native_instancing_builds_the_prototype_once(render, tmp_path):
+    result = render_and_compare(render, tmp_path, "testNativeInstancing", "native_instancing.usda", resolution=(320, 240))
+    assert result.stats["rprims"] == 2, "the prototype's two gprims are read and built once"
+    assert result.stats["instances"] == 24 * 2, "24 visible instances (one is invisible) of two gprims"
+    assert result.session.index.sync_counts["mesh"] == 2
+
+
+def _cube_stage(offset=None):
+    """An in-memory stage referencing the cube scene (its camera included), optionally moved far away.
+    (Editing the opened file would change the layer every other test shares.)"""
+    stage = Usd.Stage.CreateInMemory()
+    root = UsdGeom.Xform.Define(stage, "/Root")
+    root.GetPrim().GetReferences().AddReference(str(TESTENV / "testCube" / "cube.usda"), "/World")
+    if offset is not None:
+        root.AddTranslateOp().Set(Gf.Vec3d(offset, -offset, offset))
+    return stage
+
+
+def test_far_from_origin_renders_like_the_origin(render):
+    near = render(_cube_stage(0.0), aovs=("color", "primId"))
+    far = render(_cube_stage(1.0e6), aovs=("color", "primId"))
+    assert np.array_equal(near["primId"].ids(), far["primId"].ids())
+    assert np.abs(near["color"].pixels - far["color"].pixels).max() < 1e-3
+
+
+def test_aovs_hold_real_values(render, tmp_path):
+    result = render(TESTENV / "testHolesLeftHanded" / "holes_left_handed.usda", resolution=(320, 200),
+                    aovs=("depth", "normal", "instanceId", "primId"))
+    depth = result["depth"].pixels[..., 0]
+    covered = np.isfinite(depth)
+    assert covered.any() and np.allclose(depth[covered], 9.0, atol=1e-3), "both grids lie 9 units in front of the camera"
+    normal = result["normal"].pixels[..., :3][covered]
+    assert np.allclose(normal, [0.0, 0.0, 1.0], atol=1e-3)
+    instances = result["instanceId"].ids()
+    assert set(np.unique(instances[covered])) == {0, 1}
+    # Id AOVs are stored as uint32 in EXR (read back through a float conversion that normalises them).
+    exr = tmp_path / "prim.exr"
+    result["primId"].write(str(exr), tessera.ocio_config_path())
+    stored = np.rint(tessera.read_image(str(exr))[..., 0].astype(np.float64) * 4294967295.0).astype(np.uint32)
+    assert np.array_equal(stored, result["primId"].ids())
+
+
+def test_renders_are_deterministic(render):
+    stage = TESTENV / "testPointInstancer" / "point_instancer.usda"
+    first = render(stage, resolution=(200, 150), aovs=("color", "primId", "instanceId", "triangleId"))
+    second = render(stage, resolution=(200, 150), aovs=("color", "primId", "instanceId", "triangleId"))
+    for aov in ("color", "primId", "instanceId", "triangleId"):
+        assert first[aov].pixels.tobytes() == second[aov].pixels.tobytes(), aov
+
+
+def test_tiny_visible_cluster_list_grows_and_redraws_the_same_image(render):
+    import tessera
+
+    stage = TESTENV / "testPointInstancer" / "point_instancer.usda"
+    session = tessera.Session(stage, validation=True)
+    session.delegate.set_visible_cluster_capacity(2)
+    tight = session.render(camera="/Camera", resolution=(160, 120), aovs=("primId",))
+    assert tight.stats["overflow_redraws"] >= 1
+    roomy = render(stage, resolution=(160, 120), aovs=("primId",))
+    assert roomy.stats["overflow_redraws"] == 0
+    assert np.array_equal(tight["primId"].ids(), roomy["primId"].ids())
+
+
+def test_bad_meshes_are_named_and_the_rest_renders(render):
+    result = render(TESTENV / "testBadInput" / "bad_meshes.usda", resolution=(200, 100), aovs=("primId",), expect_errors=True)
+    text = "\n".join(result.warnings + result.errors)
+    assert "/PartlyBroken: dropped 2 invalid face(s)" in text
+    assert "/PartlyBroken: 1 point(s) are NaN" in text
+    assert "/CountsDisagree: faceVertexCounts sum to 8 but faceVertexIndices has 4 entries" in text
+    assert "/NegativeIndex: no drawable faces" in text
+    drawn = {result.prim_path(int(i)) for i in np.unique(result["primId"].ids()) if i != NO_HIT}
+    assert drawn == {"/Good", "/PartlyBroken"}, "the valid mesh and the valid face still render"
+
+
+def test_a_prim_whose_data_usd_rejects_is_skipped_by_name(render):
+    stage = _cube_stage()
+    bad = UsdGeom.Mesh.Define(stage, "/Root/BadXform")
+    bad.GetPointsAttr().Set([(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+    bad.GetFaceVertexCountsAttr().Set([3])
+    bad.GetFaceVertexIndicesAttr().Set([0, 1, 2])
+    op = bad.GetPrim().CreateAttribute("xformOp:scale", Sdf.ValueTypeNames.Double)  # scale must be a vector
+    op.Set(2.0)
+    bad.GetPrim().CreateAttribute("xformOpOrder", Sdf.ValueTypeNames.TokenArray).Set(["xformOp:scale"])
+    result = render(stage, aovs=("primId",), expect_errors=True)
+    assert any(e.startswith("/Root/BadXform: ") for e in result.errors), result.errors
+    assert all("\n" not in e for e in result.errors)
+    assert (result["primId"].ids() != NO_HIT).any(), "the cube still renders"
