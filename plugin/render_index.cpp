@@ -167,8 +167,15 @@ std::vector<Image> RenderIndex::execute(const RenderPassSettings& settings, Fram
         lights.push_back({LightType::Distant, direction, {0.85f, 0.85f, 0.85f}});
         lights.push_back({LightType::Dome, {0, 0, -1}, {0.15f, 0.15f, 0.15f}});
     }
+    RenderSettings render = settings.render;
+    for (auto& [id, entry] : sprims_)
+        if (entry.type == "domeLight") {  // the camera sees the dome where no geometry is (as usdview shows it)
+            const auto& r = static_cast<Light&>(*entry.prim).desc().radiance;
+            render.background = {r[0], r[1], r[2], 1.0f};
+            break;
+        }
     delegate_.scene().set_lights(std::move(lights));
-    std::vector<Image> images = delegate_.renderer().render(delegate_.scene(), camera, settings.render, settings.aovs, stats);
+    std::vector<Image> images = delegate_.renderer().render(delegate_.scene(), camera, render, settings.aovs, stats);
     for (const Image& image : images) {
         const PrimId bufferId = std::string("aov:") + aov_name(image.aov);
         if (!bprims_.count(bufferId)) insert_bprim("renderBuffer", bufferId);

@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Installs what Tessera needs on Debian 12 and builds it into .venv. Idempotent: each step checks first.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# Debian 12 (bookworm) packages: Vulkan loader + lavapipe + validation layer, glslang, OpenImageIO, OpenColorIO,
+# GoogleTest, and the compilers. Versions are those of Debian 12.
+APT_PACKAGES=(build-essential cmake ninja-build pkg-config python3-venv libvulkan-dev mesa-vulkan-drivers
+              vulkan-validationlayers glslang-tools libopenimageio-dev libopencolorio-dev libgtest-dev)
+missing=()
+for package in "${APT_PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$package" 2>/dev/null | grep -q "install ok installed" || missing+=("$package")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO=sudo
+  echo "bootstrap: installing ${missing[*]}"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# Python packages, pinned, in the project's own virtual environment.
+PYTHON=${PYTHON:-python3}
+[ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
+.venv/bin/python -m pip install -q --disable-pip-version-check -r tools/requirements.txt
+
+# Build and install the package (incremental: the CMake build folder is build/py).
+.venv/bin/python -m pip install -q --disable-pip-version-check --no-build-isolation --no-deps .
