@@ -164,7 +164,7 @@ std::vector<Image> RenderIndex::execute(const RenderPassSettings& settings, Fram
         const Matrix4d& c = camera.cameraToWorld;
         std::array<double, 3> direction;
         for (int k = 0; k < 3; ++k) direction[k] = -c[k * 4 + 2] - 0.35 * c[k * 4 + 1] + 0.2 * c[k * 4 + 0];
-        lights.push_back({LightType::Distant, direction, {0.85f, 0.85f, 0.85f}});
+        lights.push_back({LightType::Distant, direction, {2.67f, 2.67f, 2.67f}});  // irradiance: 0.85 pi
         lights.push_back({LightType::Dome, {0, 0, -1}, {0.15f, 0.15f, 0.15f}});
     }
     RenderSettings render = settings.render;

@@ -13,7 +13,7 @@ void main() {
 
     GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
-    vec3 translation = camera_relative_translation(instance, frame);
+    vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
     if (!sphere_in_frustum(frame, to_camera_relative(instance, translation, mesh.sphere.xyz), mesh.sphere.w * scale)) return;
 

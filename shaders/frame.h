@@ -20,7 +20,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer O
 layout(push_constant) uniform Push { FrameRef frame; uint aov; } push;  // layout: renderer.cpp PushConstants
 
 // Instance translation relative to the camera (already subtracted in double on the CPU).
-vec3 camera_relative_translation(GpuInstance instance, GpuFrame frame) {
+vec3 camera_relative_translation(GpuInstance instance) {
     return vec3(instance.rows[0].w, instance.rows[1].w, instance.rows[2].w) + instance.translationLow.xyz;
 }
 

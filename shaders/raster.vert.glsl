@@ -21,7 +21,7 @@ void main() {
     GpuInstance instance = InstanceRef(frame.instances).data[visible.x];
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
     uint vertex = corner_vertex(frame, cluster, triangle, uint(gl_VertexIndex) % 3u, flip);
-    vec3 p = to_camera_relative(instance, camera_relative_translation(instance, frame), vertex_position(frame, vertex));
+    vec3 p = to_camera_relative(instance, camera_relative_translation(instance), vertex_position(frame, vertex));
     gl_Position = frame.viewProjection * vec4(p, 1.0);
     outPayload = (uint(gl_InstanceIndex) << TS_VIS_TRIANGLE_BITS) | triangle;
     outFlags = instance.flags;

@@ -7,6 +7,8 @@
 
 layout(local_size_x = TS_RESOLVE_TILE, local_size_y = TS_RESOLVE_TILE) in;
 
+const float PI = 3.14159265358979;
+
 vec3 decode_octahedral(uint packed) {
     vec2 e = unpackSnorm2x16(packed);
     vec3 n = vec3(e, 1.0 - abs(e.x) - abs(e.y));
@@ -53,7 +55,7 @@ void main() {
 
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
-    vec3 translation = camera_relative_translation(instance, frame);
+    vec3 translation = camera_relative_translation(instance);
     uint v0 = corner_vertex(frame, cluster, triangle, 0u, flip);
     uint v1 = corner_vertex(frame, cluster, triangle, 1u, flip);
     uint v2 = corner_vertex(frame, cluster, triangle, 2u, flip);
@@ -114,9 +116,9 @@ void main() {
     for (uint i = 0u; i < frame.viewport.w; ++i) {
         GpuLight light = frame.lights[i];
         if (uint(light.directionType.w) == TS_LIGHT_DISTANT)
-            color += albedo * light.radiance.rgb * max(dot(n, -light.directionType.xyz), 0.0);
+            color += albedo / PI * light.radiance.rgb * max(dot(n, -light.directionType.xyz), 0.0);  // Lambert
         else
-            color += albedo * light.radiance.rgb;  // dome: uniform environment, no occlusion yet
+            color += albedo * light.radiance.rgb;  // uniform dome radiance L reflects albedo * L; no occlusion yet
     }
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }

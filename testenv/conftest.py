@@ -26,6 +26,7 @@ def render():
 
     def _render(stage, *, resolution=(256, 256), camera="auto", aovs=("color",), expect_errors=False, **session_args):
         session = tessera.Session(stage, validation=True, **session_args)
+        assert session.delegate.validation_enabled, "tests run with the Khronos validation layer"
         if camera == "auto":
             camera = session.camera_paths()[0] if session.camera_paths() else None
         result = session.render(camera=camera, resolution=resolution, aovs=aovs)

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 import tessera
 from conftest import TESTENV
@@ -34,7 +34,8 @@ def test_holes_and_left_handed_orientation(render, tmp_path):
     paths = {result.prim_path(int(i)) for i in np.unique(ids) if i != NO_HIT}
     assert paths == {"/RightHandedWithHole", "/LeftHanded"}, "both single-sided grids face the camera"
     # The hole (the left grid's centre face) shows the background; the faces around it do not.
-    left_centre_x = int(round(320 * (0.5 - 2.0 / (2 * 9 * 36 / 35 / 2))))  # x = -2 at distance 9, 36 mm / 35 mm
+    # The hole's centre is at x = -2, 9 units away; 35 mm lens, the 24 mm aperture widened to 320/200 of it.
+    left_centre_x = int(round(160 + (-2.0 / 9.0) * (35.0 / (24.0 * 320 / 200)) * 320))
     row = ids[100]
     assert row[left_centre_x] == NO_HIT
     assert row[left_centre_x - 22] != NO_HIT and row[left_centre_x + 22] != NO_HIT
@@ -134,3 +135,56 @@ def test_a_prim_whose_data_usd_rejects_is_skipped_by_name(render):
     assert any(e.startswith("/Root/BadXform: ") for e in result.errors), result.errors
     assert all("\n" not in e for e in result.errors)
     assert (result["primId"].ids() != NO_HIT).any(), "the cube still renders"
+
+
+def _quad(stage, path, x, color=None):
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.GetPointsAttr().Set([(x - 0.4, -0.4, 0), (x + 0.4, -0.4, 0), (x + 0.4, 0.4, 0), (x - 0.4, 0.4, 0)])
+    mesh.GetFaceVertexCountsAttr().Set([4])
+    mesh.GetFaceVertexIndicesAttr().Set([0, 1, 2, 3])
+    if color:
+        mesh.CreateDisplayColorAttr([color])
+    return mesh
+
+
+def _looking_at_quads(stage):
+    camera = UsdGeom.Camera.Define(stage, "/Camera")
+    camera.AddTranslateOp().Set(Gf.Vec3d(0, 0, 5))
+    camera.GetHorizontalApertureAttr().Set(40.0)
+    camera.GetVerticalApertureAttr().Set(10.0)
+    return camera
+
+
+def test_purpose_visibility_and_time(render):
+    from pxr import UsdShade
+
+    stage = Usd.Stage.CreateInMemory()
+    _looking_at_quads(stage)
+    _quad(stage, "/Default", -1.5, (1, 1, 1))
+    UsdGeom.Imageable(_quad(stage, "/Proxy", -0.5, (1, 1, 1))).GetPurposeAttr().Set(UsdGeom.Tokens.proxy)
+    hidden = UsdGeom.Xform.Define(stage, "/Hidden")
+    hidden.GetVisibilityAttr().Set(UsdGeom.Tokens.invisible)
+    _quad(stage, "/Hidden/Child", 0.5, (1, 1, 1))  # invisible through its parent
+    moving = _quad(stage, "/Moving", 1.5, (1, 1, 1))
+    translate = moving.AddTranslateOp()
+    translate.Set(Gf.Vec3d(0, 0, 0), 1.0)
+    translate.Set(Gf.Vec3d(0, 2, 0), 10.0)  # at frame 10 it has moved out of the frame
+    # A UsdPreviewSurface bound to /Default: its diffuseColor wins over displayColor.
+    material = UsdShade.Material.Define(stage, "/Looks/Blue")
+    shader = UsdShade.Shader.Define(stage, "/Looks/Blue/Surface")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.05, 0.1, 0.9))
+    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(stage.GetPrimAtPath("/Default")).Bind(material)
+    light = UsdLux.DistantLight.Define(stage, "/Sun")
+    light.CreateColorAttr(Gf.Vec3f(1.0, 1.0, 0.0))  # yellow light on a blue surface: little comes back in blue
+
+    def drawn(frame):
+        result = render(stage, resolution=(400, 100), aovs=("primId", "color"), frame=frame)
+        return result, {result.prim_path(int(i)) for i in np.unique(result["primId"].ids()) if i != NO_HIT}
+
+    first, paths = drawn(1.0)
+    assert paths == {"/Default", "/Moving"}, "proxy purpose and invisible parents are not drawn"
+    assert drawn(10.0)[1] == {"/Default"}, "--frame reads time samples"
+    centre = first["color"].pixels[50, 200 - 150]  # /Default's centre: x = -1.5 at 5 units, 50 mm over 40 mm
+    assert centre[0] < 0.1 and centre[2] < 0.02 and centre[1] > 0.02, f"blue diffuse lit by a yellow light, got {centre}"

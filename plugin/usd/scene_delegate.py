@@ -195,23 +195,21 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             raise _tessera.MeshError(f"{name}: points, faceVertexCounts or faceVertexIndices is not authored")
         holes = array(mesh.GetHoleIndicesAttr(), np.int32)
         primvars = UsdGeom.PrimvarsAPI(prim)
-        normals, normals_interp, normals_idx = None, "vertex", None
-        normals_pv = primvars.GetPrimvar("normals")
-        if normals_pv and normals_pv.HasAuthoredValue():
-            normals = array(normals_pv, np.float32, 3)
-            normals_interp = normals_pv.GetInterpolation()
-            idx = normals_pv.GetIndices(t)
-            normals_idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
-        elif mesh.GetNormalsAttr().HasAuthoredValue():
-            normals = array(mesh.GetNormalsAttr(), np.float32, 3)
-            normals_interp = mesh.GetNormalsInterpolation()
-        color, color_interp, color_idx = None, "constant", None
-        color_pv = primvars.GetPrimvar("displayColor")
-        if color_pv and color_pv.HasAuthoredValue():
-            color = array(color_pv, np.float32, 3)
-            color_interp = color_pv.GetInterpolation()
-            idx = color_pv.GetIndices(t)
-            color_idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
+
+        def primvar(primvar_name, default_interpolation):
+            """(values, interpolation, indices) of an authored primvar, else (None, default, None)."""
+            pv = primvars.GetPrimvar(primvar_name)
+            if not (pv and pv.HasAuthoredValue()):
+                return None, default_interpolation, None
+            idx = pv.GetIndices(t)
+            idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
+            return array(pv, np.float32, 3), pv.GetInterpolation(), idx
+
+        # primvars:normals wins over the normals attribute, as in UsdImaging.
+        normals, normals_interp, normals_idx = primvar("normals", "vertex")
+        if normals is None and mesh.GetNormalsAttr().HasAuthoredValue():
+            normals, normals_interp = array(mesh.GetNormalsAttr(), np.float32, 3), mesh.GetNormalsInterpolation()
+        color, color_interp, color_idx = primvar("displayColor", "constant")
         return _tessera.mesh_source(
             name, points, counts, indices,
             hole_indices=holes,
@@ -269,12 +267,19 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         exposure = light.GetExposureAttr().Get(t) or 0.0
         color = np.asarray(light.GetColorAttr().Get(t) or (1, 1, 1), dtype=np.float64)
         desc = _tessera.LightDesc()
-        desc.radiance = tuple(float(c) for c in color * intensity * 2.0 ** exposure)
+        radiance = color * intensity * 2.0 ** exposure
         if prim.IsA(UsdLux.DistantLight):
+            # UsdLux: a distant light's intensity is the radiance of a disk `angle` degrees across; the irradiance
+            # it delivers is that times the disk's solid angle, unless inputs:normalize says it already is one.
+            if not light.GetNormalizeAttr().Get(t):
+                half_angle = np.radians(UsdLux.DistantLight(prim).GetAngleAttr().Get(t) or 0.53) / 2.0
+                radiance = radiance * 2.0 * np.pi * (1.0 - np.cos(half_angle))
+            desc.radiance = tuple(float(c) for c in radiance)
             desc.type = _tessera.LightType.distant
             world = self.xform_cache.GetLocalToWorldTransform(prim)
             desc.direction = tuple(world.TransformDir(Gf.Vec3d(0, 0, -1)))  # lights emit along their -Z
         else:
+            desc.radiance = tuple(float(c) for c in radiance)
             desc.type = _tessera.LightType.dome
         return desc
 

@@ -4,7 +4,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
+#include <string>
 
 using namespace tessera;
 
@@ -48,7 +50,11 @@ CameraDesc camera_at(double x, double y, double z) {
 
 class RendererTest : public ::testing::Test {
 protected:
-    static void SetUpTestSuite() { device = new Device(); }
+    static void SetUpTestSuite() {
+        device = new Device();
+        const char* wanted = std::getenv("TESSERA_VALIDATION");
+        if (wanted && std::string(wanted) == "1") EXPECT_TRUE(device->validation_enabled()) << "the validation layer must be active";
+    }
     static void TearDownTestSuite() {
         EXPECT_EQ(device->validation_error_count(), 0u);
         for (auto& m : device->take_validation_messages()) ADD_FAILURE() << m;

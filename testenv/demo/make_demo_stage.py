@@ -149,7 +149,8 @@ def make_stage(path: Path, rocks: int = 1200, detail: int = 6) -> Usd.Stage:
     camera.AddTransformOp().Set(view.GetInverse())
 
     sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
-    sun.CreateIntensityAttr(1.1)
+    sun.CreateIntensityAttr(3.3)
+    sun.CreateNormalizeAttr(True)  # intensity is the irradiance
     sun.CreateColorAttr(Gf.Vec3f(1.0, 0.95, 0.85))
     sun.AddRotateXYZOp().Set(Gf.Vec3f(-50.0, 35.0, 0.0))
     sky = UsdLux.DomeLight.Define(stage, "/World/Sky")

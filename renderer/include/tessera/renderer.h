@@ -36,7 +36,9 @@ enum class LightType { Distant, Dome };
 struct LightDesc {
     LightType type = LightType::Distant;
     std::array<double, 3> direction{0, 0, -1};  // world direction the light travels (distant lights)
-    std::array<float, 3> radiance{1, 1, 1};     // colour * intensity * 2^exposure
+    // Distant: irradiance at normal incidence (UsdLux intensity times the sun disk's solid angle, unless
+    // normalized). Dome: uniform radiance of the environment.
+    std::array<float, 3> radiance{1, 1, 1};
 };
 
 // A camera: where it is, and how it projects (USD's UsdGeomCamera model: apertures and focal length in the
