@@ -223,6 +223,7 @@ struct Renderer::Impl {
     // Frame resources.
     Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
     uint32_t capacity = 1u << 16;
+    bool capacityPinned = false;  // set explicitly (tests): never sized from the scene
     uint32_t width = 0, height = 0;
 
     explicit Impl(Device& d) : device(d) {}
@@ -368,6 +369,9 @@ struct Renderer::Impl {
         }
         instanceCount = uint32_t(gpuInstances.size());
         relativeTo = {NAN, NAN, NAN};
+        // Every cluster of every instance is an upper bound on the visible ones: start there (8 bytes each, within
+        // reason) so that a frame rarely pays for an overflow redraw.
+        if (!capacityPinned) capacity = std::clamp<uint32_t>(clusterCount, capacity, 1u << 22);
     }
 
     // Camera-relative rendering: translations minus the camera position, subtracted in double, so geometry far
@@ -417,7 +421,10 @@ struct Renderer::Impl {
 Renderer::Renderer(Device& device) : device_(device), impl_(std::make_unique<Impl>(device)) { impl_->create_pipelines(); }
 Renderer::~Renderer() = default;
 
-void Renderer::set_visible_cluster_capacity(uint32_t capacity) { impl_->capacity = std::max(capacity, 1u); }
+void Renderer::set_visible_cluster_capacity(uint32_t capacity) {
+    impl_->capacity = std::max(capacity, 1u);
+    impl_->capacityPinned = true;
+}
 
 std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs, FrameStats* stats) {
     Impl& s = *impl_;

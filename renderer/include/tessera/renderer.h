@@ -117,7 +117,8 @@ public:
     std::vector<Image> render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings,
                               const std::vector<Aov>& aovs, FrameStats* stats = nullptr);
 
-    // Starts the visible-cluster list at this many entries (tests use tiny values to force overflow).
+    // Pins the visible-cluster list's starting size (by default it follows the scene's cluster count, up to 4 M);
+    // tests use tiny values to force the overflow path.
     void set_visible_cluster_capacity(uint32_t capacity);
 
     Device& device() { return device_; }
