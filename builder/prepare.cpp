@@ -2,6 +2,7 @@
 #include "tessera/builder.h"
 
 #include <cmath>
+#include <cstring>
 #include <unordered_map>
 
 namespace tessera {
@@ -75,20 +76,28 @@ private:
     bool active_ = false;
 };
 
+// A vertex is a point with its attribute *values*: corners that agree share a vertex (a weld), corners that
+// differ make a seam. Values are compared bit for bit.
 struct CornerKey {
     uint32_t point;
-    int64_t normal;
-    int64_t color;
+    uint32_t normal[3];
+    uint32_t color[3];
     bool operator==(const CornerKey&) const = default;
 };
 struct CornerKeyHash {
     size_t operator()(const CornerKey& k) const {
         uint64_t h = k.point * 0x9E3779B97F4A7C15ull;
-        h ^= uint64_t(k.normal + 1) * 0xC2B2AE3D27D4EB4Full + (h << 6) + (h >> 2);
-        h ^= uint64_t(k.color + 1) * 0x165667B19E3779F9ull + (h << 6) + (h >> 2);
-        return size_t(h);
+        for (uint32_t v : {k.normal[0], k.normal[1], k.normal[2], k.color[0], k.color[1], k.color[2]}) h = (h ^ v) * 0x100000001B3ull;
+        return size_t(h ^ (h >> 29));
     }
 };
+void value_bits(const PrimvarLookup& primvar, int64_t index, uint32_t bits[3]) {
+    if (index < 0) {
+        bits[0] = bits[1] = bits[2] = 0xffffffffu;
+        return;
+    }
+    std::memcpy(bits, primvar.value(index), 3 * sizeof(float));
+}
 
 }  // namespace
 
@@ -143,12 +152,15 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     std::string firstBadReason;
     auto corner_vertex = [&](size_t face, size_t corner) {
         const uint32_t p = uint32_t(mesh.faceVertexIndices[corner]);
-        CornerKey key{p, normals.value_index(face, corner, p), vertexColors ? colors.value_index(face, corner, p) : -1};
+        const int64_t normal = normals.value_index(face, corner, p), color = vertexColors ? colors.value_index(face, corner, p) : -1;
+        CornerKey key{p, {}, {}};
+        value_bits(normals, normal, key.normal);
+        value_bits(colors, color, key.color);
         auto [it, inserted] = vertexOf.try_emplace(key, uint32_t(vertexPoint.size()));
         if (inserted) {
             vertexPoint.push_back(p);
-            vertexNormal.push_back(key.normal);
-            vertexColor.push_back(key.color);
+            vertexNormal.push_back(normal);
+            vertexColor.push_back(color);
         }
         return it->second;
     };

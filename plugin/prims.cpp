@@ -19,7 +19,7 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
             if (source.view.name.empty()) source.view.name = id();
             PreparedMesh prepared = prepare_mesh(source.view);
             for (auto& w : prepared.warnings) param.warnings.push_back(std::move(w));
-            gpuMesh_ = scene_.add_mesh(std::make_shared<BuiltMesh>(build_clusters(prepared)));
+            gpuMesh_ = scene_.add_mesh(std::make_shared<BuiltMesh>(build_mesh(prepared)));
         } catch (const MeshError& e) {
             param.errors.push_back(std::string(e.what()) + "; the mesh is skipped");
         }

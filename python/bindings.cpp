@@ -15,6 +15,7 @@
 #include <nanobind/stl/vector.h>
 #include <nanobind/trampoline.h>
 
+#include <cmath>
 #include <cstring>
 
 namespace nb = nanobind;
@@ -290,15 +291,39 @@ NB_MODULE(_tessera, m) {
             view.points = {points.data(), points.shape(0)};
             view.faceVertexCounts = {counts.data(), counts.shape(0)};
             view.faceVertexIndices = {indices.data(), indices.shape(0)};
-            PreparedMesh prepared = prepare_mesh(view);
-            BuiltMesh built = build_clusters(prepared);
+            PreparedMesh prepared;
+            BuiltMesh built;
+            {
+                nb::gil_scoped_release release;  // building is pure C++: let other Python threads run
+                prepared = prepare_mesh(view);
+                built = build_mesh(prepared);
+            }
             nb::dict d;
             d["source_triangles"] = built.sourceTriangles;
-            d["vertices"] = built.positions.size() / 3;
             d["clusters"] = built.clusters.size();
+            d["leaf_clusters"] = built.leafClusters;
+            d["groups"] = built.groups;
+            d["size"] = built.size;
+            nb::list levels;
+            for (const LevelStats& level : built.levels) {
+                nb::dict l;
+                l["clusters"] = level.clusters;
+                l["triangles"] = level.triangles;
+                l["max_error"] = level.maxError;
+                l["relative_error"] = built.size > 0 ? level.maxError / built.size : 0.0f;
+                levels.append(l);
+            }
+            d["levels"] = levels;
+            uint64_t roots = 0;
+            for (const Cluster& c : built.clusters)
+                if (std::isinf(c.parentError)) roots += c.triangleCount;
+            d["root_triangles"] = roots;
+            d["memory_bytes"] = built.positions.size() * 4 + built.normals.size() * 4 + built.colors.size() * 4 + built.triangles.size() * 4 +
+                                built.clusters.size() * sizeof(Cluster);
             d["warnings"] = prepared.warnings;
             return d;
         },
         "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "name"_a = "mesh",
-        "Prepares and clusters a mesh; returns its statistics.");
+        "Prepares a mesh and builds its cluster DAG; returns the DAG's statistics (levels, clusters, groups, triangles and "
+        "error per level, in-memory bytes).");
 }

@@ -322,16 +322,19 @@ struct Renderer::Impl {
             const uint32_t vertexBase = uint32_t(gpuPositions.size() / 3), triangleBase = uint32_t(gpuTriangles.size());
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
             g.clusterOffset = uint32_t(gpuClusters.size());
-            g.clusterCount = uint32_t(mesh->clusters.size());
             g.vertexOffset = vertexBase;
             if (!mesh->colors.empty()) g.colorOffset = uint32_t(gpuColors.size() / 2);
-            for (const Cluster& c : mesh->clusters)
+            // Until the GPU evaluates the DAG cut, only the full-detail level is uploaded and drawn (it comes first).
+            g.clusterCount = mesh->leafClusters;
+            for (uint32_t i = 0; i < mesh->leafClusters; ++i) {
+                const Cluster& c = mesh->clusters[i];
                 gpuClusters.push_back({{c.sphere[0], c.sphere[1], c.sphere[2], c.sphere[3]}, vertexBase + c.vertexOffset,
                                        triangleBase + c.triangleOffset, c.triangleCount, uint32_t(m)});
-            gpuPositions.insert(gpuPositions.end(), mesh->positions.begin(), mesh->positions.end());
-            gpuNormals.insert(gpuNormals.end(), mesh->normals.begin(), mesh->normals.end());
-            gpuColors.insert(gpuColors.end(), mesh->colors.begin(), mesh->colors.end());
-            gpuTriangles.insert(gpuTriangles.end(), mesh->triangles.begin(), mesh->triangles.end());
+            }
+            gpuPositions.insert(gpuPositions.end(), mesh->positions.begin(), mesh->positions.begin() + 3 * mesh->leafVertices);
+            gpuNormals.insert(gpuNormals.end(), mesh->normals.begin(), mesh->normals.begin() + mesh->leafVertices);
+            if (!mesh->colors.empty()) gpuColors.insert(gpuColors.end(), mesh->colors.begin(), mesh->colors.begin() + 2 * mesh->leafVertices);
+            gpuTriangles.insert(gpuTriangles.end(), mesh->triangles.begin(), mesh->triangles.begin() + mesh->leafTriangles);
         }
         upload_vector(device, meshes, gpuMeshes);
         upload_vector(device, clusters, gpuClusters);
@@ -364,7 +367,7 @@ struct Renderer::Impl {
             g.materialIndex = std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
             g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u);
             gpuInstances.push_back(g);
-            clusterCount += uint32_t(mesh->clusters.size());
+            clusterCount += mesh->leafClusters;
             sourceTriangles += mesh->sourceTriangles;
         }
         instanceCount = uint32_t(gpuInstances.size());

@@ -145,13 +145,16 @@ struct Grid {
 
 TEST(Clusters, RespectBudgetsAndCoverEveryTriangle) {
     Grid g(100);
-    BuiltMesh b = build_clusters(prepare_mesh(g.view()));
+    BuiltMesh b = build_mesh(prepare_mesh(g.view()));
     EXPECT_EQ(b.sourceTriangles, 20000u);
-    size_t triangles = 0;
+    size_t triangles = 0, leaves = 0;
     for (const Cluster& c : b.clusters) {
         EXPECT_LE(c.triangleCount, kClusterMaxTriangles);
         EXPECT_LE(c.vertexCount, kClusterMaxVertices);
-        triangles += c.triangleCount;
+        if (c.level == 0) {
+            triangles += c.triangleCount;
+            ++leaves;
+        }
         // Every vertex of the cluster lies inside its sphere.
         for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) {
             float d2 = 0;
@@ -161,20 +164,21 @@ TEST(Clusters, RespectBudgetsAndCoverEveryTriangle) {
         for (uint32_t t = c.triangleOffset; t < c.triangleOffset + c.triangleCount; ++t)
             for (int k = 0; k < 3; ++k) EXPECT_LT((b.triangles[t] >> (8 * k)) & 0xff, c.vertexCount);
     }
-    EXPECT_EQ(triangles, 20000u);
-    EXPECT_GE(double(triangles) / b.clusters.size(), 110.0) << "clusters of a regular grid should be nearly full";
+    EXPECT_EQ(triangles, 20000u) << "level 0 holds every source triangle";
+    EXPECT_EQ(leaves, b.leafClusters);
+    EXPECT_GE(double(triangles) / leaves, 110.0) << "clusters of a regular grid should be nearly full";
 }
 
 TEST(Clusters, FarFromOriginKeepsPrecisionInTheOrigin) {
     Grid g(10, 1.0e6);
-    BuiltMesh b = build_clusters(prepare_mesh(g.view()));
+    BuiltMesh b = build_mesh(prepare_mesh(g.view()));
     EXPECT_NEAR(b.origin[0], 1.0e6 + 5.0, 1e-9);
     for (size_t i = 0; i < b.positions.size(); i += 3) EXPECT_LE(std::fabs(b.positions[i]), 5.0f + 1e-6f);
 }
 
 TEST(Clusters, DeterministicOutput) {
     Grid g(40);
-    BuiltMesh a = build_clusters(prepare_mesh(g.view())), b = build_clusters(prepare_mesh(g.view()));
+    BuiltMesh a = build_mesh(prepare_mesh(g.view())), b = build_mesh(prepare_mesh(g.view()));
     EXPECT_EQ(a.positions, b.positions);
     EXPECT_EQ(a.triangles, b.triangles);
     EXPECT_EQ(a.normals, b.normals);

@@ -33,7 +33,7 @@ std::shared_ptr<BuiltMesh> grid_mesh(int n) {
     v.points = points;
     v.faceVertexCounts = counts;
     v.faceVertexIndices = indices;
-    return std::make_shared<BuiltMesh>(build_clusters(prepare_mesh(v)));
+    return std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(v)));
 }
 
 CameraDesc camera_at(double x, double y, double z) {

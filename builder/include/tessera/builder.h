@@ -1,5 +1,5 @@
 // Tessera builder: turns an authored polygon mesh into clusters the renderer can draw.
-// Knows only meshes: no USD, no Vulkan. The entry points are prepare_mesh() then build_clusters().
+// Knows only meshes: no USD, no Vulkan. The entry points are prepare_mesh() then build_mesh().
 #pragma once
 
 #include <array>
@@ -11,7 +11,8 @@
 
 namespace tessera {
 
-// Cluster budget (the renderer checks these against shaders/shared.h).
+// Cluster budget (the renderer checks these against shaders/shared.h). The DAG builder's clusters use at most
+// 255 vertices (meshoptimizer's meshlet limit), within the 8-bit local index.
 constexpr uint32_t kClusterMaxTriangles = 128;
 constexpr uint32_t kClusterMaxVertices = 256;
 
@@ -62,16 +63,34 @@ struct PreparedMesh {
 // throws MeshError naming the mesh and the problem.
 PreparedMesh prepare_mesh(const MeshView& mesh);
 
+// One cluster of the DAG. Level 0 holds the source triangles; each higher level was made by simplifying a
+// group of clusters below it. The runtime draws a cluster iff its LOD error, projected from its LOD sphere,
+// is within the threshold while its parent's is not. Siblings share their LOD bounds, children share their
+// parent bounds, and both grow monotonically up the DAG (parent error >= child error, parent sphere contains
+// child sphere), so the test is local and every cut is crack-free.
 struct Cluster {
-    std::array<float, 4> sphere;  // centre (mesh space, relative to BuiltMesh::origin) and radius
-    uint32_t vertexOffset;        // into BuiltMesh vertex streams
-    uint32_t vertexCount;         // <= 256
-    uint32_t triangleOffset;      // into BuiltMesh::triangles
-    uint32_t triangleCount;       // <= 128
+    std::array<float, 4> sphere;        // culling bounds of its own triangles (mesh space, relative to origin)
+    std::array<float, 4> lodSphere;     // bounds of the group simplification that made it
+    float lodError;                     // that simplification's error in mesh units (0 at level 0)
+    std::array<float, 4> parentSphere;  // bounds of the group simplification made from it
+    float parentError;                  // its error; infinity for roots
+    uint32_t level;
+    uint32_t vertexOffset;              // into BuiltMesh vertex streams
+    uint32_t vertexCount;               // <= 255
+    uint32_t triangleOffset;            // into BuiltMesh::triangles
+    uint32_t triangleCount;             // <= 128
 };
 
-// Clusters over cluster-local vertex streams. Positions are relative to `origin` (computed in double), so a
+struct LevelStats {
+    uint32_t clusters = 0;
+    uint64_t triangles = 0;
+    float maxError = 0;  // largest LOD error of the level's clusters, mesh units
+};
+
+// The cluster DAG over cluster-local vertex streams. Positions are relative to `origin` (computed in double), so a
 // mesh authored far from the origin keeps its precision once its origin moves into the instance transform.
+// Clusters are stored level 0 first: the first `leafClusters` clusters (and their vertices and triangles, which
+// come first in the streams) are the full-detail mesh.
 struct BuiltMesh {
     std::array<double, 3> origin{};
     std::vector<float> positions;       // 3 per vertex, relative to origin
@@ -79,14 +98,18 @@ struct BuiltMesh {
     std::vector<uint32_t> colors;       // 2 per vertex (rgba16f) when the mesh has vertex colours
     std::vector<uint32_t> triangles;    // 3 x 8-bit cluster-local indices per triangle
     std::vector<Cluster> clusters;
+    uint32_t leafClusters = 0, leafVertices = 0, leafTriangles = 0;
+    std::vector<LevelStats> levels;
+    uint32_t groups = 0;
     std::array<float, 4> sphere{};     // whole mesh, relative to origin
+    float size = 0;                     // diagonal of the mesh's bounding box
     std::array<float, 3> constantColor{0.5f, 0.5f, 0.5f};
     bool hasConstantColor = false;
     size_t sourceTriangles = 0;
 };
 
-// Splits the prepared triangles into spatially compact clusters (Morton order of triangle centroids).
-BuiltMesh build_clusters(const PreparedMesh& mesh);
+// Builds the cluster DAG of a prepared mesh (meshoptimizer for clusters, partitioning and simplification).
+BuiltMesh build_mesh(const PreparedMesh& mesh);
 
 // Octahedral normal encoding (snorm16x2 packed in a uint32), shared with the shaders' decoder.
 uint32_t encode_octahedral(float x, float y, float z);

@@ -1,0 +1,365 @@
+// The cluster DAG: clusters of the source triangles, then rounds of grouping and simplifying until a round
+// makes no progress. Invariants (shared/DESIGN.md): group borders are locked while a group simplifies, so a
+// parent shares its border vertices with its neighbours exactly (crack-free cuts); a group's error is its own
+// simplification error plus the largest of its children's, and its sphere encloses its children's (monotone).
+#include "tessera/builder.h"
+
+#include <meshoptimizer.h>
+
+#include <algorithm>
+#include <cfloat>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <map>
+#include <unordered_map>
+
+namespace tessera {
+namespace {
+
+constexpr size_t kClusterVertices = 255;  // meshoptimizer's meshlet limit
+constexpr size_t kGroupSize = 16;         // clusters per group (partitions come out between about 8 and 32)
+constexpr double kStuckRatio = 0.85;      // a group that keeps more than this share of its triangles is stuck
+
+struct Sphere {
+    double x = 0, y = 0, z = 0, r = 0;
+};
+
+double distance(const Sphere& a, const Sphere& b) { return std::sqrt((a.x - b.x) * (a.x - b.x) + (a.y - b.y) * (a.y - b.y) + (a.z - b.z) * (a.z - b.z)); }
+
+// A sphere enclosing every sphere given (grown one sphere at a time; exact for two).
+Sphere enclose(const std::vector<Sphere>& spheres) {
+    Sphere s = *std::max_element(spheres.begin(), spheres.end(), [](const Sphere& a, const Sphere& b) { return a.r < b.r; });
+    for (const Sphere& o : spheres) {
+        const double d = distance(s, o);
+        if (d + o.r <= s.r) continue;
+        if (d + s.r <= o.r) {
+            s = o;
+            continue;
+        }
+        const double r = (d + s.r + o.r) / 2, t = (r - s.r) / d;
+        s = {s.x + (o.x - s.x) * t, s.y + (o.y - s.y) * t, s.z + (o.z - s.z) * t, r};
+    }
+    for (const Sphere& o : spheres) s.r = std::max(s.r, distance(s, o) + o.r);  // rounding never leaves one out
+    return s;
+}
+
+// Smallest sphere centred on the box centre that holds the vertices.
+Sphere vertex_sphere(const std::vector<float>& positions, const uint32_t* vertices, size_t count) {
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < count; ++i)
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], double(positions[3 * vertices[i] + k]));
+            hi[k] = std::max(hi[k], double(positions[3 * vertices[i] + k]));
+        }
+    Sphere s{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2, 0};
+    for (size_t i = 0; i < count; ++i) {
+        const float* p = &positions[3 * vertices[i]];
+        s.r = std::max(s.r, std::sqrt((p[0] - s.x) * (p[0] - s.x) + (p[1] - s.y) * (p[1] - s.y) + (p[2] - s.z) * (p[2] - s.z)));
+    }
+    return s;
+}
+
+std::array<float, 4> to_float(const Sphere& s) {
+    // Round the radius up so that the float sphere still contains what the double one did.
+    const float r = float(s.r) * (1 + 4 * FLT_EPSILON) + float(std::fabs(s.x) + std::fabs(s.y) + std::fabs(s.z)) * 4 * FLT_EPSILON;
+    return {float(s.x), float(s.y), float(s.z), r};
+}
+
+struct WorkCluster {
+    std::vector<uint32_t> indices;  // 3 per triangle, into the mesh's vertices
+    Sphere lodSphere;
+    float lodError = 0;
+    uint32_t level = 0;
+    int32_t parentGroup = -1;
+};
+
+struct Group {
+    Sphere sphere;
+    float error;
+};
+
+
+// Foliage-like input (many small disconnected parts) cannot simplify by edge collapse. Parts of a group that
+// touch no locked vertex are connected to nothing outside it, so dropping them whole opens no crack: drop the
+// smallest such parts until the target is met, never the last one, and count the largest dropped part's extent
+// as error. (meshoptimizer's own pruning may remove parts that touch locked borders, so it is not used.)
+size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t target, const std::vector<float>& positions,
+                            const std::vector<uint32_t>& positionId, const std::vector<unsigned char>& lock, float& error) {
+    // Union-find over positions, through triangle edges.
+    std::unordered_map<uint32_t, uint32_t> parent;
+    auto find = [&](uint32_t p) {
+        auto it = parent.try_emplace(p, p).first;
+        uint32_t root = p;
+        while (parent[root] != root) root = parent[root];
+        while (it->second != root) {  // path compression
+            const uint32_t next = it->second;
+            it->second = root;
+            it = parent.find(next);
+        }
+        return root;
+    };
+    for (size_t i = 0; i < count; i += 3) {
+        const uint32_t a = find(positionId[indices[i]]);
+        for (int k = 1; k < 3; ++k) {
+            const uint32_t b = find(positionId[indices[i + k]]);
+            if (a != b) parent[b] = a;
+        }
+    }
+    struct Part {
+        bool locked = false;
+        size_t triangles = 0;
+        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        double extent() const { return std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2])); }
+    };
+    std::map<uint32_t, Part> parts;  // ordered: deterministic
+    for (size_t i = 0; i < count; ++i) {
+        Part& part = parts[find(positionId[indices[i]])];
+        part.locked |= lock[indices[i]] != 0;
+        if (i % 3 == 0) ++part.triangles;
+        for (int k = 0; k < 3; ++k) {
+            part.lo[k] = std::min(part.lo[k], double(positions[3 * indices[i] + k]));
+            part.hi[k] = std::max(part.hi[k], double(positions[3 * indices[i] + k]));
+        }
+    }
+    std::vector<std::pair<double, uint32_t>> free;
+    for (auto& [root, part] : parts)
+        if (!part.locked) free.push_back({part.extent(), root});
+    std::sort(free.begin(), free.end());
+    if (free.size() == parts.size() && !free.empty()) free.pop_back();  // keep at least the largest part
+    std::unordered_map<uint32_t, bool> dropped;
+    size_t remaining = count / 3;
+    for (auto& [extent, root] : free) {
+        if (3 * remaining <= target) break;
+        dropped[root] = true;
+        remaining -= parts[root].triangles;
+        error = std::max(error, float(extent));
+    }
+    if (dropped.empty()) return count;
+    size_t write = 0;
+    for (size_t i = 0; i < count; i += 3)
+        if (!dropped.count(find(positionId[indices[i]])))
+            for (int k = 0; k < 3; ++k) indices[write++] = indices[i + k];
+    return write;
+}
+
+}  // namespace
+
+BuiltMesh build_mesh(const PreparedMesh& mesh) {
+    BuiltMesh out;
+    const size_t vertexCount = mesh.positions.size() / 3;
+    out.sourceTriangles = mesh.indices.size() / 3;
+    out.constantColor = mesh.constantColor;
+    out.hasConstantColor = mesh.hasConstantColor;
+
+    // Recentre in double so that large authored coordinates lose no more precision than they already have.
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t v = 0; v < vertexCount; ++v)
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], double(mesh.positions[3 * v + k]));
+            hi[k] = std::max(hi[k], double(mesh.positions[3 * v + k]));
+        }
+    for (int k = 0; k < 3; ++k) out.origin[k] = (lo[k] + hi[k]) * 0.5;
+    out.size = float(std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2])));
+    std::vector<float> local(3 * vertexCount);
+    for (size_t v = 0; v < vertexCount; ++v)
+        for (int k = 0; k < 3; ++k) local[3 * v + k] = float(double(mesh.positions[3 * v + k]) - out.origin[k]);
+
+    // Vertices split at attribute seams share a position id: adjacency and border locks follow positions.
+    std::vector<uint32_t> positionId(vertexCount);
+    {
+        struct Key {
+            uint32_t bits[3];
+            bool operator==(const Key& o) const { return std::memcmp(bits, o.bits, sizeof bits) == 0; }
+        };
+        struct Hash {
+            size_t operator()(const Key& k) const { return (k.bits[0] * 73856093u) ^ (k.bits[1] * 19349663u) ^ (k.bits[2] * 83492791u); }
+        };
+        std::unordered_map<Key, uint32_t, Hash> ids;
+        ids.reserve(vertexCount);
+        for (size_t v = 0; v < vertexCount; ++v) {
+            Key key;
+            std::memcpy(key.bits, &local[3 * v], sizeof key.bits);
+            positionId[v] = ids.try_emplace(key, uint32_t(v)).first->second;
+        }
+    }
+
+    // Attributes weighed by the simplifier. meshoptimizer normalises positions to the group's extent before
+    // weighing, even when it reports absolute errors, so the weights are relative and independent of scale.
+    const bool hasColors = !mesh.colors.empty();
+    const size_t attributeCount = hasColors ? 6 : 3;
+    std::vector<float> attributes(vertexCount * attributeCount);
+    for (size_t v = 0; v < vertexCount; ++v) {
+        for (int k = 0; k < 3; ++k) attributes[v * attributeCount + k] = mesh.normals[3 * v + k];
+        if (hasColors)
+            for (int k = 0; k < 3; ++k) attributes[v * attributeCount + 3 + k] = mesh.colors[3 * v + k];
+    }
+    const float weights[6] = {0.5f, 0.5f, 0.5f, 1.0f, 1.0f, 1.0f};
+
+    std::vector<WorkCluster> clusters;
+    std::vector<Group> groups;
+    // Splits triangles into clusters (spatially compact, at most 128 triangles and 255 vertices).
+    auto split = [&](const std::vector<uint32_t>& indices, const Sphere* groupSphere, float groupError, uint32_t level,
+                     std::vector<uint32_t>& created) {
+        const size_t maxClusters = meshopt_buildMeshletsBound(indices.size(), kClusterVertices, kClusterMaxTriangles);
+        std::vector<meshopt_Meshlet> meshlets(maxClusters);
+        std::vector<unsigned int> meshletVertices(maxClusters * kClusterVertices);
+        std::vector<unsigned char> meshletTriangles(maxClusters * kClusterMaxTriangles * 3);
+        const size_t count = meshopt_buildMeshlets(meshlets.data(), meshletVertices.data(), meshletTriangles.data(), indices.data(), indices.size(),
+                                                   local.data(), vertexCount, 12, kClusterVertices, kClusterMaxTriangles, 0.0f);
+        for (size_t m = 0; m < count; ++m) {
+            const meshopt_Meshlet& meshlet = meshlets[m];
+            WorkCluster c;
+            c.indices.resize(meshlet.triangle_count * 3);
+            for (size_t i = 0; i < c.indices.size(); ++i) c.indices[i] = meshletVertices[meshlet.vertex_offset + meshletTriangles[meshlet.triangle_offset + i]];
+            c.lodSphere = groupSphere ? *groupSphere : vertex_sphere(local, c.indices.data(), c.indices.size());
+            c.lodError = groupError;
+            c.level = level;
+            created.push_back(uint32_t(clusters.size()));
+            clusters.push_back(std::move(c));
+        }
+    };
+
+    std::vector<uint32_t> pending;
+    split(mesh.indices, nullptr, 0.0f, 0, pending);
+
+    std::vector<unsigned char> lock(vertexCount, 0);
+    std::vector<int32_t> firstGroup(vertexCount, -1);
+    std::vector<unsigned char> shared(vertexCount, 0);
+    std::vector<uint32_t> merged, simplified;
+    while (pending.size() > 1) {
+        // Group the pending clusters by shared positions.
+        std::vector<unsigned int> partition(pending.size(), 0);
+        size_t groupCount = 1;
+        if (pending.size() > kGroupSize) {
+            std::vector<unsigned int> clusterIndices, counts;
+            for (uint32_t c : pending) {
+                for (uint32_t v : clusters[c].indices) clusterIndices.push_back(positionId[v]);
+                counts.push_back(unsigned(clusters[c].indices.size()));
+            }
+            groupCount = meshopt_partitionClusters(partition.data(), clusterIndices.data(), clusterIndices.size(), counts.data(), pending.size(), vertexCount, kGroupSize);
+        }
+        std::vector<std::vector<uint32_t>> members(groupCount);
+        for (size_t i = 0; i < pending.size(); ++i) members[partition[i]].push_back(pending[i]);
+
+        // Positions used by more than one group are the group borders: locked while simplifying.
+        for (size_t g = 0; g < groupCount; ++g)
+            for (uint32_t c : members[g])
+                for (uint32_t v : clusters[c].indices) {
+                    const uint32_t p = positionId[v];
+                    if (firstGroup[p] < 0) firstGroup[p] = int32_t(g);
+                    else if (firstGroup[p] != int32_t(g)) shared[p] = 1;
+                }
+
+        std::vector<uint32_t> next;
+        bool progress = false;
+        for (size_t g = 0; g < groupCount; ++g) {
+            merged.clear();
+            for (uint32_t c : members[g]) merged.insert(merged.end(), clusters[c].indices.begin(), clusters[c].indices.end());
+            for (uint32_t v : merged) lock[v] = shared[positionId[v]];
+            simplified.resize(merged.size());
+            float error = 0;
+            const size_t target = (merged.size() / 3 / 2) * 3;
+            size_t kept = meshopt_simplifyWithAttributes(simplified.data(), merged.data(), merged.size(), local.data(), vertexCount, 12,
+                                                         attributes.data(), attributeCount * sizeof(float), weights, attributeCount, lock.data(), target,
+                                                         FLT_MAX, meshopt_SimplifySparse | meshopt_SimplifyErrorAbsolute, &error);
+            if (kept > target) kept = drop_free_components(simplified, kept, target, local, positionId, lock, error);
+            for (uint32_t v : merged) lock[v] = 0;
+            if (kept == 0 || double(kept) > kStuckRatio * double(merged.size())) {  // vanishing counts as stuck: keep a root
+                next.insert(next.end(), members[g].begin(), members[g].end());  // retried with other neighbours next round
+                continue;
+            }
+            progress = true;
+            std::vector<Sphere> childSpheres;
+            float childError = 0;
+            uint32_t childLevel = 0;
+            for (uint32_t c : members[g]) {
+                childSpheres.push_back(clusters[c].lodSphere);
+                childError = std::max(childError, clusters[c].lodError);
+                childLevel = std::max(childLevel, clusters[c].level);
+                clusters[c].parentGroup = int32_t(groups.size());
+            }
+            // Monotone by construction: the parent's error adds its own to the largest child's, and its sphere
+            // encloses every child's.
+            const Group group{enclose(childSpheres), childError + error};
+            groups.push_back(group);
+            simplified.resize(kept);
+            if (kept) split(simplified, &group.sphere, group.error, childLevel + 1, next);
+        }
+        for (uint32_t c : pending)
+            for (uint32_t v : clusters[c].indices) {
+                firstGroup[positionId[v]] = -1;
+                shared[positionId[v]] = 0;
+            }
+        if (!progress) break;
+        pending = std::move(next);
+    }
+    out.groups = uint32_t(groups.size());
+
+    // Emit: cluster-local vertex streams and 8-bit triangles, level 0 first (clusters were created in level order
+    // per round; a stable sort by level keeps that order within a level).
+    std::vector<uint32_t> order(clusters.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = uint32_t(i);
+    std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return clusters[a].level < clusters[b].level; });
+    std::vector<uint32_t> localIndex(vertexCount, 0), stamp(vertexCount, UINT32_MAX), clusterVertices;
+    for (uint32_t id : order) {
+        const WorkCluster& w = clusters[id];
+        clusterVertices.clear();
+        Cluster c{};
+        c.vertexOffset = uint32_t(out.positions.size() / 3);
+        c.triangleOffset = uint32_t(out.triangles.size());
+        c.triangleCount = uint32_t(w.indices.size() / 3);
+        for (size_t i = 0; i < w.indices.size(); i += 3) {
+            uint32_t packed = 0;
+            for (int k = 0; k < 3; ++k) {
+                const uint32_t v = w.indices[i + k];
+                if (stamp[v] != id) {
+                    stamp[v] = id;
+                    localIndex[v] = uint32_t(clusterVertices.size());
+                    clusterVertices.push_back(v);
+                }
+                packed |= localIndex[v] << (8 * k);
+            }
+            out.triangles.push_back(packed);
+        }
+        c.vertexCount = uint32_t(clusterVertices.size());
+        for (uint32_t v : clusterVertices) {
+            out.positions.insert(out.positions.end(), &local[3 * v], &local[3 * v] + 3);
+            out.normals.push_back(encode_octahedral(mesh.normals[3 * v], mesh.normals[3 * v + 1], mesh.normals[3 * v + 2]));
+            if (hasColors) {
+                const float* col = &mesh.colors[3 * v];
+                out.colors.push_back(float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16));
+                out.colors.push_back(float_to_half(col[2]) | (uint32_t(float_to_half(1.0f)) << 16));
+            }
+        }
+        c.sphere = to_float(vertex_sphere(local, clusterVertices.data(), clusterVertices.size()));
+        c.lodSphere = to_float(w.lodSphere);
+        c.lodError = w.lodError;
+        c.level = w.level;
+        if (w.parentGroup >= 0) {
+            c.parentSphere = to_float(groups[w.parentGroup].sphere);
+            c.parentError = groups[w.parentGroup].error;
+        } else {
+            c.parentSphere = c.lodSphere;
+            c.parentError = std::numeric_limits<float>::infinity();
+        }
+        if (c.level == 0) {
+            ++out.leafClusters;
+            out.leafVertices = c.vertexOffset + c.vertexCount;
+            out.leafTriangles = c.triangleOffset + c.triangleCount;
+        }
+        if (out.levels.size() <= c.level) out.levels.resize(c.level + 1);
+        LevelStats& level = out.levels[c.level];
+        ++level.clusters;
+        level.triangles += c.triangleCount;
+        level.maxError = std::max(level.maxError, c.lodError);
+        out.clusters.push_back(c);
+    }
+
+    std::vector<uint32_t> all(vertexCount);
+    for (size_t i = 0; i < all.size(); ++i) all[i] = uint32_t(i);
+    out.sphere = to_float(vertex_sphere(local, all.data(), all.size()));
+    return out;
+}
+
+}  // namespace tessera
