@@ -127,6 +127,29 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         nonFinitePoints += !pointFinite[i];
     }
 
+    // Weld exact duplicate positions: every point maps to the first point with bit-identical coordinates, so that
+    // split authoring (UV-sphere poles, per-face copies) joins up; attribute values still decide seams below.
+    std::vector<uint32_t> canonical(pointCount);
+    {
+        struct Bits {
+            uint32_t xyz[3];
+            bool operator==(const Bits&) const = default;
+        };
+        struct BitsHash {
+            size_t operator()(const Bits& b) const { return (b.xyz[0] * 73856093u) ^ (b.xyz[1] * 19349663u) ^ (b.xyz[2] * 83492791u); }
+        };
+        std::unordered_map<Bits, uint32_t, BitsHash> first;
+        first.reserve(pointCount);
+        for (size_t i = 0; i < pointCount; ++i) {
+            Bits b;
+            std::memcpy(b.xyz, &mesh.points[3 * i], sizeof b.xyz);
+            if (b.xyz[0] == 0x80000000u) b.xyz[0] = 0;  // -0 welds with +0
+            if (b.xyz[1] == 0x80000000u) b.xyz[1] = 0;
+            if (b.xyz[2] == 0x80000000u) b.xyz[2] = 0;
+            canonical[i] = first.try_emplace(b, uint32_t(i)).first->second;
+        }
+    }
+
     std::vector<uint8_t> isHole(mesh.faceVertexCounts.size());
     for (int32_t hole : mesh.holeIndices) {
         if (hole < 0 || size_t(hole) >= isHole.size())
@@ -153,12 +176,12 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     auto corner_vertex = [&](size_t face, size_t corner) {
         const uint32_t p = uint32_t(mesh.faceVertexIndices[corner]);
         const int64_t normal = normals.value_index(face, corner, p), color = vertexColors ? colors.value_index(face, corner, p) : -1;
-        CornerKey key{p, {}, {}};
+        CornerKey key{canonical[p], {}, {}};
         value_bits(normals, normal, key.normal);
         value_bits(colors, color, key.color);
         auto [it, inserted] = vertexOf.try_emplace(key, uint32_t(vertexPoint.size()));
         if (inserted) {
-            vertexPoint.push_back(p);
+            vertexPoint.push_back(canonical[p]);
             vertexNormal.push_back(normal);
             vertexColor.push_back(color);
         }
@@ -188,7 +211,8 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         for (size_t i = 1; i + 1 < count; ++i) {
             size_t c0 = start, c1 = start + i, c2 = start + i + 1;
             if (mesh.leftHanded) std::swap(c1, c2);
-            const uint32_t p0 = mesh.faceVertexIndices[c0], p1 = mesh.faceVertexIndices[c1], p2 = mesh.faceVertexIndices[c2];
+            const uint32_t p0 = canonical[mesh.faceVertexIndices[c0]], p1 = canonical[mesh.faceVertexIndices[c1]],
+                           p2 = canonical[mesh.faceVertexIndices[c2]];
             if (p0 == p1 || p1 == p2 || p0 == p2 || length(cross(point(p1) - point(p0), point(p2) - point(p0))) == 0.0f) {
                 ++droppedDegenerate;
                 continue;

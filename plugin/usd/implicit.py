@@ -24,10 +24,10 @@ def _display_color(prim: Usd.Prim, time):
 def _cube(size: float):
     h = size / 2.0
     corners = np.array([[x, y, z] for z in (-h, h) for y in (-h, h) for x in (-h, h)], np.float32)
-    # Six faces wound counter-clockwise seen from outside; unshared vertices give flat shading.
-    faces = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
-    points = np.concatenate([corners[f] for f in faces])
-    return points, np.full(6, 4, np.int32), np.arange(24, dtype=np.int32)
+    # Six faces wound counter-clockwise seen from outside, with a normal per face (uniform) for hard edges.
+    faces = np.array([[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]], np.int32)
+    normals = np.array([[0, 0, -1], [0, 0, 1], [0, -1, 0], [0, 1, 0], [-1, 0, 0], [1, 0, 0]], np.float32)
+    return corners, np.full(6, 4, np.int32), faces.reshape(-1), normals
 
 
 def _sphere(radius: float, slices: int = 24, stacks: int = 12):
@@ -54,18 +54,19 @@ def _sphere(radius: float, slices: int = 24, stacks: int = 12):
         n = (s + 1) % slices
         counts.append(3)
         indices += [last + s, south, last + n]
-    return points, np.array(counts, np.int32), np.array(indices, np.int32)
+    return points, np.array(counts, np.int32), np.array(indices, np.int32), None
 
 
 def mesh_source(prim: Usd.Prim, time):
     if prim.IsA(UsdGeom.Cube):
-        points, counts, indices = _cube(UsdGeom.Cube(prim).GetSizeAttr().Get(time) or 2.0)
+        points, counts, indices, normals = _cube(UsdGeom.Cube(prim).GetSizeAttr().Get(time) or 2.0)
     else:
-        points, counts, indices = _sphere(UsdGeom.Sphere(prim).GetRadiusAttr().Get(time) or 1.0)
+        points, counts, indices, normals = _sphere(UsdGeom.Sphere(prim).GetRadiusAttr().Get(time) or 1.0)
     color, interpolation = _display_color(prim, time)
     gprim = UsdGeom.Gprim(prim)
     return _tessera.mesh_source(
         str(prim.GetPath()), np.ascontiguousarray(points.reshape(-1)), counts, indices,
         left_handed=gprim.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded,
         double_sided=bool(gprim.GetDoubleSidedAttr().Get(time)),
+        normals=None if normals is None else np.ascontiguousarray(normals.reshape(-1)), normals_interpolation="uniform",
         display_color=color, display_color_interpolation=interpolation)
