@@ -93,3 +93,20 @@ def test_build_mesh_reports_the_dag():
         assert coarser["triangles"] < 0.7 * finer["triangles"], "each level about halves the one below"
         assert coarser["max_error"] >= finer["max_error"], "errors grow up the DAG"
     assert stats["root_triangles"] <= 2 * 128
+
+
+def test_bench_build_prints_a_table_and_writes_json(tmp_path):
+    n = 40  # a 40 x 40 quad grid as OBJ
+    lines = [f"v {x / n} {y / n} {0.02 * ((x * 7 + y * 3) % 5)}" for y in range(n + 1) for x in range(n + 1)]
+    lines += [f"f {y * (n + 1) + x + 1} {y * (n + 1) + x + 2} {(y + 1) * (n + 1) + x + 2} {(y + 1) * (n + 1) + x + 1}"
+              for y in range(n) for x in range(n)]
+    mesh = tmp_path / "grid.obj"
+    mesh.write_text("\n".join(lines))
+    rows_file = tmp_path / "rows.json"
+    done = run("bench", "build", mesh, "--json", rows_file)
+    assert done.returncode == 0, done.stderr
+    assert "tris/s" in done.stdout and "grid.obj" in done.stdout
+    (row,) = json.loads(rows_file.read_text())
+    assert row["input_triangles"] == 2 * n * n
+    assert row["dag_depth"] >= 3 and row["build_seconds"] > 0
+    assert row["relative_error_per_level"][0] == 0 and row["relative_error_per_level"][-1] > 0

@@ -34,6 +34,11 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--aov", choices=AOVS, default="color", help="what to write (default color)")
     render.add_argument("--stats", help="write frame statistics to this JSON file")
     render.add_argument("--device", help="Vulkan device: gpu, cpu, an index or part of its name (default: $TESSERA_DEVICE, else the best)")
+    bench = commands.add_parser("bench", help="benchmarks: tables of speed, memory and error")
+    benches = bench.add_subparsers(dest="bench", required=True)
+    build = benches.add_parser("build", help="cluster DAG build: speed, memory, depth, error per level")
+    build.add_argument("stages", nargs="*", help="USD stages (every mesh) or .obj files (default: the bunny and generated 1M / 10M meshes)")
+    build.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
     return parser
 
 
@@ -69,6 +74,10 @@ def main(argv=None) -> int:
     try:
         if args.command == "render":
             return _render(args)
+        if args.command == "bench":
+            from . import bench
+
+            return bench.build(args)
     except Exception as error:  # one line, never a traceback, for anything the user can fix
         print(f"tessera: error: {error}", file=sys.stderr)
         return 1
