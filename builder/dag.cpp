@@ -7,6 +7,9 @@
 #include <meshoptimizer.h>
 
 #include <algorithm>
+#include <atomic>
+#include <functional>
+#include <thread>
 #include <cfloat>
 #include <cmath>
 #include <cstring>
@@ -143,6 +146,96 @@ size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t
     return write;
 }
 
+
+// Splits triangles into spatially compact clusters (at most 128 triangles and 255 vertices). The triangles'
+// vertices are first compacted, so the cost follows the triangles given, not the whole mesh.
+std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, const std::vector<float>& positions) {
+    std::vector<uint32_t> vertices(indices);
+    std::sort(vertices.begin(), vertices.end());
+    vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
+    std::vector<float> compact(3 * vertices.size());
+    for (size_t i = 0; i < vertices.size(); ++i) std::memcpy(&compact[3 * i], &positions[3 * vertices[i]], 12);
+    std::vector<uint32_t> localIndices(indices.size());
+    for (size_t i = 0; i < indices.size(); ++i)
+        localIndices[i] = uint32_t(std::lower_bound(vertices.begin(), vertices.end(), indices[i]) - vertices.begin());
+
+    const size_t maxClusters = meshopt_buildMeshletsBound(indices.size(), kClusterVertices, kClusterMaxTriangles);
+    std::vector<meshopt_Meshlet> meshlets(maxClusters);
+    std::vector<unsigned int> meshletVertices(maxClusters * kClusterVertices);
+    std::vector<unsigned char> meshletTriangles(maxClusters * kClusterMaxTriangles * 3);
+    const size_t count = meshopt_buildMeshlets(meshlets.data(), meshletVertices.data(), meshletTriangles.data(), localIndices.data(),
+                                               localIndices.size(), compact.data(), vertices.size(), 12, kClusterVertices, kClusterMaxTriangles, 0.0f);
+    std::vector<std::vector<uint32_t>> pieces(count);
+    for (size_t m = 0; m < count; ++m) {
+        const meshopt_Meshlet& meshlet = meshlets[m];
+        pieces[m].resize(meshlet.triangle_count * 3);
+        for (size_t i = 0; i < pieces[m].size(); ++i)
+            pieces[m][i] = vertices[meshletVertices[meshlet.vertex_offset + meshletTriangles[meshlet.triangle_offset + i]]];
+    }
+    return pieces;
+}
+
+// Runs body(0..count-1) on every core.
+void parallel_for(size_t count, const std::function<void(size_t)>& body) {
+    const size_t threads = std::min<size_t>(count, std::max(1u, std::thread::hardware_concurrency()));
+    std::atomic<size_t> nextIndex{0};
+    auto work = [&] {
+        for (size_t i = nextIndex++; i < count; i = nextIndex++) body(i);
+    };
+    std::vector<std::thread> pool;
+    for (size_t t = 1; t < threads; ++t) pool.emplace_back(work);
+    work();
+    for (auto& thread : pool) thread.join();
+}
+
+
+uint32_t spread_bits(uint32_t v) {  // 10 bits -> every third bit of 30
+    v &= 0x3ff;
+    v = (v | (v << 16)) & 0x030000ff;
+    v = (v | (v << 8)) & 0x0300f00f;
+    v = (v | (v << 4)) & 0x030c30c3;
+    v = (v | (v << 2)) & 0x09249249;
+    return v;
+}
+
+// Level 0: the source in spatially compact clusters. A large mesh is first cut into Morton-ordered chunks of
+// 64k triangles that are clustered in parallel (the meshlet builder is the build's slowest serial step); only
+// the last cluster of each chunk may be partly filled.
+std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>& indices, const std::vector<float>& positions) {
+    constexpr size_t kChunkTriangles = 65536;
+    const size_t triangles = indices.size() / 3;
+    if (triangles <= 2 * kChunkTriangles) return split_into_clusters(indices, positions);
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < positions.size(); i += 3)
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], positions[i + k]);
+            hi[k] = std::max(hi[k], positions[i + k]);
+        }
+    const float extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-30f});
+    std::vector<std::pair<uint32_t, uint32_t>> order(triangles);  // (Morton code of the centroid, triangle)
+    for (size_t t = 0; t < triangles; ++t) {
+        uint32_t code = 0;
+        for (int k = 0; k < 3; ++k) {
+            const float c = (positions[3 * indices[3 * t] + k] + positions[3 * indices[3 * t + 1] + k] + positions[3 * indices[3 * t + 2] + k]) / 3;
+            code |= spread_bits(uint32_t(std::clamp((c - lo[k]) / extent * 1023.0f, 0.0f, 1023.0f))) << k;
+        }
+        order[t] = {code, uint32_t(t)};
+    }
+    std::sort(order.begin(), order.end());
+    const size_t chunks = (triangles + kChunkTriangles - 1) / kChunkTriangles;
+    std::vector<std::vector<std::vector<uint32_t>>> pieces(chunks);
+    parallel_for(chunks, [&](size_t c) {
+        std::vector<uint32_t> chunk;
+        for (size_t i = c * kChunkTriangles; i < std::min(triangles, (c + 1) * kChunkTriangles); ++i)
+            chunk.insert(chunk.end(), &indices[3 * order[i].second], &indices[3 * order[i].second] + 3);
+        pieces[c] = split_into_clusters(chunk, positions);
+    });
+    std::vector<std::vector<uint32_t>> all;
+    for (auto& chunk : pieces)
+        for (auto& piece : chunk) all.push_back(std::move(piece));
+    return all;
+}
+
 }  // namespace
 
 BuiltMesh build_mesh(const PreparedMesh& mesh) {
@@ -198,20 +291,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh) {
 
     std::vector<WorkCluster> clusters;
     std::vector<Group> groups;
-    // Splits triangles into clusters (spatially compact, at most 128 triangles and 255 vertices).
-    auto split = [&](const std::vector<uint32_t>& indices, const Sphere* groupSphere, float groupError, uint32_t level,
-                     std::vector<uint32_t>& created) {
-        const size_t maxClusters = meshopt_buildMeshletsBound(indices.size(), kClusterVertices, kClusterMaxTriangles);
-        std::vector<meshopt_Meshlet> meshlets(maxClusters);
-        std::vector<unsigned int> meshletVertices(maxClusters * kClusterVertices);
-        std::vector<unsigned char> meshletTriangles(maxClusters * kClusterMaxTriangles * 3);
-        const size_t count = meshopt_buildMeshlets(meshlets.data(), meshletVertices.data(), meshletTriangles.data(), indices.data(), indices.size(),
-                                                   local.data(), vertexCount, 12, kClusterVertices, kClusterMaxTriangles, 0.0f);
-        for (size_t m = 0; m < count; ++m) {
-            const meshopt_Meshlet& meshlet = meshlets[m];
+    auto add_clusters = [&](std::vector<std::vector<uint32_t>> pieces, const Sphere* groupSphere, float groupError, uint32_t level,
+                            std::vector<uint32_t>& created) {
+        for (auto& piece : pieces) {
             WorkCluster c;
-            c.indices.resize(meshlet.triangle_count * 3);
-            for (size_t i = 0; i < c.indices.size(); ++i) c.indices[i] = meshletVertices[meshlet.vertex_offset + meshletTriangles[meshlet.triangle_offset + i]];
+            c.indices = std::move(piece);
             c.lodSphere = groupSphere ? *groupSphere : vertex_sphere(local, c.indices.data(), c.indices.size());
             c.lodError = groupError;
             c.level = level;
@@ -221,12 +305,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh) {
     };
 
     std::vector<uint32_t> pending;
-    split(mesh.indices, nullptr, 0.0f, 0, pending);
+    add_clusters(split_level_zero(mesh.indices, local), nullptr, 0.0f, 0, pending);
 
     std::vector<unsigned char> lock(vertexCount, 0);
     std::vector<int32_t> firstGroup(vertexCount, -1);
     std::vector<unsigned char> shared(vertexCount, 0);
-    std::vector<uint32_t> merged, simplified;
     while (pending.size() > 1) {
         // Group the pending clusters by shared positions.
         std::vector<unsigned int> partition(pending.size(), 0);
@@ -242,7 +325,8 @@ BuiltMesh build_mesh(const PreparedMesh& mesh) {
         std::vector<std::vector<uint32_t>> members(groupCount);
         for (size_t i = 0; i < pending.size(); ++i) members[partition[i]].push_back(pending[i]);
 
-        // Positions used by more than one group are the group borders: locked while simplifying.
+        // Positions used by more than one group are the group borders: locked while simplifying. The locks are set
+        // for the whole round and only read while the groups simplify in parallel.
         for (size_t g = 0; g < groupCount; ++g)
             for (uint32_t c : members[g])
                 for (uint32_t v : clusters[c].indices) {
@@ -250,22 +334,35 @@ BuiltMesh build_mesh(const PreparedMesh& mesh) {
                     if (firstGroup[p] < 0) firstGroup[p] = int32_t(g);
                     else if (firstGroup[p] != int32_t(g)) shared[p] = 1;
                 }
+        for (uint32_t c : pending)
+            for (uint32_t v : clusters[c].indices) lock[v] = shared[positionId[v]];
 
-        std::vector<uint32_t> next;
-        bool progress = false;
-        for (size_t g = 0; g < groupCount; ++g) {
-            merged.clear();
+        struct Result {
+            bool simplified = false;
+            float error = 0;
+            std::vector<std::vector<uint32_t>> pieces;
+        };
+        std::vector<Result> results(groupCount);
+        parallel_for(groupCount, [&](size_t g) {
+            std::vector<uint32_t> merged;
             for (uint32_t c : members[g]) merged.insert(merged.end(), clusters[c].indices.begin(), clusters[c].indices.end());
-            for (uint32_t v : merged) lock[v] = shared[positionId[v]];
-            simplified.resize(merged.size());
+            std::vector<uint32_t> simplified(merged.size());
             float error = 0;
             const size_t target = (merged.size() / 3 / 2) * 3;
             size_t kept = meshopt_simplifyWithAttributes(simplified.data(), merged.data(), merged.size(), local.data(), vertexCount, 12,
                                                          attributes.data(), attributeCount * sizeof(float), weights, attributeCount, lock.data(), target,
                                                          FLT_MAX, meshopt_SimplifySparse | meshopt_SimplifyErrorAbsolute, &error);
             if (kept > target) kept = drop_free_components(simplified, kept, target, local, positionId, lock, error);
-            for (uint32_t v : merged) lock[v] = 0;
-            if (kept == 0 || double(kept) > kStuckRatio * double(merged.size())) {  // vanishing counts as stuck: keep a root
+            if (kept == 0 || double(kept) > kStuckRatio * double(merged.size())) return;  // stuck (vanishing too: keep a root)
+            simplified.resize(kept);
+            results[g] = {true, error, split_into_clusters(simplified, local)};
+        });
+
+        // Record the groups in order, so the output does not depend on thread timing.
+        std::vector<uint32_t> next;
+        bool progress = false;
+        for (size_t g = 0; g < groupCount; ++g) {
+            if (!results[g].simplified) {
                 next.insert(next.end(), members[g].begin(), members[g].end());  // retried with other neighbours next round
                 continue;
             }
@@ -281,15 +378,15 @@ BuiltMesh build_mesh(const PreparedMesh& mesh) {
             }
             // Monotone by construction: the parent's error adds its own to the largest child's, and its sphere
             // encloses every child's.
-            const Group group{enclose(childSpheres), childError + error};
+            const Group group{enclose(childSpheres), childError + results[g].error};
             groups.push_back(group);
-            simplified.resize(kept);
-            if (kept) split(simplified, &group.sphere, group.error, childLevel + 1, next);
+            add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, next);
         }
         for (uint32_t c : pending)
             for (uint32_t v : clusters[c].indices) {
                 firstGroup[positionId[v]] = -1;
                 shared[positionId[v]] = 0;
+                lock[v] = 0;
             }
         if (!progress) break;
         pending = std::move(next);

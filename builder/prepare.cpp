@@ -173,8 +173,34 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     std::vector<int64_t> vertexNormal, vertexColor;
     size_t droppedFaces = 0, droppedDegenerate = 0, firstBadFace = SIZE_MAX;
     std::string firstBadReason;
+    // Fast path: when no primvar varies per face or per corner, a vertex is just its (welded) point.
+    auto per_point = [](const PrimvarView& v, bool active) {
+        return !active || v.interpolation == Interpolation::Constant || v.interpolation == Interpolation::Vertex ||
+               v.interpolation == Interpolation::Varying;
+    };
+    // ...and only if welded points agree on their per-point values (else the weld would erase a seam).
+    auto same_values = [&](const PrimvarLookup& lookup, bool active, uint32_t a, uint32_t b) {
+        if (!active) return true;
+        const int64_t ia = lookup.value_index(0, 0, a), ib = lookup.value_index(0, 0, b);
+        return ia == ib || std::memcmp(lookup.value(ia), lookup.value(ib), 3 * sizeof(float)) == 0;
+    };
+    bool pointVertices = per_point(mesh.normals, normals.active()) && per_point(mesh.displayColor, vertexColors);
+    for (uint32_t p = 0; p < pointCount && pointVertices; ++p)
+        if (canonical[p] != p)
+            pointVertices = same_values(normals, normals.active(), p, canonical[p]) && same_values(colors, vertexColors, p, canonical[p]);
+    std::vector<uint32_t> vertexOfPoint(pointVertices ? pointCount : 0, UINT32_MAX);
     auto corner_vertex = [&](size_t face, size_t corner) {
         const uint32_t p = uint32_t(mesh.faceVertexIndices[corner]);
+        if (pointVertices) {
+            uint32_t& v = vertexOfPoint[canonical[p]];
+            if (v == UINT32_MAX) {
+                v = uint32_t(vertexPoint.size());
+                vertexPoint.push_back(canonical[p]);
+                vertexNormal.push_back(normals.value_index(face, corner, p));
+                vertexColor.push_back(vertexColors ? colors.value_index(face, corner, p) : -1);
+            }
+            return v;
+        }
         const int64_t normal = normals.value_index(face, corner, p), color = vertexColors ? colors.value_index(face, corner, p) : -1;
         CornerKey key{canonical[p], {}, {}};
         value_bits(normals, normal, key.normal);

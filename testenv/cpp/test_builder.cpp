@@ -203,3 +203,25 @@ TEST(Encoding, HalfFloat) {
     EXPECT_EQ(float_to_half(0.0f), 0x0000);
     EXPECT_EQ(float_to_half(1e6f), 0x7c00);
 }
+
+TEST(Prepare, DuplicatePositionsWeldUnlessTheirValuesDiffer) {
+    // Two quads side by side, authored with separate points along the shared edge (as exporters often do).
+    std::vector<float> points{0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 1, 0, 0, 2, 0, 0, 2, 1, 0, 1, 1, 0};
+    std::vector<int32_t> counts{4, 4}, indices{0, 1, 2, 3, 4, 5, 6, 7};
+    MeshView v;
+    v.name = "/Split";
+    v.points = points;
+    v.faceVertexCounts = counts;
+    v.faceVertexIndices = indices;
+    EXPECT_EQ(prepare_mesh(v).positions.size() / 3, 6u) << "exact duplicate positions weld";
+    // Per-point normals that differ across the shared edge make it a hard edge: the weld must keep the seam.
+    std::vector<float> normals{0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0};
+    v.normals = {Interpolation::Vertex, 3, normals, {}};
+    PreparedMesh seam = prepare_mesh(v);
+    EXPECT_EQ(seam.positions.size() / 3, 8u) << "differing per-point normals keep the split";
+    // Equal per-point values weld again.
+    std::vector<float> flat(24);
+    for (size_t i = 0; i < 8; ++i) flat[3 * i + 2] = 1;
+    v.normals = {Interpolation::Vertex, 3, flat, {}};
+    EXPECT_EQ(prepare_mesh(v).positions.size() / 3, 6u);
+}
