@@ -238,25 +238,52 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
 
 }  // namespace
 
-BuiltMesh build_mesh(const PreparedMesh& mesh) {
+BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     BuiltMesh out;
     const size_t vertexCount = mesh.positions.size() / 3;
     out.sourceTriangles = mesh.indices.size() / 3;
     out.constantColor = mesh.constantColor;
     out.hasConstantColor = mesh.hasConstantColor;
 
-    // Recentre in double so that large authored coordinates lose no more precision than they already have.
+    // Recentre (in double, on the grid) so that large authored coordinates lose no more precision than they already have.
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (size_t v = 0; v < vertexCount; ++v)
         for (int k = 0; k < 3; ++k) {
             lo[k] = std::min(lo[k], double(mesh.positions[3 * v + k]));
             hi[k] = std::max(hi[k], double(mesh.positions[3 * v + k]));
         }
-    for (int k = 0; k < 3; ++k) out.origin[k] = (lo[k] + hi[k]) * 0.5;
     out.size = float(std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2])));
+
+    // The position grid: a power-of-two step in object space, anchored at the object's origin.
+    int precision = settings.positionPrecision;
+    if (precision == BuildSettings::kAutoPrecision) {
+        double edges = 0;
+        const size_t triangleCount = mesh.indices.size() / 3, stride = std::max<size_t>(1, triangleCount / 4096);
+        size_t sampled = 0;
+        for (size_t t = 0; t < triangleCount; t += stride, ++sampled) {
+            const float* a = &mesh.positions[3 * mesh.indices[3 * t]];
+            const float* b = &mesh.positions[3 * mesh.indices[3 * t + 1]];
+            edges += std::sqrt(double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]));
+        }
+        const double meanEdge = sampled ? edges / double(sampled) : 0.0;
+        // The finer of 16 bits across the mesh and 1/32 of an edge: invisible on coarse meshes, exact enough on dense ones.
+        const double wanted = std::max(std::min(double(out.size) / 65536.0, meanEdge > 0 ? meanEdge / 32.0 : INFINITY), 1e-30);
+        precision = int(std::floor(std::log2(wanted)));
+    }
+    const double largestExtent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+    while (largestExtent / std::ldexp(1.0, precision) > double(1 << 23)) ++precision;  // keep grid coordinates exact in float
+    out.positionPrecision = precision;
+    out.positionStep = std::ldexp(1.0, precision);
+    const double step = out.positionStep;
+    double originGrid[3];
+    for (int k = 0; k < 3; ++k) {
+        originGrid[k] = std::round((lo[k] + hi[k]) * 0.5 / step);
+        out.origin[k] = originGrid[k] * step;
+    }
     std::vector<float> local(3 * vertexCount);
     for (size_t v = 0; v < vertexCount; ++v)
-        for (int k = 0; k < 3; ++k) local[3 * v + k] = float(double(mesh.positions[3 * v + k]) - out.origin[k]);
+        for (int k = 0; k < 3; ++k)  // + 0.0f turns -0 into +0, so equal positions have equal bits
+            local[3 * v + k] = float((std::round(double(mesh.positions[3 * v + k]) / step) - originGrid[k]) * step) + 0.0f;
 
     // Vertices split at attribute seams share a position id: adjacency and border locks follow positions.
     std::vector<uint32_t> positionId(vertexCount);

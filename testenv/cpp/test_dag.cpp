@@ -297,3 +297,52 @@ TEST(Dag, Deterministic) {
     EXPECT_EQ(std::memcmp(a.clusters.data(), b.clusters.data(), a.clusters.size() * sizeof(Cluster)), 0);
 }
 
+
+TEST(Quantization, PositionsLieOnThePowerOfTwoGrid) {
+    BuiltMesh m = icosphere(4, 3.0, 123.456).build();
+    EXPECT_EQ(std::ldexp(1.0, m.positionPrecision), m.positionStep);
+    EXPECT_LE(m.positionStep, m.size / 65536.0) << "auto precision: at least 16 bits across the mesh";
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(std::fmod(m.origin[k], m.positionStep), 0.0) << "the origin is a grid point";
+    for (float p : m.positions) {
+        const double q = double(p) / m.positionStep;
+        ASSERT_EQ(q, std::round(q)) << "every position of every level is a grid point";
+    }
+}
+
+TEST(Quantization, NeighbouringMeshesOfTheSamePrecisionShareBorderVerticesExactly) {
+    // Two separately built grids meeting along x = 1 (different sizes, so different origins).
+    // Flat, so that they meet; their shared rows (k/30 == j/45) differ in the last float bit until snapped.
+    Source left = grid(30), right = grid(45);
+    for (size_t i = 0; i < left.points.size(); i += 3) left.points[i + 2] = 0.0f;
+    for (size_t i = 0; i < right.points.size(); i += 3) {
+        right.points[i] += 1.0f;
+        right.points[i + 2] = 0.0f;
+    }
+    BuildSettings settings;
+    settings.positionPrecision = -12;
+    auto world = [](const BuiltMesh& m, size_t v, int k) { return m.origin[k] + double(m.positions[3 * v + k]); };
+    auto build = [&](const Source& s) {
+        MeshView v;
+        v.name = s.name;
+        v.points = s.points;
+        v.faceVertexCounts = s.counts;
+        v.faceVertexIndices = s.indices;
+        return build_mesh(prepare_mesh(v), settings);
+    };
+    BuiltMesh a = build(left), b = build(right);
+    EXPECT_EQ(a.positionPrecision, -12);
+    std::set<std::array<double, 3>> rightBorder;
+    for (size_t v = 0; v < b.leafVertices; ++v)
+        if (world(b, v, 0) == 1.0) rightBorder.insert({world(b, v, 0), world(b, v, 1), world(b, v, 2)});
+    size_t matched = 0, border = 0;
+    for (size_t v = 0; v < a.leafVertices; ++v) {
+        if (std::fabs(world(a, v, 0) - 1.0) > 1e-3) continue;
+        ++border;
+        std::array<double, 3> p{world(a, v, 0), world(a, v, 1), world(a, v, 2)};
+        // The two grids only share the points where their rows coincide (every 30th / 45th of the edge):
+        // those must be bit-identical in world space.
+        matched += rightBorder.count(p);
+    }
+    EXPECT_GT(border, 0u);
+    EXPECT_GE(matched, 16u) << "rows at multiples of 1/15 are shared by both grids and must match exactly";
+}

@@ -103,13 +103,27 @@ struct BuiltMesh {
     uint32_t groups = 0;
     std::array<float, 4> sphere{};     // whole mesh, relative to origin
     float size = 0;                     // diagonal of the mesh's bounding box
+    // Positions lie on a grid of this step (a power of two, 2^positionPrecision) in object space; the origin is on
+    // the same grid, so meshes built with the same precision share vertices exactly.
+    int positionPrecision = 0;
+    double positionStep = 1.0;
     std::array<float, 3> constantColor{0.5f, 0.5f, 0.5f};
     bool hasConstantColor = false;
     size_t sourceTriangles = 0;
 };
 
+// Per-mesh build settings (the schema's tessera:* attributes; render-wide defaults).
+struct BuildSettings {
+    static constexpr int kAutoPrecision = -1000;
+    // log2 of the position grid step in object space (-10: 1/1024 units), or automatic: the largest power of two
+    // at most min(mesh size / 2^16, mean edge length / 32). Coarsened if the mesh would span more than 2^23 steps.
+    int positionPrecision = kAutoPrecision;
+};
+
 // Builds the cluster DAG of a prepared mesh (meshoptimizer for clusters, partitioning and simplification).
-BuiltMesh build_mesh(const PreparedMesh& mesh);
+// Positions are snapped to the precision grid first, so every level is built from grid points and vertices that
+// neighbouring clusters share stay bit-identical once quantized.
+BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings = {});
 
 // Octahedral normal encoding (snorm16x2 packed in a uint32), shared with the shaders' decoder.
 uint32_t encode_octahedral(float x, float y, float z);
