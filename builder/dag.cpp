@@ -257,18 +257,19 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // The position grid: a power-of-two step in object space, anchored at the object's origin.
     int precision = settings.positionPrecision;
     if (precision == BuildSettings::kAutoPrecision) {
-        double edges = 0;
-        const size_t triangleCount = mesh.indices.size() / 3, stride = std::max<size_t>(1, triangleCount / 4096);
-        size_t sampled = 0;
-        for (size_t t = 0; t < triangleCount; t += stride, ++sampled) {
-            const float* a = &mesh.positions[3 * mesh.indices[3 * t]];
-            const float* b = &mesh.positions[3 * mesh.indices[3 * t + 1]];
-            edges += std::sqrt(double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]));
-        }
-        const double meanEdge = sampled ? edges / double(sampled) : 0.0;
-        // The finer of 16 bits across the mesh and 1/32 of an edge: invisible on coarse meshes, exact enough on dense ones.
-        const double wanted = std::max(std::min(double(out.size) / 65536.0, meanEdge > 0 ? meanEdge / 32.0 : INFINITY), 1e-30);
-        precision = int(std::floor(std::log2(wanted)));
+        // Fine against the shortest edge: snapping must not turn thin triangles into slivers or collapse them (the
+        // simplifier's attribute metric punishes slivers badly, and a measured 1 M-triangle sphere's DAG stalled with
+        // 32x coarser steps). The range cap below bounds the cost on meshes with near-degenerate edges.
+        double shortest = INFINITY;
+        for (size_t i = 0; i < mesh.indices.size(); i += 3)
+            for (int e = 0; e < 3; ++e) {
+                const float* a = &mesh.positions[3 * mesh.indices[i + e]];
+                const float* b = &mesh.positions[3 * mesh.indices[i + (e + 1) % 3]];
+                const double length2 = double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]);
+                if (length2 > 0) shortest = std::min(shortest, length2);
+            }
+        const double wanted = std::min(double(out.size) / 65536.0, std::sqrt(shortest) / 64.0);  // and 16 bits across the mesh
+        precision = int(std::floor(std::log2(std::max(wanted, 1e-30))));
     }
     const double largestExtent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
     while (largestExtent / std::ldexp(1.0, precision) > double(1 << 23)) ++precision;  // keep grid coordinates exact in float
@@ -331,8 +332,43 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         }
     };
 
+    // Weld again on the grid: vertices that snapped onto one grid point with the same colour and normals within
+    // 30 degrees become one (otherwise they would look like attribute seams to the simplifier and lock it); a wider
+    // angle is a real hard edge and stays split.
+    std::vector<uint32_t> weld(vertexCount);
+    {
+        std::unordered_map<uint32_t, std::vector<uint32_t>> onPoint;  // position id -> representatives there
+        for (uint32_t v = 0; v < vertexCount; ++v) {
+            weld[v] = v;
+            auto& reps = onPoint[positionId[v]];
+            for (uint32_t r : reps) {
+                const float* n = &mesh.normals[3 * v];
+                const float* m = &mesh.normals[3 * r];
+                const bool sameColor = !hasColors || std::memcmp(&mesh.colors[3 * v], &mesh.colors[3 * r], 12) == 0;
+                if (sameColor && n[0] * m[0] + n[1] * m[1] + n[2] * m[2] > 0.866f) {
+                    weld[v] = r;
+                    break;
+                }
+            }
+            if (weld[v] == v) reps.push_back(v);
+        }
+    }
+
+    // Triangles that quantization collapsed (two corners on one grid point) cannot be seen: drop them. Slivers
+    // would also make the simplifier's attribute gradients, which divide by area, explode.
+    std::vector<uint32_t> sourceIndices;
+    sourceIndices.reserve(mesh.indices.size());
+    for (size_t i = 0; i < mesh.indices.size(); i += 3) {
+        const uint32_t a = weld[mesh.indices[i]], b = weld[mesh.indices[i + 1]], c = weld[mesh.indices[i + 2]];
+        if (positionId[a] != positionId[b] && positionId[b] != positionId[c] && positionId[a] != positionId[c])
+            sourceIndices.insert(sourceIndices.end(), {a, b, c});
+    }
+    if (sourceIndices.empty())  // everything on one grid point: keep the mesh as it is
+        for (uint32_t v : mesh.indices) sourceIndices.push_back(weld[v]);
+    out.sourceTriangles = sourceIndices.size() / 3;
+
     std::vector<uint32_t> pending;
-    add_clusters(split_level_zero(mesh.indices, local), nullptr, 0.0f, 0, pending);
+    add_clusters(split_level_zero(sourceIndices, local), nullptr, 0.0f, 0, pending);
 
     std::vector<unsigned char> lock(vertexCount, 0);
     std::vector<int32_t> firstGroup(vertexCount, -1);
@@ -381,6 +417,15 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                                                          FLT_MAX, meshopt_SimplifySparse | meshopt_SimplifyErrorAbsolute, &error);
             if (kept > target) kept = drop_free_components(simplified, kept, target, local, positionId, lock, error);
             if (kept == 0 || double(kept) > kStuckRatio * double(merged.size())) return;  // stuck (vanishing too: keep a root)
+            // The simplified surface is made of the group's own vertices, so it cannot stray further than the group's
+            // extent; the simplifier's attribute terms can report more on slivers. Clamp to the group's diameter.
+            double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+            for (uint32_t v : merged)
+                for (int k = 0; k < 3; ++k) {
+                    lo[k] = std::min(lo[k], double(local[3 * v + k]));
+                    hi[k] = std::max(hi[k], double(local[3 * v + k]));
+                }
+            error = std::min(error, float(std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2]))));
             simplified.resize(kept);
             results[g] = {true, error, split_into_clusters(simplified, local)};
         });
@@ -463,9 +508,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         if (w.parentGroup >= 0) {
             c.parentSphere = to_float(groups[w.parentGroup].sphere);
             c.parentError = groups[w.parentGroup].error;
+            c.parentGroup = uint32_t(w.parentGroup);
         } else {
             c.parentSphere = c.lodSphere;
             c.parentError = std::numeric_limits<float>::infinity();
+            c.parentGroup = kNoGroup;
         }
         if (c.level == 0) {
             ++out.leafClusters;

@@ -293,10 +293,12 @@ NB_MODULE(_tessera, m) {
             view.faceVertexIndices = {indices.data(), indices.shape(0)};
             PreparedMesh prepared;
             BuiltMesh built;
+            PageLayout layout;
             {
                 nb::gil_scoped_release release;  // building is pure C++: let other Python threads run
                 prepared = prepare_mesh(view);
                 built = build_mesh(prepared);
+                encode_pages(built, &layout);
             }
             nb::dict d;
             d["source_triangles"] = built.sourceTriangles;
@@ -320,6 +322,10 @@ NB_MODULE(_tessera, m) {
             d["root_triangles"] = roots;
             d["memory_bytes"] = built.positions.size() * 4 + built.normals.size() * 4 + built.colors.size() * 4 + built.triangles.size() * 4 +
                                 built.clusters.size() * sizeof(Cluster);
+            d["disk_bytes"] = layout.bytes;
+            d["pages"] = layout.pages;
+            d["root_pages"] = layout.rootPages;
+            d["position_precision"] = built.positionPrecision;
             d["warnings"] = prepared.warnings;
             return d;
         },

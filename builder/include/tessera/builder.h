@@ -74,12 +74,15 @@ struct Cluster {
     float lodError;                     // that simplification's error in mesh units (0 at level 0)
     std::array<float, 4> parentSphere;  // bounds of the group simplification made from it
     float parentError;                  // its error; infinity for roots
+    uint32_t parentGroup;               // the group simplification made from it (kNoGroup for roots): siblings share it
     uint32_t level;
     uint32_t vertexOffset;              // into BuiltMesh vertex streams
     uint32_t vertexCount;               // <= 255
     uint32_t triangleOffset;            // into BuiltMesh::triangles
     uint32_t triangleCount;             // <= 128
 };
+
+constexpr uint32_t kNoGroup = 0xffffffffu;
 
 struct LevelStats {
     uint32_t clusters = 0;
@@ -116,7 +119,7 @@ struct BuiltMesh {
 struct BuildSettings {
     static constexpr int kAutoPrecision = -1000;
     // log2 of the position grid step in object space (-10: 1/1024 units), or automatic: the largest power of two
-    // at most min(mesh size / 2^16, mean edge length / 32). Coarsened if the mesh would span more than 2^23 steps.
+    // at most min(mesh size / 2^16, shortest edge / 64). Coarsened if the mesh would span more than 2^23 steps.
     int positionPrecision = kAutoPrecision;
 };
 
@@ -124,6 +127,27 @@ struct BuildSettings {
 // Positions are snapped to the precision grid first, so every level is built from grid points and vertices that
 // neighbouring clusters share stay bit-identical once quantized.
 BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings = {});
+
+// The on-disk form of a BuiltMesh (builder/pages.cpp): little-endian, versioned, every part checksummed.
+// Clusters are stored in pages of at most kPageBytes; the children of one group never straddle pages (a parent
+// refines by loading one page), and root clusters (no parent) fill pages of their own that stay resident.
+constexpr uint32_t kPageFormatVersion = 1;
+constexpr uint32_t kPageBytes = 128 * 1024;
+
+// A file that is not a Tessera DAG, or is truncated, corrupt or of another format version.
+struct PageFileError : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+struct PageLayout {
+    uint32_t pages = 0, rootPages = 0;
+    uint64_t bytes = 0;
+    std::vector<std::vector<uint32_t>> pageClusters;  // the mesh's cluster indices in each page
+};
+std::vector<uint8_t> encode_pages(const BuiltMesh& mesh, PageLayout* layout = nullptr);
+// `name` (a file path, say) begins every error message.
+BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name);
+uint32_t crc32(std::span<const uint8_t> bytes);
 
 // Octahedral normal encoding (snorm16x2 packed in a uint32), shared with the shaders' decoder.
 uint32_t encode_octahedral(float x, float y, float z);
