@@ -17,9 +17,10 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
             MeshSource source = scene.get_mesh(id());
             doubleSided_ = source.doubleSided;
             if (source.view.name.empty()) source.view.name = id();
-            PreparedMesh prepared = prepare_mesh(source.view);
-            for (auto& w : prepared.warnings) param.warnings.push_back(std::move(w));
-            gpuMesh_ = scene_.add_mesh(std::make_shared<BuiltMesh>(build_mesh(prepared)));
+            CachedBuild built = build_through_cache(source.view, BuildSettings{}, cache_);
+            for (auto& w : built.warnings) param.warnings.push_back(std::move(w));
+            ++(built.fromCache ? param.meshesFromCache : param.meshesBuilt);
+            gpuMesh_ = scene_.add_mesh(std::move(built.mesh));
         } catch (const MeshError& e) {
             param.errors.push_back(std::string(e.what()) + "; the mesh is skipped");
         }

@@ -23,7 +23,7 @@ const std::vector<std::string>& RenderDelegate::supported_bprim_types() {
 
 std::unique_ptr<Mesh> RenderDelegate::create_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t primId) {
     if (type != "mesh") return nullptr;
-    return std::make_unique<Mesh>(id, instancerId, primId, scene_);
+    return std::make_unique<Mesh>(id, instancerId, primId, scene_, cache_);
 }
 
 std::unique_ptr<Prim> RenderDelegate::create_sprim(const std::string& type, const PrimId& id) {

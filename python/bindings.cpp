@@ -1,6 +1,7 @@
 // tessera._tessera: the C++ delegate, renderer and builder as seen from Python.
 // The USD scene delegate is a Python subclass of SceneDelegate; its arrays reach C++ without copies:
 // a MeshSource borrows numpy buffers (views of USD's VtArrays) and keeps them alive.
+#include "tessera/cache.h"
 #include "tessera/delegate.h"
 #include "tessera/image_io.h"
 
@@ -233,6 +234,7 @@ NB_MODULE(_tessera, m) {
         .def_prop_ro("validation_enabled", [](RenderDelegate& d) { return d.device().validation_enabled(); })
         .def("take_validation_messages", [](RenderDelegate& d) { return d.device().take_validation_messages(); })
         .def_prop_ro("validation_error_count", [](RenderDelegate& d) { return d.device().validation_error_count(); })
+        .def_prop_ro("cache_directory", [](RenderDelegate& d) { return d.cache().directory(); })
         .def("set_visible_cluster_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_visible_cluster_capacity(c); })
         .def_static("supported_rprim_types", &RenderDelegate::supported_rprim_types)
         .def_static("supported_sprim_types", &RenderDelegate::supported_sprim_types)
@@ -268,7 +270,12 @@ NB_MODULE(_tessera, m) {
         .def_prop_ro("rprim_count", &RenderIndex::rprim_count)
         .def("take_diagnostics", [](RenderIndex& index) {
             RenderParam p = index.take_diagnostics();
-            return std::make_pair(p.warnings, p.errors);
+            nb::dict d;
+            d["warnings"] = p.warnings;
+            d["errors"] = p.errors;
+            d["meshes_built"] = p.meshesBuilt;
+            d["meshes_cached"] = p.meshesFromCache;
+            return d;
         });
 
     nb::module_ dirty = m.def_submodule("dirty", "Dirty bits (Hydra's change-tracker bits Tessera reads)");
@@ -282,6 +289,22 @@ NB_MODULE(_tessera, m) {
     dirty.attr("DOUBLE_SIDED") = uint32_t(DirtyDoubleSided);
     dirty.attr("PARAMS") = uint32_t(DirtyParams);
     dirty.attr("ALL") = uint32_t(AllDirty);
+
+    m.def(
+        "cache_mesh",
+        [](const MeshSource& source) {
+            CachedBuild built;
+            {
+                nb::gil_scoped_release release;
+                built = build_through_cache(source.view, BuildSettings{}, MeshCache::from_environment());
+            }
+            nb::dict d;
+            d["cached"] = built.fromCache;
+            d["source_triangles"] = built.mesh->sourceTriangles;
+            d["warnings"] = built.warnings;
+            return d;
+        },
+        "source"_a, "Builds a mesh into the cache ($TESSERA_CACHE) unless it is there already.");
 
     m.def(
         "build_mesh",

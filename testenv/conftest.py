@@ -5,7 +5,11 @@ from pathlib import Path
 
 import pytest
 
+import tempfile
+
 os.environ.setdefault("TESSERA_VALIDATION", "1")
+# Each test run gets its own mesh cache: tests neither read nor write the user's.
+os.environ["TESSERA_CACHE"] = tempfile.mkdtemp(prefix="tessera-test-cache-")
 
 TESTENV = Path(__file__).parent
 SHARED_ASSETS = (TESTENV.parent.parent / "shared" / "assets").resolve()

@@ -110,3 +110,26 @@ def test_bench_build_prints_a_table_and_writes_json(tmp_path):
     assert row["input_triangles"] == 2 * n * n
     assert row["dag_depth"] >= 3 and row["build_seconds"] > 0
     assert row["relative_error_per_level"][0] == 0 and row["relative_error_per_level"][-1] > 0
+
+
+def test_an_unchanged_stage_is_never_built_twice(tmp_path, monkeypatch):
+    monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
+    stage = TESTENV / "testNativeInstancing" / "native_instancing.usda"
+    first = tessera.Session(stage, validation=True).render(resolution=(64, 48), aovs=("primId",))
+    assert first.stats["meshes_built"] == 2 and first.stats["meshes_cached"] == 0
+    second = tessera.Session(stage, validation=True).render(resolution=(64, 48), aovs=("primId",))
+    assert second.stats["meshes_built"] == 0 and second.stats["meshes_cached"] == 2
+    assert (first["primId"].ids() == second["primId"].ids()).all()
+
+
+def test_tessera_build_fills_the_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
+    stage = TESTENV / "testPointInstancer" / "point_instancer.usda"
+    done = run("build", stage)
+    assert done.returncode == 0, done.stderr
+    assert "3/3 meshes" in done.stderr and "built 3 mesh(es), 0 from the cache" in done.stderr
+    assert run("build", stage).stderr.count("built 0 mesh(es), 3 from the cache") == 1
+    stats_file = tmp_path / "stats.json"
+    assert run("render", stage, "-o", tmp_path / "x.png", "--resolution", "32x24", "--stats", stats_file).returncode == 0
+    stats = json.loads(stats_file.read_text())
+    assert stats["meshes_built"] == 0 and stats["meshes_cached"] == 3

@@ -34,6 +34,9 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--aov", choices=AOVS, default="color", help="what to write (default color)")
     render.add_argument("--stats", help="write frame statistics to this JSON file")
     render.add_argument("--device", help="Vulkan device: gpu, cpu, an index or part of its name (default: $TESSERA_DEVICE, else the best)")
+    build_cmd = commands.add_parser("build", help="build every mesh of a stage into the mesh cache ($TESSERA_CACHE)")
+    build_cmd.add_argument("stage", help="USD stage")
+    build_cmd.add_argument("--frame", type=float, help="time code (default: the stage's default time)")
     bench = commands.add_parser("bench", help="benchmarks: tables of speed, memory and error")
     benches = bench.add_subparsers(dest="bench", required=True)
     build = benches.add_parser("build", help="cluster DAG build: speed, memory, depth, error per level")
@@ -69,11 +72,68 @@ def _render(args) -> int:
     return 1 if validation_errors else 0
 
 
+class _Collector:
+    """Stands in for the render index while the scene delegate populates: records the mesh prims."""
+
+    def __init__(self):
+        self.meshes = []
+
+    def insert_rprim(self, kind, prim_id, instancer_id=""):
+        self.meshes.append(prim_id)
+
+    def insert_sprim(self, kind, prim_id):
+        pass
+
+
+def _build(args) -> int:
+    """Builds every mesh into the cache, several at a time, with a progress line; no GPU needed."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from pxr import Usd
+
+    from . import _tessera
+    from .session import _open_stage
+    from .usd import UsdSceneDelegate
+
+    stage = _open_stage(args.stage)
+    collector = _Collector()
+    scene = UsdSceneDelegate(stage, collector, Usd.TimeCode(args.frame) if args.frame is not None else Usd.TimeCode.Default())
+    scene.populate()
+    total, done, cached, triangles, failed = len(collector.meshes), 0, 0, 0, 0
+    started = time.perf_counter()
+
+    def build_one(prim_id):
+        try:
+            return prim_id, _tessera.cache_mesh(scene.get_mesh(prim_id)), None
+        except Exception as error:  # a bad prim is reported and the others still build
+            return prim_id, None, f"{prim_id}: {error}"
+
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        for prim_id, result, error in pool.map(build_one, collector.meshes):
+            done += 1
+            if error:
+                failed += 1
+                print(f"\ntessera: error: {error}", file=sys.stderr)
+            else:
+                cached += result["cached"]
+                triangles += result["source_triangles"]
+                for warning in result["warnings"]:
+                    print(f"\ntessera: warning: {warning}", file=sys.stderr)
+            bar = "#" * (30 * done // max(total, 1))
+            print(f"\r[{bar:<30}] {done}/{total} meshes, {triangles / 1e6:.1f} M triangles, {cached} already cached",
+                  end="", file=sys.stderr, flush=True)
+    print(f"\nbuilt {total - cached - failed} mesh(es), {cached} from the cache, {failed} failed, in "
+          f"{time.perf_counter() - started:.1f} s (cache: {os.environ.get('TESSERA_CACHE') or 'default'})", file=sys.stderr)
+    return 1 if failed else 0
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "render":
             return _render(args)
+        if args.command == "build":
+            return _build(args)
         if args.command == "bench":
             from . import bench
 

@@ -98,7 +98,8 @@ class Session:
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
         fallback = framing_camera(self.stage, self.time, width, height) if not camera_id else _tessera.CameraDesc()
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background))
-        warnings, errors = self.index.take_diagnostics()
+        diagnostics = self.index.take_diagnostics()
+        warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)
         self.scene.warnings.clear()
         messages = self.delegate.take_validation_messages()
@@ -106,4 +107,6 @@ class Session:
             errors = list(errors) + messages
         stats["device"] = self.delegate.device_name
         stats["rprims"] = self.index.rprim_count
+        stats["meshes_built"] = diagnostics["meshes_built"]
+        stats["meshes_cached"] = diagnostics["meshes_cached"]
         return RenderResult(dict(zip(aovs, images)), stats, warnings, list(errors), self.index)

@@ -8,6 +8,7 @@
 #pragma once
 
 #include "tessera/builder.h"
+#include "tessera/cache.h"
 #include "tessera/renderer.h"
 
 #include <map>
@@ -72,6 +73,7 @@ class RenderDelegate;
 struct RenderParam {
     std::vector<std::string> warnings;
     std::vector<std::string> errors;
+    uint32_t meshesBuilt = 0, meshesFromCache = 0;
 };
 
 // Base of every prim kind.
@@ -89,8 +91,8 @@ private:
 // The geometry prim (Hydra's Rprim "mesh"): holds its built mesh in the GPU scene.
 class Mesh : public Prim {
 public:
-    Mesh(PrimId id, PrimId instancerId, uint32_t primId, GpuScene& scene)
-        : Prim(std::move(id)), instancerId_(std::move(instancerId)), primId_(primId), scene_(scene) {}
+    Mesh(PrimId id, PrimId instancerId, uint32_t primId, GpuScene& scene, const MeshCache& cache)
+        : Prim(std::move(id)), instancerId_(std::move(instancerId)), primId_(primId), scene_(scene), cache_(cache) {}
     ~Mesh() override;
     void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
 
@@ -108,6 +110,7 @@ private:
     PrimId instancerId_, materialId_;
     uint32_t primId_;
     GpuScene& scene_;
+    const MeshCache& cache_;
     std::optional<uint32_t> gpuMesh_;
     Matrix4d transform_ = identity_matrix();
     MatrixArray instances_;
@@ -170,8 +173,11 @@ public:
     Device& device() { return device_; }
     Renderer& renderer() { return renderer_; }
     GpuScene& scene() { return scene_; }
+    const MeshCache& cache() const { return cache_; }
+    void set_cache(MeshCache cache) { cache_ = std::move(cache); }
 
 private:
+    MeshCache cache_ = MeshCache::from_environment();
     Device device_;
     Renderer renderer_;
     GpuScene scene_;

@@ -1,0 +1,163 @@
+#include "tessera/cache.h"
+
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+namespace tessera {
+namespace {
+
+// A 128-bit content hash: two 64-bit lanes of multiply-xorshift mixing over 8-byte words, with different seeds.
+// Not cryptographic; collisions between meshes are negligible at 128 bits.
+class Hasher {
+public:
+    void bytes(const void* data, size_t size) {
+        const auto* p = static_cast<const uint8_t*>(data);
+        word(size);
+        for (; size >= 8; size -= 8, p += 8) {
+            uint64_t w;
+            std::memcpy(&w, p, 8);
+            word(w);
+        }
+        uint64_t tail = 0;
+        std::memcpy(&tail, p, size);
+        word(tail ^ (uint64_t(size) << 56));
+    }
+    template <typename T>
+    void span(std::span<const T> values) { bytes(values.data(), values.size_bytes()); }
+    void word(uint64_t w) {
+        a_ = mix(a_ ^ w) * 0x9E3779B97F4A7C15ull;
+        b_ = mix(b_ + w * 0xC2B2AE3D27D4EB4Full) ^ (b_ >> 29);
+    }
+    std::string hex() const {
+        char out[33];
+        std::snprintf(out, sizeof out, "%016llx%016llx", (unsigned long long)mix(a_ ^ b_), (unsigned long long)mix(b_ + 0x165667B19E3779F9ull));
+        return out;
+    }
+
+private:
+    static uint64_t mix(uint64_t x) {
+        x ^= x >> 33;
+        x *= 0xff51afd7ed558ccdull;
+        x ^= x >> 33;
+        x *= 0xc4ceb9fe1a85ec53ull;
+        x ^= x >> 33;
+        return x;
+    }
+    uint64_t a_ = 0x243F6A8885A308D3ull, b_ = 0x13198A2E03707344ull;
+};
+
+void hash_primvar(Hasher& h, const PrimvarView& p) {
+    h.word(uint64_t(p.interpolation));
+    h.word(uint64_t(p.components));
+    h.span(p.values);
+    h.span(p.indices);
+}
+
+}  // namespace
+
+MeshCache::MeshCache(std::string directory) : directory_(std::move(directory)) {}
+
+MeshCache MeshCache::from_environment() {
+    if (const char* dir = std::getenv("TESSERA_CACHE")) {
+        const std::string value = dir;
+        if (value == "off" || value == "0" || value.empty()) return MeshCache("");
+        return MeshCache(value);
+    }
+    if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg && *xdg) return MeshCache(std::string(xdg) + "/tessera");
+    if (const char* home = std::getenv("HOME"); home && *home) return MeshCache(std::string(home) + "/.cache/tessera");
+    return MeshCache("");
+}
+
+std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) {
+    Hasher h;
+    h.word(kPageFormatVersion);
+    h.word(uint64_t(int64_t(settings.positionPrecision)));
+    h.span(mesh.points);
+    h.span(mesh.faceVertexCounts);
+    h.span(mesh.faceVertexIndices);
+    h.span(mesh.holeIndices);
+    h.word(mesh.leftHanded);
+    hash_primvar(h, mesh.normals);
+    hash_primvar(h, mesh.displayColor);
+    return h.hex();
+}
+
+std::string MeshCache::path_of(const std::string& key) const { return directory_ + "/" + key.substr(0, 2) + "/" + key + ".tsra"; }
+
+std::optional<MeshCache::Entry> MeshCache::load(const std::string& key, std::string* problem) const {
+    if (!enabled()) return std::nullopt;
+    const std::string path = path_of(key);
+    std::ifstream in(path, std::ios::binary);
+    if (!in) return std::nullopt;
+    std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    try {
+        Entry entry;
+        entry.mesh = std::make_shared<BuiltMesh>(decode_pages(bytes, path));
+        std::ifstream warnings(path_of(key) + ".warnings");
+        for (std::string line; std::getline(warnings, line);)
+            if (!line.empty()) entry.warnings.push_back(line);
+        return entry;
+    } catch (const PageFileError& e) {
+        if (problem) *problem = e.what();
+        return std::nullopt;
+    }
+}
+
+bool MeshCache::store(const std::string& key, const BuiltMesh& mesh, const std::vector<std::string>& warnings, std::string* problem) const {
+    if (!enabled()) return false;
+    namespace fs = std::filesystem;
+    const std::string path = path_of(key);
+    try {
+        fs::create_directories(fs::path(path).parent_path());
+        // A unique temporary name, renamed into place: readers never see a partial file, writers never collide.
+        std::random_device random;
+        const std::string temporary = path + ".tmp" + std::to_string(random()) + std::to_string(random());
+        {
+            std::ofstream out(temporary + ".warnings");
+            for (const std::string& w : warnings) out << w << '\n';
+        }
+        fs::rename(temporary + ".warnings", path + ".warnings");
+        const std::vector<uint8_t> bytes = encode_pages(mesh);
+        {
+            std::ofstream out(temporary, std::ios::binary);
+            out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+            if (!out) throw std::runtime_error("cannot write " + temporary);
+        }
+        fs::rename(temporary, path);
+        return true;
+    } catch (const std::exception& e) {
+        if (problem) *problem = std::string("mesh cache: ") + e.what();
+        return false;
+    }
+}
+
+CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& settings, const MeshCache& cache) {
+    CachedBuild result;
+    std::string key;
+    if (cache.enabled()) {
+        key = MeshCache::key(mesh, settings);
+        std::string problem;
+        if (auto entry = cache.load(key, &problem)) {
+            result.mesh = entry->mesh;
+            result.warnings = std::move(entry->warnings);
+            result.fromCache = true;
+            return result;
+        }
+        if (!problem.empty()) result.warnings.push_back(mesh.name + ": cached build unreadable, rebuilding (" + problem + ")");
+    }
+    PreparedMesh prepared = prepare_mesh(mesh);
+    auto built = std::make_shared<BuiltMesh>(build_mesh(prepared, settings));
+    if (cache.enabled()) {
+        std::string problem;
+        if (!cache.store(key, *built, prepared.warnings, &problem)) result.warnings.push_back(mesh.name + ": " + problem);
+    }
+    result.warnings.insert(result.warnings.end(), prepared.warnings.begin(), prepared.warnings.end());
+    result.mesh = std::move(built);
+    return result;
+}
+
+}  // namespace tessera

@@ -1,0 +1,100 @@
+// The content-addressed mesh cache.
+#include "tessera/cache.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <unistd.h>
+
+using namespace tessera;
+namespace fs = std::filesystem;
+
+namespace {
+struct Quads {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    explicit Quads(int n) {
+        for (int y = 0; y <= n; ++y)
+            for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x), float(y), float((x * y) % 3) * 0.1f});
+        for (int y = 0; y < n; ++y)
+            for (int x = 0; x < n; ++x) {
+                const int a = y * (n + 1) + x;
+                counts.push_back(4);
+                indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+            }
+    }
+    MeshView view() const {
+        MeshView v;
+        v.name = "/Quads";
+        v.points = points;
+        v.faceVertexCounts = counts;
+        v.faceVertexIndices = indices;
+        return v;
+    }
+};
+
+fs::path fresh_directory(const char* name) {
+    const fs::path dir = fs::temp_directory_path() / ("tessera-cache-test-" + std::string(name) + "-" + std::to_string(::getpid()));
+    fs::remove_all(dir);
+    return dir;
+}
+}  // namespace
+
+TEST(Cache, KeyFollowsContentAndSettings) {
+    Quads a(20), b(20);
+    EXPECT_EQ(MeshCache::key(a.view(), {}), MeshCache::key(b.view(), {}));
+    b.points[7] += 1e-6f;
+    EXPECT_NE(MeshCache::key(a.view(), {}), MeshCache::key(b.view(), {}));
+    BuildSettings fine;
+    fine.positionPrecision = -20;
+    EXPECT_NE(MeshCache::key(a.view(), {}), MeshCache::key(a.view(), fine));
+    MeshView flipped = a.view();
+    flipped.leftHanded = true;
+    EXPECT_NE(MeshCache::key(a.view(), {}), MeshCache::key(flipped, {}));
+    EXPECT_EQ(MeshCache::key(a.view(), {}).size(), 32u);
+}
+
+TEST(Cache, SecondBuildComesFromTheCacheAndMatches) {
+    const fs::path dir = fresh_directory("hit");
+    MeshCache cache(dir.string());
+    Quads q(60);
+    CachedBuild first = build_through_cache(q.view(), {}, cache), second = build_through_cache(q.view(), {}, cache);
+    EXPECT_FALSE(first.fromCache);
+    EXPECT_TRUE(second.fromCache);
+    EXPECT_EQ(first.mesh->positions, second.mesh->positions);
+    EXPECT_EQ(first.mesh->triangles, second.mesh->triangles);
+    EXPECT_EQ(first.mesh->clusters.size(), second.mesh->clusters.size());
+    fs::remove_all(dir);
+}
+
+TEST(Cache, WarningsAreKeptAndCorruptEntriesRebuilt) {
+    const fs::path dir = fresh_directory("corrupt");
+    MeshCache cache(dir.string());
+    Quads q(10);
+    q.counts.push_back(3);
+    q.indices.insert(q.indices.end(), {0, 1, 9999});  // a bad face: dropped with a warning
+    CachedBuild first = build_through_cache(q.view(), {}, cache);
+    ASSERT_EQ(first.warnings.size(), 1u);
+    CachedBuild again = build_through_cache(q.view(), {}, cache);
+    EXPECT_TRUE(again.fromCache);
+    EXPECT_EQ(again.warnings, first.warnings) << "a cached bad mesh still reports its problems";
+
+    const std::string key = MeshCache::key(q.view(), {});
+    const fs::path file = dir / key.substr(0, 2) / (key + ".tsra");
+    ASSERT_TRUE(fs::exists(file));
+    fs::resize_file(file, fs::file_size(file) / 2);
+    CachedBuild rebuilt = build_through_cache(q.view(), {}, cache);
+    EXPECT_FALSE(rebuilt.fromCache);
+    ASSERT_FALSE(rebuilt.warnings.empty());
+    EXPECT_NE(rebuilt.warnings[0].find("cached build unreadable, rebuilding"), std::string::npos) << rebuilt.warnings[0];
+    EXPECT_TRUE(build_through_cache(q.view(), {}, cache).fromCache) << "the rebuilt entry replaced the corrupt one";
+    fs::remove_all(dir);
+}
+
+TEST(Cache, DisabledCacheBuildsEveryTime) {
+    MeshCache off("");
+    Quads q(8);
+    EXPECT_FALSE(build_through_cache(q.view(), {}, off).fromCache);
+    EXPECT_FALSE(build_through_cache(q.view(), {}, off).fromCache);
+}
