@@ -5,11 +5,14 @@ from pathlib import Path
 
 import pytest
 
+import atexit
+import shutil
 import tempfile
 
 os.environ.setdefault("TESSERA_VALIDATION", "1")
-# Each test run gets its own mesh cache: tests neither read nor write the user's.
+# Each test run gets its own mesh cache, removed afterwards: tests neither read nor write the user's.
 os.environ["TESSERA_CACHE"] = tempfile.mkdtemp(prefix="tessera-test-cache-")
+atexit.register(shutil.rmtree, os.environ["TESSERA_CACHE"], True)
 
 TESTENV = Path(__file__).parent
 SHARED_ASSETS = (TESTENV.parent.parent / "shared" / "assets").resolve()
