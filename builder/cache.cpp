@@ -81,6 +81,8 @@ std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) 
     h.span(mesh.faceVertexIndices);
     h.span(mesh.holeIndices);
     h.word(mesh.leftHanded);
+    h.word(uint64_t(mesh.subdivisionScheme));
+    h.word(uint64_t(mesh.refineLevel));
     hash_primvar(h, mesh.normals);
     hash_primvar(h, mesh.displayColor);
     return h.hex();

@@ -1,6 +1,8 @@
 // Input preparation: validation, triangulation (holes, orientation), attribute seams, normals.
 #include "tessera/builder.h"
 
+#include "subdivide.h"
+
 #include <cmath>
 #include <cstring>
 #include <unordered_map>
@@ -127,6 +129,74 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         nonFinitePoints += !pointFinite[i];
     }
 
+    // Why a face cannot be drawn, or null.
+    auto face_problem = [&](size_t start, size_t count) -> const char* {
+        if (count < 3) return "fewer than 3 vertices";
+        for (size_t c = start; c < start + count; ++c) {
+            const int32_t p = mesh.faceVertexIndices[c];
+            if (p < 0 || size_t(p) >= pointCount) return "a vertex index out of range";
+            if (!pointFinite[p]) return "a non-finite point";
+        }
+        return nullptr;
+    };
+    auto dropped_faces_warning = [&](size_t dropped, size_t first, const char* reason) {
+        return name + ": dropped " + std::to_string(dropped) + " invalid face(s); first is face " + std::to_string(first) + " with " + reason;
+    };
+
+    if (mesh.subdivisionScheme != SubdivisionScheme::None && mesh.refineLevel > 0) {
+        // Refine the valid faces (OpenSubdiv must never see a bad index), then prepare the result as polygons.
+        std::vector<int32_t> counts, indices, holes;
+        std::vector<float> uniformColors;
+        std::vector<int32_t> newIndexOf(mesh.faceVertexCounts.size(), -1);
+        const bool uniform = mesh.displayColor.interpolation == Interpolation::Uniform && !mesh.displayColor.values.empty();
+        size_t dropped = 0, firstBad = 0, start = 0;
+        const char* firstReason = nullptr;
+        for (size_t face = 0; face < mesh.faceVertexCounts.size(); ++face) {
+            const size_t count = size_t(mesh.faceVertexCounts[face]);
+            if (const char* problem = face_problem(start, count)) {
+                if (dropped++ == 0) {
+                    firstBad = face;
+                    firstReason = problem;
+                }
+            } else {
+                newIndexOf[face] = int32_t(counts.size());
+                counts.push_back(int32_t(count));
+                indices.insert(indices.end(), mesh.faceVertexIndices.begin() + start, mesh.faceVertexIndices.begin() + start + count);
+                if (uniform) {
+                    const size_t slot = mesh.displayColor.indices.empty() ? face : size_t(mesh.displayColor.indices[face]);
+                    if (3 * slot + 2 < mesh.displayColor.values.size())
+                        uniformColors.insert(uniformColors.end(), &mesh.displayColor.values[3 * slot], &mesh.displayColor.values[3 * slot] + 3);
+                    else
+                        uniformColors.insert(uniformColors.end(), {0.5f, 0.5f, 0.5f});
+                }
+            }
+            start += count;
+        }
+        for (int32_t hole : mesh.holeIndices)
+            if (hole >= 0 && size_t(hole) < newIndexOf.size() && newIndexOf[hole] >= 0) holes.push_back(newIndexOf[hole]);
+        if (counts.empty()) throw MeshError(name + ": no drawable faces" + (firstReason ? std::string(" (every face is invalid: ") + firstReason + ")" : ""));
+        RefinedMesh refined;
+        std::string problem;
+        if (refine_subdivision(mesh, counts, indices, holes, uniform ? uniformColors.data() : nullptr, refined, problem)) {
+            MeshView view;
+            view.name = name;
+            view.points = refined.points;
+            view.faceVertexCounts = refined.counts;
+            view.faceVertexIndices = refined.indices;
+            if (refined.colorInterpolation != Interpolation::None) view.displayColor = {refined.colorInterpolation, 3, refined.colors, {}};
+            else if (mesh.displayColor.interpolation == Interpolation::Constant) view.displayColor = mesh.displayColor;
+            PreparedMesh result = prepare_mesh(view);
+            std::vector<std::string> notes;
+            if (dropped) notes.push_back(dropped_faces_warning(dropped, firstBad, firstReason));
+            if (nonFinitePoints) notes.push_back(name + ": " + std::to_string(nonFinitePoints) + " point(s) are NaN or infinite");
+            if (mesh.displayColor.interpolation == Interpolation::FaceVarying)
+                notes.push_back(name + ": face-varying displayColor is not refined yet; the subdivided mesh is drawn without it");
+            result.warnings.insert(result.warnings.begin(), notes.begin(), notes.end());
+            return result;
+        }
+        warnings.push_back(name + ": cannot subdivide (" + problem + "); the control cage is drawn instead");
+    }
+
     // Weld exact duplicate positions: every point maps to the first point with bit-identical coordinates, so that
     // split authoring (UV-sphere poles, per-face copies) joins up; attribute values still decide seams below.
     std::vector<uint32_t> canonical(pointCount);
@@ -220,14 +290,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         const size_t start = faceStart;
         faceStart += count;
         if (isHole[face]) continue;
-        const char* bad = nullptr;
-        if (count < 3) bad = "fewer than 3 vertices";
-        for (size_t c = start; c < start + count && !bad; ++c) {
-            const int32_t p = mesh.faceVertexIndices[c];
-            if (p < 0 || size_t(p) >= pointCount) bad = "a vertex index out of range";
-            else if (!pointFinite[p]) bad = "a non-finite point";
-        }
-        if (bad) {
+        if (const char* bad = face_problem(start, count)) {
             if (droppedFaces++ == 0) {
                 firstBadFace = face;
                 firstBadReason = bad;
@@ -249,9 +312,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             out.sourceFaces.push_back(uint32_t(face));
         }
     }
-    if (droppedFaces)
-        warnings.push_back(name + ": dropped " + std::to_string(droppedFaces) + " invalid face(s); first is face " +
-                           std::to_string(firstBadFace) + " with " + firstBadReason);
+    if (droppedFaces) warnings.push_back(dropped_faces_warning(droppedFaces, firstBadFace, firstBadReason.c_str()));
     if (nonFinitePoints)
         warnings.push_back(name + ": " + std::to_string(nonFinitePoints) + " point(s) are NaN or infinite");
     if (out.indices.empty())

@@ -16,6 +16,7 @@
 #include <nanobind/stl/vector.h>
 #include <nanobind/trampoline.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 
@@ -109,8 +110,14 @@ NB_MODULE(_tessera, m) {
         [](const std::string& name, Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices,
            std::optional<Array1<int32_t>> holes, bool leftHanded, bool doubleSided, std::optional<Array1<float>> normals,
            const std::string& normalsInterpolation, std::optional<Array1<int32_t>> normalsIndices, std::optional<Array1<float>> displayColor,
-           const std::string& displayColorInterpolation, std::optional<Array1<int32_t>> displayColorIndices) {
+           const std::string& displayColorInterpolation, std::optional<Array1<int32_t>> displayColorIndices, const std::string& scheme,
+           int refineLevel) {
             MeshSource source;
+            source.view.subdivisionScheme = scheme == "catmullClark" ? SubdivisionScheme::CatmullClark
+                                            : scheme == "loop"       ? SubdivisionScheme::Loop
+                                            : scheme == "bilinear"   ? SubdivisionScheme::Bilinear
+                                                                     : SubdivisionScheme::None;
+            source.view.refineLevel = std::clamp(refineLevel, 0, 8);
             source.view.name = name;
             source.view.points = {points.data(), points.shape(0)};
             source.view.faceVertexCounts = {counts.data(), counts.shape(0)};
@@ -133,6 +140,7 @@ NB_MODULE(_tessera, m) {
         "name"_a, "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "hole_indices"_a = nb::none(), "left_handed"_a = false,
         "double_sided"_a = false, "normals"_a = nb::none(), "normals_interpolation"_a = "vertex", "normals_indices"_a = nb::none(),
         "display_color"_a = nb::none(), "display_color_interpolation"_a = "constant", "display_color_indices"_a = nb::none(),
+        "subdivision_scheme"_a = "none", "refine_level"_a = 0,
         "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples).");
 
     nb::class_<MatrixArray>(m, "MatrixArray").def_prop_ro("size", &MatrixArray::size);

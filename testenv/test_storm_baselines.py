@@ -28,7 +28,10 @@ def test_silhouette_matches_storm(render, tmp_path, stage, baseline):
     assert iou >= 0.95, f"silhouette IoU with Storm's baseline is {iou:.3f}"
 
 
-def test_teapot_renders(render):
-    result = render(shared_asset("usd-wg/full_assets/Teapot/Teapot.usd"), camera=None, resolution=(320, 240), aovs=("primId",))
-    coverage = float((result["primId"].ids() != 0xFFFFFFFF).mean())
+def test_teapot_renders_as_a_refined_subdivision_surface(render):
+    teapot = shared_asset("usd-wg/full_assets/Teapot/Teapot.usd")
+    cage = render(teapot, camera=None, resolution=(320, 240), aovs=("primId",), refine_level=0)
+    refined = render(teapot, camera=None, resolution=(320, 240), aovs=("primId",), refine_level=2)
+    assert refined.stats["source_triangles"] > 10 * cage.stats["source_triangles"], "catmullClark refined twice: about 16x"
+    coverage = float((refined["primId"].ids() != 0xFFFFFFFF).mean())
     assert 0.05 < coverage < 0.6, f"the framed teapot covers {coverage:.2%} of the image"

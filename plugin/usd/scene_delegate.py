@@ -36,8 +36,9 @@ class _Rprim:
 
 
 class UsdSceneDelegate(_tessera.SceneDelegate):
-    def __init__(self, stage: Usd.Stage, render_index, time: Usd.TimeCode = Usd.TimeCode.Default()):
+    def __init__(self, stage: Usd.Stage, render_index, time: Usd.TimeCode = Usd.TimeCode.Default(), refine_level: int = 2):
         super().__init__()
+        self.refine_level = refine_level  # uniform refinements of subdivision surfaces (catmullClark, loop, bilinear)
         self.stage = stage
         self.index = render_index
         self.time = time
@@ -216,7 +217,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             left_handed=mesh.GetOrientationAttr().Get(t) == UsdGeom.Tokens.leftHanded,
             double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
             normals=normals, normals_interpolation=normals_interp, normals_indices=normals_idx,
-            display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx)
+            display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx,
+            subdivision_scheme=mesh.GetSubdivisionSchemeAttr().Get(t) or "catmullClark", refine_level=self.refine_level)
 
     def get_transform(self, id: str):
         return to_column_major(self.xform_cache.GetLocalToWorldTransform(self.rprims[id].prim))

@@ -33,10 +33,13 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
     render.add_argument("--aov", choices=AOVS, default="color", help="what to write (default color)")
     render.add_argument("--stats", help="write frame statistics to this JSON file")
+    render.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N",
+                        help="uniform refinements of subdivision surfaces before the DAG (default 2; 0 draws the cage)")
     render.add_argument("--device", help="Vulkan device: gpu, cpu, an index or part of its name (default: $TESSERA_DEVICE, else the best)")
     build_cmd = commands.add_parser("build", help="build every mesh of a stage into the mesh cache ($TESSERA_CACHE)")
     build_cmd.add_argument("stage", help="USD stage")
     build_cmd.add_argument("--frame", type=float, help="time code (default: the stage's default time)")
+    build_cmd.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N", help="as for render (default 2)")
     bench = commands.add_parser("bench", help="benchmarks: tables of speed, memory and error")
     benches = bench.add_subparsers(dest="bench", required=True)
     build = benches.add_parser("build", help="cluster DAG build: speed, memory, depth, error per level")
@@ -49,7 +52,7 @@ def _render(args) -> int:
     from . import Session
 
     started = time.perf_counter()
-    session = Session(args.stage, frame=args.frame, device=args.device)
+    session = Session(args.stage, frame=args.frame, device=args.device, refine_level=args.refine_level)
     loaded = time.perf_counter()
     camera = args.camera or (session.camera_paths()[0] if session.camera_paths() else None)
     result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov])
@@ -97,7 +100,8 @@ def _build(args) -> int:
 
     stage = _open_stage(args.stage)
     collector = _Collector()
-    scene = UsdSceneDelegate(stage, collector, Usd.TimeCode(args.frame) if args.frame is not None else Usd.TimeCode.Default())
+    scene = UsdSceneDelegate(stage, collector, Usd.TimeCode(args.frame) if args.frame is not None else Usd.TimeCode.Default(),
+                             args.refine_level)
     scene.populate()
     total, done, cached, triangles, failed = len(collector.meshes), 0, 0, 0, 0
     started = time.perf_counter()

@@ -61,7 +61,8 @@ def _open_stage(stage):
 class Session:
     """Opens a stage and renders it; the render delegate and the GPU scene live as long as the session."""
 
-    def __init__(self, stage, *, frame: float | None = None, device: str | None = None, validation: bool | None = None):
+    def __init__(self, stage, *, frame: float | None = None, device: str | None = None, validation: bool | None = None,
+                 refine_level: int = 2):
         from pxr import Usd
 
         from .usd import UsdSceneDelegate
@@ -70,7 +71,7 @@ class Session:
         self.time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
         self.delegate = _tessera.RenderDelegate(device=device, validation=validation)
         self.index = _tessera.RenderIndex(self.delegate)
-        self.scene = UsdSceneDelegate(self.stage, self.index, self.time)
+        self.scene = UsdSceneDelegate(self.stage, self.index, self.time, refine_level)
         self.scene.populate()
 
     @property

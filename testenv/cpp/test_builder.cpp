@@ -225,3 +225,69 @@ TEST(Prepare, DuplicatePositionsWeldUnlessTheirValuesDiffer) {
     v.normals = {Interpolation::Vertex, 3, flat, {}};
     EXPECT_EQ(prepare_mesh(v).positions.size() / 3, 6u);
 }
+
+namespace {
+MeshView cube_cage(std::vector<float>& points, std::vector<int32_t>& counts, std::vector<int32_t>& indices) {
+    points = {-1, -1, 1, 1, -1, 1, -1, 1, 1, 1, 1, 1, -1, 1, -1, 1, 1, -1, -1, -1, -1, 1, -1, -1};
+    counts = {4, 4, 4, 4, 4, 4};
+    indices = {0, 1, 3, 2, 2, 3, 5, 4, 4, 5, 7, 6, 6, 7, 1, 0, 1, 7, 5, 3, 6, 0, 2, 4};
+    MeshView v;
+    v.name = "/Cage";
+    v.points = points;
+    v.faceVertexCounts = counts;
+    v.faceVertexIndices = indices;
+    return v;
+}
+}  // namespace
+
+TEST(Subdivision, CatmullClarkRefinesTowardsTheLimitSurface) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    MeshView v = cube_cage(points, counts, indices);
+    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    v.refineLevel = 2;
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_EQ(m.indices.size() / 3, 6u * 16u * 2u) << "two refinements: 16 quads per face, 2 triangles each";
+    float maxRadius = 0;
+    for (size_t i = 0; i < m.positions.size(); i += 3) {
+        for (int k = 0; k < 3; ++k) EXPECT_LE(std::fabs(m.positions[i + k]), 1.0f) << "refined points stay inside the cage";
+        maxRadius = std::max(maxRadius, std::sqrt(m.positions[i] * m.positions[i] + m.positions[i + 1] * m.positions[i + 1] + m.positions[i + 2] * m.positions[i + 2]));
+    }
+    EXPECT_LT(maxRadius, 1.3f) << "the cage's corners (radius 1.73) are pulled in towards a rounded shape";
+    EXPECT_TRUE(m.warnings.empty());
+    // Holes stay holes.
+    std::vector<int32_t> holes{0};
+    v.holeIndices = holes;
+    EXPECT_EQ(prepare_mesh(v).indices.size() / 3, 5u * 16u * 2u);
+}
+
+TEST(Subdivision, LoopNeedsTrianglesElseTheCageIsDrawnWithAWarning) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    MeshView v = cube_cage(points, counts, indices);
+    v.subdivisionScheme = SubdivisionScheme::Loop;
+    v.refineLevel = 1;
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_EQ(m.indices.size() / 3, 12u);
+    ASSERT_FALSE(m.warnings.empty());
+    EXPECT_NE(m.warnings[0].find("/Cage: cannot subdivide (Loop subdivision needs triangles only)"), std::string::npos) << m.warnings[0];
+}
+
+TEST(Subdivision, BadFacesAreDroppedBeforeRefinement) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    cube_cage(points, counts, indices);
+    counts.push_back(3);
+    indices.insert(indices.end(), {0, 1, 42});
+    MeshView v;
+    v.name = "/Cage";
+    v.points = points;
+    v.faceVertexCounts = counts;
+    v.faceVertexIndices = indices;
+    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    v.refineLevel = 1;
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_EQ(m.indices.size() / 3, 6u * 4u * 2u);
+    ASSERT_FALSE(m.warnings.empty());
+    EXPECT_NE(m.warnings[0].find("dropped 1 invalid face(s); first is face 6 with a vertex index out of range"), std::string::npos) << m.warnings[0];
+}

@@ -16,6 +16,9 @@ namespace tessera {
 constexpr uint32_t kClusterMaxTriangles = 128;
 constexpr uint32_t kClusterMaxVertices = 256;
 
+// USD's subdivisionScheme.
+enum class SubdivisionScheme { None, CatmullClark, Loop, Bilinear };
+
 // How a primvar's values map onto the mesh (USD's interpolation names).
 enum class Interpolation { None, Constant, Uniform, Vertex, Varying, FaceVarying };
 
@@ -38,6 +41,10 @@ struct MeshView {
     bool leftHanded = false;                   // faces wind clockwise
     PrimvarView normals;                       // 3 components
     PrimvarView displayColor;                  // 3 components
+    // Subdivision surfaces are refined uniformly this many times (OpenSubdiv) before triangulation. Authored
+    // normals do not describe the refined surface and are recomputed; face-varying colours are not refined yet.
+    SubdivisionScheme subdivisionScheme = SubdivisionScheme::None;
+    int refineLevel = 0;
 };
 
 // The mesh cannot be used at all (no valid face left, or data that do not fit together).

@@ -1,0 +1,116 @@
+// Subdivision surfaces: Catmull-Clark, Loop and bilinear meshes refined uniformly with OpenSubdiv before
+// triangulation, so that the cluster DAG starts from the surface, not its control cage.
+#include "subdivide.h"
+
+#include <opensubdiv/far/primvarRefiner.h>
+#include <opensubdiv/far/topologyDescriptor.h>
+
+#include <cmath>
+#include <memory>
+
+namespace tessera {
+namespace {
+
+using namespace OpenSubdiv;
+
+struct Vec3 {  // the value type OpenSubdiv's primvar refiner interpolates
+    float v[3];
+    void Clear() { v[0] = v[1] = v[2] = 0.0f; }
+    void AddWithWeight(const Vec3& src, float weight) {
+        for (int k = 0; k < 3; ++k) v[k] += weight * src.v[k];
+    }
+};
+
+Sdc::SchemeType scheme_type(SubdivisionScheme scheme) {
+    switch (scheme) {
+        case SubdivisionScheme::Loop: return Sdc::SCHEME_LOOP;
+        case SubdivisionScheme::Bilinear: return Sdc::SCHEME_BILINEAR;
+        default: return Sdc::SCHEME_CATMARK;
+    }
+}
+
+}  // namespace
+
+bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, std::span<const int32_t> indices, std::span<const int32_t> holes,
+                        const float* uniformColors, RefinedMesh& out, std::string& problem) {
+    const int pointCount = int(mesh.points.size() / 3);
+    if (mesh.subdivisionScheme == SubdivisionScheme::Loop)
+        for (int32_t c : counts)
+            if (c != 3) {
+                problem = "Loop subdivision needs triangles only";
+                return false;
+            }
+    Far::TopologyDescriptor descriptor;
+    descriptor.numVertices = pointCount;
+    descriptor.numFaces = int(counts.size());
+    descriptor.numVertsPerFace = counts.data();
+    descriptor.vertIndicesPerFace = indices.data();
+    descriptor.numHoles = int(holes.size());
+    descriptor.holeIndices = holes.data();
+    descriptor.isLeftHanded = mesh.leftHanded;
+    Sdc::Options options;
+    options.SetVtxBoundaryInterpolation(Sdc::Options::VTX_BOUNDARY_EDGE_AND_CORNER);  // USD's default
+    using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
+    std::unique_ptr<Far::TopologyRefiner> refiner(Factory::Create(descriptor, Factory::Options(scheme_type(mesh.subdivisionScheme), options)));
+    if (!refiner) {
+        problem = "OpenSubdiv rejected the topology";
+        return false;
+    }
+    const int levels = mesh.refineLevel;
+    refiner->RefineUniform(Far::TopologyRefiner::UniformOptions(levels));
+
+    // Positions through the scheme; colours linearly (vertex / varying) or per face (uniform).
+    Far::PrimvarRefiner primvars(*refiner);
+    std::vector<Vec3> points(refiner->GetNumVerticesTotal());
+    for (int p = 0; p < pointCount; ++p)
+        for (int k = 0; k < 3; ++k) points[p].v[k] = mesh.points[3 * p + k];
+    const bool vertexColors = mesh.displayColor.interpolation == Interpolation::Vertex || mesh.displayColor.interpolation == Interpolation::Varying;
+    std::vector<Vec3> colors(vertexColors ? points.size() : 0);
+    if (vertexColors)
+        for (int p = 0; p < pointCount; ++p) {
+            const int32_t index = mesh.displayColor.indices.empty() ? p : mesh.displayColor.indices[p];
+            for (int k = 0; k < 3; ++k) colors[p].v[k] = mesh.displayColor.values[3 * index + k];
+        }
+    size_t faceTotal = 0;
+    for (int l = 0; l <= levels; ++l) faceTotal += size_t(refiner->GetLevel(l).GetNumFaces());
+    std::vector<Vec3> faceColors(uniformColors ? faceTotal : 0);
+    if (uniformColors)
+        for (size_t f = 0; f < counts.size(); ++f)
+            for (int k = 0; k < 3; ++k) faceColors[f].v[k] = uniformColors[3 * f + k];
+
+    Vec3* src = points.data();
+    Vec3* srcColor = colors.data();
+    Vec3* srcFace = faceColors.data();
+    for (int l = 1; l <= levels; ++l) {
+        Vec3* dst = src + refiner->GetLevel(l - 1).GetNumVertices();
+        primvars.Interpolate(l, src, dst);
+        if (vertexColors) {
+            Vec3* dstColor = srcColor + refiner->GetLevel(l - 1).GetNumVertices();
+            primvars.InterpolateVarying(l, srcColor, dstColor);
+            srcColor = dstColor;
+        }
+        if (uniformColors) {
+            Vec3* dstFace = srcFace + refiner->GetLevel(l - 1).GetNumFaces();
+            primvars.InterpolateFaceUniform(l, srcFace, dstFace);
+            srcFace = dstFace;
+        }
+        src = dst;
+    }
+
+    const Far::TopologyLevel& last = refiner->GetLevel(levels);
+    out = {};
+    for (int v = 0; v < last.GetNumVertices(); ++v) out.points.insert(out.points.end(), src[v].v, src[v].v + 3);
+    if (vertexColors)
+        for (int v = 0; v < last.GetNumVertices(); ++v) out.colors.insert(out.colors.end(), srcColor[v].v, srcColor[v].v + 3);
+    for (int f = 0; f < last.GetNumFaces(); ++f) {
+        if (last.IsFaceHole(f)) continue;
+        const Far::ConstIndexArray face = last.GetFaceVertices(f);
+        out.counts.push_back(face.size());
+        for (int i = 0; i < face.size(); ++i) out.indices.push_back(face[i]);
+        if (uniformColors) out.colors.insert(out.colors.end(), srcFace[f].v, srcFace[f].v + 3);
+    }
+    out.colorInterpolation = vertexColors ? Interpolation::Vertex : uniformColors ? Interpolation::Uniform : Interpolation::None;
+    return true;
+}
+
+}  // namespace tessera
