@@ -514,17 +514,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             c.parentError = std::numeric_limits<float>::infinity();
             c.parentGroup = kNoGroup;
         }
-        if (c.level == 0) {
-            ++out.leafClusters;
-            out.leafVertices = c.vertexOffset + c.vertexCount;
-            out.leafTriangles = c.triangleOffset + c.triangleCount;
-        }
-        if (out.levels.size() <= c.level) out.levels.resize(c.level + 1);
-        LevelStats& level = out.levels[c.level];
-        ++level.clusters;
-        level.triangles += c.triangleCount;
-        level.maxError = std::max(level.maxError, c.lodError);
-        out.clusters.push_back(c);
+        append_cluster(out, c);
     }
 
     std::vector<uint32_t> all(vertexCount);

@@ -1,4 +1,5 @@
-// Vertex attribute encodings shared with the shaders' decoders: octahedral normals and half floats.
+// Vertex attribute encodings shared with the shaders' decoders (octahedral normals, half floats), and the
+// bookkeeping shared by the DAG builder and the page decoder.
 #include "tessera/builder.h"
 
 #include <algorithm>
@@ -6,6 +7,20 @@
 #include <cstring>
 
 namespace tessera {
+
+void append_cluster(BuiltMesh& mesh, const Cluster& c) {
+    if (c.level == 0) {
+        ++mesh.leafClusters;
+        mesh.leafVertices = c.vertexOffset + c.vertexCount;
+        mesh.leafTriangles = c.triangleOffset + c.triangleCount;
+    }
+    if (mesh.levels.size() <= c.level) mesh.levels.resize(c.level + 1);
+    LevelStats& level = mesh.levels[c.level];
+    ++level.clusters;
+    level.triangles += c.triangleCount;
+    level.maxError = std::max(level.maxError, c.lodError);
+    mesh.clusters.push_back(c);
+}
 
 uint32_t encode_octahedral(float x, float y, float z) {
     const float l1 = std::fabs(x) + std::fabs(y) + std::fabs(z);

@@ -344,17 +344,7 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
         mesh.normals.insert(mesh.normals.end(), d.normals.begin(), d.normals.end());
         mesh.colors.insert(mesh.colors.end(), d.colors.begin(), d.colors.end());
         mesh.triangles.insert(mesh.triangles.end(), d.triangles.begin(), d.triangles.end());
-        if (c.level == 0) {
-            ++mesh.leafClusters;
-            mesh.leafVertices = c.vertexOffset + c.vertexCount;
-            mesh.leafTriangles = c.triangleOffset + c.triangleCount;
-        }
-        if (mesh.levels.size() <= c.level) mesh.levels.resize(c.level + 1);
-        LevelStats& level = mesh.levels[c.level];
-        ++level.clusters;
-        level.triangles += c.triangleCount;
-        level.maxError = std::max(level.maxError, c.lodError);
-        mesh.clusters.push_back(c);
+        append_cluster(mesh, c);
     }
     return mesh;
 }

@@ -156,6 +156,10 @@ std::vector<uint8_t> encode_pages(const BuiltMesh& mesh, PageLayout* layout = nu
 BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name);
 uint32_t crc32(std::span<const uint8_t> bytes);
 
+// Appends a cluster whose streams are already in place, keeping the leaf ranges and level statistics current
+// (clusters must come level 0 first).
+void append_cluster(BuiltMesh& mesh, const Cluster& cluster);
+
 // Octahedral normal encoding (snorm16x2 packed in a uint32), shared with the shaders' decoder.
 uint32_t encode_octahedral(float x, float y, float z);
 std::array<float, 3> decode_octahedral(uint32_t packed);
