@@ -4,6 +4,8 @@
 // simplification error plus the largest of its children's, and its sphere encloses its children's (monotone).
 #include "tessera/builder.h"
 
+#include "weld.h"
+
 #include <meshoptimizer.h>
 
 #include <algorithm>
@@ -287,23 +289,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             local[3 * v + k] = float((std::round(double(mesh.positions[3 * v + k]) / step) - originGrid[k]) * step) + 0.0f;
 
     // Vertices split at attribute seams share a position id: adjacency and border locks follow positions.
-    std::vector<uint32_t> positionId(vertexCount);
-    {
-        struct Key {
-            uint32_t bits[3];
-            bool operator==(const Key& o) const { return std::memcmp(bits, o.bits, sizeof bits) == 0; }
-        };
-        struct Hash {
-            size_t operator()(const Key& k) const { return (k.bits[0] * 73856093u) ^ (k.bits[1] * 19349663u) ^ (k.bits[2] * 83492791u); }
-        };
-        std::unordered_map<Key, uint32_t, Hash> ids;
-        ids.reserve(vertexCount);
-        for (size_t v = 0; v < vertexCount; ++v) {
-            Key key;
-            std::memcpy(key.bits, &local[3 * v], sizeof key.bits);
-            positionId[v] = ids.try_emplace(key, uint32_t(v)).first->second;
-        }
-    }
+    const std::vector<uint32_t> positionId = weld_equal_positions(local.data(), vertexCount);
 
     // Attributes weighed by the simplifier. meshoptimizer normalises positions to the group's extent before
     // weighing, even when it reports absolute errors, so the weights are relative and independent of scale.

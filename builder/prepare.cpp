@@ -2,6 +2,7 @@
 #include "tessera/builder.h"
 
 #include "subdivide.h"
+#include "weld.h"
 
 #include <cmath>
 #include <cstring>
@@ -199,26 +200,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
 
     // Weld exact duplicate positions: every point maps to the first point with bit-identical coordinates, so that
     // split authoring (UV-sphere poles, per-face copies) joins up; attribute values still decide seams below.
-    std::vector<uint32_t> canonical(pointCount);
-    {
-        struct Bits {
-            uint32_t xyz[3];
-            bool operator==(const Bits&) const = default;
-        };
-        struct BitsHash {
-            size_t operator()(const Bits& b) const { return (b.xyz[0] * 73856093u) ^ (b.xyz[1] * 19349663u) ^ (b.xyz[2] * 83492791u); }
-        };
-        std::unordered_map<Bits, uint32_t, BitsHash> first;
-        first.reserve(pointCount);
-        for (size_t i = 0; i < pointCount; ++i) {
-            Bits b;
-            std::memcpy(b.xyz, &mesh.points[3 * i], sizeof b.xyz);
-            if (b.xyz[0] == 0x80000000u) b.xyz[0] = 0;  // -0 welds with +0
-            if (b.xyz[1] == 0x80000000u) b.xyz[1] = 0;
-            if (b.xyz[2] == 0x80000000u) b.xyz[2] = 0;
-            canonical[i] = first.try_emplace(b, uint32_t(i)).first->second;
-        }
-    }
+    const std::vector<uint32_t> canonical = weld_equal_positions(mesh.points.data(), pointCount);
 
     std::vector<uint8_t> isHole(mesh.faceVertexCounts.size());
     for (int32_t hole : mesh.holeIndices) {

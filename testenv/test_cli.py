@@ -73,19 +73,10 @@ def test_forcing_a_device_that_does_not_exist_is_one_clear_line(tmp_path):
 
 
 def test_build_mesh_reports_the_dag():
-    import numpy as np
-
     from tessera import _tessera
+    from tessera.bench import displaced_sphere
 
-    n = 60  # a closed, lumpy sphere (latitude-longitude grid welded at the seam and poles)
-    theta, phi = np.meshgrid(np.linspace(0, np.pi, n + 1), np.linspace(0, 2 * np.pi, 2 * n, endpoint=False), indexing="ij")
-    r = 1 + 0.05 * np.sin(5 * theta) * np.cos(7 * phi)
-    points = np.stack([r * np.sin(theta) * np.cos(phi), r * np.sin(theta) * np.sin(phi), r * np.cos(theta)], -1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n), np.arange(2 * n), indexing="ij")
-    a, b = i * 2 * n + j, i * 2 * n + (j + 1) % (2 * n)
-    quads = np.stack([a, a + 2 * n, b + 2 * n, b], -1).reshape(-1, 4).astype(np.int32)
-    stats = _tessera.build_mesh(np.ascontiguousarray(points.astype(np.float32).reshape(-1)), np.full(len(quads), 4, np.int32),
-                                np.ascontiguousarray(quads.reshape(-1)))
+    stats = _tessera.build_mesh(*displaced_sphere(60))  # a closed, lumpy latitude-longitude sphere
     levels = stats["levels"]
     assert levels[0]["triangles"] == stats["source_triangles"], "level 0 holds every source triangle"
     assert len(levels) >= 5
