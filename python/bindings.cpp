@@ -78,11 +78,18 @@ struct PySceneDelegate : SceneDelegate {
     CameraDesc get_camera(const PrimId& id) override { NB_OVERRIDE_PURE(get_camera, id); }
 };
 
+Visualize visualize_from(const std::string& name) {
+    for (int mode = 0; mode <= int(Visualize::ShadingBins); ++mode)
+        if (name == visualize_name(Visualize(mode))) return Visualize(mode);
+    throw nb::value_error(("unknown visualization mode '" + name + "'").c_str());
+}
+
 nb::dict stats_dict(const FrameStats& s) {
     nb::dict d;
     d["instances"] = s.instances;
     d["visible_instances"] = s.visibleInstances;
     d["clusters"] = s.clusters;
+    d["candidate_clusters"] = s.candidateClusters;
     d["visible_clusters"] = s.visibleClusters;
     d["source_triangles"] = s.sourceTriangles;
     d["visible_triangles"] = s.visibleTriangles;
@@ -259,8 +266,12 @@ NB_MODULE(_tessera, m) {
         .def(
             "execute",
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
-               const std::vector<std::string>& aovs, std::array<float, 4> background) {
+               const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
+               const std::string& visualize) {
                 RenderPassSettings settings;
+                settings.render.pixelError = pixelError;
+                settings.render.lod = lod;
+                settings.render.visualize = visualize_from(visualize);
                 settings.cameraId = cameraId;
                 settings.camera = camera;
                 settings.render.width = width;
@@ -272,7 +283,8 @@ NB_MODULE(_tessera, m) {
                 std::vector<Image> images = index.execute(settings, &stats);
                 return std::make_pair(images, stats_dict(stats));
             },
-            "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a)
+            "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
+            "visualize"_a = "none")
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
         .def_prop_ro("rprim_count", &RenderIndex::rprim_count)

@@ -32,6 +32,22 @@ const char* aov_name(Aov aov) {
     return "?";
 }
 
+const char* visualize_name(Visualize mode) {
+    switch (mode) {
+        case Visualize::None: return "none";
+        case Visualize::Triangles: return "triangles";
+        case Visualize::Clusters: return "clusters";
+        case Visualize::Groups: return "groups";
+        case Visualize::Lod: return "lod";
+        case Visualize::Instances: return "instances";
+        case Visualize::Primitives: return "primitives";
+        case Visualize::ShadingBins: return "shading-bins";
+    }
+    return "?";
+}
+static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::ShadingBins) == TS_VIS_SHADING_BINS,
+              "Visualize must match the TS_VIS_* modes");
+
 bool aov_is_id(Aov aov) { return aov == Aov::PrimId || aov == Aov::InstanceId || aov == Aov::ClusterId || aov == Aov::TriangleId; }
 
 namespace {
@@ -109,6 +125,7 @@ void split_double(double value, float& high, float& low) {
 }
 
 struct CameraMatrices {
+    double projectionScaleY;  // |P11|: clip-space y per unit of view-space height (at unit depth, perspective)
     Matrix4d viewProjection;  // camera-relative world -> clip
     Matrix4d inverseViewProjection;
     std::array<double, 3> position, forward;
@@ -170,6 +187,7 @@ CameraMatrices camera_matrices(const CameraDesc& camera, uint32_t width, uint32_
         proj[11] = far / (far - n);
         proj[15] = 1;
     }
+    out.projectionScaleY = std::abs(proj[5]);
     out.viewProjection = multiply(proj, view);
     if (!invert(out.viewProjection, out.inverseViewProjection)) throw std::runtime_error("camera projection is singular");
     return out;
@@ -212,7 +230,7 @@ struct Renderer::Impl {
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
-    Buffer instances, meshes, clusters, positions, normals, colors, triangles, materials;
+    Buffer instances, meshes, levels, clusters, positions, normals, colors, triangles, materials;
     uint32_t instanceCount = 0, clusterCount = 0;
     uint64_t sourceTriangles = 0;
     const GpuScene* uploadedScene = nullptr;
@@ -311,6 +329,7 @@ struct Renderer::Impl {
     void upload_geometry(GpuScene& scene) {
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
         std::vector<gpu::GpuCluster> gpuClusters;
+        std::vector<gpu::GpuLevel> gpuLevels;
         std::vector<float> gpuPositions;
         std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles;
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
@@ -324,19 +343,45 @@ struct Renderer::Impl {
             g.clusterOffset = uint32_t(gpuClusters.size());
             g.vertexOffset = vertexBase;
             if (!mesh->colors.empty()) g.colorOffset = uint32_t(gpuColors.size() / 2);
-            // Until the GPU evaluates the DAG cut, only the full-detail level is uploaded and drawn (it comes first).
-            g.clusterCount = mesh->leafClusters;
-            for (uint32_t i = 0; i < mesh->leafClusters; ++i) {
+            // The whole DAG goes up; the cull pass picks the cut. Clusters come level by level, level 0 first.
+            g.clusterCount = uint32_t(mesh->clusters.size());
+            g.leafClusterCount = mesh->leafClusters;
+            g.levelOffset = uint32_t(gpuLevels.size());
+            const std::array<float, 3> center = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2]};
+            auto reach = [&](const std::array<float, 4>& sphere) {  // how far a sphere reaches from the mesh centre
+                const double dx = sphere[0] - center[0], dy = sphere[1] - center[1], dz = sphere[2] - center[2];
+                return std::sqrt(dx * dx + dy * dy + dz * dz) + sphere[3];
+            };
+            double lodRadius = mesh->sphere[3];
+            for (uint32_t i = 0; i < mesh->clusters.size(); ++i) {
                 const Cluster& c = mesh->clusters[i];
-                gpuClusters.push_back({{c.sphere[0], c.sphere[1], c.sphere[2], c.sphere[3]}, vertexBase + c.vertexOffset,
-                                       triangleBase + c.triangleOffset, c.triangleCount, uint32_t(m)});
+                const bool root = c.parentGroup == kNoGroup || !(c.parentError < TS_ROOT_ERROR);
+                if (i > 0 && c.level < mesh->clusters[i - 1].level) throw std::logic_error("built mesh clusters are not ordered by level");
+                if (gpuLevels.size() == g.levelOffset || c.level != mesh->clusters[i - 1].level) {
+                    gpuLevels.push_back({i, 0, c.lodError, 0.0f});
+                }
+                gpu::GpuLevel& level = gpuLevels.back();
+                ++level.clusterCount;
+                level.minLodError = std::min(level.minLodError, c.lodError);
+                level.maxParentError = std::max(level.maxParentError, root ? float(TS_ROOT_ERROR) : c.parentError);
+                lodRadius = std::max({lodRadius, reach(c.lodSphere), root ? 0.0 : reach(c.parentSphere)});
+                gpuClusters.push_back({{c.sphere[0], c.sphere[1], c.sphere[2], c.sphere[3]},
+                                       {c.lodSphere[0], c.lodSphere[1], c.lodSphere[2], c.lodSphere[3]},
+                                       {c.parentSphere[0], c.parentSphere[1], c.parentSphere[2], c.parentSphere[3]},
+                                       c.lodError, root ? float(TS_ROOT_ERROR) : c.parentError,
+                                       vertexBase + c.vertexOffset, triangleBase + c.triangleOffset, c.triangleCount, uint32_t(m),
+                                       c.level, c.parentGroup});
             }
-            gpuPositions.insert(gpuPositions.end(), mesh->positions.begin(), mesh->positions.begin() + 3 * mesh->leafVertices);
-            gpuNormals.insert(gpuNormals.end(), mesh->normals.begin(), mesh->normals.begin() + mesh->leafVertices);
-            if (!mesh->colors.empty()) gpuColors.insert(gpuColors.end(), mesh->colors.begin(), mesh->colors.begin() + 2 * mesh->leafVertices);
-            gpuTriangles.insert(gpuTriangles.end(), mesh->triangles.begin(), mesh->triangles.begin() + mesh->leafTriangles);
+            g.levelCount = uint32_t(gpuLevels.size()) - g.levelOffset;
+            g.lodRadius = float(lodRadius * (1 + 1e-6));
+            gpuPositions.insert(gpuPositions.end(), mesh->positions.begin(), mesh->positions.end());
+            gpuNormals.insert(gpuNormals.end(), mesh->normals.begin(), mesh->normals.end());
+            gpuColors.insert(gpuColors.end(), mesh->colors.begin(), mesh->colors.end());
+            gpuTriangles.insert(gpuTriangles.end(), mesh->triangles.begin(), mesh->triangles.end());
         }
+        if (gpuLevels.empty()) gpuLevels.push_back({});
         upload_vector(device, meshes, gpuMeshes);
+        upload_vector(device, levels, gpuLevels);
         upload_vector(device, clusters, gpuClusters);
         upload_vector(device, positions, gpuPositions);
         upload_vector(device, normals, gpuNormals);
@@ -486,9 +531,14 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             f.lights[i].directionType = {float(d[0]), float(d[1]), float(d[2]), float(l.type == LightType::Distant ? TS_LIGHT_DISTANT : TS_LIGHT_DOME)};
             f.lights[i].radiance = {l.radiance[0], l.radiance[1], l.radiance[2], 0};
         }
-        f.counts = {s.instanceCount, s.capacity, 0, 0};
+        // LOD: an error of e units at view depth d covers e * lod.x / d pixels (|P11| maps unit height to NDC,
+        // and NDC spans height / 2 pixels per unit).
+        const double pixelsPerUnit = cam.projectionScaleY * 0.5 * settings.height;
+        f.lod = {float(pixelsPerUnit), std::max(settings.pixelError, 0.0f), camera.orthographic ? 1.0f : 0.0f, 0};
+        f.counts = {s.instanceCount, s.capacity, settings.lod ? 0u : TS_FRAME_NO_LOD, uint32_t(settings.visualize)};
         f.instances = s.instances.address;
         f.meshes = s.meshes.address;
+        f.levels = s.levels.address;
         f.clusters = s.clusters.address;
         f.positions = s.positions.address;
         f.normals = s.normals.address;
@@ -571,6 +621,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.visibleInstances = state.visibleInstances;
         frameStats.visibleClusters = state.visibleClusters;
         frameStats.visibleTriangles = state.visibleTriangles;
+        frameStats.candidateClusters = state.candidateClusters;
         frameStats.visibleClusterCapacity = s.capacity;
         uint64_t ticks[4] = {};
         if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, 4, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {

@@ -8,6 +8,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceRef { GpuInstance data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MeshRef { GpuMesh data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer ClusterRef { GpuCluster data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer LevelRef { GpuLevel data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MaterialRef { GpuMaterial data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer FloatRef { float data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer UintRef { uint data[]; };

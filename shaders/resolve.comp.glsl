@@ -22,6 +22,28 @@ vec3 vertex_color(GpuFrame frame, GpuMesh mesh, uint vertex) {
     return vec3(unpackHalf2x16(colors.data[2u * i]), unpackHalf2x16(colors.data[2u * i + 1u]).x);
 }
 
+// A well-spread colour for an id (integer hash, then three 8-bit channels lifted away from black).
+vec3 id_color(uint id) {
+    id ^= id >> 16; id *= 0x7feb352du; id ^= id >> 15; id *= 0x846ca68bu; id ^= id >> 16;
+    return vec3(uvec3(id, id >> 8, id >> 16) & 0xffu) / 255.0 * 0.8 + 0.2;
+}
+
+// DAG level as a heat colour: level 0 blue, then cyan, green, yellow, red from level 8 up.
+vec3 level_color(uint level) {
+    float t = min(float(level) / 8.0, 1.0);
+    return clamp(vec3(2.0 * t - 0.5, 2.0 - abs(4.0 * t - 2.0), 1.5 - 2.0 * t), 0.0, 1.0);
+}
+
+vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle) {
+    if (mode == TS_VIS_TRIANGLES) return id_color(cluster.triangleOffset + triangle);
+    if (mode == TS_VIS_CLUSTERS) return id_color(visible.y);
+    if (mode == TS_VIS_GROUPS) return id_color(cluster.group == 0xffffffffu ? visible.y : cluster.group * 7919u + cluster.meshIndex);
+    if (mode == TS_VIS_LOD) return level_color(cluster.level);
+    if (mode == TS_VIS_INSTANCES) return id_color(visible.x);
+    if (mode == TS_VIS_PRIMITIVES) return id_color(instance.primId);
+    return id_color(instance.materialIndex);  // TS_VIS_SHADING_BINS
+}
+
 void main() {
     GpuFrame frame = push.frame.f;
     uvec2 pixel = gl_GlobalInvocationID.xy;
@@ -104,6 +126,12 @@ void main() {
     if (dot(n, geometric) < 0.0) n = geometric;  // an interpolated normal facing away would shade black
     if (aov == TS_AOV_NORMAL) {
         OutputRef(frame.aovOutput).data[index] = vec4(n, 1.0);
+        return;
+    }
+
+    if (frame.counts.w != TS_VIS_NONE) {  // flat id colours, lit from the eye so that shapes stay readable
+        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle);
+        OutputRef(frame.aovOutput).data[index] = vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0);
         return;
     }
 

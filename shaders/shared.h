@@ -47,6 +47,19 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_AOV_CLUSTER_ID 5u
 #define TS_AOV_TRIANGLE_ID 6u
 
+// Visualization modes: the color AOV shows one of these instead of shading (GpuFrame.counts.w).
+#define TS_VIS_NONE 0u
+#define TS_VIS_TRIANGLES 1u
+#define TS_VIS_CLUSTERS 2u
+#define TS_VIS_GROUPS 3u        // clusters coloured by the group they were simplified with (their parent group)
+#define TS_VIS_LOD 4u           // DAG level: 0 (full detail) blue through red
+#define TS_VIS_INSTANCES 5u
+#define TS_VIS_PRIMITIVES 6u    // USD prims (primId)
+#define TS_VIS_SHADING_BINS 7u  // materials
+
+// Frame flags (GpuFrame.counts.z).
+#define TS_FRAME_NO_LOD 1u      // draw every source triangle (level 0), the DAG off: the full-detail reference
+
 #define TS_MAX_LIGHTS 8u
 #define TS_LIGHT_DISTANT 0u
 #define TS_LIGHT_DOME 1u
@@ -55,24 +68,48 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_CULL_GROUP_SIZE 64
 #define TS_RESOLVE_TILE 8
 
-// One cluster of a built mesh: at most 128 triangles over at most 256 cluster-local vertices.
+// One cluster of a built mesh's DAG: at most 128 triangles over at most 256 cluster-local vertices. The cut
+// draws it iff its own LOD error, projected from its LOD sphere, is within the pixel threshold while its
+// parent's is not (see builder.h: errors and spheres grow monotonically up the DAG, so the test is local).
 struct GpuCluster {
-    vec4 sphere;         // bounding sphere in mesh space (xyz centre, w radius)
+    vec4 sphere;         // culling bounds of its triangles in mesh space (xyz centre, w radius)
+    vec4 lodSphere;      // bounds of the simplification that made it (shared by the clusters it made)
+    vec4 parentSphere;   // bounds of the simplification made from it (shared by its siblings)
+    float lodError;      // mesh units; 0 at level 0
+    float parentError;   // mesh units; TS_ROOT_ERROR for roots
     uint vertexOffset;   // first vertex in the scene's vertex streams
     uint triangleOffset; // first triangle in the scene's triangle stream (3 x 8-bit local indices per uint)
     uint triangleCount;
     uint meshIndex;
+    uint level;          // DAG level, 0 = source triangles
+    uint group;          // the group it was simplified with (its parent group), for visualization
 };
-TS_CHECK_SIZE(GpuCluster, 32);
+TS_CHECK_SIZE(GpuCluster, 80);
+
+#define TS_ROOT_ERROR 3.0e38  // a root's parent error: never fine enough, so roots are drawn when nothing finer is
+
+// The clusters of one DAG level of a mesh, with bounds on their errors so that a whole level can be skipped
+// for an instance whose distance rules it out (the cheap first step of a hierarchical cut).
+struct GpuLevel {
+    uint clusterOffset;
+    uint clusterCount;
+    float minLodError;      // smallest own error among the level's clusters
+    float maxParentError;   // largest parent error (TS_ROOT_ERROR if the level holds a root)
+};
+TS_CHECK_SIZE(GpuLevel, 16);
 
 struct GpuMesh {
     vec4 sphere;         // bounding sphere in mesh space
-    uint clusterOffset;
+    uint clusterOffset;  // all levels, level 0 first
     uint clusterCount;
     uint colorOffset;    // first entry of the colour stream, or TS_NO_STREAM when the mesh has no vertex colours
     uint vertexOffset;   // first vertex (the colour stream is indexed by vertex - vertexOffset + colorOffset)
+    uint levelOffset;    // first GpuLevel
+    uint levelCount;
+    uint leafClusterCount;  // level 0: the source triangles
+    float lodRadius;     // about `sphere`'s centre, encloses every LOD and parent sphere of the mesh
 };
-TS_CHECK_SIZE(GpuMesh, 32);
+TS_CHECK_SIZE(GpuMesh, 48);
 
 // A drawn copy of a mesh. The transform maps mesh space to camera-relative world space: the CPU subtracts
 // the camera position from the translation in double and stores the result as a high and a low float, so
@@ -110,7 +147,7 @@ struct GpuDrawState {
     uint visibleClusters;  // visible clusters found, may exceed capacity (overflow is detected on the CPU)
     uint visibleInstances;
     uint visibleTriangles;  // triangles of the visible clusters (32-bit: saturates past 4 G)
-    uint pad0;
+    uint candidateClusters; // clusters the cut tested (those of the levels not ruled out per instance)
 };
 TS_CHECK_SIZE(GpuDrawState, 32);
 
@@ -121,11 +158,14 @@ struct GpuFrame {
     vec4 cameraForward;      // xyz: view direction (world)
     vec4 frustumPlanes[6];   // camera-relative world; dot(plane.xyz, p) + plane.w >= 0 inside
     vec4 background;         // linear RGBA of pixels no geometry covers
+    vec4 lod;                // x: pixels per unit of error at unit view depth (or per unit, orthographic);
+                             // y: error threshold in pixels; z: 1 when orthographic
     uvec4 viewport;          // x: width, y: height, z: unused, w: light count
-    uvec4 counts;            // x: instances, y: visible-cluster capacity
+    uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     GpuLight lights[TS_MAX_LIGHTS];
     address instances;       // GpuInstance[]
     address meshes;          // GpuMesh[]
+    address levels;          // GpuLevel[]
     address clusters;        // GpuCluster[]
     address positions;       // float[3 * vertices], mesh space
     address normals;         // uint[vertices], octahedral snorm16x2
@@ -136,8 +176,9 @@ struct GpuFrame {
     address drawState;       // GpuDrawState
     address visibility;      // uint64[width * height]
     address aovOutput;       // vec4[width * height]
+    address unused;          // keeps the size a multiple of 16 bytes (std430 rounds the struct up)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 1 + 16 * 6 + 16 * 3 + 32 * TS_MAX_LIGHTS + 8 * 12);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 1 + 16 * 6 + 16 * 4 + 32 * TS_MAX_LIGHTS + 8 * 14);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

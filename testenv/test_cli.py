@@ -44,6 +44,18 @@ def test_stats_and_camera_options(tmp_path):
     assert stats["camera"] == "/World/Camera" and stats["resolution"] == [80, 60]
     assert stats["instances"] == 1 and stats["visible_clusters"] == 1 and stats["errors"] == []
     assert set(stats["gpu_ms"]) == {"cull", "raster", "resolve"}
+    assert stats["pixel_error"] == 1.0 and stats["lod"] is True and stats["candidate_clusters"] >= stats["visible_clusters"]
+
+
+def test_lod_options(tmp_path):
+    stats_file = tmp_path / "stats.json"
+    done = run("render", CUBE, "-o", tmp_path / "a.png", "--resolution", "80x60", "--no-lod", "--vis", "clusters", "--stats", stats_file)
+    assert done.returncode == 0, done.stderr
+    stats = json.loads(stats_file.read_text())
+    assert stats["lod"] is False and stats["visible_triangles"] == 12
+    assert tessera.read_image(str(tmp_path / "a.png"))[30, 40, :3].max() > 0.05
+    done = run("render", CUBE, "-o", tmp_path / "b.png", "--pixel-error", "-2")
+    assert done.returncode == 1 and "pixel error must be a number >= 0" in done.stderr
 
 
 @pytest.mark.parametrize("args,message", [

@@ -8,7 +8,7 @@ import os
 import sys
 import time
 
-from .session import AOVS
+from .session import AOVS, VISUALIZATIONS
 
 
 def _resolution(text: str) -> tuple[int, int]:
@@ -32,6 +32,10 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--resolution", type=_resolution, default=(960, 540), help="WIDTHxHEIGHT (default 960x540)")
     render.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
     render.add_argument("--aov", choices=AOVS, default="color", help="what to write (default color)")
+    render.add_argument("--pixel-error", type=float, default=1.0, metavar="PX",
+                        help="screen-space error bound of the level-of-detail cut, in pixels (default 1)")
+    render.add_argument("--no-lod", action="store_true", help="draw every source triangle: the DAG off, the full-detail reference")
+    render.add_argument("--vis", choices=VISUALIZATIONS, help="show a debug view in the color AOV instead of shading")
     render.add_argument("--stats", help="write frame statistics to this JSON file")
     render.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N",
                         help="uniform refinements of subdivision surfaces before the DAG (default 2; 0 draws the cage)")
@@ -55,7 +59,8 @@ def _render(args) -> int:
     session = Session(args.stage, frame=args.frame, device=args.device, refine_level=args.refine_level)
     loaded = time.perf_counter()
     camera = args.camera or (session.camera_paths()[0] if session.camera_paths() else None)
-    result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov])
+    result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov], pixel_error=args.pixel_error,
+                            lod=not args.no_lod, vis=args.vis)
     rendered = time.perf_counter()
     for message in result.warnings:
         print(f"tessera: warning: {message}", file=sys.stderr)

@@ -11,6 +11,8 @@ import numpy as np
 from . import _tessera
 
 AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triangleId")
+# Debug views the color AOV can show instead of shading (renderer.h: Visualize).
+VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins")
 
 
 class StageError(RuntimeError):
@@ -82,7 +84,11 @@ class Session:
         return list(self.scene.cameras)
 
     def render(self, *, camera: str | None = None, resolution: tuple[int, int] = (960, 540),
-               aovs=("color",), background=(0.0, 0.0, 0.0, 0.0)) -> RenderResult:
+               aovs=("color",), background=(0.0, 0.0, 0.0, 0.0), pixel_error: float = 1.0, lod: bool = True,
+               vis: str | None = None) -> RenderResult:
+        """Renders the stage at the session's time. `pixel_error` is the DAG cut's screen-space error bound in
+        pixels; `lod=False` draws every source triangle (the full-detail reference); `vis` replaces shading in
+        the color AOV by a debug view (VISUALIZATIONS)."""
         from .usd import framing_camera
 
         width, height = resolution
@@ -90,6 +96,10 @@ class Session:
         for aov in aovs:
             if aov not in AOVS:
                 raise StageError(f"unknown AOV '{aov}' (choose from {', '.join(AOVS)})")
+        if vis is not None and vis not in VISUALIZATIONS:
+            raise StageError(f"unknown visualization '{vis}' (choose from {', '.join(VISUALIZATIONS)})")
+        if not (pixel_error >= 0.0):
+            raise StageError(f"pixel error must be a number >= 0, not {pixel_error}")
         self.index.sync_all(self.scene)
         camera_id = ""
         if camera:
@@ -98,7 +108,8 @@ class Session:
             camera_id = camera
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
         fallback = framing_camera(self.stage, self.time, width, height) if not camera_id else _tessera.CameraDesc()
-        images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background))
+        images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
+                                           vis or "none")
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)
@@ -107,6 +118,8 @@ class Session:
         if messages:
             errors = list(errors) + messages
         stats["device"] = self.delegate.device_name
+        stats["pixel_error"] = float(pixel_error) if lod else 0.0
+        stats["lod"] = lod
         stats["rprims"] = self.index.rprim_count
         stats["meshes_built"] = diagnostics["meshes_built"]
         stats["meshes_cached"] = diagnostics["meshes_cached"]

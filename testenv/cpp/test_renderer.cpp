@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <set>
 #include <string>
 
 using namespace tessera;
@@ -34,6 +35,74 @@ std::shared_ptr<BuiltMesh> grid_mesh(int n) {
     v.faceVertexCounts = counts;
     v.faceVertexIndices = indices;
     return std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(v)));
+}
+
+// A closed, bumpy latitude-longitude sphere (radius about 1): its simplification always loses something, so each
+// DAG level has a nonzero error and the cut has real choices to make.
+std::shared_ptr<BuiltMesh> bumpy_sphere(int rings) {
+    const double pi = 3.14159265358979323846;
+    const int segments = 2 * rings;
+    std::vector<float> points;
+    auto radius = [](double theta, double phi) { return 1.0 + 0.04 * std::sin(9 * theta) * std::sin(7 * phi); };
+    points.insert(points.end(), {0.0f, 0.0f, 1.0f});  // north pole
+    for (int r = 1; r < rings; ++r)
+        for (int s = 0; s < segments; ++s) {
+            const double theta = pi * r / rings, phi = 2 * pi * s / segments, k = radius(theta, phi);
+            points.insert(points.end(), {float(k * std::sin(theta) * std::cos(phi)), float(k * std::sin(theta) * std::sin(phi)), float(k * std::cos(theta))});
+        }
+    points.insert(points.end(), {0.0f, 0.0f, -1.0f});  // south pole
+    const int south = 1 + (rings - 1) * segments;
+    auto ring = [&](int r, int s) { return 1 + (r - 1) * segments + (s % segments); };
+    std::vector<int32_t> counts, indices;
+    for (int s = 0; s < segments; ++s) {
+        counts.push_back(3);
+        indices.insert(indices.end(), {0, ring(1, s), ring(1, s + 1)});
+        counts.push_back(3);
+        indices.insert(indices.end(), {south, ring(rings - 1, s + 1), ring(rings - 1, s)});
+        for (int r = 1; r + 1 < rings; ++r) {
+            counts.push_back(4);
+            indices.insert(indices.end(), {ring(r, s), ring(r + 1, s), ring(r + 1, s + 1), ring(r, s + 1)});
+        }
+    }
+    MeshView v;
+    v.name = "/BumpySphere";
+    v.points = points;
+    v.faceVertexCounts = counts;
+    v.faceVertexIndices = indices;
+    return std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(v)));
+}
+
+// Background pixels that the image border cannot reach through other background pixels: holes in the surface.
+size_t enclosed_background_pixels(const Image& ids) {
+    const uint32_t w = ids.width, h = ids.height;
+    std::vector<uint8_t> reached(size_t(w) * h, 0);
+    std::vector<uint32_t> stack;
+    auto push = [&](uint32_t x, uint32_t y) {
+        const size_t i = size_t(y) * w + x;
+        uint32_t bits;
+        std::memcpy(&bits, &ids.pixels[4 * i], 4);
+        if (!reached[i] && bits == 0xffffffffu) {
+            reached[i] = 1;
+            stack.push_back(uint32_t(i));
+        }
+    };
+    for (uint32_t x = 0; x < w; ++x) push(x, 0), push(x, h - 1);
+    for (uint32_t y = 0; y < h; ++y) push(0, y), push(w - 1, y);
+    while (!stack.empty()) {
+        const uint32_t i = stack.back(), x = i % w, y = i / w;
+        stack.pop_back();
+        if (x > 0) push(x - 1, y);
+        if (x + 1 < w) push(x + 1, y);
+        if (y > 0) push(x, y - 1);
+        if (y + 1 < h) push(x, y + 1);
+    }
+    size_t enclosed = 0;
+    for (size_t i = 0; i < reached.size(); ++i) {
+        uint32_t bits;
+        std::memcpy(&bits, &ids.pixels[4 * i], 4);
+        enclosed += bits == 0xffffffffu && !reached[i];
+    }
+    return enclosed;
 }
 
 CameraDesc camera_at(double x, double y, double z) {
@@ -77,6 +146,7 @@ TEST_F(RendererTest, GridCoversTheExpectedPixels) {
     scene.set_lights({{LightType::Dome, {0, 0, -1}, {1, 1, 1}}});
     // 1 unit wide at distance 2 with a 53-degree view: the grid covers the middle half of the image.
     RenderSettings settings{128, 128, {0, 0, 0, 0}};
+    settings.lod = false;  // every source triangle
     FrameStats stats;
     auto images = renderer.render(scene, camera_at(0, 0, 2), settings, {Aov::PrimId, Aov::Color}, &stats);
     EXPECT_EQ(id_at(images[0], 64, 64), 42u);
@@ -88,6 +158,82 @@ TEST_F(RendererTest, GridCoversTheExpectedPixels) {
     EXPECT_GT(images[1].pixels[4 * (64 * 128 + 64)], 0.0f);
     EXPECT_EQ(stats.visibleInstances, 1u);
     EXPECT_EQ(stats.visibleTriangles, 64u * 64u * 2u);
+
+    // A flat grid simplifies without error, so the cut draws its roots; they cover exactly the same pixels.
+    settings.lod = true;
+    FrameStats lodStats;
+    auto lod = renderer.render(scene, camera_at(0, 0, 2), settings, {Aov::PrimId}, &lodStats);
+    EXPECT_LT(lodStats.visibleTriangles, 64u * 64u * 2u / 8);
+    size_t differ = 0;
+    for (uint32_t y = 0; y < 128; ++y)
+        for (uint32_t x = 0; x < 128; ++x) differ += id_at(images[0], x, y) != id_at(lod[0], x, y);
+    EXPECT_LE(differ, 128u) << "the simplified grid must cover the grid's pixels (edge pixels may round differently)";
+}
+
+TEST_F(RendererTest, TheCutDrawsSourceTrianglesAtZeroErrorAndRootsAtInfiniteError) {
+    Renderer renderer(*device);
+    GpuScene scene;
+    std::shared_ptr<BuiltMesh> sphere = bumpy_sphere(96);  // 36k triangles
+    InstanceDesc instance;
+    instance.mesh = scene.add_mesh(sphere);
+    instance.transform = identity_matrix();
+    scene.set_instances({instance});
+    RenderSettings settings{128, 128, {0, 0, 0, 0}};
+    uint32_t roots = 0, rootTriangles = 0;
+    for (const Cluster& c : sphere->clusters)
+        if (c.parentGroup == kNoGroup) ++roots, rootTriangles += c.triangleCount;
+    ASSERT_GT(sphere->levels.size(), 3u);
+
+    FrameStats fine, coarse;
+    settings.pixelError = 0;
+    renderer.render(scene, camera_at(0, 0, 4), settings, {Aov::PrimId}, &fine);
+    EXPECT_EQ(fine.visibleClusters, sphere->leafClusters);
+    EXPECT_EQ(fine.visibleTriangles, sphere->leafTriangles);
+    settings.pixelError = 1e30f;
+    renderer.render(scene, camera_at(0, 0, 4), settings, {Aov::PrimId}, &coarse);
+    EXPECT_EQ(coarse.visibleClusters, roots);
+    EXPECT_EQ(coarse.visibleTriangles, rootTriangles);
+    EXPECT_LT(coarse.candidateClusters, fine.candidateClusters) << "levels ruled out by distance are not tested";
+
+    // A larger threshold never draws more triangles.
+    uint64_t previous = fine.visibleTriangles;
+    for (float pixels : {0.25f, 1.0f, 4.0f, 16.0f}) {
+        FrameStats stats;
+        settings.pixelError = pixels;
+        renderer.render(scene, camera_at(0, 0, 4), settings, {Aov::PrimId}, &stats);
+        EXPECT_LE(stats.visibleTriangles, previous) << pixels << " px";
+        previous = stats.visibleTriangles;
+    }
+    EXPECT_LT(previous, fine.visibleTriangles / 4);
+}
+
+TEST_F(RendererTest, MixedCutsLeaveNoHoles) {
+    // Close to a closed sphere and looking along it, the cut mixes fine clusters near the camera with coarse ones
+    // far away; a crack between levels would show the background through the surface.
+    Renderer renderer(*device);
+    GpuScene scene;
+    std::shared_ptr<BuiltMesh> sphere = bumpy_sphere(160);  // 102k triangles
+    InstanceDesc instance;
+    instance.mesh = scene.add_mesh(sphere);
+    instance.transform = identity_matrix();
+    scene.set_instances({instance});
+    // The whole sphere in a 90-degree view from 0.6 above it: the rim is twice as far as the nearest point, so
+    // each level boundary of the cut crosses the visible surface for some threshold of the sweep.
+    CameraDesc camera = camera_at(0, 0, 1.6);
+    camera.horizontalAperture = camera.verticalAperture = 100;
+    RenderSettings settings{192, 192, {0, 0, 0, 0}};
+    for (float pixels : {0.5f, 0.7f, 1.0f, 1.4f, 2.0f, 2.8f, 4.0f, 5.6f, 8.0f}) {
+        settings.pixelError = pixels;
+        FrameStats stats;
+        auto images = renderer.render(scene, camera, settings, {Aov::PrimId, Aov::ClusterId}, &stats);
+        EXPECT_EQ(enclosed_background_pixels(images[0]), 0u) << pixels << " px";
+        std::set<uint32_t> levels;
+        for (uint32_t i = 0; i < 192 * 192; ++i) {
+            const uint32_t id = id_at(images[1], i % 192, i / 192);
+            if (id != 0xffffffffu) levels.insert(sphere->clusters.at(id).level);
+        }
+        EXPECT_GE(levels.size(), 2u) << pixels << " px: the view must mix DAG levels for this test to mean anything";
+    }
 }
 
 TEST_F(RendererTest, SingleSidedBackFacesAreCulledDoubleSidedAreNot) {
@@ -115,6 +261,7 @@ TEST_F(RendererTest, OverflowGrowsTheListAndRedrawsTheExactImage) {
     instance.transform = identity_matrix();
     scene.set_instances({instance});
     RenderSettings settings{64, 64, {0, 0, 0, 0}};
+    settings.lod = false;  // 32 clusters to overflow a list of 1
     FrameStats roomy, tight;
     auto reference = renderer.render(scene, camera_at(0, 0, 2), settings, {Aov::TriangleId}, &roomy);
     Renderer small(*device);

@@ -65,16 +65,26 @@ struct Image {
     std::vector<float> pixels;
 };
 
+// What the color AOV shows instead of shading (debug views in the manner of Nanite's visualization modes).
+enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins };
+const char* visualize_name(Visualize mode);
+
 struct RenderSettings {
     uint32_t width = 960, height = 540;
     std::array<float, 4> background{0, 0, 0, 0};  // linear RGBA where nothing is drawn
+    // The DAG cut: a cluster is drawn when its simplification error projects to at most this many pixels (and its
+    // parent's to more). 0 draws the source triangles wherever the builder's simplification lost anything.
+    float pixelError = 1.0f;
+    bool lod = true;  // false: every source triangle (level 0) is drawn, the DAG off (the full-detail reference)
+    Visualize visualize = Visualize::None;
 };
 
 struct FrameStats {
     uint32_t instances = 0, visibleInstances = 0;
-    uint32_t clusters = 0, visibleClusters = 0;
+    uint32_t clusters = 0, visibleClusters = 0;  // clusters: level 0 of every instance (the source)
+    uint64_t candidateClusters = 0;  // clusters the cut tested (the levels an instance's distance did not rule out)
     uint64_t sourceTriangles = 0;   // every triangle of every instance
-    uint64_t visibleTriangles = 0;  // triangles of visible clusters (drawn by hardware raster)
+    uint64_t visibleTriangles = 0;  // triangles of the cut's visible clusters (drawn by hardware raster)
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     double cullMs = 0, rasterMs = 0, resolveMs = 0;  // GPU time per pass
