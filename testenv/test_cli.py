@@ -115,6 +115,22 @@ def test_bench_build_prints_a_table_and_writes_json(tmp_path):
     assert row["relative_error_per_level"][0] == 0 and row["relative_error_per_level"][-1] > 0
 
 
+def test_bench_render_prints_tables_and_writes_json(tmp_path):
+    rows_file, plot = tmp_path / "rows.json", tmp_path / "error.png"
+    done = run("bench", "render", "--resolution", "96x54", "--frames", "1", "--max-density", "1", "--stages-dir", tmp_path,
+               "--json", rows_file, "--plot", plot)
+    assert done.returncode == 0, done.stderr + done.stdout
+    assert "frame ms" in done.stdout and "PSNR dB" in done.stdout
+    rows = json.loads(rows_file.read_text())
+    assert {r["table"] for r in rows} == {"density scaling", "against brute force", "speed against error"}
+    (field,) = [r for r in rows if r["table"] == "density scaling"]
+    assert field["source_triangles"] == 32 * 32 * 4 * 16 * 16 and field["frame_ms"] > 0
+    sweep = [r for r in rows if r["table"] == "speed against error"]
+    assert [r["pixel_error"] for r in sweep] == [0.25, 0.5, 1.0, 2.0, 4.0, 8.0]
+    assert all(0 < r["same_prim_percent"] <= 100 and r["psnr_db"] > 0 for r in sweep)
+    assert tessera.read_image(str(plot)).shape == (270, 480, 4)
+
+
 def test_an_unchanged_stage_is_never_built_twice(tmp_path, monkeypatch):
     monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
     stage = TESTENV / "testNativeInstancing" / "native_instancing.usda"

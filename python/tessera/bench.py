@@ -136,3 +136,200 @@ def build(args) -> int:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=2)
     return 0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# tessera bench render: density scaling, against brute force, speed against error (on the device Tessera picks).
+
+FIELD_SIDE = 32  # fields are FIELD_SIDE^2 instances of one displaced sphere on a grid 3 units apart
+
+
+def _write_sphere_stage(path, n: int, field: bool):
+    """A stage holding one displaced sphere of 4 n^2 triangles, alone or instanced FIELD_SIDE^2 times."""
+    from pxr import Gf, Usd, UsdGeom, UsdLux, Vt
+
+    points, counts, indices = displaced_sphere(n)
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    mesh_path = "/World/Field/Prototypes/Sphere" if field else "/World/Sphere"
+    mesh = UsdGeom.Mesh.Define(stage, mesh_path)
+    mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points.reshape(-1, 3)))
+    mesh.GetFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(counts))
+    mesh.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(indices))
+    mesh.GetSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
+    mesh.GetDisplayColorAttr().Set([Gf.Vec3f(0.6, 0.55, 0.5)])
+    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
+    camera.GetFocalLengthAttr().Set(24.0 if field else 35.0)
+    camera.GetHorizontalApertureAttr().Set(36.0)
+    camera.GetVerticalApertureAttr().Set(20.25)
+    if field:
+        instancer = UsdGeom.PointInstancer.Define(stage, "/World/Field")
+        instancer.GetPrototypesRel().SetTargets([mesh.GetPath()])
+        grid = np.arange(FIELD_SIDE, dtype=np.float32) * 3.0
+        x, z = np.meshgrid(grid, grid, indexing="ij")
+        positions = np.stack([x.ravel(), np.zeros(x.size, np.float32), z.ravel()], 1)
+        instancer.GetPositionsAttr().Set(Vt.Vec3fArray.FromNumpy(positions))
+        instancer.GetProtoIndicesAttr().Set(Vt.IntArray.FromNumpy(np.zeros(x.size, np.int32)))
+        eye, target = Gf.Vec3d(-6.0, 14.0, -6.0), Gf.Vec3d(46.5, 0.0, 46.5)
+        camera.GetClippingRangeAttr().Set(Gf.Vec2f(0.1, 1000.0))
+    else:
+        eye, target = Gf.Vec3d(0.0, 0.4, 2.3), Gf.Vec3d(0.0, 0.0, 0.0)  # the sphere fills the frame
+        camera.GetClippingRangeAttr().Set(Gf.Vec2f(0.01, 100.0))
+    camera.AddTransformOp().Set(Gf.Matrix4d().SetLookAt(eye, target, Gf.Vec3d(0, 1, 0)).GetInverse())
+    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    sun.CreateIntensityAttr(3.0)
+    sun.CreateNormalizeAttr(True)
+    sun.AddRotateXYZOp().Set(Gf.Vec3f(-45.0, 30.0, 0.0))
+    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.3)
+    stage.GetRootLayer().Save()
+
+
+def _stage(directory, n: int, field: bool) -> str:
+    from pathlib import Path
+
+    path = Path(directory) / f"{'field' if field else 'single'}_sphere_{n}.usdc"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = path.with_suffix(".tmp.usdc")
+        _write_sphere_stage(temporary, n, field)
+        temporary.rename(path)
+    return str(path)
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((np.clip(a[..., :3], 0, 1) - np.clip(b[..., :3], 0, 1)) ** 2))
+    return 99.0 if mse == 0 else round(10 * np.log10(1.0 / mse), 2)
+
+
+def _frames(session, frames: int, **settings):
+    """One warm-up frame, then the median of `frames` (wall ms of the whole render call, GPU ms per pass)."""
+    session.render(camera="/World/Camera", **settings)
+    walls, gpus, result = [], [], None
+    for _ in range(frames):
+        start = time.perf_counter()
+        result = session.render(camera="/World/Camera", **settings)
+        walls.append((time.perf_counter() - start) * 1000)
+        gpus.append(sum(result.stats["gpu_ms"].values()))
+    if result.errors:
+        raise RuntimeError("; ".join(result.errors))
+    return result, float(np.median(walls)), float(np.median(gpus))
+
+
+def _row(table, label, result, wall, gpu, reference=None, **extra):
+    s = result.stats
+    row = {"table": table, "case": label, "source_triangles": s["source_triangles"], "instances": s["instances"],
+           "visible_instances": s["visible_instances"], "pixel_error": s["pixel_error"], "lod": s["lod"],
+           "candidate_clusters": s["candidate_clusters"], "visible_clusters": s["visible_clusters"],
+           "triangles_drawn": s["visible_triangles"], "frame_ms": round(wall, 1), "gpu_ms": round(gpu, 1),
+           "cull_ms": round(s["gpu_ms"]["cull"], 1), "raster_ms": round(s["gpu_ms"]["raster"], 1),
+           "resolve_ms": round(s["gpu_ms"]["resolve"], 1)}
+    if reference is not None:
+        color, ref_color = result["color"].pixels, reference["color"].pixels
+        row["psnr_db"] = _psnr(color, ref_color)
+        row["pixels_off_percent"] = round(100 * float(np.mean(np.abs(color[..., :3] - ref_color[..., :3]).max(-1) > 0.05)), 3)
+        row["same_prim_percent"] = round(100 * float(np.mean(result["primId"].ids() == reference["primId"].ids())), 3)
+    row.update(extra)
+    return row
+
+
+def _render_case(queue, case, stage, resolution, frames, device):
+    """Runs in a child process, so that its peak memory is its own and Vulkan starts fresh."""
+    try:
+        from tessera import Session
+
+        started = time.perf_counter()
+        session = Session(stage, device=device)
+        settings = {"resolution": resolution, "aovs": ("color", "primId")}
+        load_s = time.perf_counter() - started
+        rows = []
+        if case == "density":
+            result, wall, gpu = _frames(session, frames, **settings)
+            rows.append(_row("density scaling", f"{result.stats['source_triangles'] / 1e6:,.0f} M source triangles", result, wall, gpu))
+        else:
+            reference, ref_wall, ref_gpu = _frames(session, frames, lod=False, **settings)
+            for pixel_error in ((1.0,) if case == "brute" else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)):
+                result, wall, gpu = _frames(session, frames, pixel_error=pixel_error, **settings)
+                rows.append(_row("against brute force" if case == "brute" else "speed against error", f"{pixel_error:g} px",
+                                 result, wall, gpu, reference, speedup_vs_no_lod=round(ref_wall / wall, 1)))
+            if case == "brute":
+                rows.append(_row("against brute force", "--no-lod", reference, ref_wall, ref_gpu, reference, speedup_vs_no_lod=1.0))
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        for row in rows:
+            row["device"] = session.device_name
+            row["resolution"] = f"{resolution[0]}x{resolution[1]}"
+            row["load_seconds"] = round(load_s, 1)
+            row["peak_memory_mib"] = round(peak / 2**20)
+        queue.put(rows)
+    except Exception as error:  # reported by the parent, which goes on with the other cases
+        queue.put(error)
+
+
+RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("visible_instances", "instances"),
+                  ("visible_clusters", "clusters"), ("triangles_drawn", "tris drawn"), ("frame_ms", "frame ms"),
+                  ("gpu_ms", "GPU ms"), ("cull_ms", "cull"), ("raster_ms", "raster"), ("resolve_ms", "resolve"),
+                  ("peak_memory_mib", "peak MiB"), ("psnr_db", "PSNR dB"), ("pixels_off_percent", "px off %"),
+                  ("same_prim_percent", "same prim %"), ("speedup_vs_no_lod", "speedup")]
+
+
+def _write_plot(rows, path):
+    """A small PNG: frame ms (orange) and PSNR (blue) against the pixel error (log2 axis, 0.25 to 8)."""
+    import struct
+    import zlib
+
+    width, height, pad = 480, 270, 24
+    image = np.full((height, width, 3), 255, np.uint8)
+    image[pad:height - pad, pad] = image[height - pad, pad:width - pad] = 0
+    xs = [np.log2(r["pixel_error"]) for r in rows]
+    for series, colour in (([r["frame_ms"] for r in rows], (230, 120, 20)), ([r["psnr_db"] for r in rows], (40, 90, 200))):
+        lo, hi = min(series), max(series)
+        points = [(pad + (x - xs[0]) / (xs[-1] - xs[0]) * (width - 3 * pad),
+                   height - pad - (v - lo) / max(hi - lo, 1e-9) * (height - 3 * pad) - pad / 2) for x, v in zip(xs, series)]
+        for (x0, y0), (x1, y1) in zip(points, points[1:]):
+            for t in np.linspace(0, 1, 400):
+                image[int(y0 + t * (y1 - y0)) - 1:int(y0 + t * (y1 - y0)) + 2, int(x0 + t * (x1 - x0)) - 1:int(x0 + t * (x1 - x0)) + 2] = colour
+        for x, y in points:
+            image[int(y) - 4:int(y) + 5, int(x) - 4:int(x) + 5] = colour
+    raw = b"".join(b"\0" + image[y].tobytes() for y in range(height))
+    chunk = lambda tag, data: struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
+    with open(path, "wb") as f:
+        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)) +
+                chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
+
+
+def render(args) -> int:
+    width, height = args.resolution
+    # Density scaling: the same field of FIELD_SIDE^2 instances, with prototypes of ~1e3, ~1e5 and ~1e7 triangles.
+    sides = [int(round(np.sqrt(total / FIELD_SIDE**2 / 4))) for total in (1e6, 1e8, 1e10)]
+    cases = [("density", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
+    single = _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)  # the densest prototype alone, filling the frame
+    cases += [("brute", single), ("error", single)]
+    rows = []
+    print(" | ".join(title for _, title in RENDER_COLUMNS))
+    context = multiprocessing.get_context("fork")
+    failed = 0
+    for case, stage in cases:
+        queue = context.Queue()
+        process = context.Process(target=_render_case, args=(queue, case, stage, (width, height), args.frames, args.device))
+        process.start()
+        outcome = queue.get()
+        process.join()
+        if isinstance(outcome, Exception):
+            print(f"tessera: error: {case} ({stage}): {outcome}", flush=True)
+            failed += 1
+            continue
+        for row in outcome:
+            rows.append(row)
+            print(" | ".join(str(row.get(key, "")) for key, _ in RENDER_COLUMNS), flush=True)
+    density = [r for r in rows if r["table"] == "density scaling"]
+    if len(density) > 1 and density[0]["frame_ms"] > 0:
+        print(f"density scaling: the densest field costs {density[-1]['frame_ms'] / density[0]['frame_ms']:.2f}x the lightest "
+              f"({density[-1]['source_triangles'] / density[0]['source_triangles']:.0f}x the source triangles)")
+    sweep = [r for r in rows if r["table"] == "speed against error"]
+    if args.plot and sweep:
+        _write_plot(sweep, args.plot)
+    if rows:
+        print(f"device: {rows[0]['device']}, {rows[0]['resolution']}, median of {args.frames} frames after one warm-up")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=2)
+    return 1 if failed else 0

@@ -49,6 +49,15 @@ def _parser() -> argparse.ArgumentParser:
     build = benches.add_parser("build", help="cluster DAG build: speed, memory, depth, error per level")
     build.add_argument("stages", nargs="*", help="USD stages (every mesh) or .obj files (default: the bunny and generated 1M / 10M meshes)")
     build.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
+    bench_render = benches.add_parser("render", help="frame cost against source density, brute force and the error bound")
+    bench_render.add_argument("--resolution", type=_resolution, default=(1920, 1080), help="WIDTHxHEIGHT (default 1920x1080)")
+    bench_render.add_argument("--frames", type=int, default=5, help="frames measured after one warm-up; the median is reported")
+    bench_render.add_argument("--max-density", type=int, default=3, choices=(1, 2, 3),
+                              help="fields of 1e6, 1e8, 1e10 source triangles: how many of them (default all 3)")
+    bench_render.add_argument("--stages-dir", default="out/bench", help="where the generated stages are kept (default out/bench)")
+    bench_render.add_argument("--device", help="Vulkan device, as for render")
+    bench_render.add_argument("--plot", help="write the speed-against-error plot (PNG) here")
+    bench_render.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
     return parser
 
 
@@ -146,7 +155,7 @@ def main(argv=None) -> int:
         if args.command == "bench":
             from . import bench
 
-            return bench.build(args)
+            return bench.build(args) if args.bench == "build" else bench.render(args)
     except Exception as error:  # one line, never a traceback, for anything the user can fix
         print(f"tessera: error: {error}", file=sys.stderr)
         return 1
