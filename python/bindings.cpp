@@ -79,7 +79,7 @@ struct PySceneDelegate : SceneDelegate {
 };
 
 Visualize visualize_from(const std::string& name) {
-    for (int mode = 0; mode <= int(Visualize::ShadingBins); ++mode)
+    for (int mode = 0; mode <= int(Visualize::RasterBins); ++mode)
         if (name == visualize_name(Visualize(mode))) return Visualize(mode);
     throw nb::value_error(("unknown visualization mode '" + name + "'").c_str());
 }
@@ -93,11 +93,15 @@ nb::dict stats_dict(const FrameStats& s) {
     d["visible_clusters"] = s.visibleClusters;
     d["source_triangles"] = s.sourceTriangles;
     d["visible_triangles"] = s.visibleTriangles;
+    d["sw_triangles"] = s.swTriangles;
+    d["hw_triangles"] = s.hwTriangles;
+    d["sw_clusters"] = s.swClusters;
     d["overflow_redraws"] = s.overflowRedraws;
     d["visible_cluster_capacity"] = s.visibleClusterCapacity;
     nb::dict gpuMs;
     gpuMs["cull"] = s.cullMs;
-    gpuMs["raster"] = s.rasterMs;
+    gpuMs["sw_raster"] = s.softwareRasterMs;
+    gpuMs["hw_raster"] = s.rasterMs;
     gpuMs["resolve"] = s.resolveMs;
     d["gpu_ms"] = gpuMs;
     return d;
@@ -267,11 +271,15 @@ NB_MODULE(_tessera, m) {
             "execute",
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
                const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
-               const std::string& visualize) {
+               const std::string& visualize, const std::string& raster) {
                 RenderPassSettings settings;
                 settings.render.pixelError = pixelError;
                 settings.render.lod = lod;
                 settings.render.visualize = visualize_from(visualize);
+                if (raster == "auto") settings.render.raster = RasterMode::Auto;
+                else if (raster == "hardware") settings.render.raster = RasterMode::Hardware;
+                else if (raster == "software") settings.render.raster = RasterMode::Software;
+                else throw nb::value_error(("unknown raster mode '" + raster + "' (auto, hardware or software)").c_str());
                 settings.cameraId = cameraId;
                 settings.camera = camera;
                 settings.render.width = width;
@@ -284,7 +292,7 @@ NB_MODULE(_tessera, m) {
                 return std::make_pair(images, stats_dict(stats));
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
-            "visualize"_a = "none")
+            "visualize"_a = "none", "raster"_a = "auto")
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
         .def_prop_ro("rprim_count", &RenderIndex::rprim_count)

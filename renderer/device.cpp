@@ -194,6 +194,7 @@ Device::Device(const DeviceOptions& options) {
     name_ = chosen->properties.deviceName;
     software_ = chosen->properties.deviceType == VK_PHYSICAL_DEVICE_TYPE_CPU;
     timestampPeriod_ = chosen->properties.limits.timestampPeriod;
+    subPixelBits_ = std::min<uint32_t>(chosen->properties.limits.subPixelPrecisionBits, 8);
     vkGetPhysicalDeviceMemoryProperties(physical_, &memoryProperties_);
 
     uint32_t familyCount = 0;

@@ -6,11 +6,13 @@
 #include "shared.h"
 #include "spirv/cull_comp.h"
 #include "spirv/raster_frag.h"
+#include "spirv/raster_sw_comp.h"
 #include "spirv/raster_vert.h"
 #include "spirv/resolve_comp.h"
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 
 namespace tessera {
@@ -42,10 +44,11 @@ const char* visualize_name(Visualize mode) {
         case Visualize::Instances: return "instances";
         case Visualize::Primitives: return "primitives";
         case Visualize::ShadingBins: return "shading-bins";
+        case Visualize::RasterBins: return "raster-bins";
     }
     return "?";
 }
-static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::ShadingBins) == TS_VIS_SHADING_BINS,
+static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::RasterBins) == TS_VIS_RASTER_BINS,
               "Visualize must match the TS_VIS_* modes");
 
 bool aov_is_id(Aov aov) { return aov == Aov::PrimId || aov == Aov::InstanceId || aov == Aov::ClusterId || aov == Aov::TriangleId; }
@@ -226,10 +229,12 @@ void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
 struct Renderer::Impl {
     Device& device;
     VkPipelineLayout layout = VK_NULL_HANDLE;
-    VkPipeline cull = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, resolve = VK_NULL_HANDLE;
+    VkPipeline cull = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, rasterSoftware = VK_NULL_HANDLE, resolve = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
+    static constexpr uint32_t kTimestamps = 5;  // start, cull, software raster, hardware raster, resolve
+    Buffer hardwareList, softwareList;
     Buffer instances, meshes, levels, clusters, positions, normals, colors, triangles, materials;
     uint32_t instanceCount = 0, clusterCount = 0;
     uint64_t sourceTriangles = 0;
@@ -251,6 +256,7 @@ struct Renderer::Impl {
         vkDeviceWaitIdle(vk);
         vkDestroyPipeline(vk, cull, nullptr);
         vkDestroyPipeline(vk, raster, nullptr);
+        vkDestroyPipeline(vk, rasterSoftware, nullptr);
         vkDestroyPipeline(vk, resolve, nullptr);
         vkDestroyPipelineLayout(vk, layout, nullptr);
         vkDestroyQueryPool(vk, timestamps, nullptr);
@@ -276,6 +282,7 @@ struct Renderer::Impl {
         check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
         cull = compute_pipeline(cull_comp, sizeof(cull_comp));
         resolve = compute_pipeline(resolve_comp, sizeof(resolve_comp));
+        rasterSoftware = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp));
 
         // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
         VkShaderModule vert = create_module(device.handle(), raster_vert, sizeof(raster_vert));
@@ -322,7 +329,7 @@ struct Renderer::Impl {
 
         VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
         queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
-        queryInfo.queryCount = 4;
+        queryInfo.queryCount = kTimestamps;
         check_vk(vkCreateQueryPool(device.handle(), &queryInfo, nullptr, &timestamps), "vkCreateQueryPool");
     }
 
@@ -370,7 +377,7 @@ struct Renderer::Impl {
                                        {c.parentSphere[0], c.parentSphere[1], c.parentSphere[2], c.parentSphere[3]},
                                        c.lodError, root ? float(TS_ROOT_ERROR) : c.parentError,
                                        vertexBase + c.vertexOffset, triangleBase + c.triangleOffset, c.triangleCount, uint32_t(m),
-                                       c.level, c.parentGroup});
+                                       c.level << 16 | c.vertexCount, c.parentGroup});
             }
             g.levelCount = uint32_t(gpuLevels.size()) - g.levelOffset;
             g.lodRadius = float(lodRadius * (1 + 1e-6));
@@ -453,7 +460,11 @@ struct Renderer::Impl {
     void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount) {
         if (!frame.handle) frame = device.create_buffer(sizeof(gpu::GpuFrame), MemoryUse::Upload);
         if (!drawState.handle) drawState = device.create_buffer(sizeof(gpu::GpuDrawState), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
-        if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) visibleClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
+        if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) {
+            visibleClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
+            hardwareList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
+            softwareList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
+        }
         const uint64_t pixels = uint64_t(w) * h;
         if (w != width || h != height || !visibility.handle) {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
@@ -534,8 +545,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         // LOD: an error of e units at view depth d covers e * lod.x / d pixels (|P11| maps unit height to NDC,
         // and NDC spans height / 2 pixels per unit).
         const double pixelsPerUnit = cam.projectionScaleY * 0.5 * settings.height;
-        f.lod = {float(pixelsPerUnit), std::max(settings.pixelError, 0.0f), camera.orthographic ? 1.0f : 0.0f, 0};
-        f.counts = {s.instanceCount, s.capacity, settings.lod ? 0u : TS_FRAME_NO_LOD, uint32_t(settings.visualize)};
+        f.lod = {float(pixelsPerUnit), std::max(settings.pixelError, 0.0f), camera.orthographic ? 1.0f : 0.0f, float(camera.nearClip)};
+        f.raster = {settings.softwareRasterArea, float(1u << device_.sub_pixel_bits()), 0, 0};
+        const uint32_t rasterFlags = settings.raster == RasterMode::Hardware ? TS_FRAME_HARDWARE_ONLY
+                                   : settings.raster == RasterMode::Software ? TS_FRAME_SOFTWARE_FIRST : 0u;
+        f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags, uint32_t(settings.visualize)};
         f.instances = s.instances.address;
         f.meshes = s.meshes.address;
         f.levels = s.levels.address;
@@ -546,15 +560,19 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.triangles = s.triangles.address;
         f.materials = s.materials.address;
         f.visibleClusters = s.visibleClusters.address;
+        f.hardwareList = s.hardwareList.address;
+        f.softwareList = s.softwareList.address;
         f.drawState = s.drawState.address;
         f.visibility = s.visibility.address;
         f.aovOutput = s.aovOutput.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
-            vkCmdResetQueryPool(cmd, s.timestamps, 0, 4);
+            vkCmdResetQueryPool(cmd, s.timestamps, 0, Impl::kTimestamps);
             vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_NONE, s.timestamps, 0);
-            gpu::GpuDrawState initial{TS_CLUSTER_MAX_TRIANGLES * 3, 0, 0, 0, 0, 0, 0, 0};
+            gpu::GpuDrawState initial{};
+            initial.vertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
+            initial.swGroupsY = initial.swGroupsZ = 1;
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
             barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
@@ -570,8 +588,18 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             }
             vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, s.timestamps, 1);
             barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                    VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
-                    VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+                    VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
+                        VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                    VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+
+            // Small triangles: the compute rasterizer, one workgroup per cluster (indirect: the cull pass counted them).
+            vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.rasterSoftware);
+            vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX));
+            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, s.timestamps, 2);
+            // Both rasterizers only do atomic max into the visibility buffer, which commutes; the barrier keeps the
+            // synchronization validation layer (rightly strict about unordered writes) quiet and costs little.
+            barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
+                    VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
 
             VkRenderingInfo rendering{VK_STRUCTURE_TYPE_RENDERING_INFO};
             rendering.renderArea = {{0, 0}, {settings.width, settings.height}};
@@ -584,8 +612,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.raster);
             vkCmdDrawIndirect(cmd, s.drawState.handle, 0, 1, sizeof(VkDrawIndirectCommand));
             vkCmdEndRendering(cmd);
-            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_GRAPHICS_BIT, s.timestamps, 2);
-            barrier(cmd, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_GRAPHICS_BIT, s.timestamps, 3);
+            barrier(cmd, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                     VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
 
             vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.resolve);
@@ -601,7 +629,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 VkBufferCopy region{0, sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
                 vkCmdCopyBuffer(cmd, s.aovOutput.handle, s.readback.handle, 1, &region);
             }
-            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, 3);
+            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, 4);
             barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
                     VK_ACCESS_2_TRANSFER_READ_BIT);
             VkBufferCopy stateRegion{0, 0, sizeof(gpu::GpuDrawState)};
@@ -620,15 +648,19 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         }
         frameStats.visibleInstances = state.visibleInstances;
         frameStats.visibleClusters = state.visibleClusters;
-        frameStats.visibleTriangles = state.visibleTriangles;
+        frameStats.swTriangles = state.swTriangles;
+        frameStats.hwTriangles = state.hwTriangles;
+        frameStats.visibleTriangles = uint64_t(state.swTriangles) + state.hwTriangles;
+        frameStats.swClusters = state.swClusters;
         frameStats.candidateClusters = state.candidateClusters;
         frameStats.visibleClusterCapacity = s.capacity;
-        uint64_t ticks[4] = {};
-        if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, 4, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
+        uint64_t ticks[Impl::kTimestamps] = {};
+        if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, Impl::kTimestamps, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
             const double ms = device_.timestamp_period_ns() * 1e-6;
             frameStats.cullMs = double(ticks[1] - ticks[0]) * ms;
-            frameStats.rasterMs = double(ticks[2] - ticks[1]) * ms;
-            frameStats.resolveMs = double(ticks[3] - ticks[2]) * ms;
+            frameStats.softwareRasterMs = double(ticks[2] - ticks[1]) * ms;
+            frameStats.rasterMs = double(ticks[3] - ticks[2]) * ms;
+            frameStats.resolveMs = double(ticks[4] - ticks[3]) * ms;
         }
         break;
     }

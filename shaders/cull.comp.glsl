@@ -22,10 +22,18 @@ float projected_error(GpuFrame frame, GpuInstance instance, vec3 translation, fl
     return depth > 0.0 ? size / depth : NEVER_FINE_ENOUGH;
 }
 
-// The nearest and farthest view depth of a sphere (camera-relative world).
-vec2 depth_range(GpuFrame frame, vec3 center, float radius) {
-    float d = dot(center, frame.cameraForward.xyz);
-    return vec2(d - radius, d + radius);
+// Small triangles go to the compute rasterizer: the cluster must lie beyond the near plane (no clipping there),
+// project to a bounded radius, and its triangles' estimated mean area (half of them face away) must be below
+// the measured crossover.
+bool software_raster(GpuFrame frame, vec3 center, float radius, uint triangleCount) {
+    if ((frame.counts.z & TS_FRAME_HARDWARE_ONLY) != 0u) return false;
+    float nearest = depth_range(frame, center, radius).x;
+    if (nearest <= frame.lod.w * 1.001) return false;  // touches the near plane: hardware clips
+    float radiusPixels = radius * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest);
+    if (radiusPixels > TS_SW_MAX_RADIUS_PIXELS) return false;
+    if ((frame.counts.z & TS_FRAME_SOFTWARE_FIRST) != 0u) return true;
+    float meanArea = 3.14159 * radiusPixels * radiusPixels / max(float(triangleCount) * 0.5, 1.0);
+    return meanArea < frame.raster.x;
 }
 
 void main() {
@@ -67,13 +75,24 @@ void main() {
                 if (projected_error(frame, instance, translation, scale, cluster.lodSphere, cluster.lodError) > threshold) continue;
                 if (projected_error(frame, instance, translation, scale, cluster.parentSphere, cluster.parentError) <= threshold) continue;
             }
-            if (!sphere_in_frustum(frame, to_camera_relative(instance, translation, cluster.sphere.xyz), cluster.sphere.w * scale)) continue;
+            vec3 center = to_camera_relative(instance, translation, cluster.sphere.xyz);
+            float radius = cluster.sphere.w * scale;
+            if (!sphere_in_frustum(frame, center, radius)) continue;
             // Count every visible cluster, store those that fit: the CPU sees the overflow, grows the list and redraws.
             uint slot = atomicAdd(draw.state.visibleClusters, 1u);
-            atomicAdd(draw.state.visibleTriangles, cluster.triangleCount);
+            bool software = software_raster(frame, center, radius, cluster.triangleCount);
+            if (software) atomicAdd(draw.state.swTriangles, cluster.triangleCount);
+            else atomicAdd(draw.state.hwTriangles, cluster.triangleCount);
             if (slot < capacity) {
-                VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex, clusterIndex);
-                atomicMax(draw.state.instanceCount, slot + 1u);
+                VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex | (software ? TS_VISIBLE_SOFTWARE : 0u), clusterIndex);
+                if (software) {
+                    uint k = atomicAdd(draw.state.swClusters, 1u);
+                    SlotListRef(frame.softwareList).data[k] = slot;
+                    atomicMax(draw.state.swGroupsX, min(k + 1u, 65535u));
+                } else {
+                    uint k = atomicAdd(draw.state.instanceCount, 1u);
+                    SlotListRef(frame.hardwareList).data[k] = slot;
+                }
             }
         }
     }

@@ -13,12 +13,19 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Ma
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer FloatRef { float data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer UintRef { uint data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibleClusterRef { uvec2 data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) buffer SlotListRef { uint data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer DrawStateRef { GpuDrawState state; };
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibilityRef { uint64_t data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputRef { vec4 data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputIdRef { uvec4 data[]; };
 
 layout(push_constant) uniform Push { FrameRef frame; uint aov; } push;  // layout: renderer.cpp PushConstants
+
+// Nearest and farthest view depth of a sphere (camera-relative world).
+vec2 depth_range(GpuFrame frame, vec3 center, float radius) {
+    float d = dot(center, frame.cameraForward.xyz);
+    return vec2(d - radius, d + radius);
+}
 
 // Instance translation relative to the camera (already subtracted in double on the CPU).
 vec3 camera_relative_translation(GpuInstance instance) {

@@ -1,4 +1,4 @@
-// Hardware raster, vertex stage: one draw instance per visible cluster, 128 triangles' worth of vertices
+// Hardware raster, vertex stage: one draw instance per cluster of the hardware list, 128 triangles' worth of vertices
 // each; vertices are pulled from the cluster's streams and unused triangle slots are sent off screen.
 #version 460
 #extension GL_GOOGLE_include_directive : require
@@ -9,7 +9,8 @@ layout(location = 1) flat out uint outFlags;
 
 void main() {
     GpuFrame frame = push.frame.f;
-    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[gl_InstanceIndex];
+    uint slot = SlotListRef(frame.hardwareList).data[gl_InstanceIndex];
+    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     uint triangle = uint(gl_VertexIndex) / 3u;
     if (triangle >= cluster.triangleCount) {
@@ -18,11 +19,11 @@ void main() {
         outFlags = 0u;
         return;
     }
-    GpuInstance instance = InstanceRef(frame.instances).data[visible.x];
+    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
     uint vertex = corner_vertex(frame, cluster, triangle, uint(gl_VertexIndex) % 3u, flip);
     vec3 p = to_camera_relative(instance, camera_relative_translation(instance), vertex_position(frame, vertex));
     gl_Position = frame.viewProjection * vec4(p, 1.0);
-    outPayload = (uint(gl_InstanceIndex) << TS_VIS_TRIANGLE_BITS) | triangle;
+    outPayload = (slot << TS_VIS_TRIANGLE_BITS) | triangle;
     outFlags = instance.flags;
 }

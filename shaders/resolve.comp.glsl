@@ -34,11 +34,12 @@ vec3 level_color(uint level) {
     return clamp(vec3(2.0 * t - 0.5, 2.0 - abs(4.0 * t - 2.0), 1.5 - 2.0 * t), 0.0, 1.0);
 }
 
-vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle) {
+vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software) {
+    if (mode == TS_VIS_RASTER_BINS) return software ? vec3(0.15, 0.45, 1.0) : vec3(1.0, 0.55, 0.1);
     if (mode == TS_VIS_TRIANGLES) return id_color(cluster.triangleOffset + triangle);
     if (mode == TS_VIS_CLUSTERS) return id_color(visible.y);
     if (mode == TS_VIS_GROUPS) return id_color(cluster.group == 0xffffffffu ? visible.y : cluster.group * 7919u + cluster.meshIndex);
-    if (mode == TS_VIS_LOD) return level_color(cluster.level);
+    if (mode == TS_VIS_LOD) return level_color(cluster.levelVertices >> 16);
     if (mode == TS_VIS_INSTANCES) return id_color(visible.x);
     if (mode == TS_VIS_PRIMITIVES) return id_color(instance.primId);
     return id_color(instance.materialIndex);  // TS_VIS_SHADING_BINS
@@ -64,6 +65,8 @@ void main() {
     uint payload = uint(value & 0xfffffffful);
     uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
     uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[payload >> TS_VIS_TRIANGLE_BITS];
+    bool software = (visible.x & TS_VISIBLE_SOFTWARE) != 0u;
+    visible.x &= ~TS_VISIBLE_SOFTWARE;
     GpuInstance instance = InstanceRef(frame.instances).data[visible.x];
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     if (idAov) {
@@ -130,7 +133,7 @@ void main() {
     }
 
     if (frame.counts.w != TS_VIS_NONE) {  // flat id colours, lit from the eye so that shapes stay readable
-        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle);
+        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle, software);
         OutputRef(frame.aovOutput).data[index] = vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0);
         return;
     }

@@ -56,9 +56,18 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIS_INSTANCES 5u
 #define TS_VIS_PRIMITIVES 6u    // USD prims (primId)
 #define TS_VIS_SHADING_BINS 7u  // materials
+#define TS_VIS_RASTER_BINS 8u   // software (compute) raster blue, hardware raster orange
 
 // Frame flags (GpuFrame.counts.z).
 #define TS_FRAME_NO_LOD 1u      // draw every source triangle (level 0), the DAG off: the full-detail reference
+#define TS_FRAME_HARDWARE_ONLY 2u  // every cluster through hardware raster
+#define TS_FRAME_SOFTWARE_FIRST 4u // every cluster the compute rasterizer can take goes there (tests, measurements)
+
+// Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
+#define TS_VISIBLE_SOFTWARE 0x80000000u
+// The compute rasterizer takes clusters whose bounding sphere projects to at most this radius in pixels (so a
+// triangle's box stays small and its integer edge functions cannot overflow) and that lie beyond the near plane.
+#define TS_SW_MAX_RADIUS_PIXELS 64.0
 
 #define TS_MAX_LIGHTS 8u
 #define TS_LIGHT_DISTANT 0u
@@ -67,6 +76,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
 #define TS_RESOLVE_TILE 8
+#define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
 
 // One cluster of a built mesh's DAG: at most 128 triangles over at most 256 cluster-local vertices. The cut
 // draws it iff its own LOD error, projected from its LOD sphere, is within the pixel threshold while its
@@ -81,7 +91,7 @@ struct GpuCluster {
     uint triangleOffset; // first triangle in the scene's triangle stream (3 x 8-bit local indices per uint)
     uint triangleCount;
     uint meshIndex;
-    uint level;          // DAG level, 0 = source triangles
+    uint levelVertices;  // DAG level (0 = source triangles) << 16 | cluster-local vertex count
     uint group;          // the group it was simplified with (its parent group), for visualization
 };
 TS_CHECK_SIZE(GpuCluster, 80);
@@ -138,18 +148,24 @@ struct GpuLight {
 };
 TS_CHECK_SIZE(GpuLight, 32);
 
-// Indirect draw arguments for the hardware rasterizer (VkDrawIndirectCommand) plus the culling counters.
+// Indirect arguments of both rasterizers plus the culling counters, written by the cull pass.
 struct GpuDrawState {
-    uint vertexCount;      // TS_CLUSTER_MAX_TRIANGLES * 3: one instance of the draw per visible cluster
-    uint instanceCount;    // visible clusters, clamped to capacity
+    uint vertexCount;      // VkDrawIndirectCommand: TS_CLUSTER_MAX_TRIANGLES * 3 vertices per hardware cluster
+    uint instanceCount;    // hardware clusters stored
     uint firstVertex;
     uint firstInstance;
+    uint swGroupsX;        // VkDispatchIndirectCommand: min(software clusters stored, 65535) workgroups
+    uint swGroupsY;
+    uint swGroupsZ;
+    uint swClusters;       // software clusters stored
     uint visibleClusters;  // visible clusters found, may exceed capacity (overflow is detected on the CPU)
     uint visibleInstances;
-    uint visibleTriangles;  // triangles of the visible clusters (32-bit: saturates past 4 G)
     uint candidateClusters; // clusters the cut tested (those of the levels not ruled out per instance)
+    uint swTriangles;      // triangles sent to each rasterizer (32-bit: saturate past 4 G)
+    uint hwTriangles;
+    uint pad0, pad1, pad2;
 };
-TS_CHECK_SIZE(GpuDrawState, 32);
+TS_CHECK_SIZE(GpuDrawState, 64);
 
 // Per-frame constants, reached through the single pointer in the push constants.
 struct GpuFrame {
@@ -159,7 +175,8 @@ struct GpuFrame {
     vec4 frustumPlanes[6];   // camera-relative world; dot(plane.xyz, p) + plane.w >= 0 inside
     vec4 background;         // linear RGBA of pixels no geometry covers
     vec4 lod;                // x: pixels per unit of error at unit view depth (or per unit, orthographic);
-                             // y: error threshold in pixels; z: 1 when orthographic
+                             // y: error threshold in pixels; z: 1 when orthographic; w: near-plane distance
+    vec4 raster;             // x: software raster below this estimated area per triangle (pixels); y: sub-pixel steps
     uvec4 viewport;          // x: width, y: height, z: unused, w: light count
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     GpuLight lights[TS_MAX_LIGHTS];
@@ -172,13 +189,15 @@ struct GpuFrame {
     address colors;          // uint[2 * colours], rgba16f
     address triangles;       // uint[triangles], 3 x 8-bit cluster-local indices
     address materials;       // GpuMaterial[]
-    address visibleClusters; // uvec2[capacity]: (instance, cluster)
+    address visibleClusters; // uvec2[capacity]: (instance | TS_VISIBLE_SOFTWARE, cluster)
+    address hardwareList;    // uint[capacity]: visible-cluster slots for hardware raster
+    address softwareList;    // uint[capacity]: visible-cluster slots for the compute rasterizer
     address drawState;       // GpuDrawState
     address visibility;      // uint64[width * height]
     address aovOutput;       // vec4[width * height]
     address unused;          // keeps the size a multiple of 16 bytes (std430 rounds the struct up)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 1 + 16 * 6 + 16 * 4 + 32 * TS_MAX_LIGHTS + 8 * 14);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 1 + 16 * 6 + 16 * 5 + 32 * TS_MAX_LIGHTS + 8 * 16);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

@@ -43,7 +43,8 @@ def test_stats_and_camera_options(tmp_path):
     stats = json.loads(stats_file.read_text())
     assert stats["camera"] == "/World/Camera" and stats["resolution"] == [80, 60]
     assert stats["instances"] == 1 and stats["visible_clusters"] == 1 and stats["errors"] == []
-    assert set(stats["gpu_ms"]) == {"cull", "raster", "resolve"}
+    assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "resolve"}
+    assert stats["sw_triangles"] + stats["hw_triangles"] == stats["visible_triangles"]
     assert stats["pixel_error"] == 1.0 and stats["lod"] is True and stats["candidate_clusters"] >= stats["visible_clusters"]
 
 

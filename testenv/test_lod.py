@@ -69,7 +69,7 @@ def test_the_cut_is_deterministic(session):
         assert first[aov].pixels.tobytes() == second[aov].pixels.tobytes(), aov
 
 
-@pytest.mark.parametrize("mode", ["triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins"])
+@pytest.mark.parametrize("mode", ["triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins"])
 def test_visualization_modes(session, mode, tmp_path):
     import tessera
 

@@ -221,7 +221,8 @@ def _row(table, label, result, wall, gpu, reference=None, **extra):
            "visible_instances": s["visible_instances"], "pixel_error": s["pixel_error"], "lod": s["lod"],
            "candidate_clusters": s["candidate_clusters"], "visible_clusters": s["visible_clusters"],
            "triangles_drawn": s["visible_triangles"], "frame_ms": round(wall, 1), "gpu_ms": round(gpu, 1),
-           "cull_ms": round(s["gpu_ms"]["cull"], 1), "raster_ms": round(s["gpu_ms"]["raster"], 1),
+           "cull_ms": round(s["gpu_ms"]["cull"], 1), "sw_raster_ms": round(s["gpu_ms"]["sw_raster"], 1),
+           "hw_raster_ms": round(s["gpu_ms"]["hw_raster"], 1), "sw_triangles": s["sw_triangles"], "hw_triangles": s["hw_triangles"],
            "resolve_ms": round(s["gpu_ms"]["resolve"], 1)}
     if reference is not None:
         color, ref_color = result["color"].pixels, reference["color"].pixels
@@ -265,8 +266,9 @@ def _render_case(queue, case, stage, resolution, frames, device):
 
 
 RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("visible_instances", "instances"),
-                  ("visible_clusters", "clusters"), ("triangles_drawn", "tris drawn"), ("frame_ms", "frame ms"),
-                  ("gpu_ms", "GPU ms"), ("cull_ms", "cull"), ("raster_ms", "raster"), ("resolve_ms", "resolve"),
+                  ("visible_clusters", "clusters"), ("triangles_drawn", "tris drawn"), ("sw_triangles", "SW tris"), ("frame_ms", "frame ms"),
+                  ("gpu_ms", "GPU ms"), ("cull_ms", "cull"), ("sw_raster_ms", "SW raster"),
+                  ("hw_raster_ms", "HW raster"), ("resolve_ms", "resolve"),
                   ("peak_memory_mib", "peak MiB"), ("psnr_db", "PSNR dB"), ("pixels_off_percent", "px off %"),
                   ("same_prim_percent", "same prim %"), ("speedup_vs_no_lod", "speedup")]
 

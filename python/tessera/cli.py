@@ -8,7 +8,7 @@ import os
 import sys
 import time
 
-from .session import AOVS, VISUALIZATIONS
+from .session import AOVS, RASTER_MODES, VISUALIZATIONS
 
 
 def _resolution(text: str) -> tuple[int, int]:
@@ -36,6 +36,8 @@ def _parser() -> argparse.ArgumentParser:
                         help="screen-space error bound of the level-of-detail cut, in pixels (default 1)")
     render.add_argument("--no-lod", action="store_true", help="draw every source triangle: the DAG off, the full-detail reference")
     render.add_argument("--vis", choices=VISUALIZATIONS, help="show a debug view in the color AOV instead of shading")
+    render.add_argument("--raster", choices=RASTER_MODES, default="auto",
+                        help="auto: small triangles through the compute rasterizer, large ones through hardware raster (default)")
     render.add_argument("--stats", help="write frame statistics to this JSON file")
     render.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N",
                         help="uniform refinements of subdivision surfaces before the DAG (default 2; 0 draws the cage)")
@@ -69,7 +71,7 @@ def _render(args) -> int:
     loaded = time.perf_counter()
     camera = args.camera or (session.camera_paths()[0] if session.camera_paths() else None)
     result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov], pixel_error=args.pixel_error,
-                            lod=not args.no_lod, vis=args.vis)
+                            lod=not args.no_lod, vis=args.vis, raster=args.raster)
     rendered = time.perf_counter()
     for message in result.warnings:
         print(f"tessera: warning: {message}", file=sys.stderr)

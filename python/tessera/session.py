@@ -12,7 +12,8 @@ from . import _tessera
 
 AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triangleId")
 # Debug views the color AOV can show instead of shading (renderer.h: Visualize).
-VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins")
+VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins")
+RASTER_MODES = ("auto", "hardware", "software")
 
 
 class StageError(RuntimeError):
@@ -85,10 +86,10 @@ class Session:
 
     def render(self, *, camera: str | None = None, resolution: tuple[int, int] = (960, 540),
                aovs=("color",), background=(0.0, 0.0, 0.0, 0.0), pixel_error: float = 1.0, lod: bool = True,
-               vis: str | None = None) -> RenderResult:
+               vis: str | None = None, raster: str = "auto") -> RenderResult:
         """Renders the stage at the session's time. `pixel_error` is the DAG cut's screen-space error bound in
         pixels; `lod=False` draws every source triangle (the full-detail reference); `vis` replaces shading in
-        the color AOV by a debug view (VISUALIZATIONS)."""
+        the color AOV by a debug view (VISUALIZATIONS); `raster` forces one rasterizer (RASTER_MODES)."""
         from .usd import framing_camera
 
         width, height = resolution
@@ -98,6 +99,8 @@ class Session:
                 raise StageError(f"unknown AOV '{aov}' (choose from {', '.join(AOVS)})")
         if vis is not None and vis not in VISUALIZATIONS:
             raise StageError(f"unknown visualization '{vis}' (choose from {', '.join(VISUALIZATIONS)})")
+        if raster not in RASTER_MODES:
+            raise StageError(f"unknown raster mode '{raster}' (choose from {', '.join(RASTER_MODES)})")
         if not (pixel_error >= 0.0):
             raise StageError(f"pixel error must be a number >= 0, not {pixel_error}")
         self.index.sync_all(self.scene)
@@ -109,7 +112,7 @@ class Session:
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
         fallback = framing_camera(self.stage, self.time, width, height) if not camera_id else _tessera.CameraDesc()
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
-                                           vis or "none")
+                                           vis or "none", raster)
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)

@@ -236,6 +236,50 @@ TEST_F(RendererTest, MixedCutsLeaveNoHoles) {
     }
 }
 
+// The compute rasterizer snaps like hardware raster and follows its top-left rule, so the two cover the same
+// pixels with the same triangles. Edges through pixel centres (a grid aligned to the pixels, then shifted by half a
+// pixel) test the tie rule; a bumpy sphere at several distances tests everything else.
+TEST_F(RendererTest, SoftwareAndHardwareRasterCoverTheSamePixels) {
+    Renderer renderer(*device);
+    GpuScene scene;
+    InstanceDesc grid;
+    grid.mesh = scene.add_mesh(grid_mesh(16));
+    grid.transform = identity_matrix();
+    scene.set_instances({grid});
+    RenderSettings settings{64, 64, {0, 0, 0, 0}};
+    settings.lod = false;
+    auto compare = [&](const CameraDesc& camera, double minimumShare, const char* what) {
+        FrameStats hw, sw;
+        settings.raster = RasterMode::Hardware;
+        Image a = renderer.render(scene, camera, settings, {Aov::TriangleId}, &hw)[0];
+        settings.raster = RasterMode::Software;
+        Image b = renderer.render(scene, camera, settings, {Aov::TriangleId}, &sw)[0];
+        EXPECT_EQ(hw.swTriangles, 0u) << what;
+        EXPECT_EQ(sw.hwTriangles, 0u) << what << ": every cluster must have gone to the compute rasterizer";
+        size_t same = 0, covered = 0;
+        for (uint32_t y = 0; y < a.height; ++y)
+            for (uint32_t x = 0; x < a.width; ++x) {
+                same += id_at(a, x, y) == id_at(b, x, y);
+                covered += id_at(a, x, y) != 0xffffffffu;
+            }
+        EXPECT_GT(covered, 64u) << what;
+        EXPECT_GE(double(same) / (a.width * a.height), minimumShare) << what;
+    };
+    for (double shift : {0.0, 0.5}) {  // in pixels: diagonals, then horizontal and vertical edges through pixel centres
+        CameraDesc ortho = camera_at(shift / 64, shift / 64, 2);
+        ortho.orthographic = true;
+        ortho.horizontalAperture = ortho.verticalAperture = 1.0;  // the grid fills the image: 4 pixels per cell
+        compare(ortho, 1.0, shift == 0 ? "grid, diagonal edges through pixel centres" : "grid, axis edges through pixel centres");
+    }
+    InstanceDesc sphere;
+    sphere.mesh = scene.add_mesh(bumpy_sphere(64));
+    sphere.transform = identity_matrix();
+    scene.set_instances({sphere});
+    settings.width = settings.height = 160;
+    for (double distance : {3.0, 8.0, 30.0})  // depth ties between the two paths' interpolated depths are rare
+        compare(camera_at(0.1, 0.2, distance), 0.999, "bumpy sphere");
+}
+
 TEST_F(RendererTest, SingleSidedBackFacesAreCulledDoubleSidedAreNot) {
     Renderer renderer(*device);
     GpuScene scene;

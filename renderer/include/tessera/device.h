@@ -60,6 +60,8 @@ public:
     const std::string& name() const { return name_; }
     bool is_software() const { return software_; }
     float timestamp_period_ns() const { return timestampPeriod_; }
+    // Sub-pixel bits of the hardware rasterizer's vertex snapping; the compute rasterizer snaps the same way.
+    uint32_t sub_pixel_bits() const { return subPixelBits_; }
 
     Buffer create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlags extraUsage = 0);
     // Copies `bytes` into a Device buffer (directly when mapped, else through a staging buffer).
@@ -91,6 +93,7 @@ private:
     std::string name_;
     bool software_ = false;
     float timestampPeriod_ = 1.0f;
+    uint32_t subPixelBits_ = 8;
 
     std::mutex messagesMutex_;
     std::vector<std::string> messages_;

@@ -66,7 +66,12 @@ struct Image {
 };
 
 // What the color AOV shows instead of shading (debug views in the manner of Nanite's visualization modes).
-enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins };
+enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins, RasterBins };
+
+// Which rasterizer draws a cluster. Auto: the compute rasterizer for clusters of small triangles, hardware raster
+// for the rest. The forced modes exist for tests and measurements (Software still sends clusters that touch the
+// near plane or cover a large area to hardware raster).
+enum class RasterMode { Auto, Hardware, Software };
 const char* visualize_name(Visualize mode);
 
 struct RenderSettings {
@@ -77,6 +82,10 @@ struct RenderSettings {
     float pixelError = 1.0f;
     bool lod = true;  // false: every source triangle (level 0) is drawn, the DAG off (the full-detail reference)
     Visualize visualize = Visualize::None;
+    RasterMode raster = RasterMode::Auto;
+    // Auto mode: clusters whose triangles are estimated to cover less than this many pixels each go to the compute
+    // rasterizer. Measured per device (docs/benchmarks.md: about 45 on lavapipe).
+    float softwareRasterArea = 45.0f;
 };
 
 struct FrameStats {
@@ -84,10 +93,12 @@ struct FrameStats {
     uint32_t clusters = 0, visibleClusters = 0;  // clusters: level 0 of every instance (the source)
     uint64_t candidateClusters = 0;  // clusters the cut tested (the levels an instance's distance did not rule out)
     uint64_t sourceTriangles = 0;   // every triangle of every instance
-    uint64_t visibleTriangles = 0;  // triangles of the cut's visible clusters (drawn by hardware raster)
+    uint64_t visibleTriangles = 0;  // triangles of the cut's visible clusters
+    uint64_t swTriangles = 0, hwTriangles = 0;  // of those, drawn by the compute rasterizer and by hardware raster
+    uint32_t swClusters = 0;
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
-    double cullMs = 0, rasterMs = 0, resolveMs = 0;  // GPU time per pass
+    double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, resolveMs = 0;  // GPU time per pass (rasterMs: hardware)
 };
 
 // The GPU scene: meshes shared by any number of instances. Changes are uploaded by the next render.

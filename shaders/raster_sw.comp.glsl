@@ -1,0 +1,92 @@
+// Software raster: one workgroup per cluster of the software list, one thread per triangle. Clusters here lie
+// beyond the near plane and cover a small screen area (cull.comp.glsl), so no clipping is needed and edge
+// functions stay small. Vertices are snapped to the hardware rasterizer's sub-pixel grid and
+// coverage follows its top-left rule, so both paths cover the same pixels for the same triangle; depth and
+// payload go into the visibility buffer with the same 64-bit atomic max.
+#version 460
+#extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_shader_atomic_int64 : require
+#include "frame.h"
+
+layout(local_size_x = TS_SW_RASTER_GROUP_SIZE) in;
+
+shared ivec2 screen[TS_CLUSTER_MAX_VERTICES];  // sub-pixel position
+shared float depth[TS_CLUSTER_MAX_VERTICES];   // reversed-Z depth (z / w)
+
+// Top-left rule for counter-clockwise triangles in y-down framebuffer space: left edges run downwards, top
+// edges run exactly horizontally to the left. A sample exactly on an edge belongs to the triangle only then.
+int edge_bias(ivec2 from, ivec2 to) {
+    ivec2 d = to - from;
+    return (d.y > 0 || (d.y == 0 && d.x < 0)) ? 0 : -1;
+}
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint count = draw.state.swClusters;
+    float steps = frame.raster.y;  // sub-pixel steps per pixel
+    for (uint k = gl_WorkGroupID.x; k < count; k += gl_NumWorkGroups.x) {
+        uint slot = SlotListRef(frame.softwareList).data[k];
+        uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
+        GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+        GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+        vec3 translation = camera_relative_translation(instance);
+
+        // Vertices: clip space -> framebuffer sub-pixels (Vulkan viewport transform: (ndc * 0.5 + 0.5) * size).
+        uint vertexCount = cluster.levelVertices & 0xffffu;
+        for (uint v = gl_LocalInvocationIndex; v < vertexCount; v += TS_SW_RASTER_GROUP_SIZE) {
+            vec4 clip = frame.viewProjection * vec4(to_camera_relative(instance, translation, vertex_position(frame, cluster.vertexOffset + v)), 1.0);
+            vec3 ndc = clip.xyz / clip.w;
+            vec2 pixel = (ndc.xy * 0.5 + 0.5) * vec2(frame.viewport.xy);
+            screen[v] = ivec2(round(pixel * steps));
+            depth[v] = ndc.z;
+        }
+        barrier();
+
+        uint triangle = gl_LocalInvocationIndex;
+        if (triangle < cluster.triangleCount) {
+            bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
+            uint i0 = corner_vertex(frame, cluster, triangle, 0u, flip) - cluster.vertexOffset;
+            uint i1 = corner_vertex(frame, cluster, triangle, 1u, flip) - cluster.vertexOffset;
+            uint i2 = corner_vertex(frame, cluster, triangle, 2u, flip) - cluster.vertexOffset;
+            ivec2 a = screen[i0], b = screen[i1], c = screen[i2];
+            float za = depth[i0], zb = depth[i1], zc = depth[i2];
+            // Twice the signed area (64-bit: off-axis clusters can stretch past what 32 bits hold); negative is
+            // counter-clockwise on screen (y down), a front face.
+            int64_t area = int64_t(b.x - a.x) * int64_t(c.y - a.y) - int64_t(c.x - a.x) * int64_t(b.y - a.y);
+            bool front = area < 0l;
+            bool doubleSided = (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u;
+            if (area != 0l && (front || doubleSided)) {
+                if (!front) {  // the back of a double-sided triangle, turned to the same orientation
+                    ivec2 s = b; b = c; c = s;
+                    float z = zb; zb = zc; zc = z;
+                    area = -area;
+                }
+                int step = int(steps), center = step / 2;
+                ivec2 lo = max((min(a, min(b, c)) - center + step - 1) / step, ivec2(0));
+                ivec2 hi = min((max(a, max(b, c)) - center) / step, ivec2(frame.viewport.xy) - 1);
+                // Edge functions (the edge opposite each vertex), positive inside, stepped one pixel at a time.
+                ivec2 p = lo * step + center;  // the first pixel centre, in sub-pixels
+                i64vec3 row = i64vec3(int64_t(b.x - c.x) * int64_t(p.y - b.y) - int64_t(b.y - c.y) * int64_t(p.x - b.x),
+                                      int64_t(c.x - a.x) * int64_t(p.y - c.y) - int64_t(c.y - a.y) * int64_t(p.x - c.x),
+                                      int64_t(a.x - b.x) * int64_t(p.y - a.y) - int64_t(a.y - b.y) * int64_t(p.x - a.x));
+                i64vec3 stepX = -i64vec3(b.y - c.y, c.y - a.y, a.y - b.y) * int64_t(step);
+                i64vec3 stepY = i64vec3(b.x - c.x, c.x - a.x, a.x - b.x) * int64_t(step);
+                i64vec3 bias = i64vec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
+                float inverseArea = 1.0 / float(-area);
+                uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
+                for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
+                    i64vec3 w = row;
+                    for (int x = lo.x; x <= hi.x; ++x, w += stepX) {
+                        if (any(lessThan(w + bias, i64vec3(0)))) continue;
+                        float z = (float(w.x) * za + float(w.y) * zb + float(w.z) * zc) * inverseArea;
+                        if (z < 0.0 || z > 1.0) continue;  // beyond the far plane
+                        uint pixel = uint(y) * frame.viewport.x + uint(x);
+                        atomicMax(VisibilityRef(frame.visibility).data[pixel], (uint64_t(floatBitsToUint(z)) << 32) | payload);
+                    }
+                }
+            }
+        }
+        barrier();  // the next cluster reuses the shared vertices
+    }
+}
