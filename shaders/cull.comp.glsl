@@ -23,17 +23,17 @@ float projected_error(GpuFrame frame, GpuInstance instance, vec3 translation, fl
 }
 
 // Small triangles go to the compute rasterizer: the cluster must lie beyond the near plane (no clipping there),
-// project to a bounded radius, and its triangles' estimated mean area (half of them face away) must be below
-// the measured crossover.
-bool software_raster(GpuFrame frame, vec3 center, float radius, uint triangleCount) {
+// project to a bounded radius, and its triangles' mean area, projected at the cluster's nearest depth, must be
+// below the measured crossover.
+bool software_raster(GpuFrame frame, vec3 center, float radius, float scale, float meanTriangleArea) {
     if ((frame.counts.z & TS_FRAME_HARDWARE_ONLY) != 0u) return false;
     float nearest = depth_range(frame, center, radius).x;
     if (nearest <= frame.lod.w * 1.001) return false;  // touches the near plane: hardware clips
     float radiusPixels = radius * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest);
     if (radiusPixels > TS_SW_MAX_RADIUS_PIXELS) return false;
     if ((frame.counts.z & TS_FRAME_SOFTWARE_FIRST) != 0u) return true;
-    float meanArea = 3.14159 * radiusPixels * radiusPixels / max(float(triangleCount) * 0.5, 1.0);
-    return meanArea < frame.raster.x;
+    float pixelsPerUnit = scale * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest);
+    return meanTriangleArea * pixelsPerUnit * pixelsPerUnit < frame.raster.x;
 }
 
 void main() {
@@ -80,7 +80,7 @@ void main() {
             if (!sphere_in_frustum(frame, center, radius)) continue;
             // Count every visible cluster, store those that fit: the CPU sees the overflow, grows the list and redraws.
             uint slot = atomicAdd(draw.state.visibleClusters, 1u);
-            bool software = software_raster(frame, center, radius, cluster.triangleCount);
+            bool software = software_raster(frame, center, radius, scale, cluster.meanTriangleArea);
             if (software) atomicAdd(draw.state.swTriangles, cluster.triangleCount);
             else atomicAdd(draw.state.hwTriangles, cluster.triangleCount);
             if (slot < capacity) {

@@ -93,8 +93,10 @@ struct GpuCluster {
     uint meshIndex;
     uint levelVertices;  // DAG level (0 = source triangles) << 16 | cluster-local vertex count
     uint group;          // the group it was simplified with (its parent group), for visualization
+    float meanTriangleArea;  // mesh units squared: picks the rasterizer (small triangles go to the compute one)
+    uint pad0, pad1, pad2;
 };
-TS_CHECK_SIZE(GpuCluster, 80);
+TS_CHECK_SIZE(GpuCluster, 96);
 
 #define TS_ROOT_ERROR 3.0e38  // a root's parent error: never fine enough, so roots are drawn when nothing finer is
 
