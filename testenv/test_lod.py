@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from imagecompare import assert_matches_baseline
+from tessera.bench import psnr
 
 NO_HIT = 0xFFFFFFFF
 TEST_DIR = Path(__file__).parent / "testLod"
@@ -35,11 +36,6 @@ def _render(session, **settings):
     return result
 
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((np.clip(a[..., :3], 0, 1) - np.clip(b[..., :3], 0, 1)) ** 2))
-    return float("inf") if mse == 0 else 10 * np.log10(1.0 / mse)
-
-
 def test_zero_pixel_error_matches_the_full_detail_reference(session):
     reference = _render(session, aovs=("primId",), lod=False)
     cut = _render(session, aovs=("primId",), pixel_error=0.0)
@@ -54,7 +50,7 @@ def test_one_pixel_error_draws_far_fewer_triangles_for_nearly_the_same_image(ses
     assert cut.stats["visible_triangles"] * 4 < reference.stats["visible_triangles"], (cut.stats, reference.stats)
     same = np.mean(reference["primId"].ids() == cut["primId"].ids())
     assert same >= 0.99, f"only {same:.4%} of pixels show the same prim"
-    assert _psnr(reference["color"].pixels, cut["color"].pixels) >= 30.0
+    assert psnr(reference["color"].pixels, cut["color"].pixels) >= 30.0
 
 
 def test_larger_errors_draw_fewer_triangles(session):

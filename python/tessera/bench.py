@@ -196,7 +196,8 @@ def _stage(directory, n: int, field: bool) -> str:
     return str(path)
 
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """Peak signal-to-noise ratio in dB of two RGB(A) images clipped to [0, 1] (99 when identical)."""
     mse = float(np.mean((np.clip(a[..., :3], 0, 1) - np.clip(b[..., :3], 0, 1)) ** 2))
     return 99.0 if mse == 0 else round(10 * np.log10(1.0 / mse), 2)
 
@@ -229,7 +230,7 @@ def _row(table, label, result, wall, gpu, reference=None, **extra):
            "resolve_ms": round(gpu["resolve"], 1), "sw_triangles": s["sw_triangles"], "hw_triangles": s["hw_triangles"]}
     if reference is not None:
         color, ref_color = result["color"].pixels, reference["color"].pixels
-        row["psnr_db"] = _psnr(color, ref_color)
+        row["psnr_db"] = psnr(color, ref_color)
         row["pixels_off_percent"] = round(100 * float(np.mean(np.abs(color[..., :3] - ref_color[..., :3]).max(-1) > 0.05)), 3)
         row["same_prim_percent"] = round(100 * float(np.mean(result["primId"].ids() == reference["primId"].ids())), 3)
     row.update(extra)
