@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include "test_meshes.h"
+
 #include <cmath>
 #include <random>
 #include <set>
@@ -15,11 +17,7 @@ struct Quad {  // a unit quad in the XY plane, facing +Z when wound counter-cloc
     std::vector<int32_t> counts{4};
     std::vector<int32_t> indices{0, 1, 2, 3};
     MeshView view(const char* name = "/Quad") {
-        MeshView v;
-        v.name = name;
-        v.points = points;
-        v.faceVertexCounts = counts;
-        v.faceVertexIndices = indices;
+        MeshView v = polygon_view(name, points, counts, indices);
         return v;
     }
 };
@@ -133,11 +131,7 @@ struct Grid {
             }
     }
     MeshView view() {
-        MeshView v;
-        v.name = "/Grid";
-        v.points = points;
-        v.faceVertexCounts = counts;
-        v.faceVertexIndices = indices;
+        MeshView v = polygon_view("/Grid", points, counts, indices);
         return v;
     }
 };
@@ -208,11 +202,7 @@ TEST(Prepare, DuplicatePositionsWeldUnlessTheirValuesDiffer) {
     // Two quads side by side, authored with separate points along the shared edge (as exporters often do).
     std::vector<float> points{0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 1, 0, 0, 2, 0, 0, 2, 1, 0, 1, 1, 0};
     std::vector<int32_t> counts{4, 4}, indices{0, 1, 2, 3, 4, 5, 6, 7};
-    MeshView v;
-    v.name = "/Split";
-    v.points = points;
-    v.faceVertexCounts = counts;
-    v.faceVertexIndices = indices;
+    MeshView v = polygon_view("/Split", points, counts, indices);
     EXPECT_EQ(prepare_mesh(v).positions.size() / 3, 6u) << "exact duplicate positions weld";
     // Per-point normals that differ across the shared edge make it a hard edge: the weld must keep the seam.
     std::vector<float> normals{0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0};
@@ -231,11 +221,7 @@ MeshView cube_cage(std::vector<float>& points, std::vector<int32_t>& counts, std
     points = {-1, -1, 1, 1, -1, 1, -1, 1, 1, 1, 1, 1, -1, 1, -1, 1, 1, -1, -1, -1, -1, 1, -1, -1};
     counts = {4, 4, 4, 4, 4, 4};
     indices = {0, 1, 3, 2, 2, 3, 5, 4, 4, 5, 7, 6, 6, 7, 1, 0, 1, 7, 5, 3, 6, 0, 2, 4};
-    MeshView v;
-    v.name = "/Cage";
-    v.points = points;
-    v.faceVertexCounts = counts;
-    v.faceVertexIndices = indices;
+    MeshView v = polygon_view("/Cage", points, counts, indices);
     return v;
 }
 }  // namespace
@@ -279,11 +265,7 @@ TEST(Subdivision, BadFacesAreDroppedBeforeRefinement) {
     cube_cage(points, counts, indices);
     counts.push_back(3);
     indices.insert(indices.end(), {0, 1, 42});
-    MeshView v;
-    v.name = "/Cage";
-    v.points = points;
-    v.faceVertexCounts = counts;
-    v.faceVertexIndices = indices;
+    MeshView v = polygon_view("/Cage", points, counts, indices);
     v.subdivisionScheme = SubdivisionScheme::CatmullClark;
     v.refineLevel = 1;
     PreparedMesh m = prepare_mesh(v);

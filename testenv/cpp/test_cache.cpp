@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include "test_meshes.h"
+
 #include <filesystem>
 #include <fstream>
 #include <unistd.h>
@@ -25,11 +27,7 @@ struct Quads {
             }
     }
     MeshView view() const {
-        MeshView v;
-        v.name = "/Quads";
-        v.points = points;
-        v.faceVertexCounts = counts;
-        v.faceVertexIndices = indices;
+        MeshView v = polygon_view("/Quads", points, counts, indices);
         return v;
     }
 };

@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include "test_meshes.h"
+
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -22,11 +24,7 @@ struct Source {
     std::vector<int32_t> counts, indices;
     std::vector<float> colors;  // uniform (per face) when set
     BuiltMesh build() const {
-        MeshView v;
-        v.name = name;
-        v.points = points;
-        v.faceVertexCounts = counts;
-        v.faceVertexIndices = indices;
+        MeshView v = polygon_view(name, points, counts, indices);
         if (!colors.empty()) v.displayColor = {Interpolation::Uniform, 3, colors, {}};
         return build_mesh(prepare_mesh(v));
     }
@@ -322,11 +320,7 @@ TEST(Quantization, NeighbouringMeshesOfTheSamePrecisionShareBorderVerticesExactl
     settings.positionPrecision = -12;
     auto world = [](const BuiltMesh& m, size_t v, int k) { return m.origin[k] + double(m.positions[3 * v + k]); };
     auto build = [&](const Source& s) {
-        MeshView v;
-        v.name = s.name;
-        v.points = s.points;
-        v.faceVertexCounts = s.counts;
-        v.faceVertexIndices = s.indices;
+        MeshView v = polygon_view(s.name, s.points, s.counts, s.indices);
         return build_mesh(prepare_mesh(v), settings);
     };
     BuiltMesh a = build(left), b = build(right);

@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include "test_meshes.h"
+
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -26,11 +28,7 @@ BuiltMesh bumpy_grid(int n, bool colors) {
             indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
             colorValues.insert(colorValues.end(), {float((x / 8 + y / 8) % 2), 0.3f, 0.7f});
         }
-    MeshView v;
-    v.name = "/Grid";
-    v.points = points;
-    v.faceVertexCounts = counts;
-    v.faceVertexIndices = indices;
+    MeshView v = polygon_view("/Grid", points, counts, indices);
     if (colors) v.displayColor = {Interpolation::Uniform, 3, colorValues, {}};
     return build_mesh(prepare_mesh(v));
 }

@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include "test_meshes.h"
+
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -29,11 +31,7 @@ std::shared_ptr<BuiltMesh> grid_mesh(int n) {
             const int a = y * (n + 1) + x;
             indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
         }
-    MeshView v;
-    v.name = "/Grid";
-    v.points = points;
-    v.faceVertexCounts = counts;
-    v.faceVertexIndices = indices;
+    MeshView v = polygon_view("/Grid", points, counts, indices);
     return std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(v)));
 }
 
@@ -64,11 +62,7 @@ std::shared_ptr<BuiltMesh> bumpy_sphere(int rings) {
             indices.insert(indices.end(), {ring(r, s), ring(r + 1, s), ring(r + 1, s + 1), ring(r, s + 1)});
         }
     }
-    MeshView v;
-    v.name = "/BumpySphere";
-    v.points = points;
-    v.faceVertexCounts = counts;
-    v.faceVertexIndices = indices;
+    MeshView v = polygon_view("/BumpySphere", points, counts, indices);
     return std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(v)));
 }
 
@@ -105,6 +99,14 @@ size_t enclosed_background_pixels(const Image& ids) {
     return enclosed;
 }
 
+// A copy of a mesh where the mesh was modelled.
+InstanceDesc identity_instance(uint32_t mesh) {
+    InstanceDesc instance;
+    instance.mesh = mesh;
+    instance.transform = identity_matrix();
+    return instance;
+}
+
 CameraDesc camera_at(double x, double y, double z) {
     CameraDesc c;
     c.cameraToWorld = identity_matrix();
@@ -138,9 +140,7 @@ TEST_F(RendererTest, GridCoversTheExpectedPixels) {
     Renderer renderer(*device);
     GpuScene scene;
     const uint32_t mesh = scene.add_mesh(grid_mesh(64));
-    InstanceDesc instance;
-    instance.mesh = mesh;
-    instance.transform = identity_matrix();
+    InstanceDesc instance = identity_instance(mesh);
     instance.primId = 42;
     scene.set_instances({instance});
     scene.set_lights({{LightType::Dome, {0, 0, -1}, {1, 1, 1}}});
@@ -174,9 +174,7 @@ TEST_F(RendererTest, TheCutDrawsSourceTrianglesAtZeroErrorAndRootsAtInfiniteErro
     Renderer renderer(*device);
     GpuScene scene;
     std::shared_ptr<BuiltMesh> sphere = bumpy_sphere(96);  // 36k triangles
-    InstanceDesc instance;
-    instance.mesh = scene.add_mesh(sphere);
-    instance.transform = identity_matrix();
+    InstanceDesc instance = identity_instance(scene.add_mesh(sphere));
     scene.set_instances({instance});
     RenderSettings settings{128, 128, {0, 0, 0, 0}};
     uint32_t roots = 0, rootTriangles = 0;
@@ -213,9 +211,7 @@ TEST_F(RendererTest, MixedCutsLeaveNoHoles) {
     Renderer renderer(*device);
     GpuScene scene;
     std::shared_ptr<BuiltMesh> sphere = bumpy_sphere(160);  // 102k triangles
-    InstanceDesc instance;
-    instance.mesh = scene.add_mesh(sphere);
-    instance.transform = identity_matrix();
+    InstanceDesc instance = identity_instance(scene.add_mesh(sphere));
     scene.set_instances({instance});
     // The whole sphere in a 90-degree view from 0.6 above it: the rim is twice as far as the nearest point, so
     // each level boundary of the cut crosses the visible surface for some threshold of the sweep.
@@ -242,9 +238,7 @@ TEST_F(RendererTest, MixedCutsLeaveNoHoles) {
 TEST_F(RendererTest, SoftwareAndHardwareRasterCoverTheSamePixels) {
     Renderer renderer(*device);
     GpuScene scene;
-    InstanceDesc grid;
-    grid.mesh = scene.add_mesh(grid_mesh(16));
-    grid.transform = identity_matrix();
+    InstanceDesc grid = identity_instance(scene.add_mesh(grid_mesh(16)));
     scene.set_instances({grid});
     RenderSettings settings{64, 64, {0, 0, 0, 0}};
     settings.lod = false;
@@ -271,9 +265,7 @@ TEST_F(RendererTest, SoftwareAndHardwareRasterCoverTheSamePixels) {
         ortho.horizontalAperture = ortho.verticalAperture = 1.0;  // the grid fills the image: 4 pixels per cell
         compare(ortho, 1.0, shift == 0 ? "grid, diagonal edges through pixel centres" : "grid, axis edges through pixel centres");
     }
-    InstanceDesc sphere;
-    sphere.mesh = scene.add_mesh(bumpy_sphere(64));
-    sphere.transform = identity_matrix();
+    InstanceDesc sphere = identity_instance(scene.add_mesh(bumpy_sphere(64)));
     scene.set_instances({sphere});
     settings.width = settings.height = 160;
     for (double distance : {3.0, 8.0, 30.0})  // depth ties between the two paths' interpolated depths are rare
@@ -283,9 +275,7 @@ TEST_F(RendererTest, SoftwareAndHardwareRasterCoverTheSamePixels) {
 TEST_F(RendererTest, SingleSidedBackFacesAreCulledDoubleSidedAreNot) {
     Renderer renderer(*device);
     GpuScene scene;
-    InstanceDesc instance;
-    instance.mesh = scene.add_mesh(grid_mesh(4));
-    instance.transform = identity_matrix();
+    InstanceDesc instance = identity_instance(scene.add_mesh(grid_mesh(4)));
     scene.set_instances({instance});
     RenderSettings settings{32, 32, {0, 0, 0, 0}};
     CameraDesc behind = camera_at(0, 0, -2);
@@ -300,9 +290,7 @@ TEST_F(RendererTest, SingleSidedBackFacesAreCulledDoubleSidedAreNot) {
 TEST_F(RendererTest, OverflowGrowsTheListAndRedrawsTheExactImage) {
     Renderer renderer(*device);
     GpuScene scene;
-    InstanceDesc instance;
-    instance.mesh = scene.add_mesh(grid_mesh(64));
-    instance.transform = identity_matrix();
+    InstanceDesc instance = identity_instance(scene.add_mesh(grid_mesh(64)));
     scene.set_instances({instance});
     RenderSettings settings{64, 64, {0, 0, 0, 0}};
     settings.lod = false;  // 32 clusters to overflow a list of 1
@@ -323,9 +311,7 @@ TEST_F(RendererTest, FarFromOriginRendersLikeTheOrigin) {
     const uint32_t mesh = scene.add_mesh(grid_mesh(32));
     RenderSettings settings{96, 96, {0, 0, 0, 0}};
     auto render_at = [&](double offset) {
-        InstanceDesc instance;
-        instance.mesh = mesh;
-        instance.transform = identity_matrix();
+        InstanceDesc instance = identity_instance(mesh);
         instance.transform[3] = offset;
         instance.transform[7] = offset;
         scene.set_instances({instance});
