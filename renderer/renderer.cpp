@@ -561,8 +561,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const double pixelsPerUnit = cam.projectionScaleY * 0.5 * settings.height;
         f.lod = {float(pixelsPerUnit), std::max(settings.pixelError, 0.0f), camera.orthographic ? 1.0f : 0.0f, float(camera.nearClip)};
         f.raster = {settings.softwareRasterArea, float(1u << device_.sub_pixel_bits()), 0, 0};
-        const uint32_t rasterFlags = settings.raster == RasterMode::Hardware ? TS_FRAME_HARDWARE_ONLY
-                                   : settings.raster == RasterMode::Software ? TS_FRAME_SOFTWARE_FIRST : 0u;
+        // With the DAG off and no rasterizer forced, draw the classic way: every source triangle through hardware raster.
+        const bool hardwareOnly = settings.raster == RasterMode::Hardware || (settings.raster == RasterMode::Auto && !settings.lod);
+        const uint32_t rasterFlags = hardwareOnly ? TS_FRAME_HARDWARE_ONLY : settings.raster == RasterMode::Software ? TS_FRAME_SOFTWARE_FIRST : 0u;
         f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags, uint32_t(settings.visualize)};
         f.instances = s.instances.address;
         f.meshes = s.meshes.address;

@@ -53,7 +53,7 @@ def test_lod_options(tmp_path):
     done = run("render", CUBE, "-o", tmp_path / "a.png", "--resolution", "80x60", "--no-lod", "--vis", "clusters", "--stats", stats_file)
     assert done.returncode == 0, done.stderr
     stats = json.loads(stats_file.read_text())
-    assert stats["lod"] is False and stats["visible_triangles"] == 12
+    assert stats["lod"] is False and stats["visible_triangles"] == 12 and stats["hw_triangles"] == 12, "--no-lod: hardware raster only"
     assert tessera.read_image(str(tmp_path / "a.png"))[30, 40, :3].max() > 0.05
     done = run("render", CUBE, "-o", tmp_path / "b.png", "--pixel-error", "-2")
     assert done.returncode == 1 and "pixel error must be a number >= 0" in done.stderr

@@ -101,8 +101,6 @@ class Session:
             raise StageError(f"unknown visualization '{vis}' (choose from {', '.join(VISUALIZATIONS)})")
         if raster not in RASTER_MODES:
             raise StageError(f"unknown raster mode '{raster}' (choose from {', '.join(RASTER_MODES)})")
-        if not lod and raster == "auto":
-            raster = "hardware"  # the DAG off means the classic path: every source triangle through hardware raster
         if not (pixel_error >= 0.0):
             raise StageError(f"pixel error must be a number >= 0, not {pixel_error}")
         self.index.sync_all(self.scene)

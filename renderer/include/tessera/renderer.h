@@ -80,7 +80,8 @@ struct RenderSettings {
     // The DAG cut: a cluster is drawn when its simplification error projects to at most this many pixels (and its
     // parent's to more). 0 draws the source triangles wherever the builder's simplification lost anything.
     float pixelError = 1.0f;
-    bool lod = true;  // false: every source triangle (level 0) is drawn, the DAG off (the full-detail reference)
+    bool lod = true;  // false: every source triangle (level 0) is drawn, the DAG off (the full-detail reference);
+                      // with RasterMode::Auto they all go through hardware raster (the r.Nanite 0 baseline)
     Visualize visualize = Visualize::None;
     RasterMode raster = RasterMode::Auto;
     // Auto mode: clusters whose triangles are estimated to cover less than this many pixels each go to the compute
