@@ -98,10 +98,16 @@ nb::dict stats_dict(const FrameStats& s) {
     d["sw_clusters"] = s.swClusters;
     d["overflow_redraws"] = s.overflowRedraws;
     d["visible_cluster_capacity"] = s.visibleClusterCapacity;
+    d["occlusion_tested"] = s.occlusionTested;
+    d["occluded_instances"] = s.occludedInstances;
+    d["occluded_clusters"] = s.occludedClusters;
+    d["post_pass_clusters"] = s.postPassClusters;
+    d["backface_clusters"] = s.backfaceClusters;
     nb::dict gpuMs;
     gpuMs["cull"] = s.cullMs;
     gpuMs["sw_raster"] = s.softwareRasterMs;
     gpuMs["hw_raster"] = s.rasterMs;
+    gpuMs["hzb"] = s.hzbMs;
     gpuMs["resolve"] = s.resolveMs;
     d["gpu_ms"] = gpuMs;
     return d;
@@ -271,10 +277,11 @@ NB_MODULE(_tessera, m) {
             "execute",
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
                const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
-               const std::string& visualize, const std::string& raster) {
+               const std::string& visualize, const std::string& raster, bool occlusion) {
                 RenderPassSettings settings;
                 settings.render.pixelError = pixelError;
                 settings.render.lod = lod;
+                settings.render.occlusion = occlusion;
                 settings.render.visualize = visualize_from(visualize);
                 if (raster == "auto") settings.render.raster = RasterMode::Auto;
                 else if (raster == "hardware") settings.render.raster = RasterMode::Hardware;
@@ -292,7 +299,7 @@ NB_MODULE(_tessera, m) {
                 return std::make_pair(images, stats_dict(stats));
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
-            "visualize"_a = "none", "raster"_a = "auto")
+            "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true)
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
         .def_prop_ro("rprim_count", &RenderIndex::rprim_count)

@@ -1,10 +1,14 @@
 // A frame: upload what changed, cull instances and clusters, raster visible clusters into the 64-bit
 // visibility buffer, resolve each requested AOV, read back. The visible-cluster list is fixed-size: when the
 // cull pass counts more clusters than fit, the list grows and the frame is drawn again.
+// Two-pass occlusion culling: the main pass draws what the previous frame's HZB does not hide; an HZB of that is
+// built; the post pass tests what the main pass deferred against it and draws the rest; a last HZB of the whole
+// frame is kept for the next frame.
 #include "tessera/renderer.h"
 
 #include "shared.h"
 #include "spirv/cull_comp.h"
+#include "spirv/hzb_comp.h"
 #include "spirv/raster_frag.h"
 #include "spirv/raster_sw_comp.h"
 #include "spirv/raster_vert.h"
@@ -58,8 +62,27 @@ namespace {
 struct PushConstants {  // matches `Push` in shaders/frame.h
     gpu::address frame;
     uint32_t aov;
-    uint32_t pad;
+    uint32_t step;       // cull step (TS_CULL_*) or HZB level
+    gpu::address hzb;    // the HZB the step tests against or builds
 };
+
+// HZB level sizes (shaders/frame.h hzb_level_size): level l has a texel per 2^(l+1) pixels, down to 1x1.
+std::vector<std::array<uint32_t, 2>> hzb_levels(uint32_t width, uint32_t height) {
+    std::vector<std::array<uint32_t, 2>> levels;
+    for (uint32_t tile = 2;; tile *= 2) {
+        levels.push_back({(width + tile - 1) / tile, (height + tile - 1) / tile});
+        if (levels.back()[0] == 1 && levels.back()[1] == 1) break;
+    }
+    return levels;
+}
+
+Matrix4d translation_matrix(double x, double y, double z) {
+    Matrix4d m = identity_matrix();
+    m[3] = x;
+    m[7] = y;
+    m[11] = z;
+    return m;
+}
 
 using Matrix3d = std::array<double, 9>;
 
@@ -139,6 +162,23 @@ float mean_triangle_area(const BuiltMesh& mesh, const Cluster& c) {
         sum += 0.5 * std::sqrt(cx * cx + cy * cy + cz * cz);
     }
     return float(sum / std::max(c.triangleCount, 1u));
+}
+
+uint32_t pack_cone(const NormalCone& cone) {
+    return uint32_t(uint8_t(cone.axis8[0])) | uint32_t(uint8_t(cone.axis8[1])) << 8 | uint32_t(uint8_t(cone.axis8[2])) << 16 |
+           uint32_t(uint8_t(cone.cutoff8)) << 24;
+}
+
+// True when the matrix keeps angles (a rotation times a uniform scale, possibly mirrored): its columns are
+// orthogonal and of equal length.
+bool conformal(const Matrix3d& m) {
+    double c[3][3];
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) c[i][j] = m[0 + i] * m[0 + j] + m[3 + i] * m[3 + j] + m[6 + i] * m[6 + j];
+    const double scale = (c[0][0] + c[1][1] + c[2][2]) / 3;
+    const double tolerance = 1e-5 * scale;
+    return scale > 0 && std::abs(c[0][1]) < tolerance && std::abs(c[0][2]) < tolerance && std::abs(c[1][2]) < tolerance &&
+           std::abs(c[0][0] - scale) < tolerance && std::abs(c[1][1] - scale) < tolerance && std::abs(c[2][2] - scale) < tolerance;
 }
 
 struct CameraMatrices {
@@ -243,11 +283,13 @@ void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
 struct Renderer::Impl {
     Device& device;
     VkPipelineLayout layout = VK_NULL_HANDLE;
-    VkPipeline cull = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, rasterSoftware = VK_NULL_HANDLE, resolve = VK_NULL_HANDLE;
+    VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, rasterSoftware = VK_NULL_HANDLE, resolve = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
-    static constexpr uint32_t kTimestamps = 5;  // start, cull, software raster, hardware raster, resolve
+    // start; main pass: cull, software raster, hardware raster; HZB; post pass: cull, software, hardware raster;
+    // the frame's HZB; resolve.
+    static constexpr uint32_t kTimestamps = 10;
     Buffer hardwareList, softwareList;
     Buffer instances, meshes, levels, clusters, positions, normals, colors, triangles, materials;
     uint32_t instanceCount = 0, clusterCount = 0;
@@ -259,6 +301,13 @@ struct Renderer::Impl {
     uint64_t geometryVersion = 0, instancesVersion = 0, materialsVersion = 0;
     // Frame resources.
     Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
+    Buffer deferredInstances, deferredClusters;
+    // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
+    // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
+    Buffer hzbPrevious, hzbCurrent;
+    bool previousValid = false;
+    Matrix4d previousViewProjection{};
+    std::array<double, 3> previousCamera{};
     uint32_t capacity = 1u << 16;
     bool capacityPinned = false;  // set explicitly (tests): never sized from the scene
     uint32_t width = 0, height = 0;
@@ -269,6 +318,7 @@ struct Renderer::Impl {
         VkDevice vk = device.handle();
         vkDeviceWaitIdle(vk);
         vkDestroyPipeline(vk, cull, nullptr);
+        vkDestroyPipeline(vk, hzb, nullptr);
         vkDestroyPipeline(vk, raster, nullptr);
         vkDestroyPipeline(vk, rasterSoftware, nullptr);
         vkDestroyPipeline(vk, resolve, nullptr);
@@ -296,6 +346,7 @@ struct Renderer::Impl {
         check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
         cull = compute_pipeline(cull_comp, sizeof(cull_comp));
         resolve = compute_pipeline(resolve_comp, sizeof(resolve_comp));
+        hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
         rasterSoftware = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp));
 
         // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
@@ -391,7 +442,7 @@ struct Renderer::Impl {
                                        {c.parentSphere[0], c.parentSphere[1], c.parentSphere[2], c.parentSphere[3]},
                                        c.lodError, root ? float(TS_ROOT_ERROR) : c.parentError,
                                        vertexBase + c.vertexOffset, triangleBase + c.triangleOffset, c.triangleCount, uint32_t(m),
-                                       c.level << 16 | c.vertexCount, c.parentGroup, mean_triangle_area(*mesh, c), 0, 0, 0});
+                                       c.level << 16 | c.vertexCount, c.parentGroup, mean_triangle_area(*mesh, c), pack_cone(cluster_normal_cone(*mesh, c)), 0, 0});
             }
             g.levelCount = uint32_t(gpuLevels.size()) - g.levelOffset;
             g.lodRadius = float(lodRadius * (1 + 1e-6));
@@ -431,13 +482,15 @@ struct Renderer::Impl {
             g.meshIndex = desc.mesh;
             g.primId = desc.primId;
             g.materialIndex = std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
-            g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u);
+            g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u) |
+                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u);
             gpuInstances.push_back(g);
             clusterCount += mesh->leafClusters;
             sourceTriangles += mesh->sourceTriangles;
         }
         instanceCount = uint32_t(gpuInstances.size());
         relativeTo = {NAN, NAN, NAN};
+        previousValid = false;  // instances may have moved: last frame's depths say nothing about them
         // Every cluster of every instance is an upper bound on the visible ones: start there (8 bytes each, within
         // reason) so that a frame rarely pays for an overflow redraw.
         if (!capacityPinned) capacity = std::clamp<uint32_t>(clusterCount, capacity, 1u << 22);
@@ -478,16 +531,46 @@ struct Renderer::Impl {
             visibleClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
             hardwareList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
             softwareList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
+            deferredClusters = Buffer{};  // sized with the visible list, made on first use
         }
         const uint64_t pixels = uint64_t(w) * h;
         if (w != width || h != height || !visibility.handle) {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
             aovOutput = device.create_buffer(pixels * 16, MemoryUse::Device);
+            hzbPrevious = Buffer{};
+            hzbCurrent = Buffer{};
+            previousValid = false;
             width = w;
             height = h;
         }
         const uint64_t readbackBytes = sizeof(gpu::GpuDrawState) + aovCount * pixels * 16;
         if (readback.size < readbackBytes) readback = device.create_buffer(readbackBytes, MemoryUse::Readback);
+    }
+
+    // Occlusion culling's buffers, allocated only when a frame uses it.
+    void ensure_occlusion_buffers() {
+        if (!hzbPrevious.handle) {
+            uint64_t texels = 0;
+            for (const auto& level : hzb_levels(width, height)) texels += uint64_t(level[0]) * level[1];
+            hzbPrevious = device.create_buffer(texels * 4, MemoryUse::Device);
+            hzbCurrent = device.create_buffer(texels * 4, MemoryUse::Device);
+        }
+        if (!deferredClusters.handle) deferredClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
+        if (deferredInstances.size < uint64_t(std::max(instanceCount, 1u)) * 4)
+            deferredInstances = device.create_buffer(uint64_t(std::max(instanceCount, 1u)) * 4, MemoryUse::Device);
+    }
+
+    // Builds every HZB level from the visibility buffer into `target`, one dispatch per level.
+    void build_hzb(VkCommandBuffer cmd, const Buffer& target) {
+        vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, hzb);
+        const auto levels = hzb_levels(width, height);
+        for (uint32_t l = 0; l < levels.size(); ++l) {
+            PushConstants push{frame.address, 0, l, target.address};
+            vkCmdPushConstants(cmd, layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+            vkCmdDispatch(cmd, (levels[l][0] + TS_HZB_TILE - 1) / TS_HZB_TILE, (levels[l][1] + TS_HZB_TILE - 1) / TS_HZB_TILE, 1);
+            barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                    VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+        }
     }
 };
 
@@ -564,7 +647,20 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         // With the DAG off and no rasterizer forced, draw the classic way: every source triangle through hardware raster.
         const bool hardwareOnly = settings.raster == RasterMode::Hardware || (settings.raster == RasterMode::Auto && !settings.lod);
         const uint32_t rasterFlags = hardwareOnly ? TS_FRAME_HARDWARE_ONLY : settings.raster == RasterMode::Software ? TS_FRAME_SOFTWARE_FIRST : 0u;
-        f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags, uint32_t(settings.visualize)};
+        // The post pass only has work when the main pass could defer something: with a previous frame to ask.
+        const bool occlusion = settings.occlusion && settings.lod;  // --no-lod: every source triangle, the classic way
+        const bool postPass = occlusion && s.previousValid;
+        if (occlusion) s.ensure_occlusion_buffers();
+        f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags | (postPass ? TS_FRAME_PREVIOUS_HZB : 0u) |
+                        (occlusion ? TS_FRAME_OCCLUSION : 0u),
+                    uint32_t(settings.visualize)};
+        if (postPass) {
+            // The previous camera saw positions relative to itself: shift this frame's camera-relative positions back.
+            const Matrix4d shift = translation_matrix(cam.position[0] - s.previousCamera[0], cam.position[1] - s.previousCamera[1],
+                                                      cam.position[2] - s.previousCamera[2]);
+            f.previousViewProjection = to_gpu(multiply(s.previousViewProjection, shift));
+        }
+        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, 0, 0, 0};
         f.instances = s.instances.address;
         f.meshes = s.meshes.address;
         f.levels = s.levels.address;
@@ -580,63 +676,101 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.drawState = s.drawState.address;
         f.visibility = s.visibility.address;
         f.aovOutput = s.aovOutput.address;
+        f.deferredInstances = occlusion ? s.deferredInstances.address : 0;
+        f.deferredClusters = occlusion ? s.deferredClusters.address : 0;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
             vkCmdResetQueryPool(cmd, s.timestamps, 0, Impl::kTimestamps);
-            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_NONE, s.timestamps, 0);
+            // Every mark waits for all the work before it. Lavapipe defers draws, so its figures per pass are rough;
+            // their sum is right.
+            uint32_t timestamp = 0;
+            auto mark = [&]() { vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, timestamp++); };
+            mark();
             gpu::GpuDrawState initial{};
             initial.vertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
             initial.swGroupsY = initial.swGroupsZ = 1;
+            initial.postGroupsY = initial.postGroupsZ = 1;
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
             barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
                     VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
                     VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
 
-            PushConstants push{s.frame.address, 0, 0};
+            // Both rasterizers draw the clusters the cull step before them listed: small triangles through the compute
+            // rasterizer (one workgroup per cluster, indirect), the rest through hardware raster (one draw instance each).
+            auto rasterize = [&]() {
+                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                        VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
+                            VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                        VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.rasterSoftware);
+                vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX));
+                mark();
+                // Both rasterizers only do atomic max into the visibility buffer, which commutes; the barrier keeps the
+                // synchronization validation layer (rightly strict about unordered writes) quiet and costs little.
+                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
+                        VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                VkRenderingInfo rendering{VK_STRUCTURE_TYPE_RENDERING_INFO};
+                rendering.renderArea = {{0, 0}, {settings.width, settings.height}};
+                rendering.layerCount = 1;
+                vkCmdBeginRendering(cmd, &rendering);
+                VkViewport viewport{0, 0, float(settings.width), float(settings.height), 0, 1};
+                VkRect2D scissor{{0, 0}, {settings.width, settings.height}};
+                vkCmdSetViewport(cmd, 0, 1, &viewport);
+                vkCmdSetScissor(cmd, 0, 1, &scissor);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.raster);
+                vkCmdDrawIndirect(cmd, s.drawState.handle, 0, 1, sizeof(VkDrawIndirectCommand));
+                vkCmdEndRendering(cmd);
+                mark();
+                barrier(cmd, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
+                        VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT,
+                        VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_TRANSFER_BIT,
+                        VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_TRANSFER_WRITE_BIT);
+            };
+
+            // Main pass.
+            PushConstants push{s.frame.address, 0, TS_CULL_MAIN, s.hzbPrevious.address};
             vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
             vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
             if (s.instanceCount) {
                 const uint32_t groupsX = std::min(s.instanceCount, 65535u);
                 vkCmdDispatch(cmd, groupsX, (s.instanceCount + groupsX - 1) / groupsX, 1);
             }
-            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, s.timestamps, 1);
-            barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                    VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
-                        VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-                    VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+            mark();
+            rasterize();
 
-            // Small triangles: the compute rasterizer, one workgroup per cluster (indirect: the cull pass counted them).
-            vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.rasterSoftware);
-            vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX));
-            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, s.timestamps, 2);
-            // Both rasterizers only do atomic max into the visibility buffer, which commutes; the barrier keeps the
-            // synchronization validation layer (rightly strict about unordered writes) quiet and costs little.
-            barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
-                    VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-
-            VkRenderingInfo rendering{VK_STRUCTURE_TYPE_RENDERING_INFO};
-            rendering.renderArea = {{0, 0}, {settings.width, settings.height}};
-            rendering.layerCount = 1;
-            vkCmdBeginRendering(cmd, &rendering);
-            VkViewport viewport{0, 0, float(settings.width), float(settings.height), 0, 1};
-            VkRect2D scissor{{0, 0}, {settings.width, settings.height}};
-            vkCmdSetViewport(cmd, 0, 1, &viewport);
-            vkCmdSetScissor(cmd, 0, 1, &scissor);
-            vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.raster);
-            vkCmdDrawIndirect(cmd, s.drawState.handle, 0, 1, sizeof(VkDrawIndirectCommand));
-            vkCmdEndRendering(cmd);
-            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_GRAPHICS_BIT, s.timestamps, 3);
-            barrier(cmd, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                    VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT);
+            // Post pass: an HZB of what the main pass drew, then what it deferred, tested against that.
+            if (postPass) {
+                // The rasterizers' arguments start again at zero (the visible list and the counters go on).
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, instanceCount), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swClusters), 4, 0);
+                s.build_hzb(cmd, s.hzbCurrent);
+                barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                        VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                mark();
+                PushConstants post{s.frame.address, 0, TS_CULL_POST, s.hzbCurrent.address};
+                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(post), &post);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
+                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
+                        VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+                vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postGroupsX));
+                mark();
+                rasterize();
+            } else {
+                for (int i = 0; i < 4; ++i) mark();
+            }
+            // The whole frame's HZB, for the next frame's main pass.
+            if (occlusion) s.build_hzb(cmd, s.hzbPrevious);
+            mark();
 
             vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.resolve);
             for (size_t i = 0; i < aovs.size(); ++i) {
                 if (i > 0)  // the previous copy must finish reading before the next resolve overwrites
                     barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                PushConstants resolvePush{s.frame.address, uint32_t(aovs[i]), 0};
+                PushConstants resolvePush{s.frame.address, uint32_t(aovs[i]), 0, 0};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(resolvePush), &resolvePush);
                 vkCmdDispatch(cmd, (settings.width + TS_RESOLVE_TILE - 1) / TS_RESOLVE_TILE, (settings.height + TS_RESOLVE_TILE - 1) / TS_RESOLVE_TILE, 1);
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
@@ -644,21 +778,26 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 VkBufferCopy region{0, sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
                 vkCmdCopyBuffer(cmd, s.aovOutput.handle, s.readback.handle, 1, &region);
             }
-            vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, 4);
+            mark();
             barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
                     VK_ACCESS_2_TRANSFER_READ_BIT);
             VkBufferCopy stateRegion{0, 0, sizeof(gpu::GpuDrawState)};
             vkCmdCopyBuffer(cmd, s.drawState.handle, s.readback.handle, 1, &stateRegion);
             barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_READ_BIT);
         });
+        // The HZB just built is of this camera (an overflowing frame's HZB lacks some geometry: farther, still safe).
+        s.previousValid = occlusion;
+        s.previousViewProjection = cam.viewProjection;
+        s.previousCamera = cam.position;
 
         gpu::GpuDrawState state;
         std::memcpy(&state, s.readback.mapped, sizeof(state));
-        if (state.visibleClusters > s.capacity) {
-            if (state.visibleClusters > TS_VIS_MAX_VISIBLE_CLUSTERS)
+        const uint32_t needed = std::max(state.visibleClusters, state.deferredClusters);
+        if (needed > s.capacity) {
+            if (needed > TS_VIS_MAX_VISIBLE_CLUSTERS)
                 throw std::runtime_error("more than 2^25 visible clusters in one frame: the visibility buffer cannot address them");
             ++frameStats.overflowRedraws;
-            s.capacity = std::min<uint32_t>(TS_VIS_MAX_VISIBLE_CLUSTERS, std::max(s.capacity * 2, state.visibleClusters + state.visibleClusters / 4));
+            s.capacity = std::min<uint32_t>(TS_VIS_MAX_VISIBLE_CLUSTERS, std::max(s.capacity * 2, needed + needed / 4));
             continue;
         }
         frameStats.visibleInstances = state.visibleInstances;
@@ -666,16 +805,23 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.swTriangles = state.swTriangles;
         frameStats.hwTriangles = state.hwTriangles;
         frameStats.visibleTriangles = uint64_t(state.swTriangles) + state.hwTriangles;
-        frameStats.swClusters = state.swClusters;
+        frameStats.swClusters = state.swClustersDrawn;
         frameStats.candidateClusters = state.candidateClusters;
         frameStats.visibleClusterCapacity = s.capacity;
+        frameStats.occlusionTested = postPass;
+        frameStats.occludedInstances = state.occludedInstances;
+        frameStats.occludedClusters = state.occludedClusters;
+        frameStats.postPassClusters = state.postClusters;
+        frameStats.backfaceClusters = state.backfaceClusters;
         uint64_t ticks[Impl::kTimestamps] = {};
         if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, Impl::kTimestamps, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
             const double ms = device_.timestamp_period_ns() * 1e-6;
-            frameStats.cullMs = double(ticks[1] - ticks[0]) * ms;
-            frameStats.softwareRasterMs = double(ticks[2] - ticks[1]) * ms;
-            frameStats.rasterMs = double(ticks[3] - ticks[2]) * ms;
-            frameStats.resolveMs = double(ticks[4] - ticks[3]) * ms;
+            auto span = [&](int from, int to) { return double(ticks[to] - ticks[from]) * ms; };
+            frameStats.cullMs = span(0, 1) + span(4, 5);
+            frameStats.softwareRasterMs = span(1, 2) + span(5, 6);
+            frameStats.rasterMs = span(2, 3) + span(6, 7);
+            frameStats.hzbMs = span(3, 4) + span(7, 8);
+            frameStats.resolveMs = span(8, 9);
         }
         break;
     }

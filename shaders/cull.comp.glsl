@@ -1,7 +1,11 @@
-// Instance culling and the DAG cut: one workgroup per instance. A visible instance tests the clusters of
-// the DAG levels its distance allows; a cluster is drawn iff its own error, projected to the screen, is
-// within the threshold while its parent's is not, and its bounds touch the frustum. Survivors are appended
-// to the visible-cluster list that the raster pass draws.
+// Instance culling and the DAG cut, in two passes (push.step).
+// Main pass, one workgroup per instance: a visible instance tests the clusters of the DAG levels its distance
+// allows; a cluster is drawn iff its own error, projected to the screen, is within the threshold while its
+// parent's is not, and its bounds touch the frustum. With two-pass occlusion, instances and clusters that the
+// previous frame's HZB hides are deferred instead of drawn. Survivors are appended to the visible-cluster list.
+// Post pass: the deferred instances and clusters are tested against an HZB of what the main pass drew; those it
+// does not hide are drawn. Nothing is lost: whatever the main pass leaves out, the post pass tests against
+// geometry that really is in front of it this frame.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
@@ -36,18 +40,100 @@ bool software_raster(GpuFrame frame, vec3 center, float radius, float scale, flo
     return meanTriangleArea * pixelsPerUnit * pixelsPerUnit < frame.raster.x;
 }
 
-void main() {
-    GpuFrame frame = push.frame.f;
-    uint instanceIndex = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
-    if (instanceIndex >= frame.counts.x) return;
+// True when the sphere is certainly hidden: its nearest depth lies behind the farthest depth the HZB holds over
+// its whole screen footprint (the box of its bounding cube's corners, read at the finest HZB level where that box
+// spans at most 4x4 texels: a coarser level would reach far past the box and find background). A sphere that
+// reaches the camera plane is never hidden.
+bool sphere_occluded(GpuFrame frame, mat4 viewProjection, vec3 center, float radius) {
+    vec2 lo = vec2(3.4e38), hi = vec2(-3.4e38);
+    float nearestDepth = 0.0;  // reversed Z: larger is nearer
+    for (int i = 0; i < 8; ++i) {
+        vec3 corner = center + radius * vec3((i & 1) != 0 ? 1.0 : -1.0, (i & 2) != 0 ? 1.0 : -1.0, (i & 4) != 0 ? 1.0 : -1.0);
+        vec4 clip = viewProjection * vec4(corner, 1.0);
+        if (clip.w <= 0.0) return false;
+        vec3 ndc = clip.xyz / clip.w;
+        lo = min(lo, ndc.xy);
+        hi = max(hi, ndc.xy);
+        nearestDepth = max(nearestDepth, ndc.z);
+    }
+    if (nearestDepth >= 1.0) return false;  // reaches the near plane
+    vec2 size = vec2(frame.viewport.xy);
+    vec2 pixelLo = clamp((lo * 0.5 + 0.5) * size, vec2(0.0), size - 1.0);
+    vec2 pixelHi = clamp((hi * 0.5 + 0.5) * size, vec2(0.0), size - 1.0);
+    float extent = max(pixelHi.x - pixelLo.x, pixelHi.y - pixelLo.y);
+    // A texel of level l spans 2^(l+1) pixels; at least a third of the extent keeps the box within 4 texels.
+    uint level = min(uint(max(ceil(log2(max(extent / 3.0, 1.0))) - 1.0, 0.0)), frame.hzb.x - 1u);
+    uvec2 levelSize = hzb_level_size(frame, level);
+    uint offset = hzb_level_offset(frame, level);
+    uvec2 t0 = min(uvec2(pixelLo) >> (level + 1u), levelSize - 1u);
+    uvec2 t1 = min(uvec2(pixelHi) >> (level + 1u), levelSize - 1u);
+    float farthest = 3.4e38;
+    for (uint y = t0.y; y <= t1.y; ++y)
+        for (uint x = t0.x; x <= t1.x; ++x) farthest = min(farthest, push.hzb.data[offset + y * levelSize.x + x]);
+    // The margin covers rounding between this bound and the rasterizers' interpolated depths.
+    return nearestDepth * 1.00001 < farthest;
+}
 
+// The test of this step: the main pass asks the previous frame's HZB (seen from the previous camera), the post
+// pass this frame's. False when the main pass has no previous HZB.
+bool hidden(GpuFrame frame, uint step, vec3 center, float radius) {
+    if (step == TS_CULL_MAIN) {
+        if ((frame.counts.z & TS_FRAME_PREVIOUS_HZB) == 0u) return false;
+        return sphere_occluded(frame, frame.previousViewProjection, center, radius);
+    }
+    return sphere_occluded(frame, frame.viewProjection, center, radius);
+}
+
+// True when every triangle of the cluster faces away from the camera (camera-relative centre and radius): the
+// meshoptimizer cone test, widened by the bounding sphere so that it holds for a viewer anywhere near the cluster.
+bool facing_away(GpuFrame frame, GpuInstance instance, GpuCluster cluster, vec3 center, float radius) {
+    if ((frame.counts.z & TS_FRAME_OCCLUSION) == 0u || (frame.counts.z & TS_FRAME_NO_LOD) != 0u) return false;
+    if ((instance.flags & (TS_INSTANCE_DOUBLE_SIDED | TS_INSTANCE_CONFORMAL)) != TS_INSTANCE_CONFORMAL) return false;
+    vec4 cone = unpackSnorm4x8(cluster.normalCone);
+    if (cone.w >= 1.0) return false;  // the normals spread too wide
+    vec3 axis = normalize(vec3(dot(instance.rows[0].xyz, cone.xyz), dot(instance.rows[1].xyz, cone.xyz), dot(instance.rows[2].xyz, cone.xyz)));
+    if (frame.lod.z != 0.0) return dot(frame.cameraForward.xyz, axis) >= cone.w;  // orthographic: one view direction
+    return dot(center, axis) >= cone.w * length(center) + radius;
+}
+
+// Appends a cluster to the visible list and to its rasterizer's list. Every visible cluster is counted and those
+// that fit are stored: the CPU sees an overflow, grows the list and redraws.
+void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterIndex, GpuCluster cluster, vec3 center, float radius, float scale) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint slot = atomicAdd(draw.state.visibleClusters, 1u);
+    if (step == TS_CULL_POST) atomicAdd(draw.state.postClusters, 1u);
+    bool software = software_raster(frame, center, radius, scale, cluster.meanTriangleArea);
+    if (software) atomicAdd(draw.state.swTriangles, cluster.triangleCount);
+    else atomicAdd(draw.state.hwTriangles, cluster.triangleCount);
+    if (slot >= frame.counts.y) return;
+    VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex | (software ? TS_VISIBLE_SOFTWARE : 0u), clusterIndex);
+    if (software) {
+        uint k = atomicAdd(draw.state.swClusters, 1u);
+        atomicAdd(draw.state.swClustersDrawn, 1u);
+        SlotListRef(frame.softwareList).data[k] = slot;
+        atomicMax(draw.state.swGroupsX, min(k + 1u, 65535u));
+    } else {
+        uint k = atomicAdd(draw.state.instanceCount, 1u);
+        SlotListRef(frame.hardwareList).data[k] = slot;
+    }
+}
+
+// Leaves a cluster to the post pass (enough post workgroups are requested for its thread to exist).
+void defer_cluster(GpuFrame frame, uint instanceIndex, uint clusterIndex) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint k = atomicAdd(draw.state.deferredClusters, 1u);
+    if (k >= frame.counts.y) return;
+    VisibleClusterRef(frame.deferredClusters).data[k] = uvec2(instanceIndex, clusterIndex);
+    atomicMax(draw.state.postGroupsX, min(k / TS_CULL_GROUP_SIZE + 1u, 65535u));
+}
+
+// The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup.
+void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
     vec3 meshCenter = to_camera_relative(instance, translation, mesh.sphere.xyz);
-    float meshRadius = mesh.sphere.w * scale;
-    if (!sphere_in_frustum(frame, meshCenter, meshRadius)) return;
 
     DrawStateRef draw = DrawStateRef(frame.drawState);
     if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.visibleInstances, 1u);
@@ -59,7 +145,6 @@ void main() {
     vec2 depths = depth_range(frame, meshCenter, mesh.lodRadius * scale);
     float nearScale = frame.lod.z != 0.0 ? frame.lod.x : (depths.x > 0.0 ? frame.lod.x / depths.x : NEVER_FINE_ENOUGH);
     float farScale = frame.lod.z != 0.0 ? frame.lod.x : (depths.y > 0.0 ? frame.lod.x / depths.y : NEVER_FINE_ENOUGH);
-    uint capacity = frame.counts.y;
     uint levelCount = lod ? mesh.levelCount : 1u;
     for (uint l = 0u; l < levelCount; ++l) {
         GpuLevel level = LevelRef(frame.levels).data[mesh.levelOffset + l];
@@ -78,22 +163,71 @@ void main() {
             vec3 center = to_camera_relative(instance, translation, cluster.sphere.xyz);
             float radius = cluster.sphere.w * scale;
             if (!sphere_in_frustum(frame, center, radius)) continue;
-            // Count every visible cluster, store those that fit: the CPU sees the overflow, grows the list and redraws.
-            uint slot = atomicAdd(draw.state.visibleClusters, 1u);
-            bool software = software_raster(frame, center, radius, scale, cluster.meanTriangleArea);
-            if (software) atomicAdd(draw.state.swTriangles, cluster.triangleCount);
-            else atomicAdd(draw.state.hwTriangles, cluster.triangleCount);
-            if (slot < capacity) {
-                VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex | (software ? TS_VISIBLE_SOFTWARE : 0u), clusterIndex);
-                if (software) {
-                    uint k = atomicAdd(draw.state.swClusters, 1u);
-                    SlotListRef(frame.softwareList).data[k] = slot;
-                    atomicMax(draw.state.swGroupsX, min(k + 1u, 65535u));
-                } else {
-                    uint k = atomicAdd(draw.state.instanceCount, 1u);
-                    SlotListRef(frame.hardwareList).data[k] = slot;
-                }
+            if (facing_away(frame, instance, cluster, center, radius)) {
+                atomicAdd(draw.state.backfaceClusters, 1u);
+                continue;
             }
+            if (hidden(frame, step, center, radius)) {
+                if (step == TS_CULL_MAIN) defer_cluster(frame, instanceIndex, clusterIndex);
+                else atomicAdd(draw.state.occludedClusters, 1u);
+                continue;
+            }
+            draw_cluster(frame, step, instanceIndex, clusterIndex, cluster, center, radius, scale);
         }
     }
+}
+
+vec4 instance_sphere(GpuFrame frame, uint instanceIndex) {
+    GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
+    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    return vec4(to_camera_relative(instance, camera_relative_translation(instance), mesh.sphere.xyz), mesh.sphere.w * instance_scale(instance));
+}
+
+void main_pass(GpuFrame frame) {
+    uint instanceIndex = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    if (instanceIndex >= frame.counts.x) return;
+    vec4 sphere = instance_sphere(frame, instanceIndex);
+    if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
+    if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {
+        if (gl_LocalInvocationIndex == 0) {
+            DrawStateRef draw = DrawStateRef(frame.drawState);
+            uint k = atomicAdd(draw.state.deferredInstances, 1u);
+            UintRef(frame.deferredInstances).data[k] = instanceIndex;  // one slot per instance: never overflows
+            atomicMax(draw.state.postGroupsX, min(k + 1u, 65535u));
+        }
+        return;
+    }
+    cut_instance(frame, TS_CULL_MAIN, instanceIndex);
+}
+
+// Workgroups take the deferred instances in turn; every thread takes deferred clusters in turn.
+void post_pass(GpuFrame frame) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint instances = draw.state.deferredInstances;
+    for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) {
+        uint instanceIndex = UintRef(frame.deferredInstances).data[i];
+        vec4 sphere = instance_sphere(frame, instanceIndex);
+        if (hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {
+            if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.occludedInstances, 1u);
+            continue;
+        }
+        cut_instance(frame, TS_CULL_POST, instanceIndex);
+    }
+    uint clusters = min(draw.state.deferredClusters, frame.counts.y);
+    for (uint i = gl_GlobalInvocationID.x; i < clusters; i += gl_NumWorkGroups.x * TS_CULL_GROUP_SIZE) {
+        uvec2 entry = VisibleClusterRef(frame.deferredClusters).data[i];
+        GpuInstance instance = InstanceRef(frame.instances).data[entry.x];
+        GpuCluster cluster = ClusterRef(frame.clusters).data[entry.y];
+        float scale = instance_scale(instance);
+        vec3 center = to_camera_relative(instance, camera_relative_translation(instance), cluster.sphere.xyz);
+        float radius = cluster.sphere.w * scale;
+        if (hidden(frame, TS_CULL_POST, center, radius)) atomicAdd(draw.state.occludedClusters, 1u);
+        else draw_cluster(frame, TS_CULL_POST, entry.x, entry.y, cluster, center, radius, scale);
+    }
+}
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    if (push.step == TS_CULL_MAIN) main_pass(frame);
+    else post_pass(frame);
 }

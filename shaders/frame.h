@@ -19,7 +19,11 @@ layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibilityRe
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputRef { vec4 data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputIdRef { uvec4 data[]; };
 
-layout(push_constant) uniform Push { FrameRef frame; uint aov; } push;  // layout: renderer.cpp PushConstants
+layout(buffer_reference, std430, buffer_reference_align = 4) buffer HzbRef { float data[]; };
+
+// layout: renderer.cpp PushConstants. `step`: the cull step (TS_CULL_*) or the HZB level being built; `hzb`: the
+// HZB that step tests against or builds.
+layout(push_constant) uniform Push { FrameRef frame; uint aov; uint step; HzbRef hzb; } push;
 
 // Nearest and farthest view depth of a sphere (camera-relative world).
 vec2 depth_range(GpuFrame frame, vec3 center, float radius) {
@@ -57,4 +61,20 @@ bool sphere_in_frustum(GpuFrame frame, vec3 center, float radius) {
     for (int i = 0; i < 6; ++i)
         if (dot(frame.frustumPlanes[i].xyz, center) + frame.frustumPlanes[i].w < -radius) return false;
     return true;
+}
+
+// HZB levels: level l has a texel per 2^(l+1) x 2^(l+1) pixels (partial at the right and bottom edges), down to 1x1;
+// the levels are stored one after another.
+uvec2 hzb_level_size(GpuFrame frame, uint level) {
+    uint tile = 2u << level;
+    return (frame.viewport.xy + tile - 1u) / tile;
+}
+
+uint hzb_level_offset(GpuFrame frame, uint level) {
+    uint offset = 0u;
+    for (uint l = 0u; l < level; ++l) {
+        uvec2 size = hzb_level_size(frame, l);
+        offset += size.x * size.y;
+    }
+    return offset;
 }

@@ -31,6 +31,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Instance flags.
 #define TS_INSTANCE_DOUBLE_SIDED 1u
 #define TS_INSTANCE_FLIP_WINDING 2u  // the transform mirrors (negative determinant); leftHanded is fixed by the builder
+#define TS_INSTANCE_CONFORMAL 4u     // the transform keeps angles (rotation, uniform scale, mirror): normal cones stay valid
 
 // Material flags.
 #define TS_MATERIAL_USE_DISPLAY_COLOR 1u  // diffuse comes from the mesh's displayColor primvar
@@ -62,6 +63,14 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_FRAME_NO_LOD 1u      // draw every source triangle (level 0), the DAG off: the full-detail reference
 #define TS_FRAME_HARDWARE_ONLY 2u  // every cluster through hardware raster
 #define TS_FRAME_SOFTWARE_FIRST 4u // every cluster the compute rasterizer can take goes there (tests, measurements)
+#define TS_FRAME_PREVIOUS_HZB 8u   // two-pass occlusion: the main pass tests against the previous frame's HZB
+#define TS_FRAME_OCCLUSION 16u     // occlusion culling on: HZB passes, and clusters facing away (normal cones) culled
+
+// Cull steps (push constant `step`). Two-pass occlusion culling: the main pass draws what the previous frame's HZB
+// does not hide and defers the rest; the post pass tests the deferred instances and clusters against an HZB of
+// what the main pass drew, and draws those it does not hide.
+#define TS_CULL_MAIN 0u
+#define TS_CULL_POST 1u
 
 // Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
 #define TS_VISIBLE_SOFTWARE 0x80000000u
@@ -77,6 +86,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_CULL_GROUP_SIZE 64
 #define TS_RESOLVE_TILE 8
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
+#define TS_HZB_TILE 8
 
 // One cluster of a built mesh's DAG: at most 128 triangles over at most 256 cluster-local vertices. The cut
 // draws it iff its own LOD error, projected from its LOD sphere, is within the pixel threshold while its
@@ -94,7 +104,8 @@ struct GpuCluster {
     uint levelVertices;  // DAG level (0 = source triangles) << 16 | cluster-local vertex count
     uint group;          // the group it was simplified with (its parent group), for visualization
     float meanTriangleArea;  // mesh units squared: picks the rasterizer (small triangles go to the compute one)
-    uint pad0, pad1, pad2;
+    uint normalCone;     // snorm8x4: xyz the axis of a cone holding every triangle normal, w its cutoff (builder.h NormalCone)
+    uint pad0, pad1;
 };
 TS_CHECK_SIZE(GpuCluster, 96);
 
@@ -150,24 +161,35 @@ struct GpuLight {
 };
 TS_CHECK_SIZE(GpuLight, 32);
 
-// Indirect arguments of both rasterizers plus the culling counters, written by the cull pass.
+// Indirect arguments of both rasterizers and of the post cull pass, plus the culling counters, written by the
+// cull passes. The rasterizers' arguments are reset between the main and the post pass; the counters add up.
 struct GpuDrawState {
     uint vertexCount;      // VkDrawIndirectCommand: TS_CLUSTER_MAX_TRIANGLES * 3 vertices per hardware cluster
-    uint instanceCount;    // hardware clusters stored
+    uint instanceCount;    // hardware clusters stored (this pass)
     uint firstVertex;
     uint firstInstance;
     uint swGroupsX;        // VkDispatchIndirectCommand: min(software clusters stored, 65535) workgroups
     uint swGroupsY;
     uint swGroupsZ;
-    uint swClusters;       // software clusters stored
+    uint swClusters;       // software clusters stored (this pass)
+    uint postGroupsX;      // VkDispatchIndirectCommand of the post cull pass: enough workgroups for the deferred work
+    uint postGroupsY;
+    uint postGroupsZ;
+    uint deferredInstances; // instances the main pass deferred (hidden by the previous frame's HZB)
+    uint deferredClusters; // clusters the main pass deferred, may exceed capacity (overflow)
     uint visibleClusters;  // visible clusters found, may exceed capacity (overflow is detected on the CPU)
     uint visibleInstances;
     uint candidateClusters; // clusters the cut tested (those of the levels not ruled out per instance)
     uint swTriangles;      // triangles sent to each rasterizer (32-bit: saturate past 4 G)
     uint hwTriangles;
-    uint pad0, pad1, pad2;
+    uint swClustersDrawn;  // software clusters, both passes
+    uint occludedInstances; // instances the post pass found hidden
+    uint occludedClusters; // clusters the post pass found hidden
+    uint postClusters;     // clusters drawn by the post pass (hidden last frame, visible now)
+    uint backfaceClusters; // clusters all of whose triangles face away from the camera
+    uint pad0;
 };
-TS_CHECK_SIZE(GpuDrawState, 64);
+TS_CHECK_SIZE(GpuDrawState, 96);
 
 // Per-frame constants, reached through the single pointer in the push constants.
 struct GpuFrame {
@@ -179,6 +201,8 @@ struct GpuFrame {
     vec4 lod;                // x: pixels per unit of error at unit view depth (or per unit, orthographic);
                              // y: error threshold in pixels; z: 1 when orthographic; w: near-plane distance
     vec4 raster;             // x: software raster below this estimated area per triangle (pixels); y: sub-pixel steps
+    mat4 previousViewProjection; // the previous frame's camera, mapping this frame's camera-relative world to its clip
+    uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels)
     uvec4 viewport;          // x: width, y: height, z: unused, w: light count
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     GpuLight lights[TS_MAX_LIGHTS];
@@ -197,9 +221,11 @@ struct GpuFrame {
     address drawState;       // GpuDrawState
     address visibility;      // uint64[width * height]
     address aovOutput;       // vec4[width * height]
+    address deferredInstances; // uint[instances]: instances the main pass left to the post pass
+    address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
     address unused;          // keeps the size a multiple of 16 bytes (std430 rounds the struct up)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 1 + 16 * 6 + 16 * 5 + 32 * TS_MAX_LIGHTS + 8 * 16);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 18);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

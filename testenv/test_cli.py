@@ -43,7 +43,9 @@ def test_stats_and_camera_options(tmp_path):
     stats = json.loads(stats_file.read_text())
     assert stats["camera"] == "/World/Camera" and stats["resolution"] == [80, 60]
     assert stats["instances"] == 1 and stats["visible_clusters"] == 1 and stats["errors"] == []
-    assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "resolve"}
+    assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "hzb", "resolve"}
+    assert stats["occlusion_tested"] is False, "a first frame has no previous HZB"
+    assert {"occluded_instances", "occluded_clusters", "backface_clusters", "post_pass_clusters"} <= set(stats)
     assert stats["sw_triangles"] + stats["hw_triangles"] == stats["visible_triangles"]
     assert stats["pixel_error"] == 1.0 and stats["lod"] is True and stats["candidate_clusters"] >= stats["visible_clusters"]
 
@@ -124,8 +126,9 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
     assert "frame ms" in done.stdout and "PSNR dB" in done.stdout
     rows = json.loads(rows_file.read_text())
     assert {r["table"] for r in rows} == {"density scaling", "against brute force", "speed against error"}
-    (field,) = [r for r in rows if r["table"] == "density scaling"]
+    field, no_occlusion = [r for r in rows if r["table"] == "density scaling"]
     assert field["source_triangles"] == 32 * 32 * 4 * 16 * 16 and field["frame_ms"] > 0
+    assert field["occlusion"] is True and no_occlusion["occlusion"] is False, "measured frames test against the frame before"
     sweep = [r for r in rows if r["table"] == "speed against error"]
     assert [r["pixel_error"] for r in sweep] == [0.25, 0.5, 1.0, 2.0, 4.0, 8.0]
     assert all(0 < r["same_prim_percent"] <= 100 and r["psnr_db"] > 0 for r in sweep)

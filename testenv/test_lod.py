@@ -65,6 +65,21 @@ def test_the_cut_is_deterministic(session):
         assert first[aov].pixels.tobytes() == second[aov].pixels.tobytes(), aov
 
 
+def test_occlusion_culling_changes_counts_not_the_image(session):
+    aovs = ("color", "primId", "triangleId", "depth")
+    plain = _render(session, aovs=aovs, occlusion=False)
+    first = _render(session, aovs=aovs)  # no previous frame yet: normal cones only; its HZB serves the next frame
+    second = _render(session, aovs=aovs)
+    assert not plain.stats["occlusion_tested"] and not first.stats["occlusion_tested"] and second.stats["occlusion_tested"]
+    for result in (first, second):
+        for aov in aovs:
+            assert result[aov].pixels.tobytes() == plain[aov].pixels.tobytes(), aov
+    assert plain.stats["backface_clusters"] + plain.stats["occluded_clusters"] + plain.stats["occluded_instances"] == 0
+    # Little hides behind anything in this view (the C++ tests build scenes where a wall hides whole instances).
+    assert second.stats["occluded_instances"] + second.stats["occluded_clusters"] > 0, second.stats
+    assert second.stats["visible_clusters"] < first.stats["visible_clusters"] <= plain.stats["visible_clusters"]
+
+
 @pytest.mark.parametrize("mode", ["triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins"])
 def test_visualization_modes(session, mode, tmp_path):
     import tessera

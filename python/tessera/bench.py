@@ -227,7 +227,9 @@ def _row(table, label, result, wall, gpu, reference=None, **extra):
            "candidate_clusters": s["candidate_clusters"], "visible_clusters": s["visible_clusters"],
            "triangles_drawn": s["visible_triangles"], "frame_ms": round(wall, 1), "gpu_ms": round(gpu["total"], 1),
            "cull_ms": round(gpu["cull"], 1), "sw_raster_ms": round(gpu["sw_raster"], 1), "hw_raster_ms": round(gpu["hw_raster"], 1),
-           "resolve_ms": round(gpu["resolve"], 1), "sw_triangles": s["sw_triangles"], "hw_triangles": s["hw_triangles"]}
+           "hzb_ms": round(gpu["hzb"], 1), "resolve_ms": round(gpu["resolve"], 1), "sw_triangles": s["sw_triangles"],
+           "hw_triangles": s["hw_triangles"], "occlusion": s["occlusion_tested"], "occluded_instances": s["occluded_instances"],
+           "occluded_clusters": s["occluded_clusters"]}
     if reference is not None:
         color, ref_color = result["color"].pixels, reference["color"].pixels
         row["psnr_db"] = psnr(color, ref_color)
@@ -248,8 +250,11 @@ def _render_case(queue, case, stage, resolution, frames, device):
         load_s = time.perf_counter() - started
         rows = []
         if case == "density":
-            result, wall, gpu = _frames(session, frames, **settings)
-            rows.append(_row("density scaling", f"{result.stats['source_triangles'] / 1e6:,.0f} M source triangles", result, wall, gpu))
+            # With two-pass occlusion (the default; each measured frame tests against the one before), then without.
+            for occlusion in (True, False):
+                result, wall, gpu = _frames(session, frames, occlusion=occlusion, **settings)
+                label = f"{result.stats['source_triangles'] / 1e6:,.0f} M source triangles" + ("" if occlusion else ", no occlusion")
+                rows.append(_row("density scaling", label, result, wall, gpu))
         else:
             reference, ref_wall, ref_gpu = _frames(session, frames, lod=False, **settings)
             for pixel_error in ((1.0,) if case == "brute" else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)):
@@ -272,7 +277,8 @@ def _render_case(queue, case, stage, resolution, frames, device):
 RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("visible_instances", "instances"),
                   ("visible_clusters", "clusters"), ("triangles_drawn", "tris drawn"), ("sw_triangles", "SW tris"), ("frame_ms", "frame ms"),
                   ("gpu_ms", "GPU ms"), ("cull_ms", "cull"), ("sw_raster_ms", "SW raster"),
-                  ("hw_raster_ms", "HW raster"), ("resolve_ms", "resolve"),
+                  ("hw_raster_ms", "HW raster"), ("hzb_ms", "HZB"), ("resolve_ms", "resolve"),
+                  ("occluded_instances", "occluded inst"), ("occluded_clusters", "occluded clusters"),
                   ("peak_memory_mib", "peak MiB"), ("psnr_db", "PSNR dB"), ("pixels_off_percent", "px off %"),
                   ("same_prim_percent", "same prim %"), ("speedup_vs_no_lod", "speedup")]
 
@@ -326,7 +332,7 @@ def render(args) -> int:
         for row in outcome:
             rows.append(row)
             print(" | ".join(str(row.get(key, "")) for key, _ in RENDER_COLUMNS), flush=True)
-    density = [r for r in rows if r["table"] == "density scaling"]
+    density = [r for r in rows if r["table"] == "density scaling" and r["occlusion"]]
     if len(density) > 1 and density[0]["frame_ms"] > 0:
         print(f"density scaling: the densest field costs {density[-1]['frame_ms'] / density[0]['frame_ms']:.2f}x the lightest "
               f"({density[-1]['source_triangles'] / density[0]['source_triangles']:.0f}x the source triangles)")

@@ -38,6 +38,8 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--vis", choices=VISUALIZATIONS, help="show a debug view in the color AOV instead of shading")
     render.add_argument("--raster", choices=RASTER_MODES, default="auto",
                         help="auto: small triangles through the compute rasterizer, large ones through hardware raster (default)")
+    render.add_argument("--no-occlusion", action="store_true",
+                        help="no two-pass HZB occlusion culling (it only acts from a sequence's second frame on)")
     render.add_argument("--stats", help="write frame statistics to this JSON file")
     render.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N",
                         help="uniform refinements of subdivision surfaces before the DAG (default 2; 0 draws the cage)")
@@ -71,7 +73,7 @@ def _render(args) -> int:
     loaded = time.perf_counter()
     camera = args.camera or (session.camera_paths()[0] if session.camera_paths() else None)
     result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov], pixel_error=args.pixel_error,
-                            lod=not args.no_lod, vis=args.vis, raster=args.raster)
+                            lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion)
     rendered = time.perf_counter()
     for message in result.warnings:
         print(f"tessera: warning: {message}", file=sys.stderr)

@@ -86,10 +86,12 @@ class Session:
 
     def render(self, *, camera: str | None = None, resolution: tuple[int, int] = (960, 540),
                aovs=("color",), background=(0.0, 0.0, 0.0, 0.0), pixel_error: float = 1.0, lod: bool = True,
-               vis: str | None = None, raster: str = "auto") -> RenderResult:
+               vis: str | None = None, raster: str = "auto", occlusion: bool = True) -> RenderResult:
         """Renders the stage at the session's time. `pixel_error` is the DAG cut's screen-space error bound in
         pixels; `lod=False` draws every source triangle (the full-detail reference); `vis` replaces shading in
-        the color AOV by a debug view (VISUALIZATIONS); `raster` forces one rasterizer (RASTER_MODES)."""
+        the color AOV by a debug view (VISUALIZATIONS); `raster` forces one rasterizer (RASTER_MODES); `occlusion`
+        culls what the previous render of this session hid (two-pass HZB occlusion: counts change, the image does
+        not; a session's first render, or one after instances moved, has nothing to test against)."""
         from .usd import framing_camera
 
         width, height = resolution
@@ -112,7 +114,7 @@ class Session:
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
         fallback = framing_camera(self.stage, self.time, width, height) if not camera_id else _tessera.CameraDesc()
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
-                                           vis or "none", raster)
+                                           vis or "none", raster, bool(occlusion))
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)

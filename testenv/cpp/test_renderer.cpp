@@ -177,6 +177,7 @@ TEST_F(RendererTest, TheCutDrawsSourceTrianglesAtZeroErrorAndRootsAtInfiniteErro
     InstanceDesc instance = identity_instance(scene.add_mesh(sphere));
     scene.set_instances({instance});
     RenderSettings settings{128, 128, {0, 0, 0, 0}};
+    settings.occlusion = false;  // the counts of the cut alone
     uint32_t roots = 0, rootTriangles = 0;
     for (const Cluster& c : sphere->clusters)
         if (c.parentGroup == kNoGroup) ++roots, rootTriangles += c.triangleCount;
@@ -322,4 +323,88 @@ TEST_F(RendererTest, FarFromOriginRendersLikeTheOrigin) {
     for (uint32_t y = 0; y < 96; ++y)
         for (uint32_t x = 0; x < 96; ++x) differ += id_at(origin, x, y) != id_at(far, x, y);
     EXPECT_EQ(differ, 0u) << "1e7 units from the origin must render like the origin";
+}
+
+namespace {
+// A wall (a 5x5 grid facing +Z at z = 0) with 9 spheres hidden behind it, one in front of it, one beside it
+// mirrored, one beside it stretched (its transform does not keep angles, so its normal cones do not apply).
+std::vector<InstanceDesc> wall_and_spheres(uint32_t wall, uint32_t sphere) {
+    std::vector<InstanceDesc> instances;
+    InstanceDesc w = identity_instance(wall);
+    for (int i : {0, 5, 10}) w.transform[i] = 5;
+    w.primId = 100;
+    instances.push_back(w);
+    auto place = [&](double x, double y, double z, double sx, double sy, double sz) {
+        InstanceDesc s = identity_instance(sphere);
+        s.transform[0] = sx, s.transform[5] = sy, s.transform[10] = sz;
+        s.transform[3] = x, s.transform[7] = y, s.transform[11] = z;
+        s.primId = uint32_t(instances.size());
+        instances.push_back(s);
+    };
+    for (int y = -1; y <= 1; ++y)
+        for (int x = -1; x <= 1; ++x) place(x, y, -2, 0.5, 0.5, 0.5);
+    place(0.5, -0.5, 1, 0.6, 0.6, 0.6);
+    place(3.4, 0, -1, 0.6, 0.6, -0.6);  // mirrored in Z: its normal cones must turn with it
+    place(-3.4, 0.5, -1, 0.3, 0.9, 0.5);
+    return instances;
+}
+
+// Both renders must agree bit for bit on these AOVs.
+void expect_same_images(const std::vector<Image>& a, const std::vector<Image>& b, const char* what) {
+    ASSERT_EQ(a.size(), b.size());
+    for (size_t i = 0; i < a.size(); ++i) {
+        ASSERT_EQ(a[i].pixels.size(), b[i].pixels.size());
+        EXPECT_EQ(std::memcmp(a[i].pixels.data(), b[i].pixels.data(), a[i].pixels.size() * 4), 0) << what << ", " << aov_name(a[i].aov);
+    }
+}
+}  // namespace
+
+TEST_F(RendererTest, OcclusionCullingChangesCountsNotTheImage) {
+    GpuScene scene;
+    scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));
+    Renderer culling(*device), plain(*device);
+    RenderSettings on{128, 128, {0, 0, 0, 0}};
+    on.pixelError = 0;  // source clusters: small enough for their normal cones to cull
+    RenderSettings off = on;
+    off.occlusion = false;
+    const std::vector<Aov> aovs = {Aov::PrimId, Aov::ClusterId, Aov::TriangleId, Aov::Depth};
+    const CameraDesc front = camera_at(0, 0, 6);
+
+    FrameStats first, second, reference;
+    auto expected = plain.render(scene, front, off, aovs, &reference);
+    expect_same_images(culling.render(scene, front, on, aovs, &first), expected, "first frame");
+    EXPECT_FALSE(first.occlusionTested) << "a first frame has no previous HZB";
+    EXPECT_GT(first.backfaceClusters, 0u) << "the spheres' far sides face away";
+    EXPECT_EQ(first.occludedInstances, 0u);
+
+    expect_same_images(culling.render(scene, front, on, aovs, &second), expected, "second frame");
+    EXPECT_TRUE(second.occlusionTested);
+    EXPECT_EQ(second.occludedInstances, 9u) << "the spheres behind the wall";
+    EXPECT_LT(second.visibleClusters, first.visibleClusters);
+    EXPECT_LT(first.visibleClusters, reference.visibleClusters);
+    EXPECT_EQ(reference.backfaceClusters + reference.occludedInstances + reference.occludedClusters, 0u);
+
+    // The camera moves a little: the previous frame's HZB is reprojected, and still nothing visible is lost.
+    const CameraDesc moved = camera_at(0.4, -0.3, 5.5);
+    FrameStats movedStats;
+    expect_same_images(culling.render(scene, moved, on, aovs, &movedStats), plain.render(scene, moved, off, aovs), "moved camera");
+    EXPECT_TRUE(movedStats.occlusionTested);
+}
+
+TEST_F(RendererTest, ThePostPassDrawsWhatTheLastFrameHid) {
+    GpuScene scene;
+    scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));
+    Renderer culling(*device), plain(*device);
+    RenderSettings on{128, 128, {0, 0, 0, 0}}, off = on;
+    off.occlusion = false;
+    const std::vector<Aov> aovs = {Aov::PrimId, Aov::TriangleId};
+    culling.render(scene, camera_at(0, 0, 6), on, aovs);  // the spheres hide behind the wall
+    // From behind the (single-sided) wall everything the first frame hid is in plain view.
+    CameraDesc behind = camera_at(0, 0, -8);
+    behind.cameraToWorld[0] = -1;  // turn around (rotate 180 degrees about Y)
+    behind.cameraToWorld[10] = -1;
+    FrameStats stats;
+    expect_same_images(culling.render(scene, behind, on, aovs, &stats), plain.render(scene, behind, off, aovs), "view from behind");
+    EXPECT_TRUE(stats.occlusionTested);
+    EXPECT_GT(stats.postPassClusters, 0u) << "the spheres hidden last frame come back in the post pass";
 }

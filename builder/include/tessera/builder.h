@@ -160,6 +160,15 @@ uint32_t crc32(std::span<const uint8_t> bytes);
 // (clusters must come level 0 first).
 void append_cluster(BuiltMesh& mesh, const Cluster& cluster);
 
+// A cone holding the normal of every triangle of a cluster, for backface culling: the cluster faces away from a
+// viewer at direction v (unit, from the viewer) when dot(v, axis) >= cutoff, with axis and cutoff in 8-bit snorm
+// (x / 127). A cutoff of 127 (1.0) culls nothing: the normals spread too wide.
+struct NormalCone {
+    std::array<int8_t, 3> axis8{0, 0, 0};
+    int8_t cutoff8 = 127;
+};
+NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster);
+
 // Octahedral normal encoding (snorm16x2 packed in a uint32), shared with the shaders' decoder.
 uint32_t encode_octahedral(float x, float y, float z);
 std::array<float, 3> decode_octahedral(uint32_t packed);

@@ -87,6 +87,12 @@ struct RenderSettings {
     // Auto mode: clusters whose triangles are estimated to cover less than this many pixels each go to the compute
     // rasterizer. Measured per device (docs/benchmarks.md: about 45 on lavapipe).
     float softwareRasterArea = 45.0f;
+    // Occlusion culling, which changes counts and time, never the image. Clusters whose triangles all face away from
+    // the camera are culled (normal cones; single-sided instances whose transform keeps angles). Two-pass HZB
+    // culling: instances and clusters hidden behind what the previous frame drew are deferred, then tested against a
+    // depth pyramid (HZB) of what this frame drew first; the first frame of a view (or after instances move) has no
+    // previous frame to ask. Off with lod=false, which draws every source triangle.
+    bool occlusion = true;
 };
 
 struct FrameStats {
@@ -99,7 +105,12 @@ struct FrameStats {
     uint32_t swClusters = 0;
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
-    double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, resolveMs = 0;  // GPU time per pass (rasterMs: hardware)
+    bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
+    uint32_t occludedInstances = 0, occludedClusters = 0;  // found hidden by the post pass
+    uint32_t postPassClusters = 0;      // clusters drawn by the post pass (hidden last frame, visible now)
+    uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
+    // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.
+    double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, hzbMs = 0, resolveMs = 0;
 };
 
 // The GPU scene: meshes shared by any number of instances. Changes are uploaded by the next render.
