@@ -20,6 +20,47 @@ int edge_bias(ivec2 from, ivec2 to) {
     return (d.y > 0 || (d.y == 0 && d.x < 0)) ? 0 : -1;
 }
 
+// Edge functions (the edge opposite each vertex), positive inside, stepped one pixel at a time from the first
+// pixel centre of the box; a pixel is covered when all three pass the top-left rule. Depth is interpolated from the
+// edge functions (z: the vertex depths, w: one over twice the area).
+float depth_at(vec3 edges, vec4 z) { return (edges.x * z.x + edges.y * z.y + edges.z * z.z) * z.w; }
+
+void write_pixel(GpuFrame frame, int x, int y, float depth, uint64_t payload) {
+    if (depth < 0.0 || depth > 1.0) return;  // beyond the far plane
+    uint pixel = uint(y) * frame.viewport.x + uint(x);
+    atomicMax(VisibilityRef(frame.visibility).data[pixel], (uint64_t(floatBitsToUint(depth)) << 32) | payload);
+}
+
+void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload) {
+    ivec2 p = lo * step + center;
+    ivec3 row = ivec3((b.x - c.x) * (p.y - b.y) - (b.y - c.y) * (p.x - b.x),
+                      (c.x - a.x) * (p.y - c.y) - (c.y - a.y) * (p.x - c.x),
+                      (a.x - b.x) * (p.y - a.y) - (a.y - b.y) * (p.x - a.x));
+    ivec3 stepX = -ivec3(b.y - c.y, c.y - a.y, a.y - b.y) * step;
+    ivec3 stepY = ivec3(b.x - c.x, c.x - a.x, a.x - b.x) * step;
+    ivec3 bias = ivec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
+    for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
+        ivec3 w = row;
+        for (int x = lo.x; x <= hi.x; ++x, w += stepX)
+            if (all(greaterThanEqual(w + bias, ivec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload);
+    }
+}
+
+void scan_large(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload) {
+    ivec2 p = lo * step + center;
+    i64vec3 row = i64vec3(int64_t(b.x - c.x) * int64_t(p.y - b.y) - int64_t(b.y - c.y) * int64_t(p.x - b.x),
+                          int64_t(c.x - a.x) * int64_t(p.y - c.y) - int64_t(c.y - a.y) * int64_t(p.x - c.x),
+                          int64_t(a.x - b.x) * int64_t(p.y - a.y) - int64_t(a.y - b.y) * int64_t(p.x - a.x));
+    i64vec3 stepX = -i64vec3(b.y - c.y, c.y - a.y, a.y - b.y) * int64_t(step);
+    i64vec3 stepY = i64vec3(b.x - c.x, c.x - a.x, a.x - b.x) * int64_t(step);
+    i64vec3 bias = i64vec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
+    for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
+        i64vec3 w = row;
+        for (int x = lo.x; x <= hi.x; ++x, w += stepX)
+            if (all(greaterThanEqual(w + bias, i64vec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload);
+    }
+}
+
 void main() {
     GpuFrame frame = push.frame.f;
     DrawStateRef draw = DrawStateRef(frame.drawState);
@@ -51,9 +92,13 @@ void main() {
             uint i2 = corner_vertex(frame, cluster, triangle, 2u, flip) - cluster.vertexOffset;
             ivec2 a = screen[i0], b = screen[i1], c = screen[i2];
             float za = depth[i0], zb = depth[i1], zc = depth[i2];
-            // Twice the signed area (64-bit: off-axis clusters can stretch past what 32 bits hold); negative is
-            // counter-clockwise on screen (y down), a front face.
-            int64_t area = int64_t(b.x - a.x) * int64_t(c.y - a.y) - int64_t(c.x - a.x) * int64_t(b.y - a.y);
+            // Edge functions stay within 2 E (E + step) for a triangle E sub-pixels across, so below 2^14 sub-pixels
+            // 32-bit integers are exact, and much faster where 64-bit multiplies are emulated (lavapipe).
+            ivec2 extent = max(a, max(b, c)) - min(a, min(b, c));
+            bool small = max(extent.x, extent.y) < 16384;
+            // Twice the signed area; negative is counter-clockwise on screen (y down), a front face.
+            int64_t area = small ? int64_t((b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y))
+                                 : int64_t(b.x - a.x) * int64_t(c.y - a.y) - int64_t(c.x - a.x) * int64_t(b.y - a.y);
             bool front = area < 0l;
             bool doubleSided = (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u;
             if (area != 0l && (front || doubleSided)) {
@@ -65,26 +110,10 @@ void main() {
                 int step = int(steps), center = step / 2;
                 ivec2 lo = max((min(a, min(b, c)) - center + step - 1) / step, ivec2(0));
                 ivec2 hi = min((max(a, max(b, c)) - center) / step, ivec2(frame.viewport.xy) - 1);
-                // Edge functions (the edge opposite each vertex), positive inside, stepped one pixel at a time.
-                ivec2 p = lo * step + center;  // the first pixel centre, in sub-pixels
-                i64vec3 row = i64vec3(int64_t(b.x - c.x) * int64_t(p.y - b.y) - int64_t(b.y - c.y) * int64_t(p.x - b.x),
-                                      int64_t(c.x - a.x) * int64_t(p.y - c.y) - int64_t(c.y - a.y) * int64_t(p.x - c.x),
-                                      int64_t(a.x - b.x) * int64_t(p.y - a.y) - int64_t(a.y - b.y) * int64_t(p.x - a.x));
-                i64vec3 stepX = -i64vec3(b.y - c.y, c.y - a.y, a.y - b.y) * int64_t(step);
-                i64vec3 stepY = i64vec3(b.x - c.x, c.x - a.x, a.x - b.x) * int64_t(step);
-                i64vec3 bias = i64vec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
-                float inverseArea = 1.0 / float(-area);
                 uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
-                for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
-                    i64vec3 w = row;
-                    for (int x = lo.x; x <= hi.x; ++x, w += stepX) {
-                        if (any(lessThan(w + bias, i64vec3(0)))) continue;
-                        float z = (float(w.x) * za + float(w.y) * zb + float(w.z) * zc) * inverseArea;
-                        if (z < 0.0 || z > 1.0) continue;  // beyond the far plane
-                        uint pixel = uint(y) * frame.viewport.x + uint(x);
-                        atomicMax(VisibilityRef(frame.visibility).data[pixel], (uint64_t(floatBitsToUint(z)) << 32) | payload);
-                    }
-                }
+                vec4 z = vec4(za, zb, zc, 1.0 / float(-area));
+                if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload);
+                else scan_large(frame, a, b, c, lo, hi, step, center, z, payload);
             }
         }
         barrier();  // the next cluster reuses the shared vertices
