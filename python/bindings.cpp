@@ -79,7 +79,7 @@ struct PySceneDelegate : SceneDelegate {
 };
 
 Visualize visualize_from(const std::string& name) {
-    for (int mode = 0; mode <= int(Visualize::RasterBins); ++mode)
+    for (int mode = 0; mode <= int(Visualize::Overdraw); ++mode)
         if (name == visualize_name(Visualize(mode))) return Visualize(mode);
     throw nb::value_error(("unknown visualization mode '" + name + "'").c_str());
 }

@@ -49,10 +49,11 @@ const char* visualize_name(Visualize mode) {
         case Visualize::Primitives: return "primitives";
         case Visualize::ShadingBins: return "shading-bins";
         case Visualize::RasterBins: return "raster-bins";
+        case Visualize::Overdraw: return "overdraw";
     }
     return "?";
 }
-static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::RasterBins) == TS_VIS_RASTER_BINS,
+static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::Overdraw) == TS_VIS_OVERDRAW,
               "Visualize must match the TS_VIS_* modes");
 
 bool aov_is_id(Aov aov) { return aov == Aov::PrimId || aov == Aov::InstanceId || aov == Aov::ClusterId || aov == Aov::TriangleId; }
@@ -302,6 +303,7 @@ struct Renderer::Impl {
     // Frame resources.
     Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
     Buffer deferredInstances, deferredClusters;
+    Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbPrevious, hzbCurrent;
@@ -678,6 +680,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.aovOutput = s.aovOutput.address;
         f.deferredInstances = occlusion ? s.deferredInstances.address : 0;
         f.deferredClusters = occlusion ? s.deferredClusters.address : 0;
+        const bool countOverdraw = settings.visualize == Visualize::Overdraw;
+        if (countOverdraw && s.overdraw.size < pixels * 4) s.overdraw = device_.create_buffer(pixels * 4, MemoryUse::Device);
+        f.overdraw = countOverdraw ? s.overdraw.address : 0;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
@@ -693,6 +698,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             initial.postGroupsY = initial.postGroupsZ = 1;
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
+            if (countOverdraw) vkCmdFillBuffer(cmd, s.overdraw.handle, 0, pixels * 4, 0);
             barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
                     VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
                     VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);

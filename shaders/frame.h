@@ -14,6 +14,7 @@ layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer Flo
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer UintRef { uint data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibleClusterRef { uvec2 data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer SlotListRef { uint data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) buffer CounterRef { uint data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer DrawStateRef { GpuDrawState state; };
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibilityRef { uint64_t data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputRef { vec4 data[]; };
@@ -77,4 +78,9 @@ uint hzb_level_offset(GpuFrame frame, uint level) {
         offset += size.x * size.y;
     }
     return offset;
+}
+
+// Both rasterizers record each fragment they write (the overdraw view).
+void count_fragment(GpuFrame frame, uint pixel) {
+    if (frame.counts.w == TS_VIS_OVERDRAW) atomicAdd(CounterRef(frame.overdraw).data[pixel], 1u);
 }

@@ -14,4 +14,5 @@ void main() {
     uint pixel = uint(gl_FragCoord.y) * frame.viewport.x + uint(gl_FragCoord.x);
     uint64_t value = (uint64_t(floatBitsToUint(gl_FragCoord.z)) << 32) | uint64_t(inPayload);
     atomicMax(VisibilityRef(frame.visibility).data[pixel], value);
+    count_fragment(frame, pixel);
 }

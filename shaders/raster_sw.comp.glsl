@@ -29,6 +29,7 @@ void write_pixel(GpuFrame frame, int x, int y, float depth, uint64_t payload) {
     if (depth < 0.0 || depth > 1.0) return;  // beyond the far plane
     uint pixel = uint(y) * frame.viewport.x + uint(x);
     atomicMax(VisibilityRef(frame.visibility).data[pixel], (uint64_t(floatBitsToUint(depth)) << 32) | payload);
+    count_fragment(frame, pixel);
 }
 
 void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload) {

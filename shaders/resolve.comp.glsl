@@ -53,6 +53,11 @@ void main() {
     uint aov = push.aov;
     bool idAov = aov >= TS_AOV_PRIM_ID;
     uint64_t value = VisibilityRef(frame.visibility).data[index];
+    if (frame.counts.w == TS_VIS_OVERDRAW && aov == TS_AOV_COLOR) {
+        uint fragments = CounterRef(frame.overdraw).data[index];
+        OutputRef(frame.aovOutput).data[index] = fragments == 0u ? frame.background : vec4(level_color(fragments - 1u), 1.0);
+        return;
+    }
 
     if (value == 0ul) {
         if (idAov) OutputIdRef(frame.aovOutput).data[index] = uvec4(0xffffffffu);

@@ -58,6 +58,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIS_PRIMITIVES 6u    // USD prims (primId)
 #define TS_VIS_SHADING_BINS 7u  // materials
 #define TS_VIS_RASTER_BINS 8u   // software (compute) raster blue, hardware raster orange
+#define TS_VIS_OVERDRAW 9u      // fragments rasterized per pixel, both rasterizers: 1 blue through 9 or more red
 
 // Frame flags (GpuFrame.counts.z).
 #define TS_FRAME_NO_LOD 1u      // draw every source triangle (level 0), the DAG off: the full-detail reference
@@ -223,7 +224,7 @@ struct GpuFrame {
     address aovOutput;       // vec4[width * height]
     address deferredInstances; // uint[instances]: instances the main pass left to the post pass
     address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
-    address unused;          // keeps the size a multiple of 16 bytes (std430 rounds the struct up)
+    address overdraw;        // uint[width * height]: fragments per pixel, only with TS_VIS_OVERDRAW (else 0)
 };
 TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 18);
 

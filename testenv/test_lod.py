@@ -80,10 +80,13 @@ def test_occlusion_culling_changes_counts_not_the_image(session):
     assert second.stats["visible_clusters"] < first.stats["visible_clusters"] <= plain.stats["visible_clusters"]
 
 
-@pytest.mark.parametrize("mode", ["triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins"])
+@pytest.mark.parametrize("mode", ["triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw"])
 def test_visualization_modes(session, mode, tmp_path):
     import tessera
 
+    # Overdraw depends on what occlusion culled, which the previous frame decides: render the view once first, so
+    # that whatever ran before, the measured frame tests against this view's own full depth.
+    _render(session, aovs=("color",), vis=mode)
     result = _render(session, aovs=("color",), vis=mode)
     image = tmp_path / f"vis_{mode}.png"
     result.write(image)

@@ -66,7 +66,7 @@ struct Image {
 };
 
 // What the color AOV shows instead of shading (debug views in the manner of Nanite's visualization modes).
-enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins, RasterBins };
+enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins, RasterBins, Overdraw };
 
 // Which rasterizer draws a cluster. Auto: the compute rasterizer for clusters of small triangles, hardware raster
 // for the rest. The forced modes exist for tests and measurements (Software still sends clusters that touch the
