@@ -57,6 +57,23 @@ void hash_primvar(Hasher& h, const PrimvarView& p) {
     h.span(p.indices);
 }
 
+// Every setting, as exact bits (+0 for -0, which builds the same).
+void hash_settings(Hasher& h, const BuildSettings& s) {
+    auto real = [&](float value) {
+        uint32_t bits;
+        value += 0.0f;
+        std::memcpy(&bits, &value, 4);
+        h.word(bits);
+    };
+    h.word(uint64_t(int64_t(s.positionPrecision)));
+    h.word(s.preserveArea);
+    real(s.trimRelativeError);
+    real(s.keepTrianglePercent);
+    real(s.fallbackRelativeError);
+    real(s.fallbackTrianglePercent);
+    real(s.maxEdgeLengthFactor);
+}
+
 }  // namespace
 
 MeshCache::MeshCache(std::string directory) : directory_(std::move(directory)) {}
@@ -75,7 +92,7 @@ MeshCache MeshCache::from_environment() {
 std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) {
     Hasher h;
     h.word(kPageFormatVersion);
-    h.word(uint64_t(int64_t(settings.positionPrecision)));
+    hash_settings(h, settings);
     h.span(mesh.points);
     h.span(mesh.faceVertexCounts);
     h.span(mesh.faceVertexIndices);
@@ -138,6 +155,7 @@ bool MeshCache::store(const std::string& key, const BuiltMesh& mesh, const std::
 }
 
 CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& settings, const MeshCache& cache) {
+    validate_settings(settings);  // before the lookup: a bad setting fails whether or not the mesh is cached
     CachedBuild result;
     std::string key;
     if (cache.enabled()) {

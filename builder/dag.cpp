@@ -4,6 +4,10 @@
 // simplification error plus the largest of its children's, and its sphere encloses its children's (monotone).
 #include "tessera/builder.h"
 
+#include "area.h"
+#include "cut.h"
+#include "edge_limit.h"
+#include "fallback.h"
 #include "weld.h"
 
 #include <meshoptimizer.h>
@@ -25,6 +29,9 @@ namespace {
 constexpr size_t kClusterVertices = 255;  // meshoptimizer's meshlet limit
 constexpr size_t kGroupSize = 16;         // clusters per group (partitions come out between about 8 and 32)
 constexpr double kStuckRatio = 0.85;      // a group that keeps more than this share of its triangles is stuck
+constexpr int kPinRounds = 16;            // retries of one simplification step that made too long an edge
+// Vertex locks: a group border (shared with another group: crack-free), or pinned to split an edge too long.
+constexpr unsigned char kBorderLock = 1, kPinned = 2;
 
 struct Sphere {
     double x = 0, y = 0, z = 0, r = 0;
@@ -77,6 +84,7 @@ struct WorkCluster {
     float lodError = 0;
     uint32_t level = 0;
     int32_t parentGroup = -1;
+    int32_t madeBy = -1;  // the group whose simplification made it
 };
 
 struct Group {
@@ -120,7 +128,7 @@ size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t
     std::map<uint32_t, Part> parts;  // ordered: deterministic
     for (size_t i = 0; i < count; ++i) {
         Part& part = parts[find(positionId[indices[i]])];
-        part.locked |= lock[indices[i]] != 0;
+        part.locked |= lock[indices[i]] == kBorderLock;
         if (i % 3 == 0) ++part.triangles;
         for (int k = 0; k < 3; ++k) {
             part.lo[k] = std::min(part.lo[k], double(positions[3 * indices[i] + k]));
@@ -151,12 +159,14 @@ size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t
 
 // Splits triangles into spatially compact clusters (at most 128 triangles and 255 vertices). The triangles'
 // vertices are first compacted, so the cost follows the triangles given, not the whole mesh.
-std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, const std::vector<float>& positions) {
+// `position(v)` gives vertex v's xyz.
+template <typename PositionOf>
+std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, PositionOf position) {
     std::vector<uint32_t> vertices(indices);
     std::sort(vertices.begin(), vertices.end());
     vertices.erase(std::unique(vertices.begin(), vertices.end()), vertices.end());
     std::vector<float> compact(3 * vertices.size());
-    for (size_t i = 0; i < vertices.size(); ++i) std::memcpy(&compact[3 * i], &positions[3 * vertices[i]], 12);
+    for (size_t i = 0; i < vertices.size(); ++i) std::memcpy(&compact[3 * i], position(vertices[i]), 12);
     std::vector<uint32_t> localIndices(indices.size());
     for (size_t i = 0; i < indices.size(); ++i)
         localIndices[i] = uint32_t(std::lower_bound(vertices.begin(), vertices.end(), indices[i]) - vertices.begin());
@@ -206,7 +216,8 @@ uint32_t spread_bits(uint32_t v) {  // 10 bits -> every third bit of 30
 std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>& indices, const std::vector<float>& positions) {
     constexpr size_t kChunkTriangles = 65536;
     const size_t triangles = indices.size() / 3;
-    if (triangles <= 2 * kChunkTriangles) return split_into_clusters(indices, positions);
+    auto position = [&](uint32_t v) { return &positions[3 * v]; };
+    if (triangles <= 2 * kChunkTriangles) return split_into_clusters(indices, position);
     float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (size_t i = 0; i < positions.size(); i += 3)
         for (int k = 0; k < 3; ++k) {
@@ -230,7 +241,7 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
         std::vector<uint32_t> chunk;
         for (size_t i = c * kChunkTriangles; i < std::min(triangles, (c + 1) * kChunkTriangles); ++i)
             chunk.insert(chunk.end(), &indices[3 * order[i].second], &indices[3 * order[i].second] + 3);
-        pieces[c] = split_into_clusters(chunk, positions);
+        pieces[c] = split_into_clusters(chunk, position);
     });
     std::vector<std::vector<uint32_t>> all;
     for (auto& chunk : pieces)
@@ -241,6 +252,7 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
 }  // namespace
 
 BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
+    validate_settings(settings);
     BuiltMesh out;
     const size_t vertexCount = mesh.positions.size() / 3;
     out.sourceTriangles = mesh.indices.size() / 3;
@@ -289,7 +301,9 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             local[3 * v + k] = float((std::round(double(mesh.positions[3 * v + k]) / step) - originGrid[k]) * step) + 0.0f;
 
     // Vertices split at attribute seams share a position id: adjacency and border locks follow positions.
-    const std::vector<uint32_t> positionId = weld_equal_positions(local.data(), vertexCount);
+    // Preserve Area adds moved vertices later: the welder gives them ids too.
+    PositionWelder welder;
+    std::vector<uint32_t> positionId = weld_equal_positions(local.data(), vertexCount, &welder);
 
     // Attributes weighed by the simplifier. meshoptimizer normalises positions to the group's extent before
     // weighing, even when it reports absolute errors, so the weights are relative and independent of scale.
@@ -309,13 +323,14 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     std::vector<WorkCluster> clusters;
     std::vector<Group> groups;
     auto add_clusters = [&](std::vector<std::vector<uint32_t>> pieces, const Sphere* groupSphere, float groupError, uint32_t level,
-                            std::vector<uint32_t>& created) {
+                            int32_t madeBy, std::vector<uint32_t>& created) {
         for (auto& piece : pieces) {
             WorkCluster c;
             c.indices = std::move(piece);
             c.lodSphere = groupSphere ? *groupSphere : vertex_sphere(local, c.indices.data(), c.indices.size());
             c.lodError = groupError;
             c.level = level;
+            c.madeBy = madeBy;
             created.push_back(uint32_t(clusters.size()));
             clusters.push_back(std::move(c));
         }
@@ -356,14 +371,21 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         for (uint32_t v : mesh.indices) sourceIndices.push_back(weld[v]);
     out.sourceTriangles = sourceIndices.size() / 3;
 
+    // The edge length limit, from the source as welded on the grid.
+    const double maxEdge = settings.maxEdgeLengthFactor > 0 ? settings.maxEdgeLengthFactor * mean_edge_length(sourceIndices, local) : 0.0;
+    // Where each vertex takes its normal and colour from (itself, or the vertex Preserve Area moved it from).
+    std::vector<uint32_t> attributeOf(vertexCount);
+    for (size_t v = 0; v < vertexCount; ++v) attributeOf[v] = uint32_t(v);
+
     std::vector<uint32_t> pending;
-    add_clusters(split_level_zero(sourceIndices, local), nullptr, 0.0f, 0, pending);
+    add_clusters(split_level_zero(sourceIndices, local), nullptr, 0.0f, 0, -1, pending);
 
     std::vector<unsigned char> lock(vertexCount, 0);
     std::vector<int32_t> firstGroup(vertexCount, -1);
     std::vector<unsigned char> shared(vertexCount, 0);
     while (pending.size() > 1) {
         // Group the pending clusters by shared positions.
+        const size_t roundVertices = local.size() / 3;  // vertices added this round are numbered from here
         std::vector<unsigned int> partition(pending.size(), 0);
         size_t groupCount = 1;
         if (pending.size() > kGroupSize) {
@@ -372,13 +394,14 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                 for (uint32_t v : clusters[c].indices) clusterIndices.push_back(positionId[v]);
                 counts.push_back(unsigned(clusters[c].indices.size()));
             }
-            groupCount = meshopt_partitionClusters(partition.data(), clusterIndices.data(), clusterIndices.size(), counts.data(), pending.size(), vertexCount, kGroupSize);
+            groupCount = meshopt_partitionClusters(partition.data(), clusterIndices.data(), clusterIndices.size(), counts.data(), pending.size(), roundVertices, kGroupSize);
         }
         std::vector<std::vector<uint32_t>> members(groupCount);
         for (size_t i = 0; i < pending.size(); ++i) members[partition[i]].push_back(pending[i]);
 
         // Positions used by more than one group are the group borders: locked while simplifying. The locks are set
-        // for the whole round and only read while the groups simplify in parallel.
+        // for the whole round; while the groups simplify in parallel, each writes only its own interior vertices' locks
+        // (pins), which no other group reads.
         for (size_t g = 0; g < groupCount; ++g)
             for (uint32_t c : members[g])
                 for (uint32_t v : clusters[c].indices) {
@@ -387,12 +410,13 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                     else if (firstGroup[p] != int32_t(g)) shared[p] = 1;
                 }
         for (uint32_t c : pending)
-            for (uint32_t v : clusters[c].indices) lock[v] = shared[positionId[v]];
+            for (uint32_t v : clusters[c].indices) lock[v] = shared[positionId[v]] ? kBorderLock : 0;
 
         struct Result {
             bool simplified = false;
             float error = 0;
             std::vector<std::vector<uint32_t>> pieces;
+            Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
         };
         std::vector<Result> results(groupCount);
         parallel_for(groupCount, [&](size_t g) {
@@ -401,9 +425,43 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             std::vector<uint32_t> simplified(merged.size());
             float error = 0;
             const size_t target = (merged.size() / 3 / 2) * 3;
-            size_t kept = meshopt_simplifyWithAttributes(simplified.data(), merged.data(), merged.size(), local.data(), vertexCount, 12,
-                                                         attributes.data(), attributeCount * sizeof(float), weights, attributeCount, lock.data(), target,
-                                                         FLT_MAX, meshopt_SimplifySparse | meshopt_SimplifyErrorAbsolute, &error);
+            auto simplify = [&](const std::vector<uint32_t>& from, size_t to, float& passError) {
+                passError = 0;
+                return meshopt_simplifyWithAttributes(simplified.data(), from.data(), from.size(), local.data(), roundVertices, 12, attributes.data(),
+                                                      attributeCount * sizeof(float), weights, attributeCount, lock.data(), to, FLT_MAX,
+                                                      meshopt_SimplifySparse | meshopt_SimplifyErrorAbsolute, &passError);
+            };
+            size_t kept = 0;
+            if (maxEdge <= 0) {
+                kept = simplify(merged, target, error);
+            } else {
+                // The edge length limit: simplify in steps of a fifth, so that each step makes few long edges; a step
+                // that made one is redone with the vertices that split such edges pinned. The errors of the steps add up.
+                std::vector<uint32_t> current = merged, pinned;
+                while (current.size() > target) {
+                    const size_t stepTarget = std::max(target, (current.size() / 3 * 4 / 5) * 3);
+                    size_t stepKept = 0;
+                    float stepError = 0;
+                    for (int attempt = 0; attempt <= kPinRounds; ++attempt) {
+                        stepKept = simplify(current, stepTarget, stepError);
+                        const EdgeCheck check = check_edge_lengths(merged, current, simplified.data(), stepKept, local, positionId, lock, maxEdge);
+                        if (!check.tooLong) break;
+                        stepKept = current.size();  // rejected: retried with the splitting vertices pinned, if any
+                        for (uint32_t v : check.pins) {
+                            lock[v] = kPinned;
+                            pinned.push_back(v);
+                        }
+                        if (check.pins.empty()) break;
+                    }
+                    if (stepKept >= current.size()) break;  // the limit allows no further step
+                    current.assign(simplified.begin(), simplified.begin() + stepKept);
+                    error += stepError;
+                }
+                for (uint32_t v : pinned) lock[v] = 0;
+                kept = current.size();
+                std::copy(current.begin(), current.end(), simplified.begin());
+            }
+            // Dropping whole free parts makes no new edge.
             if (kept > target) kept = drop_free_components(simplified, kept, target, local, positionId, lock, error);
             if (kept == 0 || double(kept) > kStuckRatio * double(merged.size())) return;  // stuck (vanishing too: keep a root)
             // The simplified surface is made of the group's own vertices, so it cannot stray further than the group's
@@ -414,9 +472,21 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                     lo[k] = std::min(lo[k], double(local[3 * v + k]));
                     hi[k] = std::max(hi[k], double(local[3 * v + k]));
                 }
-            error = std::min(error, float(std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2]))));
+            const double diameter = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2]));
+            error = std::min(error, float(diameter));
             simplified.resize(kept);
-            results[g] = {true, error, split_into_clusters(simplified, local)};
+            Result& result = results[g];
+            if (settings.preserveArea) {
+                double area = 0;
+                for (size_t i = 0; i < merged.size(); i += 3) area += triangle_area(&local[3 * merged[i]], &local[3 * merged[i + 1]], &local[3 * merged[i + 2]]);
+                result.dilation = dilate_open_borders(simplified, local, positionId, lock, area, diameter / 4, step, uint32_t(roundVertices));
+                error += result.dilation.displacement;  // the moved border strays that much further from the children
+            }
+            const std::vector<float>& moved = result.dilation.positions;
+            auto position = [&](uint32_t v) { return v < roundVertices ? &local[3 * v] : &moved[3 * (v - roundVertices)]; };
+            result.simplified = true;
+            result.error = error;
+            result.pieces = split_into_clusters(simplified, position);
         });
 
         // Record the groups in order, so the output does not depend on thread timing.
@@ -428,6 +498,26 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                 continue;
             }
             progress = true;
+            // Vertices moved by Preserve Area join the mesh: numbered after those recorded so far.
+            const Dilation& dilation = results[g].dilation;
+            const uint32_t shift = uint32_t(local.size() / 3 - roundVertices);
+            for (size_t i = 0; i < dilation.sources.size(); ++i) {
+                const uint32_t id = uint32_t(local.size() / 3), source = dilation.sources[i];
+                local.insert(local.end(), &dilation.positions[3 * i], &dilation.positions[3 * i] + 3);
+                for (size_t k = 0; k < attributeCount; ++k) {
+                    const float value = attributes[source * attributeCount + k];  // a copy: push_back may reallocate
+                    attributes.push_back(value);
+                }
+                attributeOf.push_back(attributeOf[source]);
+                positionId.push_back(welder.add(&local[3 * id], id));
+                lock.push_back(0);
+                firstGroup.push_back(-1);
+                shared.push_back(0);
+            }
+            if (shift)
+                for (auto& piece : results[g].pieces)
+                    for (uint32_t& v : piece)
+                        if (v >= roundVertices) v += shift;
             std::vector<Sphere> childSpheres;
             float childError = 0;
             uint32_t childLevel = 0;
@@ -441,7 +531,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             // encloses every child's.
             const Group group{enclose(childSpheres), childError + results[g].error};
             groups.push_back(group);
-            add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, next);
+            add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, int32_t(groups.size() - 1), next);
         }
         for (uint32_t c : pending)
             for (uint32_t v : clusters[c].indices) {
@@ -452,14 +542,30 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         if (!progress) break;
         pending = std::move(next);
     }
-    out.groups = uint32_t(groups.size());
+
+    // Trimming and the fallback mesh: cuts of the whole DAG, by error (in percent of the mesh size) and triangles.
+    std::vector<DagNode> nodes(clusters.size());
+    for (size_t i = 0; i < clusters.size(); ++i) {
+        const WorkCluster& w = clusters[i];
+        nodes[i] = {w.lodError, w.parentGroup >= 0 ? groups[w.parentGroup].error : INFINITY, w.level, uint32_t(w.indices.size() / 3), w.madeBy,
+                    w.parentGroup};
+    }
+    const double percentOfSize = out.size / 100.0, sourceTriangles = double(out.sourceTriangles);
+    const DagCut leafCut = choose_cut(nodes, settings.trimRelativeError * percentOfSize, settings.keepTrianglePercent / 100.0 * sourceTriangles);
+    const DagCut fallbackCut = coarser(leafCut, choose_cut(nodes, settings.fallbackRelativeError * percentOfSize,
+                                                           settings.fallbackTrianglePercent / 100.0 * sourceTriangles));
+    const TrimPlan plan = plan_trim(nodes, groups.size(), leafCut);
+    out.groups = plan.groups;
+    out.leafError = measure(nodes, leafCut).error;
 
     // Emit: cluster-local vertex streams and 8-bit triangles, level 0 first (clusters were created in level order
-    // per round; a stable sort by level keeps that order within a level).
-    std::vector<uint32_t> order(clusters.size());
-    for (size_t i = 0; i < order.size(); ++i) order[i] = uint32_t(i);
-    std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return clusters[a].level < clusters[b].level; });
-    std::vector<uint32_t> localIndex(vertexCount, 0), stamp(vertexCount, UINT32_MAX), clusterVertices;
+    // per round; a stable sort by level keeps that order within a level). Trimmed clusters are left out.
+    std::vector<uint32_t> order;
+    for (uint32_t i = 0; i < clusters.size(); ++i)
+        if (plan.level[i] >= 0) order.push_back(i);
+    std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return plan.level[a] < plan.level[b]; });
+    const size_t totalVertices = local.size() / 3;
+    std::vector<uint32_t> localIndex(totalVertices, 0), stamp(totalVertices, UINT32_MAX), clusterVertices;
     for (uint32_t id : order) {
         const WorkCluster& w = clusters[id];
         clusterVertices.clear();
@@ -482,22 +588,24 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         }
         c.vertexCount = uint32_t(clusterVertices.size());
         for (uint32_t v : clusterVertices) {
+            const uint32_t a = attributeOf[v];
             out.positions.insert(out.positions.end(), &local[3 * v], &local[3 * v] + 3);
-            out.normals.push_back(encode_octahedral(mesh.normals[3 * v], mesh.normals[3 * v + 1], mesh.normals[3 * v + 2]));
+            out.normals.push_back(encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]));
             if (hasColors) {
-                const float* col = &mesh.colors[3 * v];
+                const float* col = &mesh.colors[3 * a];
                 out.colors.push_back(float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16));
                 out.colors.push_back(float_to_half(col[2]) | (uint32_t(float_to_half(1.0f)) << 16));
             }
         }
         c.sphere = to_float(vertex_sphere(local, clusterVertices.data(), clusterVertices.size()));
         c.lodSphere = to_float(w.lodSphere);
-        c.lodError = w.lodError;
-        c.level = w.level;
+        // The stored leaves are the best there is: always fine enough for the runtime cut.
+        c.lodError = plan.level[id] == 0 ? 0.0f : w.lodError;
+        c.level = uint32_t(plan.level[id]);
         if (w.parentGroup >= 0) {
             c.parentSphere = to_float(groups[w.parentGroup].sphere);
             c.parentError = groups[w.parentGroup].error;
-            c.parentGroup = uint32_t(w.parentGroup);
+            c.parentGroup = uint32_t(plan.group[w.parentGroup]);
         } else {
             c.parentSphere = c.lodSphere;
             c.parentError = std::numeric_limits<float>::infinity();
@@ -506,9 +614,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         append_cluster(out, c);
     }
 
-    std::vector<uint32_t> all(vertexCount);
+    std::vector<uint32_t> all(totalVertices);
     for (size_t i = 0; i < all.size(); ++i) all[i] = uint32_t(i);
     out.sphere = to_float(vertex_sphere(local, all.data(), all.size()));
+    out.fallback = extract_cut(out, fallbackCut);
+    out.fallback.error = measure(nodes, fallbackCut).error;
     return out;
 }
 

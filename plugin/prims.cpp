@@ -17,7 +17,7 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
             MeshSource source = scene.get_mesh(id());
             doubleSided_ = source.doubleSided;
             if (source.view.name.empty()) source.view.name = id();
-            CachedBuild built = build_through_cache(source.view, BuildSettings{}, cache_);
+            CachedBuild built = build_through_cache(source.view, source.settings, cache_);
             for (auto& w : built.warnings) param.warnings.push_back(std::move(w));
             ++(built.fromCache ? param.meshesFromCache : param.meshesBuilt);
             gpuMesh_ = scene_.add_mesh(std::move(built.mesh));

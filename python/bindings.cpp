@@ -113,6 +113,71 @@ nb::dict stats_dict(const FrameStats& s) {
     return d;
 }
 
+// Build settings by their Python names (snake case of BuildSettings' fields); position_precision None is automatic.
+constexpr std::pair<const char*, const char*> kSettingNames[] = {
+    {"position_precision", "positionPrecision"},         {"preserve_area", "preserveArea"},
+    {"trim_relative_error", "trimRelativeError"},       {"keep_triangle_percent", "keepTrianglePercent"},
+    {"fallback_relative_error", "fallbackRelativeError"}, {"fallback_triangle_percent", "fallbackTrianglePercent"},
+    {"max_edge_length_factor", "maxEdgeLengthFactor"}};
+
+// Validated settings from keyword arguments; errors name the Python keyword.
+BuildSettings settings_from(const nb::kwargs& kwargs, BuildSettings s = {}) {
+    for (auto [key, value] : kwargs) {
+        const std::string name = nb::cast<std::string>(key);
+        if (name == "position_precision") s.positionPrecision = value.is_none() ? BuildSettings::kAutoPrecision : nb::cast<int>(value);
+        else if (name == "preserve_area") s.preserveArea = nb::cast<bool>(value);
+        else if (name == "trim_relative_error") s.trimRelativeError = nb::cast<float>(value);
+        else if (name == "keep_triangle_percent") s.keepTrianglePercent = nb::cast<float>(value);
+        else if (name == "fallback_relative_error") s.fallbackRelativeError = nb::cast<float>(value);
+        else if (name == "fallback_triangle_percent") s.fallbackTrianglePercent = nb::cast<float>(value);
+        else if (name == "max_edge_length_factor") s.maxEdgeLengthFactor = nb::cast<float>(value);
+        else throw nb::type_error(("unknown build setting '" + name + "'").c_str());
+    }
+    try {
+        validate_settings(s);
+    } catch (const std::invalid_argument& e) {
+        std::string message = e.what();
+        for (auto [python, cpp] : kSettingNames)
+            if (size_t at = message.find(cpp); at != std::string::npos) message.replace(at, std::strlen(cpp), python);
+        throw nb::value_error(message.c_str());
+    }
+    return s;
+}
+
+nb::dict settings_dict(const BuildSettings& s) {
+    nb::dict d;
+    d["position_precision"] = s.positionPrecision == BuildSettings::kAutoPrecision ? nb::none() : nb::cast(s.positionPrecision);
+    d["preserve_area"] = s.preserveArea;
+    d["trim_relative_error"] = s.trimRelativeError;
+    d["keep_triangle_percent"] = s.keepTrianglePercent;
+    d["fallback_relative_error"] = s.fallbackRelativeError;
+    d["fallback_triangle_percent"] = s.fallbackTrianglePercent;
+    d["max_edge_length_factor"] = s.maxEdgeLengthFactor;
+    return d;
+}
+
+// (N, 3) numpy array owning `values`.
+template <typename T>
+nb::ndarray<T, nb::numpy, nb::shape<-1, 3>> rows_of_three(std::vector<T> values) {
+    auto* owned = new std::vector<T>(std::move(values));
+    nb::capsule owner(owned, [](void* v) noexcept { delete static_cast<std::vector<T>*>(v); });
+    return nb::ndarray<T, nb::numpy, nb::shape<-1, 3>>(owned->data(), {owned->size() / 3, 3}, owner);
+}
+
+nb::dict fallback_dict(const BuiltMesh& built) {
+    const FallbackMesh& f = built.fallback;
+    std::vector<float> positions(f.positions.size());  // object space, through double
+    for (size_t i = 0; i < positions.size(); ++i) positions[i] = float(built.origin[i % 3] + double(f.positions[i]));
+    nb::dict d;
+    d["positions"] = rows_of_three(std::move(positions));
+    d["normals"] = rows_of_three(f.normals);
+    d["indices"] = rows_of_three(f.indices);
+    d["triangles"] = f.indices.size() / 3;
+    d["error"] = f.error;
+    d["relative_error"] = built.size > 0 ? f.error / built.size : 0.0f;
+    return d;
+}
+
 }  // namespace
 
 NB_MODULE(_tessera, m) {
@@ -121,7 +186,16 @@ NB_MODULE(_tessera, m) {
     nb::exception<MeshError>(m, "MeshError", PyExc_ValueError);
     nb::exception<ImageIoError>(m, "ImageIoError", PyExc_IOError);
 
-    nb::class_<MeshSource>(m, "MeshSource");
+    nb::class_<BuildSettings>(m, "BuildSettings")
+        .def("__init__", [](BuildSettings* self, const nb::kwargs& kwargs) { new (self) BuildSettings(settings_from(kwargs)); })
+        .def("replace", [](const BuildSettings& s, const nb::kwargs& kwargs) { return settings_from(kwargs, s); },
+             "A copy with the given settings changed (validated).")
+        .def("as_dict", &settings_dict)
+        .def("__repr__", [](const BuildSettings& s) { return "BuildSettings(" + nb::cast<std::string>(nb::repr(settings_dict(s))) + ")"; })
+        .doc() = "Per-mesh build settings after Nanite's, validated; keywords as tessera.build_mesh takes them.";
+
+    nb::class_<MeshSource>(m, "MeshSource")
+        .def_rw("settings", &MeshSource::settings, "The BuildSettings this mesh is built with.");
     m.def(
         "mesh_source",
         [](const std::string& name, Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices,
@@ -331,7 +405,7 @@ NB_MODULE(_tessera, m) {
             CachedBuild built;
             {
                 nb::gil_scoped_release release;
-                built = build_through_cache(source.view, BuildSettings{}, MeshCache::from_environment());
+                built = build_through_cache(source.view, source.settings, MeshCache::from_environment());
             }
             nb::dict d;
             d["cached"] = built.fromCache;
@@ -343,7 +417,8 @@ NB_MODULE(_tessera, m) {
 
     m.def(
         "build_mesh",
-        [](Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices, const std::string& name) {
+        [](Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices, const std::string& name, const nb::kwargs& kwargs) {
+            const BuildSettings settings = settings_from(kwargs);
             MeshView view;
             view.name = name;
             view.points = {points.data(), points.shape(0)};
@@ -355,7 +430,7 @@ NB_MODULE(_tessera, m) {
             {
                 nb::gil_scoped_release release;  // building is pure C++: let other Python threads run
                 prepared = prepare_mesh(view);
-                built = build_mesh(prepared);
+                built = build_mesh(prepared, settings);
                 encode_pages(built, &layout);
             }
             nb::dict d;
@@ -384,10 +459,15 @@ NB_MODULE(_tessera, m) {
             d["pages"] = layout.pages;
             d["root_pages"] = layout.rootPages;
             d["position_precision"] = built.positionPrecision;
+            d["leaf_triangles"] = built.leafTriangles;
+            d["leaf_error"] = built.leafError;
+            d["fallback"] = fallback_dict(built);
+            d["settings"] = settings_dict(settings);
             d["warnings"] = prepared.warnings;
             return d;
         },
-        "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "name"_a = "mesh",
-        "Prepares a mesh and builds its cluster DAG; returns the DAG's statistics (levels, clusters, groups, triangles and "
-        "error per level, in-memory bytes).");
+        "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "name"_a = "mesh", "kwargs"_a,
+        "Prepares a mesh and builds its cluster DAG with the build settings given as keywords (see tessera.build_mesh); "
+        "returns the DAG's statistics (levels, clusters, groups, triangles and error per level, in-memory bytes) and the "
+        "fallback mesh.");
 }

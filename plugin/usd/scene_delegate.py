@@ -36,9 +36,12 @@ class _Rprim:
 
 
 class UsdSceneDelegate(_tessera.SceneDelegate):
-    def __init__(self, stage: Usd.Stage, render_index, time: Usd.TimeCode = Usd.TimeCode.Default(), refine_level: int = 2):
+    def __init__(self, stage: Usd.Stage, render_index, time: Usd.TimeCode = Usd.TimeCode.Default(), refine_level: int = 2,
+                 build_settings: _tessera.BuildSettings | None = None):
         super().__init__()
         self.refine_level = refine_level  # uniform refinements of subdivision surfaces (catmullClark, loop, bilinear)
+        # Every mesh's build settings (render-wide defaults; per-mesh TesseraMeshAPI values are not read yet).
+        self.build_settings = build_settings or _tessera.BuildSettings()
         self.stage = stage
         self.index = render_index
         self.time = time
@@ -175,7 +178,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     # -- SceneDelegate ----------------------------------------------------------------------------------
 
     def get_mesh(self, id: str):
-        prim = self.rprims[id].prim
+        source = self._mesh_source(self.rprims[id].prim)
+        source.settings = self.build_settings
+        return source
+
+    def _mesh_source(self, prim: Usd.Prim):
         if not prim.IsA(UsdGeom.Mesh):
             return implicit.mesh_source(prim, self.time)
         mesh = UsdGeom.Mesh(prim)

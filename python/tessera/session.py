@@ -65,7 +65,8 @@ class Session:
     """Opens a stage and renders it; the render delegate and the GPU scene live as long as the session."""
 
     def __init__(self, stage, *, frame: float | None = None, device: str | None = None, validation: bool | None = None,
-                 refine_level: int = 2):
+                 refine_level: int = 2, build_settings: _tessera.BuildSettings | dict | None = None):
+        """`build_settings` (a BuildSettings or a dict of tessera.build_mesh's keywords) applies to every mesh."""
         from pxr import Usd
 
         from .usd import UsdSceneDelegate
@@ -74,7 +75,9 @@ class Session:
         self.time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
         self.delegate = _tessera.RenderDelegate(device=device, validation=validation)
         self.index = _tessera.RenderIndex(self.delegate)
-        self.scene = UsdSceneDelegate(self.stage, self.index, self.time, refine_level)
+        if isinstance(build_settings, dict):
+            build_settings = _tessera.BuildSettings(**build_settings)
+        self.scene = UsdSceneDelegate(self.stage, self.index, self.time, refine_level, build_settings)
         self.scene.populate()
 
     @property

@@ -5,8 +5,10 @@
 
 #include "test_meshes.h"
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <unistd.h>
 
 using namespace tessera;
@@ -51,6 +53,31 @@ TEST(Cache, KeyFollowsContentAndSettings) {
     flipped.leftHanded = true;
     EXPECT_NE(MeshCache::key(a.view(), {}), MeshCache::key(flipped, {}));
     EXPECT_EQ(MeshCache::key(a.view(), {}).size(), 32u);
+}
+
+TEST(Cache, EverySettingChangesTheKey) {
+    Quads q(20);
+    std::vector<BuildSettings> variants(7);
+    variants[1].positionPrecision = -8;
+    variants[2].preserveArea = true;
+    variants[3].trimRelativeError = 0.5f;
+    variants[4].keepTrianglePercent = 50;
+    variants[5].fallbackRelativeError = 2;
+    variants[6].maxEdgeLengthFactor = 10;
+    variants.push_back({});
+    variants.back().fallbackTrianglePercent = 20;
+    std::set<std::string> keys;
+    for (const BuildSettings& s : variants) keys.insert(MeshCache::key(q.view(), s));
+    EXPECT_EQ(keys.size(), variants.size()) << "each setting changes the build, so each must change the key";
+    BuildSettings negativeZero;
+    negativeZero.trimRelativeError = -0.0f;
+    EXPECT_EQ(MeshCache::key(q.view(), negativeZero), MeshCache::key(q.view(), {})) << "-0 builds what 0 builds";
+}
+
+TEST(Cache, BadSettingsFailBeforeTheLookup) {
+    BuildSettings bad;
+    bad.keepTrianglePercent = NAN;
+    EXPECT_THROW(build_through_cache(Quads(4).view(), bad, MeshCache("")), std::invalid_argument);
 }
 
 TEST(Cache, SecondBuildComesFromTheCacheAndMatches) {

@@ -97,6 +97,15 @@ struct LevelStats {
     float maxError = 0;  // largest LOD error of the level's clusters, mesh units
 };
 
+// A plain indexed triangle mesh: a crack-free DAG cut for whatever cannot draw the DAG.
+struct FallbackMesh {
+    std::vector<float> positions;   // 3 per vertex, relative to BuiltMesh::origin
+    std::vector<float> normals;     // 3 per vertex, unit length
+    std::vector<uint32_t> indices;  // 3 per triangle, counter-clockwise from the front
+    float error = 0;                // largest error of its clusters against the source, mesh units
+    float threshold = -1;           // its cut: the clusters with lodError <= threshold < parentError; < 0: level 0
+};
+
 // The cluster DAG over cluster-local vertex streams. Positions are relative to `origin` (computed in double), so a
 // mesh authored far from the origin keeps its precision once its origin moves into the instance transform.
 // Clusters are stored level 0 first: the first `leafClusters` clusters (and their vertices and triangles, which
@@ -119,16 +128,39 @@ struct BuiltMesh {
     double positionStep = 1.0;
     std::array<float, 3> constantColor{0.5f, 0.5f, 0.5f};
     bool hasConstantColor = false;
-    size_t sourceTriangles = 0;
+    size_t sourceTriangles = 0;         // as authored (after dropping collapsed triangles); the leaf level may hold fewer
+    float leafError = 0;                // error of the stored leaf level against the source (0 unless trimmed), mesh units
+    FallbackMesh fallback;              // not in the page file: empty for a mesh decoded from pages
 };
 
-// Per-mesh build settings (the schema's tessera:* attributes; render-wide defaults).
+// Per-mesh build settings (the schema's tessera:* attributes; render-wide defaults), after Nanite's. Relative errors
+// are in percent of the mesh size (the diagonal of its bounding box), as Nanite's are in percent of its size measure.
 struct BuildSettings {
     static constexpr int kAutoPrecision = -1000;
     // log2 of the position grid step in object space (-10: 1/1024 units), or automatic: the largest power of two
     // at most min(mesh size / 2^16, shortest edge / 64). Coarsened if the mesh would span more than 2^23 steps.
+    // Explicit values lie in [-64, 64].
     int positionPrecision = kAutoPrecision;
+    // Foliage: open borders are dilated as groups simplify, so that the area a level loses (parts dropped, corners
+    // cut) goes back into the parts that remain; cards and quad soups then do not thin out with distance.
+    bool preserveArea = false;
+    // Detail below these is not stored: the leaf level becomes the first DAG cut (fine to coarse) whose error is at
+    // least trimRelativeError percent of the mesh size and whose triangles are at most keepTrianglePercent of the
+    // source. The defaults (0 %, 100 %) keep everything; each works alone with the other at its default.
+    float trimRelativeError = 0.0f;
+    float keepTrianglePercent = 100.0f;
+    // The fallback mesh (BuiltMesh::fallback): the first DAG cut whose error is at least fallbackRelativeError
+    // percent of the mesh size and whose triangles are at most fallbackTrianglePercent of the source, never finer
+    // than the stored leaf level. Nanite's defaults: 1 % and 100 %.
+    float fallbackRelativeError = 1.0f;
+    float fallbackTrianglePercent = 100.0f;
+    // Simplification creates no edge longer than this factor times the mean edge length of the source (0: no
+    // limit); edges the source already had are kept whatever their length.
+    float maxEdgeLengthFactor = 0.0f;
 };
+
+// Settings that cannot be used: std::invalid_argument naming the setting and the value.
+void validate_settings(const BuildSettings& settings);
 
 // Builds the cluster DAG of a prepared mesh (meshoptimizer for clusters, partitioning and simplification).
 // Positions are snapped to the precision grid first, so every level is built from grid points and vertices that
@@ -168,6 +200,10 @@ struct NormalCone {
     int8_t cutoff8 = 127;
 };
 NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster);
+
+// The fallback mesh of the cut at `threshold` (FallbackMesh::threshold) of a built or decoded DAG: what build_mesh made,
+// bit for bit, so a page file needs to keep only the threshold and the error to restore it. `error` is left at 0.
+FallbackMesh extract_fallback(const BuiltMesh& mesh, float threshold);
 
 // Octahedral normal encoding (snorm16x2 packed in a uint32), shared with the shaders' decoder.
 uint32_t encode_octahedral(float x, float y, float z);

@@ -43,6 +43,7 @@ enum DirtyBits : uint32_t {
 struct MeshSource {
     MeshView view;
     bool doubleSided = false;
+    BuildSettings settings;  // the mesh's own, else the render-wide defaults
     std::shared_ptr<const void> keepAlive;
 };
 

@@ -1,0 +1,13 @@
+// Internal to the builder: the fallback mesh, a DAG cut turned into one indexed triangle mesh.
+#pragma once
+
+#include "cut.h"
+#include "tessera/builder.h"
+
+namespace tessera {
+
+// The triangles of the clusters in `cut`, with vertices that match in position and normal (bit for bit) merged, so
+// that cluster borders, whose positions the DAG keeps identical, become shared vertices. `error` is left to the caller.
+FallbackMesh extract_cut(const BuiltMesh& mesh, const DagCut& cut);
+
+}  // namespace tessera

@@ -1,0 +1,85 @@
+"""tessera.build_mesh's per-mesh settings (Nanite's): trimming, the fallback mesh, Preserve Area, validation, and
+render-wide defaults through tessera.Session."""
+
+import numpy as np
+import pytest
+
+import tessera
+from conftest import TESTENV
+from tessera.bench import displaced_sphere
+
+
+def card_field(count, seed=3):
+    """Disjoint square cards facing +z (foliage seen from above)."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(0, 10, (count, 3)) * [1, 1, 0.1]
+    turn = rng.uniform(0, np.pi / 2, count)
+    axis_u = np.stack([np.cos(turn), np.sin(turn), 0 * turn], -1) * 0.04
+    axis_v = np.stack([-np.sin(turn), np.cos(turn), 0 * turn], -1) * 0.04
+    corners = np.stack([centres - axis_u - axis_v, centres + axis_u - axis_v, centres + axis_u + axis_v, centres - axis_u + axis_v], 1)
+    return corners.reshape(-1, 3), np.full(count, 4), np.arange(4 * count)
+
+
+def area_along_z(fallback):
+    p = fallback["positions"][fallback["indices"]]  # (M, 3 corners, xyz)
+    u, v = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    return 0.5 * np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]).sum()
+
+
+def test_defaults_are_nanites_and_the_fallback_comes_back():
+    stats = tessera.build_mesh(*displaced_sphere(60))
+    assert stats["settings"] == {"position_precision": None, "preserve_area": False, "trim_relative_error": 0.0,
+                                 "keep_triangle_percent": 100.0, "fallback_relative_error": 1.0,
+                                 "fallback_triangle_percent": 100.0, "max_edge_length_factor": 0.0}
+    assert stats["leaf_triangles"] == stats["source_triangles"] and stats["leaf_error"] == 0.0
+    fallback = stats["fallback"]
+    positions, normals, indices = fallback["positions"], fallback["normals"], fallback["indices"]
+    assert positions.dtype == np.float32 and positions.shape[1] == 3 and normals.shape == positions.shape
+    assert indices.dtype == np.uint32 and indices.shape == (fallback["triangles"], 3) and indices.max() < len(positions)
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-3)
+    assert fallback["relative_error"] >= 0.01, "the first cut at 1 % of the mesh size"
+    assert fallback["triangles"] < stats["source_triangles"]
+    assert np.abs(np.linalg.norm(positions, axis=1) - 1).max() < 0.1, "object space: on the unit sphere, give or take its bumps"
+
+
+def test_keep_triangle_percent_and_trim_relative_error_store_less():
+    source = displaced_sphere(60)
+    full = tessera.build_mesh(*source)
+    kept = tessera.build_mesh(*source, keep_triangle_percent=25)
+    assert kept["source_triangles"] == full["source_triangles"]
+    assert kept["levels"][0]["triangles"] == kept["leaf_triangles"] <= 0.25 * full["source_triangles"]
+    assert kept["levels"][0]["max_error"] == 0.0 and kept["leaf_error"] > 0
+    trimmed = tessera.build_mesh(*source, trim_relative_error=0.5)
+    assert trimmed["leaf_error"] >= 0.005 * trimmed["size"]
+    assert trimmed["leaf_triangles"] < full["leaf_triangles"]
+
+
+def test_preserve_area_keeps_a_card_field_covered():
+    cards = card_field(3000)
+    coarse = dict(fallback_relative_error=0.0, fallback_triangle_percent=10)  # the fallback: a cut at a tenth
+    source = area_along_z(tessera.build_mesh(*cards, fallback_triangle_percent=100, fallback_relative_error=0)["fallback"])
+    assert source == pytest.approx(3000 * 0.08 ** 2, rel=1e-3)
+    kept = area_along_z(tessera.build_mesh(*cards, preserve_area=True, **coarse)["fallback"])
+    lost = area_along_z(tessera.build_mesh(*cards, **coarse)["fallback"])
+    assert kept == pytest.approx(source, rel=0.02)
+    assert lost < 0.5 * source
+
+
+def test_bad_settings_raise_and_name_the_keyword():
+    source = displaced_sphere(8)
+    for keyword, value in [("keep_triangle_percent", -1), ("fallback_triangle_percent", 101), ("trim_relative_error", float("nan")),
+                           ("fallback_relative_error", float("inf")), ("max_edge_length_factor", -0.5), ("position_precision", 99)]:
+        with pytest.raises(ValueError, match=keyword):
+            tessera.build_mesh(*source, **{keyword: value})
+    with pytest.raises(TypeError):
+        tessera.build_mesh(*source, keep_percent=50)
+    assert tessera.build_mesh(*source, position_precision=-8)["position_precision"] == -8
+
+
+def test_session_applies_build_settings_to_every_mesh():
+    session = tessera.Session(TESTENV / "testCube" / "cube.usda", build_settings={"keep_triangle_percent": 50, "preserve_area": True})
+    for prim_id in session.scene.rprims:
+        settings = session.scene.get_mesh(prim_id).settings.as_dict()
+        assert settings["keep_triangle_percent"] == 50 and settings["preserve_area"]
+    with pytest.raises(ValueError, match="keep_triangle_percent"):
+        tessera.Session(TESTENV / "testCube" / "cube.usda", build_settings={"keep_triangle_percent": 500})
