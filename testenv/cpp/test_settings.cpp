@@ -291,7 +291,7 @@ TEST(Trim, KeepTrianglePercentStoresTheFirstCutWithinBudget) {
     EXPECT_EQ(trimmed.leafError, expected.error);
     EXPECT_EQ(trimmed.levels[0].maxError, 0.0f) << "stored leaves are drawn whenever the runtime wants full detail";
     expect_monotone(trimmed);
-    expect_crack_free_cuts(trimmed, 30);
+    expect_crack_free_cuts(trimmed, 200);  // few levels remain: enough cuts to land between them
 }
 
 TEST(Trim, TrimRelativeErrorDropsDetailBelowIt) {
