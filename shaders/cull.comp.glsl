@@ -19,6 +19,7 @@ const float NEVER_FINE_ENOUGH = 3.4e38;
 // an error gets the same answer, which keeps siblings and parents consistent (a cut without cracks).
 float projected_error(GpuFrame frame, GpuInstance instance, vec3 translation, float scale, vec4 sphere, float error) {
     if (error >= TS_ROOT_ERROR) return NEVER_FINE_ENOUGH;
+    if (error <= 0.0) return 0.0;  // exact (source triangles): fine enough even from inside its sphere
     float size = error * scale * frame.lod.x;
     if (frame.lod.z != 0.0) return size;  // orthographic: independent of distance
     vec3 center = to_camera_relative(instance, translation, sphere.xyz);

@@ -408,3 +408,31 @@ TEST_F(RendererTest, ThePostPassDrawsWhatTheLastFrameHid) {
     EXPECT_TRUE(stats.occlusionTested);
     EXPECT_GT(stats.postPassClusters, 0u) << "the spheres hidden last frame come back in the post pass";
 }
+
+TEST_F(RendererTest, HugeTrianglesThroughTheNearPlaneAreClippedNotDroppedOrSmeared) {
+    // A ground plane 2e5 units across, two triangles, seen from 1 unit above looking at the horizon: every triangle
+    // crosses the near plane and reaches far past any guard band, and the camera is inside the cluster's bounds.
+    // Below the horizon every pixel must be ground, above it none, whichever rasterizer is asked for (clusters
+    // through the near plane go to hardware raster).
+    std::vector<float> points = {-1e5f, 0, -1e5f, 1e5f, 0, -1e5f, 1e5f, 0, 1e5f, -1e5f, 0, 1e5f};
+    std::vector<int32_t> counts = {4}, indices = {0, 3, 2, 1};  // faces +Y
+    GpuScene scene;
+    scene.set_instances({identity_instance(scene.add_mesh(std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(polygon_view("/Ground", points, counts, indices))))))});
+    CameraDesc eye = camera_at(0, 1, 0);
+    eye.farClip = 1e7;
+    Renderer renderer(*device);
+    for (RasterMode mode : {RasterMode::Auto, RasterMode::Software, RasterMode::Hardware}) {
+        RenderSettings settings{128, 96, {0, 0, 0, 0}};
+        settings.raster = mode;
+        const Image ids = renderer.render(scene, eye, settings, {Aov::PrimId})[0];
+        size_t wrong = 0;
+        for (uint32_t y = 0; y < 96; ++y)
+            for (uint32_t x = 0; x < 128; ++x) {
+                const bool ground = id_at(ids, x, y) == 0u;
+                // Rows 0-47 lie above the horizon (the image centre is between rows 47 and 48); the farthest ground
+                // a row-48 pixel centre sees is 1 / tan(0.5 px) ~ 100 units away, well inside the plane.
+                wrong += ground != (y >= 48);
+            }
+        EXPECT_EQ(wrong, 0u) << "raster mode " << int(mode);
+    }
+}
