@@ -92,6 +92,7 @@ MeshCache MeshCache::from_environment() {
 std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) {
     Hasher h;
     h.word(kPageFormatVersion);
+    h.word(kBuilderRevision);
     hash_settings(h, settings);
     h.span(mesh.points);
     h.span(mesh.faceVertexCounts);

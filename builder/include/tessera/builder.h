@@ -171,6 +171,9 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings = {
 // Clusters are stored in pages of at most kPageBytes; the children of one group never straddle pages (a parent
 // refines by loading one page), and root clusters (no parent) fill pages of their own that stay resident.
 constexpr uint32_t kPageFormatVersion = 1;
+// Bumped whenever the builder makes a different DAG from the same input and settings (simplifier weights, grouping,
+// error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
+constexpr uint32_t kBuilderRevision = 2;
 constexpr uint32_t kPageBytes = 128 * 1024;
 
 // A file that is not a Tessera DAG, or is truncated, corrupt or of another format version.

@@ -1,6 +1,6 @@
 // The content-addressed mesh cache: a built mesh is stored as a page file under a key computed from everything
-// that determines it (the mesh as authored, the build settings, the page format version), so an unchanged mesh
-// is never built twice, across renders, processes and stages.
+// that determines it (the mesh as authored, the build settings, the page format version, the builder revision),
+// so an unchanged mesh is never built twice, across renders, processes and stages.
 #pragma once
 
 #include "tessera/builder.h"
@@ -22,7 +22,7 @@ public:
     bool enabled() const { return !directory_.empty(); }
     const std::string& directory() const { return directory_; }
 
-    // 32 hex digits: a 128-bit hash of the mesh, the settings and the format version.
+    // 32 hex digits: a 128-bit hash of the mesh, the settings, the format version and the builder revision.
     static std::string key(const MeshView& mesh, const BuildSettings& settings);
 
     struct Entry {
