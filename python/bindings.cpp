@@ -103,6 +103,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["occluded_clusters"] = s.occludedClusters;
     d["post_pass_clusters"] = s.postPassClusters;
     d["backface_clusters"] = s.backfaceClusters;
+    d["shading_bins"] = s.shadingBins;
     nb::dict gpuMs;
     gpuMs["cull"] = s.cullMs;
     gpuMs["sw_raster"] = s.softwareRasterMs;

@@ -7,6 +7,9 @@
 #include "tessera/renderer.h"
 
 #include "shared.h"
+#include "spirv/background_comp.h"
+#include "spirv/bins_comp.h"
+#include "spirv/classify_comp.h"
 #include "spirv/cull_comp.h"
 #include "spirv/hzb_comp.h"
 #include "spirv/raster_frag.h"
@@ -284,7 +287,8 @@ void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
 struct Renderer::Impl {
     Device& device;
     VkPipelineLayout layout = VK_NULL_HANDLE;
-    VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, rasterSoftware = VK_NULL_HANDLE, resolve = VK_NULL_HANDLE;
+    VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, rasterSoftware = VK_NULL_HANDLE;
+    VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE, resolve = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
@@ -304,6 +308,8 @@ struct Renderer::Impl {
     Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
     Buffer deferredInstances, deferredClusters;
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
+    Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
+    uint32_t materialCount = 1;
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbPrevious, hzbCurrent;
@@ -321,6 +327,9 @@ struct Renderer::Impl {
         vkDeviceWaitIdle(vk);
         vkDestroyPipeline(vk, cull, nullptr);
         vkDestroyPipeline(vk, hzb, nullptr);
+        vkDestroyPipeline(vk, classify, nullptr);
+        vkDestroyPipeline(vk, bins, nullptr);
+        vkDestroyPipeline(vk, background, nullptr);
         vkDestroyPipeline(vk, raster, nullptr);
         vkDestroyPipeline(vk, rasterSoftware, nullptr);
         vkDestroyPipeline(vk, resolve, nullptr);
@@ -349,6 +358,9 @@ struct Renderer::Impl {
         cull = compute_pipeline(cull_comp, sizeof(cull_comp));
         resolve = compute_pipeline(resolve_comp, sizeof(resolve_comp));
         hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
+        classify = compute_pipeline(classify_comp, sizeof(classify_comp));
+        bins = compute_pipeline(bins_comp, sizeof(bins_comp));
+        background = compute_pipeline(background_comp, sizeof(background_comp));
         rasterSoftware = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp));
 
         // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
@@ -524,6 +536,9 @@ struct Renderer::Impl {
         }
         if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 0}, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0, 0});
         upload_vector(device, materials, gpuMaterials);
+        materialCount = uint32_t(gpuMaterials.size());
+        if (shadingBins.size < uint64_t(materialCount) * sizeof(gpu::GpuBin))
+            shadingBins = device.create_buffer(uint64_t(materialCount) * sizeof(gpu::GpuBin), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
     }
 
     void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount) {
@@ -539,6 +554,7 @@ struct Renderer::Impl {
         if (w != width || h != height || !visibility.handle) {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
             aovOutput = device.create_buffer(pixels * 16, MemoryUse::Device);
+            binPixels = device.create_buffer(pixels * 4, MemoryUse::Device);
             hzbPrevious = Buffer{};
             hzbCurrent = Buffer{};
             previousValid = false;
@@ -632,7 +648,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.background = {settings.background[0], settings.background[1], settings.background[2], settings.background[3]};
         const auto& lights = scene.lights_;
         const uint32_t lightCount = uint32_t(std::min<size_t>(lights.size(), TS_MAX_LIGHTS));
-        f.viewport = {settings.width, settings.height, 0, lightCount};
+        f.viewport = {settings.width, settings.height, s.materialCount, lightCount};
         for (uint32_t i = 0; i < lightCount; ++i) {
             const LightDesc& l = lights[i];
             double d[3] = {l.direction[0], l.direction[1], l.direction[2]};
@@ -683,6 +699,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const bool countOverdraw = settings.visualize == Visualize::Overdraw;
         if (countOverdraw && s.overdraw.size < pixels * 4) s.overdraw = device_.create_buffer(pixels * 4, MemoryUse::Device);
         f.overdraw = countOverdraw ? s.overdraw.address : 0;
+        f.bins = s.shadingBins.address;
+        f.binPixels = s.binPixels.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
@@ -699,6 +717,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
             if (countOverdraw) vkCmdFillBuffer(cmd, s.overdraw.handle, 0, pixels * 4, 0);
+            vkCmdFillBuffer(cmd, s.shadingBins.handle, 0, uint64_t(s.materialCount) * sizeof(gpu::GpuBin), 0);
             barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
                     VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
                     VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
@@ -771,14 +790,41 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             if (occlusion) s.build_hzb(cmd, s.hzbPrevious);
             mark();
 
-            vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.resolve);
+            // Material bins: count covered pixels per material, give each bin its range and dispatch arguments, scatter.
+            auto compute_barrier = [&]() {
+                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                        VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
+                        VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+            };
+            const uint32_t tilesX = (settings.width + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE, tilesY = (settings.height + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE;
+            for (uint32_t step : {TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
+                PushConstants classifyPush{s.frame.address, 0, step, 0};
+                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(classifyPush), &classifyPush);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.classify);
+                vkCmdDispatch(cmd, tilesX, tilesY, 1);
+                compute_barrier();
+                if (step == TS_CLASSIFY_COUNT) {
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.bins);
+                    vkCmdDispatch(cmd, 1, 1, 1);
+                    compute_barrier();
+                }
+            }
+
+            // Each AOV: the background, then one indirect dispatch per material over its bin's pixels.
             for (size_t i = 0; i < aovs.size(); ++i) {
                 if (i > 0)  // the previous copy must finish reading before the next resolve overwrites
                     barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                PushConstants resolvePush{s.frame.address, uint32_t(aovs[i]), 0, 0};
-                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(resolvePush), &resolvePush);
-                vkCmdDispatch(cmd, (settings.width + TS_RESOLVE_TILE - 1) / TS_RESOLVE_TILE, (settings.height + TS_RESOLVE_TILE - 1) / TS_RESOLVE_TILE, 1);
+                PushConstants background{s.frame.address, uint32_t(aovs[i]), 0, 0};
+                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.background);
+                vkCmdDispatch(cmd, tilesX, tilesY, 1);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.resolve);
+                for (uint32_t m = 0; m < s.materialCount; ++m) {
+                    PushConstants shade{s.frame.address, uint32_t(aovs[i]), m, 0};
+                    vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
+                    vkCmdDispatchIndirect(cmd, s.shadingBins.handle, m * sizeof(gpu::GpuBin));
+                }
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
                         VK_ACCESS_2_TRANSFER_READ_BIT);
                 VkBufferCopy region{0, sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
@@ -819,6 +865,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.occludedClusters = state.occludedClusters;
         frameStats.postPassClusters = state.postClusters;
         frameStats.backfaceClusters = state.backfaceClusters;
+        frameStats.shadingBins = state.shadingBins;
         uint64_t ticks[Impl::kTimestamps] = {};
         if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, Impl::kTimestamps, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
             const double ms = device_.timestamp_period_ns() * 1e-6;

@@ -15,6 +15,7 @@ layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer Uin
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibleClusterRef { uvec2 data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer SlotListRef { uint data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer CounterRef { uint data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) buffer BinRef { GpuBin data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer DrawStateRef { GpuDrawState state; };
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibilityRef { uint64_t data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputRef { vec4 data[]; };
@@ -83,4 +84,9 @@ uint hzb_level_offset(GpuFrame frame, uint level) {
 // Both rasterizers record each fragment they write (the overdraw view).
 void count_fragment(GpuFrame frame, uint pixel) {
     if (frame.counts.w == TS_VIS_OVERDRAW) atomicAdd(CounterRef(frame.overdraw).data[pixel], 1u);
+}
+
+// The instance and cluster behind a non-zero visibility buffer value (TS_VISIBLE_SOFTWARE left in visible.x).
+uvec2 visible_cluster(GpuFrame frame, uint64_t value) {
+    return VisibleClusterRef(frame.visibleClusters).data[uint(value & 0xfffffffful) >> TS_VIS_TRIANGLE_BITS];
 }

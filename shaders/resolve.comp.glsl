@@ -1,11 +1,12 @@
-// Resolve: one thread per pixel reads the visibility buffer, refetches its triangle, finds the
-// barycentrics where the pixel's ray meets it, and writes the requested AOV. Every visible pixel is
-// shaded exactly once, whatever the overdraw.
+// Resolve, one dispatch per material bin (push.step: the material): one thread per covered pixel of the bin reads
+// the visibility buffer, refetches its triangle, finds the barycentrics where the pixel's ray meets it, and writes
+// the requested AOV. Every visible pixel is shaded exactly once, whatever the overdraw. background.comp.glsl writes
+// the pixels nothing covers.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
 
-layout(local_size_x = TS_RESOLVE_TILE, local_size_y = TS_RESOLVE_TILE) in;
+layout(local_size_x = TS_SHADE_GROUP_SIZE) in;
 
 const float PI = 3.14159265358979;
 
@@ -45,25 +46,13 @@ vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluste
     return id_color(instance.materialIndex);  // TS_VIS_SHADING_BINS
 }
 
-void main() {
-    GpuFrame frame = push.frame.f;
-    uvec2 pixel = gl_GlobalInvocationID.xy;
-    if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
-    uint index = pixel.y * frame.viewport.x + pixel.x;
-    uint aov = push.aov;
+// One covered pixel (visibility buffer value `value`, non-zero).
+void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
+    uvec2 pixel = uvec2(index % frame.viewport.x, index / frame.viewport.x);
     bool idAov = aov >= TS_AOV_PRIM_ID;
-    uint64_t value = VisibilityRef(frame.visibility).data[index];
     if (frame.counts.w == TS_VIS_OVERDRAW && aov == TS_AOV_COLOR) {
         uint fragments = CounterRef(frame.overdraw).data[index];
-        OutputRef(frame.aovOutput).data[index] = fragments == 0u ? frame.background : vec4(level_color(fragments - 1u), 1.0);
-        return;
-    }
-
-    if (value == 0ul) {
-        if (idAov) OutputIdRef(frame.aovOutput).data[index] = uvec4(0xffffffffu);
-        else if (aov == TS_AOV_COLOR) OutputRef(frame.aovOutput).data[index] = frame.background;
-        else if (aov == TS_AOV_DEPTH) OutputRef(frame.aovOutput).data[index] = vec4(uintBitsToFloat(0x7f800000u));
-        else OutputRef(frame.aovOutput).data[index] = vec4(0.0);
+        OutputRef(frame.aovOutput).data[index] = vec4(level_color(max(fragments, 1u) - 1u), 1.0);
         return;
     }
 
@@ -157,4 +146,15 @@ void main() {
             color += albedo * light.radiance.rgb;  // uniform dome radiance L reflects albedo * L; no occlusion yet
     }
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
+}
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    uint aov = push.aov;
+    uint stride = gl_NumWorkGroups.x * TS_SHADE_GROUP_SIZE;
+    GpuBin bin = BinRef(frame.bins).data[push.step];
+    for (uint i = gl_GlobalInvocationID.x; i < bin.count; i += stride) {
+        uint index = CounterRef(frame.binPixels).data[bin.offset + i];
+        shade(frame, index, VisibilityRef(frame.visibility).data[index], aov);
+    }
 }

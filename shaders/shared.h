@@ -73,6 +73,12 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_CULL_MAIN 0u
 #define TS_CULL_POST 1u
 
+// Material bins: covered pixels are counted per material, given each material a range, and scattered into it, so
+// that each material's pixels are shaded by one indirect dispatch of their own (push constant `step`: the material);
+// a pass of its own writes the background.
+#define TS_CLASSIFY_COUNT 0u
+#define TS_CLASSIFY_SCATTER 1u
+
 // Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
 #define TS_VISIBLE_SOFTWARE 0x80000000u
 // The compute rasterizer takes clusters whose bounding sphere projects to at most this radius in pixels (so a
@@ -85,7 +91,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
-#define TS_RESOLVE_TILE 8
+#define TS_PIXEL_TILE 8         // classify: 8x8 pixels per workgroup
+#define TS_SHADE_GROUP_SIZE 64  // resolve: a material bin's pixels per workgroup
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
 #define TS_HZB_TILE 8
 
@@ -188,9 +195,21 @@ struct GpuDrawState {
     uint occludedClusters; // clusters the post pass found hidden
     uint postClusters;     // clusters drawn by the post pass (hidden last frame, visible now)
     uint backfaceClusters; // clusters all of whose triangles face away from the camera
-    uint pad0;
+    uint shadingBins;      // materials with at least one visible pixel
 };
 TS_CHECK_SIZE(GpuDrawState, 96);
+
+// One material's bin: its covered pixels' range in the bin pixel list, and the indirect dispatch that shades them.
+struct GpuBin {
+    uint groupsX;          // VkDispatchIndirectCommand: min(ceil(count / TS_SHADE_GROUP_SIZE), 65535) workgroups
+    uint groupsY;
+    uint groupsZ;
+    uint count;            // covered pixels of this material
+    uint offset;           // first entry in the bin pixel list
+    uint cursor;           // entries scattered so far
+    uint pad0, pad1;
+};
+TS_CHECK_SIZE(GpuBin, 32);
 
 // Per-frame constants, reached through the single pointer in the push constants.
 struct GpuFrame {
@@ -204,7 +223,7 @@ struct GpuFrame {
     vec4 raster;             // x: software raster below this estimated area per triangle (pixels); y: sub-pixel steps
     mat4 previousViewProjection; // the previous frame's camera, mapping this frame's camera-relative world to its clip
     uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels)
-    uvec4 viewport;          // x: width, y: height, z: unused, w: light count
+    uvec4 viewport;          // x: width, y: height, z: material count, w: light count
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     GpuLight lights[TS_MAX_LIGHTS];
     address instances;       // GpuInstance[]
@@ -225,8 +244,10 @@ struct GpuFrame {
     address deferredInstances; // uint[instances]: instances the main pass left to the post pass
     address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
     address overdraw;        // uint[width * height]: fragments per pixel, only with TS_VIS_OVERDRAW (else 0)
+    address bins;            // GpuBin[materials]
+    address binPixels;       // uint[width * height]: covered pixels, grouped by material
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 18);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 20);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

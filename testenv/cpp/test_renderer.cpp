@@ -436,3 +436,38 @@ TEST_F(RendererTest, HugeTrianglesThroughTheNearPlaneAreClippedNotDroppedOrSmear
         EXPECT_EQ(wrong, 0u) << "raster mode " << int(mode);
     }
 }
+
+TEST_F(RendererTest, MaterialBinsShadeEachMaterialsPixels) {
+    // Three grids side by side, each with its own emissive material (no lights: colour is exactly the emission);
+    // a fourth material is bound to nothing in view. Each visible material gets a bin of its own.
+    GpuScene scene;
+    const uint32_t grid = scene.add_mesh(grid_mesh(8));
+    std::vector<InstanceDesc> instances;
+    const std::array<std::array<float, 3>, 4> colors = {{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 0}}};
+    for (int i = 0; i < 4; ++i) {
+        MaterialDesc material;
+        material.diffuseColor = {0, 0, 0};
+        material.emissiveColor = colors[i];
+        InstanceDesc instance = identity_instance(grid);
+        instance.material = scene.add_material(material);
+        instance.transform[3] = i < 3 ? 1.2 * (i - 1) : 100.0;  // the fourth far off to the side
+        instance.primId = uint32_t(i);
+        instances.push_back(instance);
+    }
+    scene.set_instances(instances);
+    Renderer renderer(*device);
+    RenderSettings settings{96, 32, {0.25f, 0.25f, 0.25f, 1}};
+    FrameStats stats;
+    const auto images = renderer.render(scene, camera_at(0, 0, 1.3), settings, {Aov::Color, Aov::PrimId}, &stats);
+    EXPECT_EQ(stats.shadingBins, 3u);
+    size_t checked = 0;
+    for (uint32_t y = 0; y < 32; ++y)
+        for (uint32_t x = 0; x < 96; ++x) {
+            const uint32_t prim = id_at(images[1], x, y);
+            const float* rgba = &images[0].pixels[4 * (y * 96 + x)];
+            const std::array<float, 3> expected = prim == 0xffffffffu ? std::array<float, 3>{0.25f, 0.25f, 0.25f} : colors.at(prim);
+            for (int c = 0; c < 3; ++c) ASSERT_EQ(rgba[c], expected[c]) << "pixel " << x << "," << y << " prim " << prim;
+            checked += prim != 0xffffffffu;
+        }
+    EXPECT_GT(checked, 96u * 32u / 3u) << "the grids must fill a good part of the image";
+}

@@ -109,6 +109,7 @@ struct FrameStats {
     uint32_t occludedInstances = 0, occludedClusters = 0;  // found hidden by the post pass
     uint32_t postPassClusters = 0;      // clusters drawn by the post pass (hidden last frame, visible now)
     uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
+    uint32_t shadingBins = 0;           // materials with visible pixels (each shaded by a dispatch of its own)
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.
     double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, hzbMs = 0, resolveMs = 0;
 };

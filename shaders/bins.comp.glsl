@@ -1,0 +1,24 @@
+// Material bins, one workgroup: each bin's range in the pixel list (an exclusive prefix sum of the counts, by one
+// thread: there are as many bins as materials, few next to pixels) and the indirect dispatch that shades it.
+#version 460
+#extension GL_GOOGLE_include_directive : require
+#include "frame.h"
+
+layout(local_size_x = 1) in;
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    BinRef bins = BinRef(frame.bins);
+    uint offset = 0u, used = 0u;
+    for (uint m = 0u; m < frame.viewport.z; ++m) {
+        uint count = bins.data[m].count;
+        bins.data[m].offset = offset;
+        bins.data[m].cursor = 0u;
+        bins.data[m].groupsX = min((count + TS_SHADE_GROUP_SIZE - 1u) / TS_SHADE_GROUP_SIZE, 65535u);
+        bins.data[m].groupsY = 1u;
+        bins.data[m].groupsZ = 1u;
+        offset += count;
+        used += count > 0u ? 1u : 0u;
+    }
+    DrawStateRef(frame.drawState).state.shadingBins = used;
+}

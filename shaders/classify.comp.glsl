@@ -1,0 +1,25 @@
+// Material bins, one thread per pixel. Count step: each covered pixel adds one to its material's bin. Scatter step
+// (after bins.comp.glsl gave each bin its range): each covered pixel writes its index into its bin's range.
+#version 460
+#extension GL_GOOGLE_include_directive : require
+#include "frame.h"
+
+layout(local_size_x = TS_PIXEL_TILE, local_size_y = TS_PIXEL_TILE) in;
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    uvec2 pixel = gl_GlobalInvocationID.xy;
+    if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
+    uint index = pixel.y * frame.viewport.x + pixel.x;
+    uint64_t value = VisibilityRef(frame.visibility).data[index];
+    if (value == 0ul) return;
+    uint instance = visible_cluster(frame, value).x & ~TS_VISIBLE_SOFTWARE;
+    uint material = InstanceRef(frame.instances).data[instance].materialIndex;
+    BinRef bins = BinRef(frame.bins);
+    if (push.step == TS_CLASSIFY_COUNT) {
+        atomicAdd(bins.data[material].count, 1u);
+    } else {
+        uint k = atomicAdd(bins.data[material].cursor, 1u);
+        CounterRef(frame.binPixels).data[bins.data[material].offset + k] = index;
+    }
+}
