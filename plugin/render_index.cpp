@@ -133,6 +133,7 @@ void RenderIndex::commit_resources() {
             MaterialDesc fallback;
             fallback.diffuseColor = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
             fallback.useDisplayColor = !built->colors.empty();
+            fallback.ior = 1.0f;  // diffuse only, like Hydra's fallback surface
             instance.material = scene.add_material(fallback);
         }
         if (mesh.instancer_id().empty()) {

@@ -251,6 +251,13 @@ NB_MODULE(_tessera, m) {
         .def_rw("diffuse_color", &MaterialDesc::diffuseColor)
         .def_rw("emissive_color", &MaterialDesc::emissiveColor)
         .def_rw("opacity", &MaterialDesc::opacity)
+        .def_rw("opacity_threshold", &MaterialDesc::opacityThreshold)
+        .def_rw("metallic", &MaterialDesc::metallic)
+        .def_rw("roughness", &MaterialDesc::roughness)
+        .def_rw("use_specular_workflow", &MaterialDesc::useSpecularWorkflow)
+        .def_rw("specular_color", &MaterialDesc::specularColor)
+        .def_rw("ior", &MaterialDesc::ior)
+        .def_rw("occlusion", &MaterialDesc::occlusion)
         .def_rw("use_display_color", &MaterialDesc::useDisplayColor);
 
     nb::enum_<LightType>(m, "LightType").value("distant", LightType::Distant).value("dome", LightType::Dome);

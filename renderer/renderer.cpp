@@ -530,11 +530,17 @@ struct Renderer::Impl {
         for (const MaterialDesc& m : scene.materials_) {
             gpu::GpuMaterial g{};
             g.diffuseColor = {m.diffuseColor[0], m.diffuseColor[1], m.diffuseColor[2], m.opacity};
-            g.emissiveColor = {m.emissiveColor[0], m.emissiveColor[1], m.emissiveColor[2], 0};
-            g.flags = m.useDisplayColor ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u;
+            g.emissiveColor = {m.emissiveColor[0], m.emissiveColor[1], m.emissiveColor[2], std::clamp(m.occlusion, 0.0f, 1.0f)};
+            // UsdPreviewSurface: reflectance at normal incidence from the index of refraction, ((ior - 1) / (ior + 1))^2.
+            const float fromIor = (m.ior - 1) / (m.ior + 1) * ((m.ior - 1) / (m.ior + 1));
+            const std::array<float, 3> f0 = m.useSpecularWorkflow ? m.specularColor : std::array<float, 3>{fromIor, fromIor, fromIor};
+            g.specular = {f0[0], f0[1], f0[2], std::clamp(m.roughness, 0.0f, 1.0f)};
+            g.metallic = std::clamp(m.metallic, 0.0f, 1.0f);
+            g.flags = (m.useDisplayColor ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u) | (m.useSpecularWorkflow ? 0u : TS_MATERIAL_METALLIC) |
+                      (m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
             gpuMaterials.push_back(g);
         }
-        if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 0}, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0, 0});
+        if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 1}, {0, 0, 0, 0.5f}, 0, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0});
         upload_vector(device, materials, gpuMaterials);
         materialCount = uint32_t(gpuMaterials.size());
         if (shadingBins.size < uint64_t(materialCount) * sizeof(gpu::GpuBin))

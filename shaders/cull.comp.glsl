@@ -187,6 +187,8 @@ vec4 instance_sphere(GpuFrame frame, uint instanceIndex) {
 void main_pass(GpuFrame frame) {
     uint instanceIndex = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (instanceIndex >= frame.counts.x) return;
+    uint material = InstanceRef(frame.instances).data[instanceIndex].materialIndex;
+    if ((MaterialRef(frame.materials).data[material].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
     vec4 sphere = instance_sphere(frame, instanceIndex);
     if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
     if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {

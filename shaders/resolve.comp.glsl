@@ -46,6 +46,32 @@ vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluste
     return id_color(instance.materialIndex);  // TS_VIS_SHADING_BINS
 }
 
+// Light reflected towards `toEye` from a distant light arriving from `toLight` with unit radiance: Lambert diffuse
+// plus a GGX microfacet lobe (alpha = roughness^2, Smith-Schlick shadowing, Schlick Fresnel), times the cosine.
+vec3 direct_light(vec3 n, vec3 toEye, vec3 toLight, vec3 albedo, vec3 f0, float roughness) {
+    float nl = dot(n, toLight);
+    if (nl <= 0.0) return vec3(0.0);
+    float nv = max(dot(n, toEye), 1e-4);
+    vec3 h = normalize(toLight + toEye);
+    float nh = max(dot(n, h), 0.0), vh = max(dot(toEye, h), 0.0);
+    float alpha = max(roughness * roughness, 1e-3);
+    float a2 = alpha * alpha;
+    float d = a2 / (PI * (nh * nh * (a2 - 1.0) + 1.0) * (nh * nh * (a2 - 1.0) + 1.0));
+    float k = alpha / 2.0;
+    float g = (nl / (nl * (1.0 - k) + k)) * (nv / (nv * (1.0 - k) + k));
+    vec3 f = f0 + (1.0 - f0) * pow(1.0 - vh, 5.0);
+    return (albedo / PI + d * g * f / (4.0 * nl * nv)) * nl;
+}
+
+// What fraction of a uniform environment the specular lobe reflects (directional albedo), by the analytic fit of
+// the split-sum integral that Karis published for mobile (Unreal Engine 4, 2014).
+vec3 environment_reflectance(vec3 f0, float roughness, float nv) {
+    vec4 r = roughness * vec4(-1.0, -0.0275, -0.572, 0.022) + vec4(1.0, 0.0425, 1.04, -0.04);
+    float a004 = min(r.x * r.x, exp2(-9.28 * nv)) * r.x + r.y;
+    vec2 ab = vec2(-1.04, 1.04) * a004 + r.zw;
+    return f0 * ab.x + ab.y * step(1e-6, max(f0.r, max(f0.g, f0.b)));  // no reflectance, no lobe (diffuse-only)
+}
+
 // One covered pixel (visibility buffer value `value`, non-zero).
 void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     uvec2 pixel = uvec2(index % frame.viewport.x, index / frame.viewport.x);
@@ -137,13 +163,21 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     if ((material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
         albedo = bary.x * vertex_color(frame, mesh, v0) + bary.y * vertex_color(frame, mesh, v1) + bary.z * vertex_color(frame, mesh, v2);
 
+    // UsdPreviewSurface: metallic blends the reflectance towards the albedo and takes the diffuse away.
+    vec3 f0 = material.specular.rgb;
+    if ((material.flags & TS_MATERIAL_METALLIC) != 0u) {
+        f0 = mix(f0, albedo, material.metallic);
+        albedo *= 1.0 - material.metallic;
+    }
+    float roughness = material.specular.a;
+    vec3 toEye = -direction;
     vec3 color = material.emissiveColor.rgb;
     for (uint i = 0u; i < frame.viewport.w; ++i) {
         GpuLight light = frame.lights[i];
         if (uint(light.directionType.w) == TS_LIGHT_DISTANT)
-            color += albedo / PI * light.radiance.rgb * max(dot(n, -light.directionType.xyz), 0.0);  // Lambert
-        else
-            color += albedo * light.radiance.rgb;  // uniform dome radiance L reflects albedo * L; no occlusion yet
+            color += light.radiance.rgb * direct_light(n, toEye, -light.directionType.xyz, albedo, f0, roughness);
+        else  // a uniform dome, its light scaled by the occlusion input; no shadowing yet
+            color += light.radiance.rgb * material.emissiveColor.a * (albedo + environment_reflectance(f0, roughness, max(dot(n, toEye), 0.0)));
     }
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }

@@ -35,6 +35,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 
 // Material flags.
 #define TS_MATERIAL_USE_DISPLAY_COLOR 1u  // diffuse comes from the mesh's displayColor primvar
+#define TS_MATERIAL_METALLIC 2u           // metallic workflow: reflectance blends towards the albedo with `metallic`
+#define TS_MATERIAL_CUT_OUT 4u            // masked and below its opacity threshold everywhere: never drawn
 
 // Mesh vertex streams.
 #define TS_NO_STREAM 0xffffffffu
@@ -155,13 +157,16 @@ struct GpuInstance {
 };
 TS_CHECK_SIZE(GpuInstance, 80);
 
+// UsdPreviewSurface: a Lambert diffuse lobe and a GGX specular lobe with Schlick's Fresnel.
 struct GpuMaterial {
     vec4 diffuseColor;     // linear RGB; a is opacity
-    vec4 emissiveColor;
+    vec4 emissiveColor;    // rgb; a: occlusion (scales the dome light)
+    vec4 specular;         // rgb: reflectance at normal incidence (specularColor, or from ior); a: roughness
+    float metallic;
     uint flags;            // TS_MATERIAL_*
-    uint pad0, pad1, pad2;
+    uint pad0, pad1;
 };
-TS_CHECK_SIZE(GpuMaterial, 48);
+TS_CHECK_SIZE(GpuMaterial, 64);
 
 struct GpuLight {
     vec4 directionType;    // xyz: direction the light travels (world); w: TS_LIGHT_* as float

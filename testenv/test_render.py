@@ -187,4 +187,47 @@ def test_purpose_visibility_and_time(render):
     assert paths == {"/Default", "/Moving"}, "proxy purpose and invisible parents are not drawn"
     assert drawn(10.0)[1] == {"/Default"}, "--frame reads time samples"
     centre = first["color"].pixels[50, 200 - 150]  # /Default's centre: x = -1.5 at 5 units, 50 mm over 40 mm
-    assert centre[0] < 0.1 and centre[2] < 0.02 and centre[1] > 0.02, f"blue diffuse lit by a yellow light, got {centre}"
+    # Yellow light: no blue comes back. The specular lobe (a dielectric, F0 = 0.04) returns red and green alike; the
+    # diffuse (0.05, 0.1, 0.9) returns twice as much green as red. A white displayColor would return them equally.
+    assert centre[2] < 0.02 and centre[1] > centre[0] + 0.02 and centre[0] > 0.0, f"blue diffuse lit by a yellow light, got {centre}"
+
+
+def test_preview_surface_inputs(render):
+    """Four quads in a uniform dome of radiance 1, each with one UsdPreviewSurface input set. Seen head on, a quad
+    returns (1 - metallic) * diffuse * occlusion plus the specular lobe's share of the environment."""
+    from pxr import UsdShade
+
+    stage = Usd.Stage.CreateInMemory()
+    _looking_at_quads(stage)
+    UsdLux.DomeLight.Define(stage, "/Dome").CreateIntensityAttr(1.0)
+
+    def quad_with(path, x, **inputs):
+        mesh = _quad(stage, path, x)
+        material = UsdShade.Material.Define(stage, f"/Looks{path}")
+        shader = UsdShade.Shader.Define(stage, f"/Looks{path}/Surface")
+        shader.CreateIdAttr("UsdPreviewSurface")
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.5, 0.25, 0.125))
+        for name, value in inputs.items():
+            kind = Sdf.ValueTypeNames.Color3f if isinstance(value, Gf.Vec3f) else Sdf.ValueTypeNames.Float
+            shader.CreateInput(name, kind).Set(value)
+        material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+
+    quad_with("/Plastic", -1.5)
+    quad_with("/Occluded", -0.5, occlusion=0.0)
+    quad_with("/Metal", 0.5, metallic=1.0, roughness=0.2)
+    quad_with("/Masked", 1.5, opacity=0.3, opacityThreshold=0.5)
+    result = render(stage, resolution=(400, 100), aovs=("primId", "color"))
+    colour = lambda x: result["color"].pixels[50, x, :3]  # quad centres at x = -1.5 ... 1.5 -> columns 50, 150, 250, 350
+    plastic, occluded, metal = colour(50), colour(150), colour(250)
+    # Dielectric: the diffuse colour plus a grey specular share of a few percent, the same in every channel.
+    specular = plastic - np.array([0.5, 0.25, 0.125])
+    assert 0.01 < specular[0] < 0.1 and np.allclose(specular, specular[0], atol=1e-4), plastic
+    assert np.all(occluded == 0.0), "occlusion 0 takes the whole dome away"
+    # Metal: no diffuse; it reflects albedo * a + b of the environment, a linear function of the albedo (a near 0.9
+    # for roughness 0.2 seen head on). A diffuse left in would double a.
+    a = (metal[0] - metal[1]) / 0.25
+    b = metal[0] - 0.5 * a
+    assert 0.8 < a < 0.95 and 0.0 <= b < 0.02 and abs(metal[2] - (0.125 * a + b)) < 1e-3, metal
+    assert result["primId"].ids()[50, 350] == NO_HIT, "opacity below opacityThreshold masks the quad"
+    assert "/Plastic" in {result.prim_path(int(i)) for i in np.unique(result["primId"].ids()) if i != NO_HIT}

@@ -17,10 +17,18 @@ using Matrix4d = std::array<double, 16>;
 Matrix4d identity_matrix();
 Matrix4d multiply(const Matrix4d& a, const Matrix4d& b);
 
+// UsdPreviewSurface's constant inputs, with its defaults. A surface without a preview material (displayColor
+// only) is diffuse: ior 1 reflects nothing at normal incidence.
 struct MaterialDesc {
     std::array<float, 3> diffuseColor{0.18f, 0.18f, 0.18f};
     std::array<float, 3> emissiveColor{0, 0, 0};
     float opacity = 1.0f;
+    float opacityThreshold = 0.0f;  // > 0: masked; a constant opacity below it hides the surface
+    float metallic = 0.0f, roughness = 0.5f;
+    bool useSpecularWorkflow = false;  // specularColor instead of metallic
+    std::array<float, 3> specularColor{0, 0, 0};
+    float ior = 1.5f;
+    float occlusion = 1.0f;          // scales what the dome light contributes
     bool useDisplayColor = false;  // diffuse from the mesh's displayColor instead of diffuseColor
 };
 
