@@ -162,22 +162,30 @@ size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t
 // `position(v)` gives vertex v's xyz.
 template <typename PositionOf>
 std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, PositionOf position) {
-    // Local numbers in ascending order of the mesh's, found through an open-addressing table (at most half full):
-    // sorting every index and searching for each cost a fifth of the build.
+    // Local numbers in ascending order of the mesh's, found through a table (sorting every index and searching for
+    // each cost a fifth of the build): direct when the vertex numbers span little more than the indices (a small
+    // mesh in one piece), else open addressing at most half full (Morton chunks and groups of large meshes).
+    uint32_t first = UINT32_MAX, last = 0;
+    for (uint32_t v : indices) {
+        first = std::min(first, v);
+        last = std::max(last, v);
+    }
+    const bool direct = size_t(last - first) < 2 * indices.size();
     size_t slots = 16;
-    while (slots < 2 * indices.size()) slots *= 2;
-    std::vector<std::pair<uint32_t, uint32_t>> table(slots, {UINT32_MAX, 0});  // (mesh vertex, local number)
-    auto slot_of = [&](uint32_t v) {
+    while (!direct && slots < 2 * indices.size()) slots *= 2;
+    std::vector<std::pair<uint32_t, uint32_t>> table(direct ? size_t(last - first) + 1 : slots, {UINT32_MAX, 0});  // (vertex, local)
+    auto entry = [&](uint32_t v) -> std::pair<uint32_t, uint32_t>& {
+        if (direct) return table[v - first];
         size_t i = size_t((v * 0x9E3779B97F4A7C15ull) >> 32) & (slots - 1);
         while (table[i].first != v && table[i].first != UINT32_MAX) i = (i + 1) & (slots - 1);
-        return i;
+        return table[i];
     };
     std::vector<uint32_t> vertices;
     vertices.reserve(indices.size() / 2 + 3);
     for (uint32_t v : indices) {
-        auto& entry = table[slot_of(v)];
-        if (entry.first == UINT32_MAX) {
-            entry.first = v;
+        auto& e = entry(v);
+        if (e.first == UINT32_MAX) {
+            e.first = v;
             vertices.push_back(v);
         }
     }
@@ -185,10 +193,10 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
     std::vector<float> compact(3 * vertices.size());
     for (size_t i = 0; i < vertices.size(); ++i) {
         std::memcpy(&compact[3 * i], position(vertices[i]), 12);
-        table[slot_of(vertices[i])].second = uint32_t(i);
+        entry(vertices[i]).second = uint32_t(i);
     }
     std::vector<uint32_t> localIndices(indices.size());
-    for (size_t i = 0; i < indices.size(); ++i) localIndices[i] = table[slot_of(indices[i])].second;
+    for (size_t i = 0; i < indices.size(); ++i) localIndices[i] = entry(indices[i]).second;
 
     const size_t maxClusters = meshopt_buildMeshletsBound(indices.size(), kClusterVertices, kClusterMaxTriangles);
     std::vector<meshopt_Meshlet> meshlets(maxClusters);
