@@ -14,8 +14,9 @@ void main() {
         uint count = bins.data[m].count;
         bins.data[m].offset = offset;
         bins.data[m].cursor = 0u;
-        bins.data[m].groupsX = min((count + TS_SHADE_GROUP_SIZE - 1u) / TS_SHADE_GROUP_SIZE, 65535u);
-        bins.data[m].groupsY = 1u;
+        uint groups = (count + TS_SHADE_GROUP_SIZE - 1u) / TS_SHADE_GROUP_SIZE;
+        bins.data[m].groupsX = min(groups, 65535u);
+        bins.data[m].groupsY = (groups + 65534u) / 65535u;
         bins.data[m].groupsZ = 1u;
         offset += count;
         used += count > 0u ? 1u : 0u;

@@ -51,6 +51,7 @@ vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluste
 vec3 direct_light(vec3 n, vec3 toEye, vec3 toLight, vec3 albedo, vec3 f0, float roughness) {
     float nl = dot(n, toLight);
     if (nl <= 0.0) return vec3(0.0);
+    if (max(f0.r, max(f0.g, f0.b)) <= 0.0) return albedo / PI * nl;  // diffuse only (the same for a whole bin)
     float nv = max(dot(n, toEye), 1e-4);
     vec3 h = normalize(toLight + toEye);
     float nh = max(dot(n, h), 0.0), vh = max(dot(toEye, h), 0.0);
@@ -69,7 +70,7 @@ vec3 environment_reflectance(vec3 f0, float roughness, float nv) {
     vec4 r = roughness * vec4(-1.0, -0.0275, -0.572, 0.022) + vec4(1.0, 0.0425, 1.04, -0.04);
     float a004 = min(r.x * r.x, exp2(-9.28 * nv)) * r.x + r.y;
     vec2 ab = vec2(-1.04, 1.04) * a004 + r.zw;
-    return f0 * ab.x + ab.y * step(1e-6, max(f0.r, max(f0.g, f0.b)));  // no reflectance, no lobe (diffuse-only)
+    return max(f0.r, max(f0.g, f0.b)) <= 0.0 ? vec3(0.0) : f0 * ab.x + ab.y;  // no reflectance, no lobe (diffuse only)
 }
 
 // One covered pixel (visibility buffer value `value`, non-zero).
@@ -185,10 +186,10 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
 void main() {
     GpuFrame frame = push.frame.f;
     uint aov = push.aov;
-    uint stride = gl_NumWorkGroups.x * TS_SHADE_GROUP_SIZE;
+    // One thread per pixel of the bin, no loop: on lavapipe a loop around the shading code runs it masked.
     GpuBin bin = BinRef(frame.bins).data[push.step];
-    for (uint i = gl_GlobalInvocationID.x; i < bin.count; i += stride) {
-        uint index = CounterRef(frame.binPixels).data[bin.offset + i];
-        shade(frame, index, VisibilityRef(frame.visibility).data[index], aov);
-    }
+    uint i = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * TS_SHADE_GROUP_SIZE + gl_LocalInvocationIndex;
+    if (i >= bin.count) return;
+    uint index = CounterRef(frame.binPixels).data[bin.offset + i];
+    shade(frame, index, VisibilityRef(frame.visibility).data[index], aov);
 }

@@ -206,8 +206,8 @@ TS_CHECK_SIZE(GpuDrawState, 96);
 
 // One material's bin: its covered pixels' range in the bin pixel list, and the indirect dispatch that shades them.
 struct GpuBin {
-    uint groupsX;          // VkDispatchIndirectCommand: min(ceil(count / TS_SHADE_GROUP_SIZE), 65535) workgroups
-    uint groupsY;
+    uint groupsX;          // VkDispatchIndirectCommand: ceil(count / TS_SHADE_GROUP_SIZE) workgroups, as X (at most
+    uint groupsY;          // 65535) times Y
     uint groupsZ;
     uint count;            // covered pixels of this material
     uint offset;           // first entry in the bin pixel list
