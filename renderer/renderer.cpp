@@ -718,7 +718,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             mark();
             gpu::GpuDrawState initial{};
             initial.vertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
-            initial.swGroupsY = initial.swGroupsZ = 1;
+            initial.swGroupsZ = 1;
             initial.postGroupsY = initial.postGroupsZ = 1;
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
@@ -775,7 +775,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             if (postPass) {
                 // The rasterizers' arguments start again at zero (the visible list and the counters go on).
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, instanceCount), 4, 0);
-                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swClusters), 4, 0);
                 s.build_hzb(cmd, s.hzbCurrent);
                 barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,

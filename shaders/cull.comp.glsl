@@ -113,6 +113,7 @@ void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterInd
         atomicAdd(draw.state.swClustersDrawn, 1u);
         SlotListRef(frame.softwareList).data[k] = slot;
         atomicMax(draw.state.swGroupsX, min(k + 1u, 65535u));
+        atomicMax(draw.state.swGroupsY, k / 65535u + 1u);
     } else {
         uint k = atomicAdd(draw.state.instanceCount, 1u);
         SlotListRef(frame.hardwareList).data[k] = slot;

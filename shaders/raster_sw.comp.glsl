@@ -67,56 +67,56 @@ void main() {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint count = draw.state.swClusters;
     float steps = frame.raster.y;  // sub-pixel steps per pixel
-    for (uint k = gl_WorkGroupID.x; k < count; k += gl_NumWorkGroups.x) {
-        uint slot = SlotListRef(frame.softwareList).data[k];
-        uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
-        GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
-        GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
-        vec3 translation = camera_relative_translation(instance);
+    // One workgroup per cluster over a 2D grid, no loop: on lavapipe a loop around this code runs it masked.
+    uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    if (k >= count) return;  // the whole workgroup: no barrier is skipped by some threads only
+    uint slot = SlotListRef(frame.softwareList).data[k];
+    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
+    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    vec3 translation = camera_relative_translation(instance);
 
-        // Vertices: clip space -> framebuffer sub-pixels (Vulkan viewport transform: (ndc * 0.5 + 0.5) * size).
-        uint vertexCount = cluster.levelVertices & 0xffffu;
-        for (uint v = gl_LocalInvocationIndex; v < vertexCount; v += TS_SW_RASTER_GROUP_SIZE) {
-            vec4 clip = frame.viewProjection * vec4(to_camera_relative(instance, translation, vertex_position(frame, cluster.vertexOffset + v)), 1.0);
-            vec3 ndc = clip.xyz / clip.w;
-            vec2 pixel = (ndc.xy * 0.5 + 0.5) * vec2(frame.viewport.xy);
-            screen[v] = ivec2(round(pixel * steps));
-            depth[v] = ndc.z;
-        }
-        barrier();
+    // Vertices: clip space -> framebuffer sub-pixels (Vulkan viewport transform: (ndc * 0.5 + 0.5) * size).
+    uint vertexCount = cluster.levelVertices & 0xffffu;
+    for (uint v = gl_LocalInvocationIndex; v < vertexCount; v += TS_SW_RASTER_GROUP_SIZE) {
+        vec4 clip = frame.viewProjection * vec4(to_camera_relative(instance, translation, vertex_position(frame, cluster.vertexOffset + v)), 1.0);
+        vec3 ndc = clip.xyz / clip.w;
+        vec2 pixel = (ndc.xy * 0.5 + 0.5) * vec2(frame.viewport.xy);
+        screen[v] = ivec2(round(pixel * steps));
+        depth[v] = ndc.z;
+    }
+    barrier();
 
-        uint triangle = gl_LocalInvocationIndex;
-        if (triangle < cluster.triangleCount) {
-            bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
-            uint i0 = corner_vertex(frame, cluster, triangle, 0u, flip) - cluster.vertexOffset;
-            uint i1 = corner_vertex(frame, cluster, triangle, 1u, flip) - cluster.vertexOffset;
-            uint i2 = corner_vertex(frame, cluster, triangle, 2u, flip) - cluster.vertexOffset;
-            ivec2 a = screen[i0], b = screen[i1], c = screen[i2];
-            float za = depth[i0], zb = depth[i1], zc = depth[i2];
-            // Edge functions stay within 2 E (E + step) for a triangle E sub-pixels across, so below 2^14 sub-pixels
-            // 32-bit integers are exact, and much faster where 64-bit multiplies are emulated (lavapipe).
-            ivec2 extent = max(a, max(b, c)) - min(a, min(b, c));
-            bool small = max(extent.x, extent.y) < 16384;
-            // Twice the signed area; negative is counter-clockwise on screen (y down), a front face.
-            int64_t area = small ? int64_t((b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y))
-                                 : int64_t(b.x - a.x) * int64_t(c.y - a.y) - int64_t(c.x - a.x) * int64_t(b.y - a.y);
-            bool front = area < 0l;
-            bool doubleSided = (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u;
-            if (area != 0l && (front || doubleSided)) {
-                if (!front) {  // the back of a double-sided triangle, turned to the same orientation
-                    ivec2 s = b; b = c; c = s;
-                    float z = zb; zb = zc; zc = z;
-                    area = -area;
-                }
-                int step = int(steps), center = step / 2;
-                ivec2 lo = max((min(a, min(b, c)) - center + step - 1) / step, ivec2(0));
-                ivec2 hi = min((max(a, max(b, c)) - center) / step, ivec2(frame.viewport.xy) - 1);
-                uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
-                vec4 z = vec4(za, zb, zc, 1.0 / float(-area));
-                if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload);
-                else scan_large(frame, a, b, c, lo, hi, step, center, z, payload);
+    uint triangle = gl_LocalInvocationIndex;
+    if (triangle < cluster.triangleCount) {
+        bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
+        uint i0 = corner_vertex(frame, cluster, triangle, 0u, flip) - cluster.vertexOffset;
+        uint i1 = corner_vertex(frame, cluster, triangle, 1u, flip) - cluster.vertexOffset;
+        uint i2 = corner_vertex(frame, cluster, triangle, 2u, flip) - cluster.vertexOffset;
+        ivec2 a = screen[i0], b = screen[i1], c = screen[i2];
+        float za = depth[i0], zb = depth[i1], zc = depth[i2];
+        // Edge functions stay within 2 E (E + step) for a triangle E sub-pixels across, so below 2^14 sub-pixels
+        // 32-bit integers are exact, and much faster where 64-bit multiplies are emulated (lavapipe).
+        ivec2 extent = max(a, max(b, c)) - min(a, min(b, c));
+        bool small = max(extent.x, extent.y) < 16384;
+        // Twice the signed area; negative is counter-clockwise on screen (y down), a front face.
+        int64_t area = small ? int64_t((b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y))
+                             : int64_t(b.x - a.x) * int64_t(c.y - a.y) - int64_t(c.x - a.x) * int64_t(b.y - a.y);
+        bool front = area < 0l;
+        bool doubleSided = (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u;
+        if (area != 0l && (front || doubleSided)) {
+            if (!front) {  // the back of a double-sided triangle, turned to the same orientation
+                ivec2 s = b; b = c; c = s;
+                float z = zb; zb = zc; zc = z;
+                area = -area;
             }
+            int step = int(steps), center = step / 2;
+            ivec2 lo = max((min(a, min(b, c)) - center + step - 1) / step, ivec2(0));
+            ivec2 hi = min((max(a, max(b, c)) - center) / step, ivec2(frame.viewport.xy) - 1);
+            uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
+            vec4 z = vec4(za, zb, zc, 1.0 / float(-area));
+            if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload);
+            else scan_large(frame, a, b, c, lo, hi, step, center, z, payload);
         }
-        barrier();  // the next cluster reuses the shared vertices
     }
 }
