@@ -471,3 +471,47 @@ TEST_F(RendererTest, MaterialBinsShadeEachMaterialsPixels) {
         }
     EXPECT_GT(checked, 96u * 32u / 3u) << "the grids must fill a good part of the image";
 }
+
+TEST_F(RendererTest, MoreThan65535WorkgroupsSpillIntoTheSecondDimension) {
+    // 300 x 300 tiny quads: 90 000 clusters for the compute rasterizer, one workgroup each (X stops at 65535).
+    GpuScene scene;
+    const uint32_t quad = scene.add_mesh(grid_mesh(1));
+    std::vector<InstanceDesc> instances;
+    for (int y = 0; y < 300; ++y)
+        for (int x = 0; x < 300; ++x) {
+            InstanceDesc instance = identity_instance(quad);
+            for (int i : {0, 5, 10}) instance.transform[i] = 0.01;
+            instance.transform[3] = (x - 149.5) * 0.01;
+            instance.transform[7] = (y - 149.5) * 0.01;
+            instance.primId = uint32_t(y * 300 + x);
+            instances.push_back(instance);
+        }
+    scene.set_instances(instances);
+    Renderer renderer(*device);
+    RenderSettings settings{300, 300, {0, 0, 0, 0}};
+    settings.occlusion = false;
+    const CameraDesc camera = camera_at(0, 0, 3.0);  // the 3x3 field fills the 53-degree view
+    settings.raster = RasterMode::Software;
+    FrameStats software;
+    const Image a = renderer.render(scene, camera, settings, {Aov::PrimId}, &software)[0];
+    settings.raster = RasterMode::Hardware;
+    const Image b = renderer.render(scene, camera, settings, {Aov::PrimId})[0];
+    EXPECT_EQ(software.swClusters, 90000u);
+    size_t drawn = 0, differ = 0;
+    for (uint32_t y = 0; y < 300; ++y)
+        for (uint32_t x = 0; x < 300; ++x) drawn += id_at(a, x, y) != 0xffffffffu, differ += id_at(a, x, y) != id_at(b, x, y);
+    EXPECT_GT(drawn, 300u * 300u * 9 / 10) << "every quad covers about one pixel";
+    EXPECT_EQ(differ, 0u) << "the clusters past the first 65535 must be drawn like the others";
+
+    // More than 65535 x 64 covered pixels in one material bin: its shading dispatch spills into Y as well.
+    RenderSettings large{2100, 2100, {0, 0, 0, 0}};
+    large.occlusion = false;
+    // A first frame from afar leaves "nothing here" in most of the output buffer: a pixel the second frame's bin
+    // dispatch missed would keep it.
+    renderer.render(scene, camera_at(0, 0, 40.0), large, {Aov::PrimId});
+    const Image ids = renderer.render(scene, camera_at(0, 0, 1.0), large, {Aov::PrimId})[0];
+    size_t unshaded = 0;
+    for (uint32_t y = 0; y < 2100; ++y)
+        for (uint32_t x = 0; x < 2100; ++x) unshaded += id_at(ids, x, y) == 0xffffffffu;
+    EXPECT_EQ(unshaded, 0u) << "the field fills the frame: every pixel is covered and shaded";
+}
