@@ -4,14 +4,12 @@
 // simplification error plus the largest of its children's, and its sphere encloses its children's (monotone).
 #include "tessera/builder.h"
 
+#include "parallel.h"
 #include "weld.h"
 
 #include <meshoptimizer.h>
 
 #include <algorithm>
-#include <atomic>
-#include <functional>
-#include <thread>
 #include <cfloat>
 #include <cmath>
 #include <cstring>
@@ -177,19 +175,27 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
     return pieces;
 }
 
-// Runs body(0..count-1) on every core.
-void parallel_for(size_t count, const std::function<void(size_t)>& body) {
-    const size_t threads = std::min<size_t>(count, std::max(1u, std::thread::hardware_concurrency()));
-    std::atomic<size_t> nextIndex{0};
-    auto work = [&] {
-        for (size_t i = nextIndex++; i < count; i = nextIndex++) body(i);
-    };
-    std::vector<std::thread> pool;
-    for (size_t t = 1; t < threads; ++t) pool.emplace_back(work);
-    work();
-    for (auto& thread : pool) thread.join();
+// Cluster-local vertex numbers by first use: returns the corners renumbered, and the mesh vertices in that order in
+// `vertices` (a small open-addressing table: clusters have at most 256 vertices).
+std::vector<uint32_t> number_by_first_use(const std::vector<uint32_t>& indices, std::vector<uint32_t>& vertices) {
+    constexpr uint32_t kSlots = 1024, kEmpty = UINT32_MAX;
+    std::array<uint32_t, kSlots> keys, numbers;
+    keys.fill(kEmpty);
+    std::vector<uint32_t> corners;
+    corners.reserve(indices.size());
+    vertices.clear();
+    for (uint32_t v : indices) {
+        uint32_t slot = (v * 0x9E3779B1u) >> 22;
+        while (keys[slot] != kEmpty && keys[slot] != v) slot = (slot + 1) % kSlots;
+        if (keys[slot] == kEmpty) {
+            keys[slot] = v;
+            numbers[slot] = uint32_t(vertices.size());
+            vertices.push_back(v);
+        }
+        corners.push_back(numbers[slot]);
+    }
+    return corners;
 }
-
 
 uint32_t spread_bits(uint32_t v) {  // 10 bits -> every third bit of 30
     v &= 0x3ff;
@@ -452,42 +458,25 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.groups = uint32_t(groups.size());
 
     // Emit: cluster-local vertex streams and 8-bit triangles, level 0 first (clusters were created in level order
-    // per round; a stable sort by level keeps that order within a level).
+    // per round; a stable sort by level keeps that order within a level), each cluster in page order. Clusters are
+    // ordered and their vertices encoded on every core; only the offsets are counted in order.
     std::vector<uint32_t> order(clusters.size());
     for (size_t i = 0; i < order.size(); ++i) order[i] = uint32_t(i);
     std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return clusters[a].level < clusters[b].level; });
-    std::vector<uint32_t> localIndex(vertexCount, 0), stamp(vertexCount, UINT32_MAX), clusterVertices;
-    for (uint32_t id : order) {
-        const WorkCluster& w = clusters[id];
-        clusterVertices.clear();
-        Cluster c{};
-        c.vertexOffset = uint32_t(out.positions.size() / 3);
-        c.triangleOffset = uint32_t(out.triangles.size());
+    std::vector<std::vector<uint32_t>> clusterVertices(order.size()), clusterTriangles(order.size());  // mesh vertices; packed triangles
+    std::vector<Cluster> emitted(order.size());
+    parallel_for(order.size(), [&](size_t i) {
+        const WorkCluster& w = clusters[order[i]];
+        std::vector<uint32_t>& vertices = clusterVertices[i];
+        std::vector<uint32_t> corners = number_by_first_use(w.indices, vertices);
+        std::vector<uint32_t> pageOrder = order_cluster_for_pages(corners, uint32_t(vertices.size()));
+        for (uint32_t& v : pageOrder) v = vertices[v];  // cluster-local numbers to mesh vertices
+        vertices.swap(pageOrder);
+        for (size_t k = 0; k < corners.size(); k += 3) clusterTriangles[i].push_back(corners[k] | (corners[k + 1] << 8) | (corners[k + 2] << 16));
+        Cluster& c = emitted[i];
+        c.vertexCount = uint32_t(vertices.size());
         c.triangleCount = uint32_t(w.indices.size() / 3);
-        for (size_t i = 0; i < w.indices.size(); i += 3) {
-            uint32_t packed = 0;
-            for (int k = 0; k < 3; ++k) {
-                const uint32_t v = w.indices[i + k];
-                if (stamp[v] != id) {
-                    stamp[v] = id;
-                    localIndex[v] = uint32_t(clusterVertices.size());
-                    clusterVertices.push_back(v);
-                }
-                packed |= localIndex[v] << (8 * k);
-            }
-            out.triangles.push_back(packed);
-        }
-        c.vertexCount = uint32_t(clusterVertices.size());
-        for (uint32_t v : clusterVertices) {
-            out.positions.insert(out.positions.end(), &local[3 * v], &local[3 * v] + 3);
-            out.normals.push_back(encode_octahedral(mesh.normals[3 * v], mesh.normals[3 * v + 1], mesh.normals[3 * v + 2]));
-            if (hasColors) {
-                const float* col = &mesh.colors[3 * v];
-                out.colors.push_back(float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16));
-                out.colors.push_back(float_to_half(col[2]) | (uint32_t(float_to_half(1.0f)) << 16));
-            }
-        }
-        c.sphere = to_float(vertex_sphere(local, clusterVertices.data(), clusterVertices.size()));
+        c.sphere = to_float(vertex_sphere(local, vertices.data(), vertices.size()));
         c.lodSphere = to_float(w.lodSphere);
         c.lodError = w.lodError;
         c.level = w.level;
@@ -500,8 +489,34 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             c.parentError = std::numeric_limits<float>::infinity();
             c.parentGroup = kNoGroup;
         }
+    });
+    uint32_t vertexTotal = 0;
+    for (size_t i = 0; i < order.size(); ++i) {
+        Cluster& c = emitted[i];
+        c.vertexOffset = vertexTotal;
+        c.triangleOffset = uint32_t(out.triangles.size());
+        vertexTotal += c.vertexCount;
+        out.triangles.insert(out.triangles.end(), clusterTriangles[i].begin(), clusterTriangles[i].end());
+        clusterTriangles[i] = {};
         append_cluster(out, c);
     }
+    out.positions.resize(3 * size_t(vertexTotal));
+    out.normals.resize(vertexTotal);
+    out.colors.resize(hasColors ? 2 * size_t(vertexTotal) : 0);
+    parallel_for(order.size(), [&](size_t i) {
+        uint32_t at = emitted[i].vertexOffset;
+        for (uint32_t v : clusterVertices[i]) {
+            std::copy_n(&local[3 * v], 3, &out.positions[3 * size_t(at)]);
+            out.normals[at] = encode_octahedral(mesh.normals[3 * v], mesh.normals[3 * v + 1], mesh.normals[3 * v + 2]);
+            if (hasColors) {
+                const float* col = &mesh.colors[3 * v];
+                out.colors[2 * size_t(at)] = float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16);
+                out.colors[2 * size_t(at) + 1] = float_to_half(col[2]) | (uint32_t(float_to_half(1.0f)) << 16);
+            }
+            ++at;
+        }
+        clusterVertices[i] = {};
+    });
 
     std::vector<uint32_t> all(vertexCount);
     for (size_t i = 0; i < all.size(); ++i) all[i] = uint32_t(i);
