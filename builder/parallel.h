@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <exception>
 #include <functional>
 #include <thread>
 #include <vector>
@@ -20,6 +21,21 @@ inline void parallel_for(size_t count, const std::function<void(size_t)>& body) 
     for (size_t t = 1; t < threads; ++t) pool.emplace_back(work);
     work();
     for (auto& thread : pool) thread.join();
+}
+
+// parallel_for for a body that may throw: every index runs, then the exception of the lowest index that threw is
+// rethrown (the same one whatever the threads' timing).
+inline void parallel_for_rethrowing(size_t count, const std::function<void(size_t)>& body) {
+    std::vector<std::exception_ptr> errors(count);
+    parallel_for(count, [&](size_t i) {
+        try {
+            body(i);
+        } catch (...) {
+            errors[i] = std::current_exception();
+        }
+    });
+    for (const std::exception_ptr& error : errors)
+        if (error) std::rethrow_exception(error);
 }
 
 }  // namespace tessera

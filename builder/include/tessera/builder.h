@@ -135,10 +135,11 @@ struct BuildSettings {
 // neighbouring clusters share stay bit-identical once quantized.
 BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings = {});
 
-// The on-disk form of a BuiltMesh (builder/pages.cpp): little-endian, versioned, every part checksummed.
-// Clusters are stored in pages of at most kPageBytes; the children of one group never straddle pages (a parent
-// refines by loading one page), and root clusters (no parent) fill pages of their own that stay resident.
-constexpr uint32_t kPageFormatVersion = 1;
+// The on-disk form of a BuiltMesh (builder/pages.cpp): little-endian, versioned, compressed, every part checksummed.
+// Clusters are stored in pages of at most kPageBytes (before compression too); the children of one group never
+// straddle pages (a parent refines by loading one page), and root clusters (no parent) fill pages of their own that
+// stay resident.
+constexpr uint32_t kPageFormatVersion = 2;
 constexpr uint32_t kPageBytes = 128 * 1024;
 
 // A file that is not a Tessera DAG, or is truncated, corrupt or of another format version.
@@ -167,10 +168,10 @@ std::vector<uint32_t> order_cluster_for_pages(std::vector<uint32_t>& corners, ui
 // Turns a triangle (3 indices, in place) to the smallest of its three rotations; the winding stays.
 void rotate_smallest_first(uint32_t* triangle);
 
-// Octahedral normals: kNormalBits-bit signed coordinates, held as snorm16x2 in a uint32 for the shaders' decoder (the
-// page file can store just the bits: octahedral_to_bits). encode_octahedral picks the nearest of the four grid points around
-// the direction: within kNormalMaxErrorDegrees of it (the worst of 30 M random directions was 0.1601), so N.L moves by
-// at most 0.003, less than one step of 8-bit colour.
+// Octahedral normals: kNormalBits-bit signed coordinates, held as snorm16x2 in a uint32 for the shaders' decoder; the
+// page file stores just the bits (octahedral_to_bits). encode_octahedral picks the nearest of the four grid points
+// around the direction: within kNormalMaxErrorDegrees of it (the worst of 30 M random directions was 0.1601), so N.L
+// moves by at most 0.003, less than one step of 8-bit colour.
 constexpr int kNormalBits = 10;
 constexpr float kNormalMaxErrorDegrees = 0.17f;
 uint32_t encode_octahedral(float x, float y, float z);
