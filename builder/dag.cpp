@@ -8,14 +8,12 @@
 #include "cut.h"
 #include "edge_limit.h"
 #include "fallback.h"
+#include "parallel.h"
 #include "weld.h"
 
 #include <meshoptimizer.h>
 
 #include <algorithm>
-#include <atomic>
-#include <functional>
-#include <thread>
 #include <cfloat>
 #include <cmath>
 #include <cstring>
@@ -214,19 +212,27 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
     return pieces;
 }
 
-// Runs body(0..count-1) on every core.
-void parallel_for(size_t count, const std::function<void(size_t)>& body) {
-    const size_t threads = std::min<size_t>(count, std::max(1u, std::thread::hardware_concurrency()));
-    std::atomic<size_t> nextIndex{0};
-    auto work = [&] {
-        for (size_t i = nextIndex++; i < count; i = nextIndex++) body(i);
-    };
-    std::vector<std::thread> pool;
-    for (size_t t = 1; t < threads; ++t) pool.emplace_back(work);
-    work();
-    for (auto& thread : pool) thread.join();
+// Cluster-local vertex numbers by first use: returns the corners renumbered, and the mesh vertices in that order in
+// `vertices` (a small open-addressing table: clusters have at most 256 vertices).
+std::vector<uint32_t> number_by_first_use(const std::vector<uint32_t>& indices, std::vector<uint32_t>& vertices) {
+    constexpr uint32_t kSlots = 1024, kEmpty = UINT32_MAX;
+    std::array<uint32_t, kSlots> keys, numbers;
+    keys.fill(kEmpty);
+    std::vector<uint32_t> corners;
+    corners.reserve(indices.size());
+    vertices.clear();
+    for (uint32_t v : indices) {
+        uint32_t slot = (v * 0x9E3779B1u) >> 22;
+        while (keys[slot] != kEmpty && keys[slot] != v) slot = (slot + 1) % kSlots;
+        if (keys[slot] == kEmpty) {
+            keys[slot] = v;
+            numbers[slot] = uint32_t(vertices.size());
+            vertices.push_back(v);
+        }
+        corners.push_back(numbers[slot]);
+    }
+    return corners;
 }
-
 
 uint32_t spread_bits(uint32_t v) {  // 10 bits -> every third bit of 30
     v &= 0x3ff;
@@ -592,81 +598,29 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.leafError = measure(nodes, leafCut).error;
 
     // Emit: cluster-local vertex streams and 8-bit triangles, level 0 first (clusters were created in level order
-    // per round; a stable sort by level keeps that order within a level). Trimmed clusters are left out.
+    // per round; a stable sort by level keeps that order within a level), each cluster in page order. Trimmed
+    // clusters are left out. Clusters are ordered and their vertices encoded on every core; only the offsets are
+    // counted in order.
     std::vector<uint32_t> order;
     for (uint32_t i = 0; i < clusters.size(); ++i)
         if (plan.level[i] >= 0) order.push_back(i);
     std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return plan.level[a] < plan.level[b]; });
     const size_t totalVertices = local.size() / 3;
-    // Each cluster's vertex list, triangles and sphere are independent of the others: made on every core, then
-    // appended in order (the serial loop was a tenth of the build).
-    struct Emitted {
-        std::vector<uint32_t> vertices, triangles, normals, colors;
-        Sphere sphere;
-    };
-    std::vector<Emitted> emitted(order.size());
-    parallel_for((order.size() + 255) / 256, [&](size_t slice) {
-        for (size_t i = 256 * slice; i < std::min(order.size(), 256 * (slice + 1)); ++i) {
-            const WorkCluster& w = clusters[order[i]];
-            Emitted& e = emitted[i];
-            // Local vertex numbers by first use, through a small hash table (at most 255 vertices).
-            constexpr uint32_t kSlots = 512;
-            uint32_t key[kSlots], value[kSlots];
-            std::fill(key, key + kSlots, UINT32_MAX);
-            e.triangles.reserve(w.indices.size() / 3);
-            for (size_t t = 0; t < w.indices.size(); t += 3) {
-                uint32_t packed = 0;
-                for (int k = 0; k < 3; ++k) {
-                    const uint32_t v = w.indices[t + k];
-                    uint32_t slot = (v * 2654435761u) >> 23;
-                    while (key[slot] != v && key[slot] != UINT32_MAX) slot = (slot + 1) & (kSlots - 1);
-                    if (key[slot] == UINT32_MAX) {
-                        key[slot] = v;
-                        value[slot] = uint32_t(e.vertices.size());
-                        e.vertices.push_back(v);
-                    }
-                    packed |= value[slot] << (8 * k);
-                }
-                e.triangles.push_back(packed);
-            }
-            e.normals.reserve(e.vertices.size());
-            for (uint32_t v : e.vertices) {
-                const uint32_t a = attributeOf[v];
-                e.normals.push_back(encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]));
-                if (hasColors) {
-                    const float* col = &mesh.colors[3 * a];
-                    e.colors.push_back(float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16));
-                    e.colors.push_back(float_to_half(col[2]) | (uint32_t(float_to_half(1.0f)) << 16));
-                }
-            }
-            e.sphere = vertex_sphere(local, e.vertices.data(), e.vertices.size());
-        }
-    });
-    size_t emittedVertices = 0, emittedTriangles = 0;
-    for (const Emitted& e : emitted) {
-        emittedVertices += e.vertices.size();
-        emittedTriangles += e.triangles.size();
-    }
-    out.clusters.reserve(order.size());
-    out.positions.reserve(3 * emittedVertices);
-    out.normals.reserve(emittedVertices);
-    out.colors.reserve(hasColors ? 2 * emittedVertices : 0);
-    out.triangles.reserve(emittedTriangles);
-    for (size_t i = 0; i < order.size(); ++i) {
+    std::vector<std::vector<uint32_t>> clusterVertices(order.size()), clusterTriangles(order.size());  // mesh vertices; packed triangles
+    std::vector<Cluster> emitted(order.size());
+    parallel_for(order.size(), [&](size_t i) {
         const uint32_t id = order[i];
         const WorkCluster& w = clusters[id];
-        Emitted& e = emitted[i];
-        Cluster c{};
-        c.vertexOffset = uint32_t(out.positions.size() / 3);
-        c.triangleOffset = uint32_t(out.triangles.size());
+        std::vector<uint32_t>& vertices = clusterVertices[i];
+        std::vector<uint32_t> corners = number_by_first_use(w.indices, vertices);
+        std::vector<uint32_t> pageOrder = order_cluster_for_pages(corners, uint32_t(vertices.size()));
+        for (uint32_t& v : pageOrder) v = vertices[v];  // cluster-local numbers to mesh vertices
+        vertices.swap(pageOrder);
+        for (size_t k = 0; k < corners.size(); k += 3) clusterTriangles[i].push_back(corners[k] | (corners[k + 1] << 8) | (corners[k + 2] << 16));
+        Cluster& c = emitted[i];
+        c.vertexCount = uint32_t(vertices.size());
         c.triangleCount = uint32_t(w.indices.size() / 3);
-        c.vertexCount = uint32_t(e.vertices.size());
-        out.triangles.insert(out.triangles.end(), e.triangles.begin(), e.triangles.end());
-        for (uint32_t v : e.vertices) out.positions.insert(out.positions.end(), &local[3 * v], &local[3 * v] + 3);
-        out.normals.insert(out.normals.end(), e.normals.begin(), e.normals.end());
-        out.colors.insert(out.colors.end(), e.colors.begin(), e.colors.end());
-        c.sphere = to_float(e.sphere);
-        e = Emitted{};  // freed as it goes: the output grows meanwhile
+        c.sphere = to_float(vertex_sphere(local, vertices.data(), vertices.size()));
         c.lodSphere = to_float(w.lodSphere);
         // The stored leaves are the best there is: always fine enough for the runtime cut.
         c.lodError = plan.level[id] == 0 ? 0.0f : w.lodError;
@@ -680,8 +634,35 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             c.parentError = std::numeric_limits<float>::infinity();
             c.parentGroup = kNoGroup;
         }
+    });
+    uint32_t vertexTotal = 0;
+    for (size_t i = 0; i < order.size(); ++i) {
+        Cluster& c = emitted[i];
+        c.vertexOffset = vertexTotal;
+        c.triangleOffset = uint32_t(out.triangles.size());
+        vertexTotal += c.vertexCount;
+        out.triangles.insert(out.triangles.end(), clusterTriangles[i].begin(), clusterTriangles[i].end());
+        clusterTriangles[i] = {};
         append_cluster(out, c);
     }
+    out.positions.resize(3 * size_t(vertexTotal));
+    out.normals.resize(vertexTotal);
+    out.colors.resize(hasColors ? 2 * size_t(vertexTotal) : 0);
+    parallel_for(order.size(), [&](size_t i) {
+        uint32_t at = emitted[i].vertexOffset;
+        for (uint32_t v : clusterVertices[i]) {
+            const uint32_t a = attributeOf[v];  // vertices Preserve Area moved keep their source's attributes
+            std::copy_n(&local[3 * v], 3, &out.positions[3 * size_t(at)]);
+            out.normals[at] = encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]);
+            if (hasColors) {
+                const float* col = &mesh.colors[3 * a];
+                out.colors[2 * size_t(at)] = float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16);
+                out.colors[2 * size_t(at) + 1] = float_to_half(col[2]) | (uint32_t(float_to_half(1.0f)) << 16);
+            }
+            ++at;
+        }
+        clusterVertices[i] = {};
+    });
 
     std::vector<uint32_t> all(totalVertices);
     for (size_t i = 0; i < all.size(); ++i) all[i] = uint32_t(i);

@@ -1,6 +1,8 @@
 // Vertex attribute encodings shared with the shaders' decoders (octahedral normals, half floats), and the
-// bookkeeping shared by the DAG builder and the page decoder.
+// bookkeeping shared by the DAG builder and the page codec (cluster statistics, the order clusters are stored in).
 #include "tessera/builder.h"
+
+#include <meshoptimizer.h>
 
 #include <algorithm>
 #include <cmath>
@@ -22,7 +24,12 @@ void append_cluster(BuiltMesh& mesh, const Cluster& c) {
     mesh.clusters.push_back(c);
 }
 
-uint32_t encode_octahedral(float x, float y, float z) {
+namespace {
+
+constexpr int32_t kNormalMax = (1 << (kNormalBits - 1)) - 1;  // octahedral coordinates are -kNormalMax..kNormalMax
+
+// The octahedral square's point for a unit vector (folded below the equator).
+std::array<float, 2> to_octahedral_square(float x, float y, float z) {
     const float l1 = std::fabs(x) + std::fabs(y) + std::fabs(z);
     float u = x / l1, v = y / l1;
     if (z < 0) {
@@ -31,11 +38,26 @@ uint32_t encode_octahedral(float x, float y, float z) {
         u = pu;
         v = pv;
     }
-    auto snorm = [](float f) { return uint32_t(uint16_t(int16_t(std::lround(std::clamp(f, -1.0f, 1.0f) * 32767.0f)))); };
-    return snorm(u) | (snorm(v) << 16);
+    return {u, v};
 }
 
-std::array<float, 3> decode_octahedral(uint32_t packed) {
+// q * to / from, rounded to nearest (no halves: `from` is odd).
+int32_t rescale(int32_t q, int32_t to, int32_t from) {
+    const int64_t magnitude = (2 * int64_t(std::abs(q)) * to + from) / (2 * int64_t(from));
+    return int32_t(q < 0 ? -magnitude : magnitude);
+}
+
+uint32_t snorm16_of_bits(int32_t q) {
+    static const auto table = [] {  // every normal the builder emits goes through here
+        std::array<uint16_t, 2 * kNormalMax + 1> t{};
+        for (int32_t b = -kNormalMax; b <= kNormalMax; ++b) t[b + kNormalMax] = uint16_t(int16_t(rescale(b, 32767, kNormalMax)));
+        return t;
+    }();
+    return table[std::clamp(q, -kNormalMax, kNormalMax) + kNormalMax];
+}
+
+// The direction an snorm16x2 octahedral value stands for, not yet normalized (the shaders' decoder too).
+std::array<float, 3> octahedral_direction(uint32_t packed) {
     auto unorm = [](uint32_t bits) { return std::max(float(int16_t(uint16_t(bits))) / 32767.0f, -1.0f); };
     float u = unorm(packed & 0xffff), v = unorm(packed >> 16);
     const float z = 1 - std::fabs(u) - std::fabs(v);
@@ -45,8 +67,73 @@ std::array<float, 3> decode_octahedral(uint32_t packed) {
         u = pu;
         v = pv;
     }
+    return {u, v, z};
+}
+
+}  // namespace
+
+uint32_t encode_octahedral(float x, float y, float z) {
+    // Of the four grid points around the exact one, the one whose decoded direction is nearest: a third less
+    // error than rounding each coordinate.
+    if (!(std::fabs(x) + std::fabs(y) + std::fabs(z) > 0)) return octahedral_from_bits(0, 0);  // no direction: +Z
+    const auto [u, v] = to_octahedral_square(x, y, z);
+    const float lu = std::floor(std::clamp(u, -1.0f, 1.0f) * kNormalMax), lv = std::floor(std::clamp(v, -1.0f, 1.0f) * kNormalMax);
+    uint32_t best = 0;
+    float bestScore = -INFINITY;
+    for (int du = 0; du < 2; ++du)
+        for (int dv = 0; dv < 2; ++dv) {
+            const int32_t qu = std::min(int32_t(lu) + du, kNormalMax), qv = std::min(int32_t(lv) + dv, kNormalMax);
+            const uint32_t packed = octahedral_from_bits(qu, qv);
+            const auto d = octahedral_direction(packed);
+            const float dot = d[0] * x + d[1] * y + d[2] * z;
+            const float score = dot * std::fabs(dot) / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);  // cos^2, signed: no sqrt
+            if (score > bestScore) {
+                bestScore = score;
+                best = packed;
+            }
+        }
+    return best;
+}
+
+uint32_t octahedral_from_bits(int32_t u, int32_t v) { return snorm16_of_bits(u) | (snorm16_of_bits(v) << 16); }
+
+std::array<int32_t, 2> octahedral_to_bits(uint32_t packed) {
+    auto bits = [](uint32_t snorm) { return rescale(int16_t(uint16_t(snorm)), kNormalMax, 32767); };
+    return {bits(packed & 0xffff), bits(packed >> 16)};
+}
+
+std::array<float, 3> decode_octahedral(uint32_t packed) {
+    const auto [u, v, z] = octahedral_direction(packed);
     const float len = std::sqrt(u * u + v * v + z * z);
     return {u / len, v / len, z / len};
+}
+
+void rotate_smallest_first(uint32_t* triangle) {
+    // The smallest of the three rotations: the index codec may rotate a triangle (keeping its winding), and
+    // the decoder turns it back this way.
+    const uint32_t a = triangle[0], b = triangle[1], c = triangle[2];
+    if (a != b && b != c && a != c) {  // the usual case: the smallest index first
+        if (b < a && b < c) triangle[0] = b, triangle[1] = c, triangle[2] = a;
+        else if (c < a && c < b) triangle[0] = c, triangle[1] = a, triangle[2] = b;
+        return;
+    }
+    uint32_t best[3] = {a, b, c};
+    for (int r = 1; r < 3; ++r) {
+        const uint32_t candidate[3] = {triangle[r], triangle[(r + 1) % 3], triangle[(r + 2) % 3]};
+        if (std::lexicographical_compare(candidate, candidate + 3, best, best + 3)) std::copy(candidate, candidate + 3, best);
+    }
+    std::copy(best, best + 3, triangle);
+}
+
+std::vector<uint32_t> order_cluster_for_pages(std::vector<uint32_t>& corners, uint32_t vertexCount) {
+    std::vector<uint32_t> ordered(corners.size()), oldToNew(vertexCount), newToOld(vertexCount);
+    meshopt_optimizeVertexCache(ordered.data(), corners.data(), corners.size(), vertexCount);
+    const size_t used = meshopt_optimizeVertexFetchRemap(oldToNew.data(), ordered.data(), ordered.size(), vertexCount);
+    if (used != vertexCount) throw std::invalid_argument("a cluster has vertices that no triangle uses");
+    for (uint32_t v = 0; v < vertexCount; ++v) newToOld[oldToNew[v]] = v;
+    for (size_t i = 0; i < ordered.size(); ++i) corners[i] = oldToNew[ordered[i]];
+    for (size_t i = 0; i < corners.size(); i += 3) rotate_smallest_first(&corners[i]);
+    return newToOld;
 }
 
 uint16_t float_to_half(float value) {

@@ -115,6 +115,7 @@ def test_bench_build_prints_a_table_and_writes_json(tmp_path):
     (row,) = json.loads(rows_file.read_text())
     assert row["input_triangles"] == 2 * n * n
     assert row["dag_depth"] >= 3 and row["build_seconds"] > 0
+    assert 0 < row["disk_bytes_per_input_triangle"] < 12 and row["decode_input_triangles_per_second"] > 0
     assert row["relative_error_per_level"][0] == 0 and row["relative_error_per_level"][-1] > 0
 
 

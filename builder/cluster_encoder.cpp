@@ -1,0 +1,185 @@
+// Encodes a page unit's clusters into the page's streams (cluster_codec.h). Triangles go through meshoptimizer's
+// index codec; vertices are walked in first-use order (cluster_prediction.h) and each new one leaves only residuals,
+// stored as a bit width (a byte, which the page compressor entropy-codes) and the bits below the top one. Siblings
+// share their borders, so a vertex equal to an earlier one of the unit is stored as a reference to it.
+#include "cluster_codec.h"
+#include "cluster_prediction.h"
+
+#include <meshoptimizer.h>
+
+#include <bit>
+#include <cmath>
+
+namespace tessera {
+namespace {
+
+// For each vertex of a unit, the first earlier one with the same position, normal and colour: open addressing over
+// unit vertex numbers (no allocation per vertex).
+class FirstSeen {
+public:
+    FirstSeen(const UnitVertices& vertices, size_t count) : vertices_(vertices), slots_(std::bit_ceil(2 * count + 2), -1) {}
+    // The earlier vertex equal to `self`, or -1 (then `self` is recorded).
+    int64_t find_or_add(int64_t self) {
+        const size_t mask = slots_.size() - 1;
+        for (size_t slot = hash(self) & mask;; slot = (slot + 1) & mask) {
+            if (slots_[slot] < 0) {
+                slots_[slot] = self;
+                return -1;
+            }
+            if (equal(slots_[slot], self)) return slots_[slot];
+        }
+    }
+
+private:
+    size_t hash(int64_t v) const {
+        uint64_t h = 0x9E3779B97F4A7C15ull;
+        for (int k = 0; k < 3; ++k) h = (h ^ uint64_t(vertices_.grid[3 * v + k])) * 0xff51afd7ed558ccdull;
+        for (int k = 0; k < 2; ++k) h = (h ^ uint64_t(vertices_.normal[2 * v + k])) * 0xc4ceb9fe1a85ec53ull;
+        return size_t(h >> 20);
+    }
+    bool equal(int64_t a, int64_t b) const {
+        const bool colors = !vertices_.color.empty();
+        return std::equal(&vertices_.grid[3 * a], &vertices_.grid[3 * a + 3], &vertices_.grid[3 * b]) &&
+               std::equal(&vertices_.normal[2 * a], &vertices_.normal[2 * a + 2], &vertices_.normal[2 * b]) &&
+               (!colors || std::equal(&vertices_.color[2 * a], &vertices_.color[2 * a + 2], &vertices_.color[2 * b]));
+    }
+    const UnitVertices& vertices_;
+    std::vector<int64_t> slots_;
+};
+
+void put_residual(int64_t residual, std::vector<uint8_t>& widths, BitWriter& bits) {
+    const uint64_t z = zigzag(residual);
+    const uint32_t width = uint32_t(std::bit_width(z));
+    widths.push_back(uint8_t(width));
+    if (width > 1) bits.put(z, width - 1);  // the top bit is implied by the width
+}
+
+void put_sphere(ByteWriter& w, const std::array<float, 4>& s) {
+    for (float f : s) w.put(f);
+}
+
+std::span<const uint32_t> cluster_triangles(const BuiltMesh& mesh, const Cluster& c, std::vector<uint32_t>& corners) {
+    corners.clear();
+    for (uint32_t t = 0; t < c.triangleCount; ++t) {
+        const uint32_t packed = mesh.triangles[c.triangleOffset + t];
+        corners.insert(corners.end(), {packed & 0xff, (packed >> 8) & 0xff, (packed >> 16) & 0xff});
+    }
+    return corners;
+}
+
+void encode_records(const BuiltMesh& mesh, std::span<const uint32_t> clusters, size_t indexBytes, ByteWriter& records) {
+    const Cluster& first = mesh.clusters[clusters[0]];
+    records.put_varint(uint32_t(clusters.size()));
+    records.put(first.parentGroup);  // siblings share their parent record: stored once
+    put_sphere(records, first.parentSphere);
+    records.put(first.parentError);
+    records.put_varint(uint32_t(indexBytes));
+    for (uint32_t index : clusters) {
+        const Cluster& c = mesh.clusters[index];
+        const bool sameParent = c.parentGroup == first.parentGroup && c.parentSphere == first.parentSphere &&
+                                std::bit_cast<uint32_t>(c.parentError) == std::bit_cast<uint32_t>(first.parentError);
+        if (!sameParent)
+            throw std::invalid_argument("clusters of one parent group disagree on its bounds or error");
+        if (c.level > 255 || c.vertexCount < 1 || c.vertexCount > kClusterMaxVertices || c.triangleCount < 1 || c.triangleCount > kClusterMaxTriangles)
+            throw std::invalid_argument("a cluster's level or size is out of the page format's range");
+        records.put(index);  // its place in the mesh (pages group clusters by parent instead)
+        put_sphere(records, c.sphere);
+        put_sphere(records, c.lodSphere);
+        records.put(c.lodError);
+        records.put(uint8_t(c.level));
+        records.put(uint8_t(c.vertexCount - 1));  // 1..256 in a byte
+        records.put(uint8_t(c.triangleCount - 1));
+    }
+}
+
+std::vector<uint8_t> encode_indices(const BuiltMesh& mesh, std::span<const uint32_t> clusters) {
+    std::vector<uint32_t> unit, corners;
+    uint32_t base = 0;
+    for (uint32_t index : clusters) {
+        const Cluster& c = mesh.clusters[index];
+        for (uint32_t corner : cluster_triangles(mesh, c, corners)) unit.push_back(base + corner);
+        base += c.vertexCount;
+    }
+    std::vector<uint8_t> encoded(meshopt_encodeIndexBufferBound(unit.size(), base));
+    encoded.resize(meshopt_encodeIndexBuffer(encoded.data(), encoded.size(), unit.data(), unit.size()));
+    return encoded;
+}
+
+// The unit's vertices as integers: grid coordinates and normal bits, both checked to give back the mesh's values.
+UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clusters) {
+    const bool colors = !mesh.colors.empty();
+    size_t count = 0;
+    for (uint32_t index : clusters) count += mesh.clusters[index].vertexCount;
+    UnitVertices vertices;
+    vertices.resize(count, colors);
+    size_t at = 0;
+    for (uint32_t index : clusters) {
+        const Cluster& c = mesh.clusters[index];
+        for (size_t source = c.vertexOffset; source < c.vertexOffset + c.vertexCount; ++source, ++at) {
+            for (int k = 0; k < 3; ++k) {
+                const float position = mesh.positions[3 * source + k];
+                const int64_t grid = std::llround(double(position) / mesh.positionStep);
+                if (std::llabs(grid) >= kGridLimit || double(grid) * mesh.positionStep != double(position))
+                    throw std::invalid_argument("a position is off the mesh's grid");
+                vertices.grid[3 * at + k] = grid;
+            }
+            const auto normal = octahedral_to_bits(mesh.normals[source]);
+            if (octahedral_from_bits(normal[0], normal[1]) != mesh.normals[source])
+                throw std::invalid_argument("a normal is not a " + std::to_string(kNormalBits) + "-bit octahedral one (encode_octahedral)");
+            vertices.normal[2 * at] = normal[0];
+            vertices.normal[2 * at + 1] = normal[1];
+            if (colors) std::copy_n(&mesh.colors[2 * source], 2, &vertices.color[2 * at]);
+        }
+    }
+    return vertices;
+}
+
+}  // namespace
+
+void encode_unit(const BuiltMesh& mesh, std::span<const uint32_t> clusters, PageStreams& out) {
+    const bool colors = !mesh.colors.empty();
+    const std::vector<uint8_t> indices = encode_indices(mesh, clusters);
+    ByteWriter records, codes;
+    encode_records(mesh, clusters, indices.size(), records);
+    const UnitVertices vertices = unit_vertices(mesh, clusters);
+    FirstSeen firstSeen(vertices, vertices.normal.size() / 2);
+    thread_local OppositeCorners opposite;  // 128 KiB: made once per thread, not per unit
+    BitWriter bits;
+    std::vector<uint32_t> corners;
+    int64_t first = 0, nextReference = 0;
+    for (uint32_t index : clusters) {
+        const Cluster& c = mesh.clusters[index];
+        const std::span<const uint32_t> triangles = cluster_triangles(mesh, c, corners);
+        for (size_t t = 0; t < triangles.size(); t += 3) {
+            uint32_t tri[3] = {triangles[t], triangles[t + 1], triangles[t + 2]};
+            rotate_smallest_first(tri);
+            if (!std::equal(tri, tri + 3, &triangles[t]))
+                throw std::invalid_argument("a cluster's triangles are not in page order (order_cluster_for_pages)");
+        }
+        const bool ordered = walk_first_use(triangles, c.vertexCount, opposite, [&](uint32_t v, const Neighbours& n) {
+            const int64_t self = first + v;
+            if (const int64_t seen = firstSeen.find_or_add(self); seen >= 0) {  // a copy: its source, relative to the last one's
+                codes.put_varint(uint32_t(zigzag(seen - nextReference) + 1));
+                nextReference = seen + 1;
+                return;
+            }
+            codes.put_varint(0);
+            const Predictor predict(n, first, self);
+            for (int k = 0; k < 3; ++k) put_residual(vertices.grid[3 * self + k] - predict(vertices.grid, 3, k), out[kPositionWidthStream], bits);
+            for (int k = 0; k < 2; ++k) put_residual(vertices.normal[2 * self + k] - predict(vertices.normal, 2, k), out[kNormalWidthStream], bits);
+            if (colors)
+                for (int k = 0; k < 2; ++k)
+                    for (int byte = 0; byte < 4; ++byte) out[kColorStream].push_back(uint8_t(vertices.color[2 * self + k] >> (8 * byte)));
+        });
+        if (!ordered) throw std::invalid_argument("a cluster's vertices are not numbered by first use (order_cluster_for_pages)");
+        first += c.vertexCount;
+    }
+    bits.flush();
+    auto append = [&](PageStream s, const std::vector<uint8_t>& bytes) { out[s].insert(out[s].end(), bytes.begin(), bytes.end()); };
+    append(kRecordStream, records.bytes);
+    append(kIndexStream, indices);
+    append(kVertexCodeStream, codes.bytes);
+    append(kResidualBitStream, bits.bytes);
+}
+
+}  // namespace tessera
