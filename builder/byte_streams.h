@@ -5,7 +5,9 @@
 
 #include "tessera/builder.h"
 
+#include <algorithm>
 #include <cstring>
+#include <utility>
 
 namespace tessera {
 

@@ -4,7 +4,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # Debian 12 (bookworm) packages: Vulkan loader + lavapipe + validation layer, glslang, OpenImageIO, OpenColorIO,
-# GoogleTest, and the compilers. Versions are those of Debian 12.
+# OpenSubdiv, GoogleTest, zstd (page files), and the compilers. Versions are those of Debian 12.
 APT_PACKAGES=(build-essential cmake ninja-build pkg-config python3-venv libvulkan-dev mesa-vulkan-drivers
               vulkan-validationlayers glslang-tools libopenimageio-dev libopencolorio-dev libosd-dev libgtest-dev libzstd-dev)
 missing=()
