@@ -23,7 +23,7 @@ public:
             word(w);
         }
         uint64_t tail = 0;
-        std::memcpy(&tail, p, size);
+        if (size > 0) std::memcpy(&tail, p, size);  // an empty span may have no data pointer at all
         word(tail ^ (uint64_t(size) << 56));
     }
     template <typename T>
