@@ -136,6 +136,19 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
     assert tessera.read_image(str(plot)).shape == (270, 480, 4)
 
 
+def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):
+    rows_file = tmp_path / "rows.json"
+    done = run("bench", "raster", "--resolution", "96x54", "--frames", "1", "--stages-dir", tmp_path, "--json", rows_file)
+    assert done.returncode == 0, done.stderr + done.stdout
+    assert "crossover:" in done.stdout and "SW GPU ms" in done.stdout
+    rows = json.loads(rows_file.read_text())
+    assert [r["area_px"] for r in rows] == [1, 2, 4, 8, 16, 32, 64]
+    assert all(r["software_ms"] > 0 and r["hardware_ms"] > 0 and r["faster"] in ("software", "hardware") for r in rows)
+    # Triangles of one pixel fill the frame about once: twice as many triangles as pixels, all through software raster.
+    assert 0.5 * 96 * 54 < rows[0]["triangles"] / 2 < 2 * 96 * 54 and rows[0]["software_share"] > 0.9
+    assert rows[0]["triangles"] > 8 * rows[4]["triangles"], "16 times the area, a sixteenth of the triangles"
+
+
 def test_an_unchanged_stage_is_never_built_twice(tmp_path, monkeypatch):
     monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
     stage = TESTENV / "testNativeInstancing" / "native_instancing.usda"

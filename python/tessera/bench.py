@@ -348,3 +348,112 @@ def render(args) -> int:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=2)
     return 1 if failed else 0
+
+
+# The raster split: grids of triangles of one size each, drawn by each rasterizer alone.
+RASTER_AREAS = (1, 2, 4, 8, 16, 32, 64)  # pixels per triangle; past 64 a cluster outgrows the compute rasterizer's limit
+RASTER_COLUMNS = [("area_px", "px per triangle"), ("triangles", "triangles"), ("software_share", "SW share"),
+                  ("software_ms", "SW GPU ms"), ("hardware_ms", "HW GPU ms"), ("faster", "faster")]
+
+
+def _write_grid_stage(path, width: int, height: int, area: float):
+    """A flat grid facing the camera, filling the frame, of triangles covering about `area` pixels each."""
+    from pxr import Gf, Usd, UsdGeom, Vt
+
+    distance, focal, vertical = 10.0, 50.0, 24.0
+    visible_height = vertical / focal * distance
+    pixels_per_unit = height / visible_height
+    side = np.sqrt(2.0 * area) / pixels_per_unit  # two triangles per square
+    nx, ny = int(np.ceil(visible_height * width / height / side)) + 1, int(np.ceil(visible_height / side)) + 1
+    x = (np.arange(nx + 1) - nx / 2) * side
+    y = (np.arange(ny + 1) - ny / 2) * side
+    px, py = np.meshgrid(x, y, indexing="xy")
+    points = np.stack([px.ravel(), py.ravel(), np.zeros(px.size)], 1).astype(np.float32)
+    i, j = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
+    a = (i * (nx + 1) + j).ravel()
+    quads = np.stack([a, a + 1, a + nx + 2, a + nx + 1], 1).astype(np.int32)
+    stage = Usd.Stage.CreateNew(str(path))
+    mesh = UsdGeom.Mesh.Define(stage, "/Grid")
+    mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points))
+    mesh.GetFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.full(len(quads), 4, np.int32)))
+    mesh.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(quads.ravel()))
+    mesh.GetSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
+    camera = UsdGeom.Camera.Define(stage, "/Camera")
+    camera.GetFocalLengthAttr().Set(focal)
+    camera.GetVerticalApertureAttr().Set(vertical)
+    camera.GetHorizontalApertureAttr().Set(vertical * width / height)
+    camera.AddTranslateOp().Set(Gf.Vec3d(0, 0, distance))
+    stage.GetRootLayer().Save()
+
+
+def _raster_case(queue, stages, resolution, frames, device):
+    """Runs in a child process (a fresh Vulkan device): each grid through each rasterizer alone, every source
+    triangle (lod off, so the cut cannot merge the flat grid into a few large triangles)."""
+    try:
+        from tessera import Session
+
+        rows = []
+        for area, stage in stages:
+            session = Session(stage, device=device)
+            timings = {}
+            for raster in ("software", "hardware"):
+                settings = {"camera": "/Camera", "resolution": resolution, "lod": False, "raster": raster}
+                session.render(**settings)
+                totals = []
+                for _ in range(frames):
+                    result = session.render(**settings)
+                    totals.append(sum(result.stats["gpu_ms"].values()))
+                timings[raster] = (float(np.median(totals)), result.stats)
+            software_ms, software_stats = timings["software"]
+            hardware_ms, _ = timings["hardware"]
+            rows.append({"area_px": area, "triangles": software_stats["visible_triangles"],
+                         "software_share": round(software_stats["sw_triangles"] / max(software_stats["visible_triangles"], 1), 3),
+                         "software_ms": round(software_ms, 1), "hardware_ms": round(hardware_ms, 1),
+                         "faster": "software" if software_ms < hardware_ms else "hardware", "device": session.device_name,
+                         "resolution": f"{resolution[0]}x{resolution[1]}"})
+        queue.put(rows)
+    except Exception as error:  # reported by the parent
+        queue.put(error)
+
+
+def raster(args) -> int:
+    """The triangle size below which the compute rasterizer beats hardware raster on this device (RenderSettings::
+    softwareRasterArea, 45 px by default, was measured this way on lavapipe)."""
+    from pathlib import Path
+
+    width, height = args.resolution
+    stages = []
+    for area in RASTER_AREAS:
+        path = Path(args.stages_dir) / f"raster_grid_{width}x{height}_{area}px.usdc"
+        if not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            temporary = path.with_suffix(".tmp.usdc")
+            _write_grid_stage(temporary, width, height, area)
+            temporary.rename(path)
+        stages.append((area, str(path)))
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    process = context.Process(target=_raster_case, args=(queue, stages, (width, height), args.frames, args.device))
+    process.start()
+    outcome = queue.get()
+    process.join()
+    if isinstance(outcome, Exception):
+        print(f"tessera: error: {outcome}", flush=True)
+        return 1
+    print(" | ".join(title for _, title in RASTER_COLUMNS))
+    for row in outcome:
+        print(" | ".join(str(row[key]) for key, _ in RASTER_COLUMNS))
+    # Only sizes the compute rasterizer really drew count: past them its clusters outgrow TS_SW_MAX_RADIUS_PIXELS and
+    # go to hardware raster even when software is asked for.
+    measured = [row for row in outcome if row["software_share"] >= 0.9]
+    hardware_wins = [row["area_px"] for row in measured if row["faster"] == "hardware"]
+    print(f"device: {outcome[0]['device']}, {outcome[0]['resolution']}, median of {args.frames} frames after one warm-up")
+    if hardware_wins:
+        print(f"crossover: hardware raster is faster from {min(hardware_wins)} px per triangle")
+    elif measured:
+        print(f"crossover: the compute rasterizer is faster at every size it can take here (up to {measured[-1]['area_px']} px "
+              f"per triangle; larger clusters go to hardware raster anyway)")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(outcome, f, indent=2)
+    return 0

@@ -53,6 +53,12 @@ def _parser() -> argparse.ArgumentParser:
     build = benches.add_parser("build", help="cluster DAG build: speed, memory, depth, error per level")
     build.add_argument("stages", nargs="*", help="USD stages (every mesh) or .obj files (default: the bunny and generated 1M / 10M meshes)")
     build.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
+    bench_raster = benches.add_parser("raster", help="the triangle size where hardware raster overtakes the compute rasterizer")
+    bench_raster.add_argument("--resolution", type=_resolution, default=(1920, 1080), help="WIDTHxHEIGHT (default 1920x1080)")
+    bench_raster.add_argument("--frames", type=int, default=5, help="frames measured after one warm-up; the median is reported")
+    bench_raster.add_argument("--stages-dir", default="out/bench", help="where the generated stages are kept (default out/bench)")
+    bench_raster.add_argument("--device", help="Vulkan device, as for render")
+    bench_raster.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
     bench_render = benches.add_parser("render", help="frame cost against source density, brute force and the error bound")
     bench_render.add_argument("--resolution", type=_resolution, default=(1920, 1080), help="WIDTHxHEIGHT (default 1920x1080)")
     bench_render.add_argument("--frames", type=int, default=5, help="frames measured after one warm-up; the median is reported")
@@ -159,7 +165,7 @@ def main(argv=None) -> int:
         if args.command == "bench":
             from . import bench
 
-            return bench.build(args) if args.bench == "build" else bench.render(args)
+            return {"build": bench.build, "render": bench.render, "raster": bench.raster}[args.bench](args)
     except Exception as error:  # one line, never a traceback, for anything the user can fix
         print(f"tessera: error: {error}", file=sys.stderr)
         return 1
