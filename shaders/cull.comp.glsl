@@ -179,8 +179,7 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     }
 }
 
-vec4 instance_sphere(GpuFrame frame, uint instanceIndex) {
-    GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
+vec4 instance_sphere(GpuFrame frame, GpuInstance instance) {
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     return vec4(to_camera_relative(instance, camera_relative_translation(instance), mesh.sphere.xyz), mesh.sphere.w * instance_scale(instance));
 }
@@ -188,9 +187,9 @@ vec4 instance_sphere(GpuFrame frame, uint instanceIndex) {
 void main_pass(GpuFrame frame) {
     uint instanceIndex = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (instanceIndex >= frame.counts.x) return;
-    uint material = InstanceRef(frame.instances).data[instanceIndex].materialIndex;
-    if ((MaterialRef(frame.materials).data[material].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
-    vec4 sphere = instance_sphere(frame, instanceIndex);
+    GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
+    if ((MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
+    vec4 sphere = instance_sphere(frame, instance);
     if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
     if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {
         if (gl_LocalInvocationIndex == 0) {
@@ -210,7 +209,7 @@ void post_pass(GpuFrame frame) {
     uint instances = draw.state.deferredInstances;
     for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) {
         uint instanceIndex = UintRef(frame.deferredInstances).data[i];
-        vec4 sphere = instance_sphere(frame, instanceIndex);
+        vec4 sphere = instance_sphere(frame, InstanceRef(frame.instances).data[instanceIndex]);
         if (hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {
             if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.occludedInstances, 1u);
             continue;

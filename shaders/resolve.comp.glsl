@@ -83,9 +83,8 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
         return;
     }
 
-    uint payload = uint(value & 0xfffffffful);
-    uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
-    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[payload >> TS_VIS_TRIANGLE_BITS];
+    uint triangle = uint(value) & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
+    uvec2 visible = visible_cluster(frame, value);
     bool software = (visible.x & TS_VISIBLE_SOFTWARE) != 0u;
     visible.x &= ~TS_VISIBLE_SOFTWARE;
     GpuInstance instance = InstanceRef(frame.instances).data[visible.x];
