@@ -310,6 +310,9 @@ struct Renderer::Impl {
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
     uint32_t materialCount = 1;
+    // Textures: the slots of textured materials, and the pool of the images they read (both empty without textures).
+    Buffer textureSlots, texturePool;
+    std::vector<std::shared_ptr<const TextureImage>> poolImages;
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbPrevious, hzbCurrent;
@@ -525,26 +528,97 @@ struct Renderer::Impl {
         relativeTo = camera;
     }
 
+    // A material's inputs as the GPU reads them: the textured ones get slots (in TS_INPUT_* order), and the inputs of
+    // slots whose file could not be read take the slot's fallback as their constant.
+    gpu::GpuMaterial gpu_material(MaterialDesc m, std::vector<gpu::GpuTextureSlot>& slots, std::vector<std::shared_ptr<const TextureImage>>& images) {
+        std::array<const TextureSlot*, TS_INPUT_COUNT> textured{};
+        for (const TextureSlot& slot : m.textures) {
+            // An input this material's workflow ignores costs nothing.
+            if ((slot.input == MaterialInput::SpecularColor && !m.useSpecularWorkflow) || (slot.input == MaterialInput::Metallic && m.useSpecularWorkflow))
+                continue;
+            if (slot.image) {
+                textured[size_t(slot.input)] = &slot;
+                continue;
+            }
+            const auto& f = slot.fallback;
+            const std::array<float, 3> rgb = slot.channel == TextureChannel::Rgb ? std::array<float, 3>{f[0], f[1], f[2]}
+                                                                                   : std::array<float, 3>{f[size_t(slot.channel)], f[size_t(slot.channel)], f[size_t(slot.channel)]};
+            switch (slot.input) {
+                case MaterialInput::DiffuseColor: m.diffuseColor = rgb, m.useDisplayColor = false; break;
+                case MaterialInput::EmissiveColor: m.emissiveColor = rgb; break;
+                case MaterialInput::SpecularColor: m.specularColor = rgb; break;
+                case MaterialInput::Metallic: m.metallic = rgb[0]; break;
+                case MaterialInput::Roughness: m.roughness = rgb[0]; break;
+                case MaterialInput::Opacity: m.opacity = rgb[0]; break;
+                case MaterialInput::Occlusion: m.occlusion = rgb[0]; break;
+                case MaterialInput::Normal: break;  // no normal map
+            }
+        }
+        gpu::GpuMaterial g{};
+        g.diffuseColor = {m.diffuseColor[0], m.diffuseColor[1], m.diffuseColor[2], m.opacity};
+        g.emissiveColor = {m.emissiveColor[0], m.emissiveColor[1], m.emissiveColor[2], std::clamp(m.occlusion, 0.0f, 1.0f)};
+        // UsdPreviewSurface: reflectance at normal incidence from the index of refraction, ((ior - 1) / (ior + 1))^2.
+        const float fromIor = (m.ior - 1) / (m.ior + 1) * ((m.ior - 1) / (m.ior + 1));
+        const std::array<float, 3> f0 = m.useSpecularWorkflow ? m.specularColor : std::array<float, 3>{fromIor, fromIor, fromIor};
+        g.specular = {f0[0], f0[1], f0[2], std::clamp(m.roughness, 0.0f, 1.0f)};
+        g.metallic = std::clamp(m.metallic, 0.0f, 1.0f);
+        const bool texturedDiffuse = textured[TS_INPUT_DIFFUSE_COLOR] != nullptr, texturedOpacity = textured[TS_INPUT_OPACITY] != nullptr;
+        g.flags = (m.useDisplayColor && !texturedDiffuse ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u) | (m.useSpecularWorkflow ? 0u : TS_MATERIAL_METALLIC) |
+                  (!texturedOpacity && m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
+        g.firstTextureSlot = uint32_t(slots.size());
+        for (uint32_t input = 0; input < TS_INPUT_COUNT; ++input) {
+            const TextureSlot* slot = textured[input];
+            if (!slot) continue;
+            auto image = std::find(images.begin(), images.end(), slot->image);
+            if (image == images.end()) image = images.insert(images.end(), slot->image);
+            const auto& t = slot->transform;
+            gpu::GpuTextureSlot s{};
+            s.scale = {slot->scale[0], slot->scale[1], slot->scale[2], slot->scale[3]};
+            s.bias = {slot->bias[0], slot->bias[1], slot->bias[2], slot->bias[3]};
+            s.transform = {t[0], t[1], t[3], t[4]};
+            s.translationS = t[2];
+            s.translationT = t[5];
+            s.texture = uint32_t(image - images.begin());
+            s.mode = uint32_t(slot->wrapS) | uint32_t(slot->wrapT) << 2 | uint32_t(slot->channel) << 4;
+            slots.push_back(s);
+            g.textureInputs |= 1u << input;
+        }
+        return g;
+    }
+
     void upload_materials(GpuScene& scene) {
         std::vector<gpu::GpuMaterial> gpuMaterials;
-        for (const MaterialDesc& m : scene.materials_) {
-            gpu::GpuMaterial g{};
-            g.diffuseColor = {m.diffuseColor[0], m.diffuseColor[1], m.diffuseColor[2], m.opacity};
-            g.emissiveColor = {m.emissiveColor[0], m.emissiveColor[1], m.emissiveColor[2], std::clamp(m.occlusion, 0.0f, 1.0f)};
-            // UsdPreviewSurface: reflectance at normal incidence from the index of refraction, ((ior - 1) / (ior + 1))^2.
-            const float fromIor = (m.ior - 1) / (m.ior + 1) * ((m.ior - 1) / (m.ior + 1));
-            const std::array<float, 3> f0 = m.useSpecularWorkflow ? m.specularColor : std::array<float, 3>{fromIor, fromIor, fromIor};
-            g.specular = {f0[0], f0[1], f0[2], std::clamp(m.roughness, 0.0f, 1.0f)};
-            g.metallic = std::clamp(m.metallic, 0.0f, 1.0f);
-            g.flags = (m.useDisplayColor ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u) | (m.useSpecularWorkflow ? 0u : TS_MATERIAL_METALLIC) |
-                      (m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
-            gpuMaterials.push_back(g);
-        }
+        std::vector<gpu::GpuTextureSlot> slots;
+        std::vector<std::shared_ptr<const TextureImage>> images;
+        for (const MaterialDesc& m : scene.materials_) gpuMaterials.push_back(gpu_material(m, slots, images));
         if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 1}, {0, 0, 0, 0.5f}, 0, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0});
         upload_vector(device, materials, gpuMaterials);
         materialCount = uint32_t(gpuMaterials.size());
         if (shadingBins.size < uint64_t(materialCount) * sizeof(gpu::GpuBin))
             shadingBins = device.create_buffer(uint64_t(materialCount) * sizeof(gpu::GpuBin), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
+        // No textures, no texture memory.
+        if (slots.empty()) textureSlots = Buffer{};
+        else upload_vector(device, textureSlots, slots);
+        if (images != poolImages) upload_texture_pool(images);
+    }
+
+    // The texture pool: a GpuTexture record per image, then every image's words. Rebuilt when the set of images changes.
+    void upload_texture_pool(std::vector<std::shared_ptr<const TextureImage>> images) {
+        poolImages = std::move(images);
+        texturePool = Buffer{};
+        if (poolImages.empty()) return;
+        uint64_t words = poolImages.size() * 4;
+        for (const auto& image : poolImages) words += image->words.size();
+        if (words > 0xffffffffull) throw std::runtime_error("the texture pool would exceed 16 GiB");
+        std::vector<uint32_t> pool;
+        pool.reserve(words);
+        uint32_t offset = uint32_t(poolImages.size() * 4);
+        for (const auto& image : poolImages) {
+            pool.insert(pool.end(), {image->width, image->height, offset, image->format | image->levels << 8});
+            offset += uint32_t(image->words.size());
+        }
+        for (const auto& image : poolImages) pool.insert(pool.end(), image->words.begin(), image->words.end());
+        upload_vector(device, texturePool, pool);
     }
 
     void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount) {
@@ -627,6 +701,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.instances = uint32_t(scene.instances_.size());
     frameStats.clusters = s.clusterCount;
     frameStats.sourceTriangles = s.sourceTriangles;
+    frameStats.textures = uint32_t(s.poolImages.size());
+    frameStats.textureBytes = s.texturePool.size + s.textureSlots.size;
     const uint64_t pixels = uint64_t(settings.width) * settings.height;
 
     for (;;) {
@@ -707,6 +783,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.overdraw = countOverdraw ? s.overdraw.address : 0;
         f.bins = s.shadingBins.address;
         f.binPixels = s.binPixels.address;
+        f.textureSlots = s.textureSlots.address;
+        f.textures = s.texturePool.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
