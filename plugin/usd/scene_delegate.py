@@ -16,7 +16,7 @@ import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import implicit
+from . import implicit, materials
 
 _IDENTITY = np.eye(4)
 
@@ -243,40 +243,13 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return _tessera.matrix_array(self.rprims[prototype_id].instance_transforms)
 
     def get_material(self, id: str):
-        desc = _tessera.MaterialDesc()
-        material = UsdShade.Material(self.stage.GetPrimAtPath(id))
-        shader = material.ComputeSurfaceSource()[0] if material else None
-        if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
-            desc.use_display_color = True  # not a preview surface: fall back to the mesh's displayColor, diffuse only
-            desc.diffuse_color = (0.5, 0.5, 0.5)
-            desc.ior = 1.0
-            return desc
+        return materials.material_desc(self.stage.GetPrimAtPath(id), self.time, self.warnings)
 
-        def value(name, default):
-            shader_input = shader.GetInput(name)
-            if not shader_input:
-                return default
-            source = shader_input.GetConnectedSource() if shader_input.HasConnectedSource() else None
-            if source:  # textures arrive with the renderer's material issue; use the texture's fallback
-                fallback = source[0].GetInput("fallback")
-                v = fallback.Get() if fallback else None
-                if v is None:
-                    return default
-                return tuple(v)[:3] if isinstance(default, tuple) else float(v if np.ndim(v) == 0 else tuple(v)[0])
-            v = shader_input.Get(self.time)
-            return v if v is not None else default
-
-        desc.diffuse_color = tuple(value("diffuseColor", (0.18, 0.18, 0.18)))
-        desc.emissive_color = tuple(value("emissiveColor", (0.0, 0.0, 0.0)))
-        desc.opacity = float(value("opacity", 1.0))
-        desc.opacity_threshold = float(value("opacityThreshold", 0.0))
-        desc.metallic = float(value("metallic", 0.0))
-        desc.roughness = float(value("roughness", 0.5))
-        desc.use_specular_workflow = bool(value("useSpecularWorkflow", 0))
-        desc.specular_color = tuple(value("specularColor", (0.0, 0.0, 0.0)))
-        desc.ior = float(value("ior", 1.5))
-        desc.occlusion = float(value("occlusion", 1.0))
-        return desc
+    def uv_primvar(self, material_path: str) -> str:
+        """The primvar a material's texture readers read as st ("" for none, or no material): the mesh's UV set."""
+        if not material_path:
+            return ""
+        return materials.material_desc(self.stage.GetPrimAtPath(material_path), self.time, []).uv_primvar
 
     def get_light(self, id: str):
         prim = self.stage.GetPrimAtPath(id)
