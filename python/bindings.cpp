@@ -80,7 +80,7 @@ struct PySceneDelegate : SceneDelegate {
 };
 
 Visualize visualize_from(const std::string& name) {
-    for (int mode = 0; mode <= int(Visualize::Overdraw); ++mode)
+    for (int mode = 0; mode <= int(Visualize::Uv); ++mode)
         if (name == visualize_name(Visualize(mode))) return Visualize(mode);
     throw nb::value_error(("unknown visualization mode '" + name + "'").c_str());
 }
@@ -205,8 +205,8 @@ NB_MODULE(_tessera, m) {
         [](const std::string& name, Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices,
            std::optional<Array1<int32_t>> holes, bool leftHanded, bool doubleSided, std::optional<Array1<float>> normals,
            const std::string& normalsInterpolation, std::optional<Array1<int32_t>> normalsIndices, std::optional<Array1<float>> displayColor,
-           const std::string& displayColorInterpolation, std::optional<Array1<int32_t>> displayColorIndices, const std::string& scheme,
-           int refineLevel) {
+           const std::string& displayColorInterpolation, std::optional<Array1<int32_t>> displayColorIndices, std::optional<Array1<float>> uvs,
+           const std::string& uvsInterpolation, std::optional<Array1<int32_t>> uvsIndices, const std::string& scheme, int refineLevel) {
             MeshSource source;
             source.view.subdivisionScheme = scheme == "catmullClark" ? SubdivisionScheme::CatmullClark
                                             : scheme == "loop"       ? SubdivisionScheme::Loop
@@ -223,11 +223,12 @@ NB_MODULE(_tessera, m) {
             if (normals) source.view.normals = {interpolation_from(normalsInterpolation), 3, span_of(normals), span_of(normalsIndices)};
             if (displayColor)
                 source.view.displayColor = {interpolation_from(displayColorInterpolation), 3, span_of(displayColor), span_of(displayColorIndices)};
+            if (uvs) source.view.uvs = {interpolation_from(uvsInterpolation), 2, span_of(uvs), span_of(uvsIndices)};
             nb::list owners;
             for (nb::handle h : {nb::cast(points), nb::cast(counts), nb::cast(indices)}) owners.append(h);
-            for (auto* o : {&holes, &normalsIndices, &displayColorIndices})
+            for (auto* o : {&holes, &normalsIndices, &displayColorIndices, &uvsIndices})
                 if (*o) owners.append(nb::cast(**o));
-            for (auto* o : {&normals, &displayColor})
+            for (auto* o : {&normals, &displayColor, &uvs})
                 if (*o) owners.append(nb::cast(**o));
             source.keepAlive = keep_alive(owners);
             return source;
@@ -235,8 +236,9 @@ NB_MODULE(_tessera, m) {
         "name"_a, "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "hole_indices"_a = nb::none(), "left_handed"_a = false,
         "double_sided"_a = false, "normals"_a = nb::none(), "normals_interpolation"_a = "vertex", "normals_indices"_a = nb::none(),
         "display_color"_a = nb::none(), "display_color_interpolation"_a = "constant", "display_color_indices"_a = nb::none(),
-        "subdivision_scheme"_a = "none", "refine_level"_a = 0,
-        "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples).");
+        "uvs"_a = nb::none(), "uvs_interpolation"_a = "faceVarying", "uvs_indices"_a = nb::none(), "subdivision_scheme"_a = "none",
+        "refine_level"_a = 0,
+        "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples; uvs: float32 pairs).");
 
     nb::class_<MatrixArray>(m, "MatrixArray").def_prop_ro("size", &MatrixArray::size);
     m.def(

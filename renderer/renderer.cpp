@@ -53,10 +53,12 @@ const char* visualize_name(Visualize mode) {
         case Visualize::ShadingBins: return "shading-bins";
         case Visualize::RasterBins: return "raster-bins";
         case Visualize::Overdraw: return "overdraw";
+        case Visualize::Uv: return "uv";
     }
     return "?";
 }
-static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::Overdraw) == TS_VIS_OVERDRAW,
+static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::Overdraw) == TS_VIS_OVERDRAW &&
+                  uint32_t(Visualize::Uv) == TS_VIS_UV,
               "Visualize must match the TS_VIS_* modes");
 
 bool aov_is_id(Aov aov) { return aov == Aov::PrimId || aov == Aov::InstanceId || aov == Aov::ClusterId || aov == Aov::TriangleId; }
@@ -296,7 +298,7 @@ struct Renderer::Impl {
     // the frame's HZB; resolve.
     static constexpr uint32_t kTimestamps = 10;
     Buffer hardwareList, softwareList;
-    Buffer instances, meshes, levels, clusters, positions, normals, colors, triangles, materials;
+    Buffer instances, meshes, levels, clusters, positions, normals, colors, uvs, triangles, materials;
     uint32_t instanceCount = 0, clusterCount = 0;
     uint64_t sourceTriangles = 0;
     const GpuScene* uploadedScene = nullptr;
@@ -419,19 +421,20 @@ struct Renderer::Impl {
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
         std::vector<gpu::GpuCluster> gpuClusters;
         std::vector<gpu::GpuLevel> gpuLevels;
-        std::vector<float> gpuPositions;
+        std::vector<float> gpuPositions, gpuUvs;
         std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles;
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
             const BuiltMesh* mesh = scene.meshes_[m].get();
             gpu::GpuMesh& g = gpuMeshes[m];
             g = {};
-            g.colorOffset = TS_NO_STREAM;
+            g.colorOffset = g.uvOffset = TS_NO_STREAM;
             if (!mesh) continue;
             const uint32_t vertexBase = uint32_t(gpuPositions.size() / 3), triangleBase = uint32_t(gpuTriangles.size());
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
             g.clusterOffset = uint32_t(gpuClusters.size());
             g.vertexOffset = vertexBase;
             if (!mesh->colors.empty()) g.colorOffset = uint32_t(gpuColors.size() / 2);
+            if (!mesh->uvs.empty()) g.uvOffset = uint32_t(gpuUvs.size() / 2);
             // The whole DAG goes up; the cull pass picks the cut. Clusters come level by level, level 0 first.
             g.clusterCount = uint32_t(mesh->clusters.size());
             g.leafClusterCount = mesh->leafClusters;
@@ -466,6 +469,7 @@ struct Renderer::Impl {
             gpuPositions.insert(gpuPositions.end(), mesh->positions.begin(), mesh->positions.end());
             gpuNormals.insert(gpuNormals.end(), mesh->normals.begin(), mesh->normals.end());
             gpuColors.insert(gpuColors.end(), mesh->colors.begin(), mesh->colors.end());
+            gpuUvs.insert(gpuUvs.end(), mesh->uvs.begin(), mesh->uvs.end());
             gpuTriangles.insert(gpuTriangles.end(), mesh->triangles.begin(), mesh->triangles.end());
         }
         if (gpuLevels.empty()) gpuLevels.push_back({});
@@ -475,6 +479,7 @@ struct Renderer::Impl {
         upload_vector(device, positions, gpuPositions);
         upload_vector(device, normals, gpuNormals);
         upload_vector(device, colors, gpuColors);
+        upload_vector(device, uvs, gpuUvs);
         upload_vector(device, triangles, gpuTriangles);
     }
 
@@ -768,6 +773,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.positions = s.positions.address;
         f.normals = s.normals.address;
         f.colors = s.colors.address;
+        f.uvs = s.uvs.address;
         f.triangles = s.triangles.address;
         f.materials = s.materials.address;
         f.visibleClusters = s.visibleClusters.address;

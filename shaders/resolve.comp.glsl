@@ -23,6 +23,52 @@ vec3 vertex_color(GpuFrame frame, GpuMesh mesh, uint vertex) {
     return vec3(unpackHalf2x16(colors.data[2u * i]), unpackHalf2x16(colors.data[2u * i + 1u]).x);
 }
 
+vec2 vertex_uv(GpuFrame frame, GpuMesh mesh, uint vertex) {
+    uint i = vertex - mesh.vertexOffset + mesh.uvOffset;
+    FloatRef uvs = FloatRef(frame.uvs);
+    return vec2(uvs.data[2u * i], uvs.data[2u * i + 1u]);
+}
+
+// The ray through a point of the image (pixel units), from the inverse view-projection (perspective and orthographic).
+void pixel_ray(GpuFrame frame, vec2 pixel, out vec3 origin, out vec3 direction) {
+    vec2 ndc = pixel / vec2(frame.viewport.xy) * 2.0 - 1.0;
+    vec4 nearPoint = frame.inverseViewProjection * vec4(ndc, 1.0, 1.0);
+    vec4 midPoint = frame.inverseViewProjection * vec4(ndc, 0.5, 1.0);
+    origin = nearPoint.xyz / nearPoint.w;
+    direction = normalize(midPoint.xyz / midPoint.w - origin);
+}
+
+// Barycentrics where a ray meets the plane of the triangle (p0, p0 + e1, p0 + e2), unclamped (Moller-Trumbore);
+// the centroid for a ray along the plane.
+vec3 plane_barycentrics(vec3 origin, vec3 direction, vec3 p0, vec3 e1, vec3 e2) {
+    vec3 pv = cross(direction, e2);
+    float det = dot(e1, pv);
+    if (!(abs(det) > 0.0)) return vec3(1.0 / 3.0);
+    vec3 tv = origin - p0;
+    float u = dot(tv, pv) / det;
+    float v = dot(direction, cross(tv, e1)) / det;
+    return vec3(1.0 - u - v, u, v);
+}
+
+// A surface attribute at the pixel and its change to the next pixel right (dx) and down (dy): the analytic
+// derivatives that pick a texture's mip level (a compute shader has no quads to difference).
+struct PixelUv {
+    vec2 uv, dx, dy;
+};
+
+PixelUv pixel_uv(GpuFrame frame, vec2 pixel, vec3 bary, vec3 p0, vec3 e1, vec3 e2, vec2 uv0, vec2 uv1, vec2 uv2) {
+    vec3 origin, direction;
+    PixelUv result;
+    result.uv = bary.x * uv0 + bary.y * uv1 + bary.z * uv2;
+    pixel_ray(frame, pixel + vec2(1.5, 0.5), origin, direction);
+    vec3 bx = plane_barycentrics(origin, direction, p0, e1, e2) - bary;
+    pixel_ray(frame, pixel + vec2(0.5, 1.5), origin, direction);
+    vec3 by = plane_barycentrics(origin, direction, p0, e1, e2) - bary;
+    result.dx = bx.x * uv0 + bx.y * uv1 + bx.z * uv2;
+    result.dy = by.x * uv0 + by.y * uv1 + by.z * uv2;
+    return result;
+}
+
 // A well-spread colour for an id (integer hash, then three 8-bit channels lifted away from black).
 vec3 id_color(uint id) {
     id ^= id >> 16; id *= 0x7feb352du; id ^= id >> 15; id *= 0x846ca68bu; id ^= id >> 16;
@@ -108,25 +154,12 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     vec3 p1 = to_camera_relative(instance, translation, vertex_position(frame, v1));
     vec3 p2 = to_camera_relative(instance, translation, vertex_position(frame, v2));
 
-    // The pixel's ray, from the inverse view-projection (works for perspective and orthographic).
-    vec2 ndc = (vec2(pixel) + 0.5) / vec2(frame.viewport.xy) * 2.0 - 1.0;
-    vec4 nearPoint = frame.inverseViewProjection * vec4(ndc, 1.0, 1.0);
-    vec4 midPoint = frame.inverseViewProjection * vec4(ndc, 0.5, 1.0);
-    vec3 origin = nearPoint.xyz / nearPoint.w;
-    vec3 direction = normalize(midPoint.xyz / midPoint.w - origin);
-
-    // Barycentrics where the ray meets the triangle's plane (Moller-Trumbore, unclamped).
+    // The pixel's ray and where it meets the triangle's plane.
+    vec3 origin, direction;
+    pixel_ray(frame, vec2(pixel) + 0.5, origin, direction);
     vec3 e1 = p1 - p0, e2 = p2 - p0;
-    vec3 pv = cross(direction, e2);
-    float det = dot(e1, pv);
-    vec3 bary = vec3(1.0 / 3.0);
+    vec3 bary = plane_barycentrics(origin, direction, p0, e1, e2);
     float t = dot(p0 - origin, cross(e1, e2)) / dot(direction, cross(e1, e2));
-    if (abs(det) > 0.0) {
-        vec3 tv = origin - p0;
-        float u = dot(tv, pv) / det;
-        float v = dot(direction, cross(tv, e1)) / det;
-        bary = vec3(1.0 - u - v, u, v);
-    }
     if (!(t > 0.0) || isinf(t)) t = 0.0;  // edge-on triangle: the plane test is meaningless
     vec3 hit = origin + t * direction;
 
@@ -153,6 +186,16 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     }
 
     if (frame.counts.w != TS_VIS_NONE) {  // flat id colours, lit from the eye so that shapes stay readable
+        if (frame.counts.w == TS_VIS_UV) {  // data, not a picture: unlit
+            vec3 uvColor = vec3(1.0, 0.0, 1.0);
+            if (mesh.uvOffset != TS_NO_STREAM) {
+                PixelUv uv = pixel_uv(frame, vec2(pixel), bary, p0, e1, e2, vertex_uv(frame, mesh, v0), vertex_uv(frame, mesh, v1),
+                                      vertex_uv(frame, mesh, v2));
+                uvColor = vec3(fract(uv.uv), 0.0);
+            }
+            OutputRef(frame.aovOutput).data[index] = vec4(uvColor, 1.0);
+            return;
+        }
         vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle, software);
         OutputRef(frame.aovOutput).data[index] = vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0);
         return;

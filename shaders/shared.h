@@ -95,6 +95,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIS_SHADING_BINS 7u  // materials
 #define TS_VIS_RASTER_BINS 8u   // software (compute) raster blue, hardware raster orange
 #define TS_VIS_OVERDRAW 9u      // fragments rasterized per pixel, both rasterizers: 1 blue through 9 or more red
+#define TS_VIS_UV 10u           // texture coordinates: fract(u) red, fract(v) green; magenta where the mesh has none
 
 // Frame flags (GpuFrame.counts.z).
 #define TS_FRAME_NO_LOD 1u      // draw every source triangle (level 0), the DAG off: the full-detail reference
@@ -175,8 +176,10 @@ struct GpuMesh {
     uint levelCount;
     uint leafClusterCount;  // level 0: the source triangles
     float lodRadius;     // about `sphere`'s centre, encloses every LOD and parent sphere of the mesh
+    uint uvOffset;       // first entry of the texture coordinate stream (indexed like colours), or TS_NO_STREAM
+    uint pad0, pad1, pad2;
 };
-TS_CHECK_SIZE(GpuMesh, 48);
+TS_CHECK_SIZE(GpuMesh, 64);
 
 // A drawn copy of a mesh. The transform maps mesh space to camera-relative world space: the CPU subtracts
 // the camera position from the translation in double and stores the result as a high and a low float, so
@@ -294,6 +297,7 @@ struct GpuFrame {
     address positions;       // float[3 * vertices], mesh space
     address normals;         // uint[vertices], octahedral snorm16x2
     address colors;          // uint[2 * colours], rgba16f
+    address uvs;             // vec2[texture coordinates]
     address triangles;       // uint[triangles], 3 x 8-bit cluster-local indices
     address materials;       // GpuMaterial[]
     address visibleClusters; // uvec2[capacity]: (instance | TS_VISIBLE_SOFTWARE, cluster)
@@ -310,7 +314,7 @@ struct GpuFrame {
     address textureSlots;    // GpuTextureSlot[], 0 when no material has a texture
     address textures;        // the texture pool: GpuTexture[] then texel words (uint); 0 when there are no textures
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 22);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 23);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

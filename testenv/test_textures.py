@@ -112,8 +112,9 @@ def test_a_uv_texture_network_becomes_a_texture_slot(tmp_path):
     # UsdTransform2d: scale (2, 3), rotate 90 degrees, translate (0.25, 0.5): st' = (-3 t + 0.25, 2 s + 0.5).
     assert np.allclose(slot.transform, (0, -3, 0.25, 2, 0, 0.5), atol=1e-6), list(slot.transform)
     assert desc.uv_primvar == "st1", "the reader's varname, through the material's interface input"
-    assert delegate.uv_primvar("/Looks/Checker") == "st1"
-    assert delegate.uv_primvar("") == ""
+    assert delegate.uv_primvar(stage.GetPrimAtPath("/Quad")) == "st1", "the UV set the quad is built with"
+    _quad(stage, "/Unbound", 2.0)
+    assert delegate.uv_primvar(stage.GetPrimAtPath("/Unbound")) == "st"
     # A file the resolver cannot find is still named by its path next to the layer that authored it.
     (broken,) = delegate.get_material("/Looks/Broken").textures
     assert broken.file == str(tmp_path / "asset" / "tex" / "missing.png")

@@ -204,20 +204,26 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         holes = array(mesh.GetHoleIndicesAttr(), np.int32)
         primvars = UsdGeom.PrimvarsAPI(prim)
 
-        def primvar(primvar_name, default_interpolation):
-            """(values, interpolation, indices) of an authored primvar, else (None, default, None)."""
+        def primvar(primvar_name, default_interpolation, width=3):
+            """(values, interpolation, indices) of an authored primvar of `width` components, else (None, default, None)."""
             pv = primvars.GetPrimvar(primvar_name)
             if not (pv and pv.HasAuthoredValue()):
                 return None, default_interpolation, None
+            values = pv.Get(t)
+            shape = np.shape(values) if values is not None else ()
+            if len(shape) != 2 or shape[1] != width:
+                self.warnings.append(f"{name}: primvars:{primvar_name} is {pv.GetTypeName()}, not {width} floats per element; ignored")
+                return None, default_interpolation, None
             idx = pv.GetIndices(t)
             idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
-            return array(pv, np.float32, 3), pv.GetInterpolation(), idx
+            return np.ascontiguousarray(np.asarray(values, np.float32).reshape(-1)), pv.GetInterpolation(), idx
 
         # primvars:normals wins over the normals attribute, as in UsdImaging.
         normals, normals_interp, normals_idx = primvar("normals", "vertex")
         if normals is None and mesh.GetNormalsAttr().HasAuthoredValue():
             normals, normals_interp = array(mesh.GetNormalsAttr(), np.float32, 3), mesh.GetNormalsInterpolation()
         color, color_interp, color_idx = primvar("displayColor", "constant")
+        uvs, uvs_interp, uvs_idx = primvar(self.uv_primvar(prim), "faceVarying", width=2)
         return _tessera.mesh_source(
             name, points, counts, indices,
             hole_indices=holes,
@@ -225,7 +231,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
             normals=normals, normals_interpolation=normals_interp, normals_indices=normals_idx,
             display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx,
+            uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx,
             subdivision_scheme=mesh.GetSubdivisionSchemeAttr().Get(t) or "catmullClark", refine_level=self.refine_level)
+
+    def uv_primvar(self, prim: Usd.Prim) -> str:
+        """The texture coordinate set a mesh is built with: the primvar its bound material's texture readers read
+        (a UsdPrimvarReader_float2's varname), else "st", the convention of UsdPreviewSurface materials."""
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        if not material:
+            return "st"
+        return materials.material_desc(material.GetPrim(), self.time, []).uv_primvar or "st"
 
     def get_transform(self, id: str):
         return to_column_major(self.xform_cache.GetLocalToWorldTransform(self.rprims[id].prim))
@@ -244,12 +259,6 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def get_material(self, id: str):
         return materials.material_desc(self.stage.GetPrimAtPath(id), self.time, self.warnings)
-
-    def uv_primvar(self, material_path: str) -> str:
-        """The primvar a material's texture readers read as st ("" for none, or no material): the mesh's UV set."""
-        if not material_path:
-            return ""
-        return materials.material_desc(self.stage.GetPrimAtPath(material_path), self.time, []).uv_primvar
 
     def get_light(self, id: str):
         prim = self.stage.GetPrimAtPath(id)

@@ -111,3 +111,59 @@ TEST(Quantization, NeighbouringMeshesOfTheSamePrecisionShareBorderVerticesExactl
     EXPECT_GT(border, 0u);
     EXPECT_GE(matched, 16u) << "rows at multiples of 1/15 are shared by both grids and must match exactly";
 }
+
+namespace {
+// Simplification only removes vertices: every vertex of every level, position and texture coordinate together, is a
+// vertex of the source (snapped), so no level invents a UV or a seam.
+void expect_source_vertices(const BuiltMesh& m) {
+    std::set<std::array<uint32_t, 5>> source;
+    auto key = [&](uint32_t v) {
+        std::array<uint32_t, 5> k;
+        std::memcpy(k.data(), &m.positions[3 * size_t(v)], 12);
+        std::memcpy(k.data() + 3, &m.uvs[2 * size_t(v)], 8);
+        return k;
+    };
+    for (uint32_t v = 0; v < m.leafVertices; ++v) source.insert(key(v));
+    size_t foreign = 0;
+    for (uint32_t v = m.leafVertices; v < m.positions.size() / 3; ++v) foreign += !source.count(key(v));
+    EXPECT_EQ(foreign, 0u) << "vertices of coarser levels whose (position, uv) pair is not in the source";
+}
+}  // namespace
+
+TEST(Dag, TextureCoordinatesSurviveEveryLevel) {
+    Source islands = grid(96);  // UV islands of 6 x 6 quads, each in a tile of its own: seams on every island border
+    islands.name = "/GridWithUvIslands";
+    for (int y = 0; y < 96; ++y)
+        for (int x = 0; x < 96; ++x) {
+            const float u = float(x % 6) / 6 + float(x / 6), v = float(y % 6) / 6 + float(y / 6), d = 1.0f / 6;
+            islands.uvs.insert(islands.uvs.end(), {u, v, u + d, v, u + d, v + d, u, v + d});
+        }
+    for (const Source& s : {with_spherical_uvs(icosphere(5)), islands}) {
+        SCOPED_TRACE(s.name);
+        BuiltMesh m = s.build();
+        ASSERT_EQ(m.uvs.size(), 2 * m.positions.size() / 3);
+        expect_monotone(m);
+        expect_crack_free_cuts(m, 25);
+        expect_source_vertices(m);
+        const double step = std::ldexp(1.0, m.uvPrecision);
+        EXPECT_LE(m.uvPrecision, -16 + 4) << "fine enough for a 4K texture's texels";
+        for (float uv : m.uvs) ASSERT_EQ(std::round(uv / step) * step, double(uv)) << "texture coordinates lie on their grid";
+        EXPECT_LT(m.levels.back().triangles, s.counts.size() / 10) << "seams slow the simplification down but do not stall it";
+    }
+}
+
+TEST(Dag, TextureCoordinatesCostLittleGeometricError) {
+    // UVs are weighed per group against the group's own UV extent: the coarse levels of a mapped sphere stay about as
+    // close to the surface as those of the same sphere without UVs.
+    const Source plain = icosphere(5), mapped = with_spherical_uvs(plain);
+    const BuiltMesh a = plain.build(), b = mapped.build();
+    auto error_at = [](const BuiltMesh& m, uint64_t triangles) {  // the error of the finest level with at most that many
+        for (const LevelStats& l : m.levels)
+            if (l.triangles <= triangles) return l.maxError;
+        return m.levels.back().maxError;
+    };
+    for (uint64_t triangles : {5000u, 1500u}) {
+        SCOPED_TRACE(triangles);
+        EXPECT_LT(error_at(b, triangles), 1.25f * error_at(a, triangles));
+    }
+}

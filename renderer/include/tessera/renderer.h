@@ -77,7 +77,7 @@ struct Image {
 };
 
 // What the color AOV shows instead of shading (debug views in the manner of Nanite's visualization modes).
-enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins, RasterBins, Overdraw };
+enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins, RasterBins, Overdraw, Uv };
 
 // Which rasterizer draws a cluster. Auto: the compute rasterizer for clusters of small triangles, hardware raster
 // for the rest. The forced modes exist for tests and measurements (Software still sends clusters that touch the
