@@ -315,6 +315,7 @@ struct Renderer::Impl {
     // Textures: the slots of textured materials, and the pool of the images they read (both empty without textures).
     Buffer textureSlots, texturePool;
     std::vector<std::shared_ptr<const TextureImage>> poolImages;
+    std::vector<bool> maskedMaterials;  // per material: a textured opacity under an opacityThreshold (TS_INSTANCE_MASKED)
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbPrevious, hzbCurrent;
@@ -505,7 +506,8 @@ struct Renderer::Impl {
             g.primId = desc.primId;
             g.materialIndex = std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
             g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u) |
-                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u);
+                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u) |
+                      (g.materialIndex < maskedMaterials.size() && maskedMaterials[g.materialIndex] ? TS_INSTANCE_MASKED : 0u);
             gpuInstances.push_back(g);
             clusterCount += mesh->leafClusters;
             sourceTriangles += mesh->sourceTriangles;
@@ -538,8 +540,9 @@ struct Renderer::Impl {
     gpu::GpuMaterial gpu_material(MaterialDesc m, std::vector<gpu::GpuTextureSlot>& slots, std::vector<std::shared_ptr<const TextureImage>>& images) {
         std::array<const TextureSlot*, TS_INPUT_COUNT> textured{};
         for (const TextureSlot& slot : m.textures) {
-            // An input this material's workflow ignores costs nothing.
-            if ((slot.input == MaterialInput::SpecularColor && !m.useSpecularWorkflow) || (slot.input == MaterialInput::Metallic && m.useSpecularWorkflow))
+            // An input this material's workflow ignores costs nothing; nor does opacity without a threshold (no blending).
+            if ((slot.input == MaterialInput::SpecularColor && !m.useSpecularWorkflow) || (slot.input == MaterialInput::Metallic && m.useSpecularWorkflow) ||
+                (slot.input == MaterialInput::Opacity && !(m.opacityThreshold > 0)))
                 continue;
             if (slot.image) {
                 textured[size_t(slot.input)] = &slot;
@@ -570,6 +573,7 @@ struct Renderer::Impl {
         const bool texturedDiffuse = textured[TS_INPUT_DIFFUSE_COLOR] != nullptr, texturedOpacity = textured[TS_INPUT_OPACITY] != nullptr;
         g.flags = (m.useDisplayColor && !texturedDiffuse ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u) | (m.useSpecularWorkflow ? 0u : TS_MATERIAL_METALLIC) |
                   (!texturedOpacity && m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
+        if (texturedOpacity) g.diffuseColor.w = m.opacityThreshold;  // masked per pixel: the threshold takes opacity's place
         g.firstTextureSlot = uint32_t(slots.size());
         for (uint32_t input = 0; input < TS_INPUT_COUNT; ++input) {
             const TextureSlot* slot = textured[input];
@@ -595,7 +599,11 @@ struct Renderer::Impl {
         std::vector<gpu::GpuMaterial> gpuMaterials;
         std::vector<gpu::GpuTextureSlot> slots;
         std::vector<std::shared_ptr<const TextureImage>> images;
-        for (const MaterialDesc& m : scene.materials_) gpuMaterials.push_back(gpu_material(m, slots, images));
+        maskedMaterials.clear();
+        for (const MaterialDesc& m : scene.materials_) {
+            gpuMaterials.push_back(gpu_material(m, slots, images));
+            maskedMaterials.push_back((gpuMaterials.back().textureInputs & (1u << TS_INPUT_OPACITY)) != 0);
+        }
         if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 1}, {0, 0, 0, 0.5f}, 0, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0});
         upload_vector(device, materials, gpuMaterials);
         materialCount = uint32_t(gpuMaterials.size());
@@ -693,8 +701,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         s.upload_geometry(scene);
         s.instancesVersion = 0;  // instance counts depend on the meshes
     }
+    if (s.uploadedScene != &scene || s.materialsVersion != scene.materialsVersion_) {
+        s.upload_materials(scene);
+        s.instancesVersion = 0;  // instance flags say which materials mask pixels
+    }
     if (s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_) s.upload_instances(scene);
-    if (s.uploadedScene != &scene || s.materialsVersion != scene.materialsVersion_) s.upload_materials(scene);
     s.uploadedScene = &scene;
     s.geometryVersion = scene.geometryVersion_;
     s.instancesVersion = scene.instancesVersion_;

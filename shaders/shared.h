@@ -32,6 +32,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_INSTANCE_DOUBLE_SIDED 1u
 #define TS_INSTANCE_FLIP_WINDING 2u  // the transform mirrors (negative determinant); leftHanded is fixed by the builder
 #define TS_INSTANCE_CONFORMAL 4u     // the transform keeps angles (rotation, uniform scale, mirror): normal cones stay valid
+#define TS_INSTANCE_MASKED 8u        // its material cuts pixels by a textured opacity (both rasterizers test each pixel)
 
 // Material flags.
 #define TS_MATERIAL_USE_DISPLAY_COLOR 1u  // diffuse comes from the mesh's displayColor primvar
@@ -197,7 +198,7 @@ TS_CHECK_SIZE(GpuInstance, 80);
 // UsdPreviewSurface: a Lambert diffuse lobe and a GGX specular lobe with Schlick's Fresnel. The constants hold the
 // inputs no texture drives; a material without textures (textureInputs 0) does no texture work at all.
 struct GpuMaterial {
-    vec4 diffuseColor;     // linear RGB; a is opacity
+    vec4 diffuseColor;     // linear RGB; a: opacity, or with a textured opacity (masked) the opacityThreshold
     vec4 emissiveColor;    // rgb; a: occlusion (scales the dome light)
     vec4 specular;         // rgb: reflectance at normal incidence (specularColor, or from ior); a: roughness
     float metallic;
