@@ -189,6 +189,7 @@ NB_MODULE(_tessera, m) {
     nb::exception<DeviceError>(m, "DeviceError");
     nb::exception<MeshError>(m, "MeshError", PyExc_ValueError);
     nb::exception<ImageIoError>(m, "ImageIoError", PyExc_IOError);
+    nb::exception<TextureError>(m, "TextureError", PyExc_IOError);
 
     nb::class_<BuildSettings>(m, "BuildSettings")
         .def("__init__", [](BuildSettings* self, const nb::kwargs& kwargs) { new (self) BuildSettings(settings_from(kwargs)); })
@@ -289,6 +290,21 @@ NB_MODULE(_tessera, m) {
         .def("__repr__", [](const TextureSlot& slot) {
             return std::string("TextureSlot(") + material_input_name(slot.input) + ", '" + slot.file + "')";
         });
+    m.def(
+        "read_texture",
+        [](const std::string& path, ColorSpace colorSpace) {
+            const TextureImage t = read_texture(path, colorSpace);
+            nb::dict d;
+            d["width"] = t.width;
+            d["height"] = t.height;
+            d["levels"] = t.levels;
+            d["channels"] = t.channels;
+            d["format"] = texture_format_name(t.format);
+            d["bytes"] = t.bytes();
+            return d;
+        },
+        "path"_a, "color_space"_a = ColorSpace::Auto,
+        "Reads an image file as the texture pool stores it (every mip level): its size, levels, format and bytes.");
     m.def("transform2d", &transform2d, "rotation"_a, "scale"_a, "translation"_a,
           "UsdTransform2d's 2x3 matrix (row-major): scale, then rotate counter-clockwise (degrees), then translate.");
 

@@ -39,6 +39,15 @@ const char* material_input_name(MaterialInput input) {
     return "?";
 }
 
+const char* texture_format_name(uint32_t format) {
+    const bool srgb = (format & TS_TEXTURE_SRGB) != 0;
+    switch (format & TS_TEXTURE_FORMAT_MASK) {
+        case TS_TEXTURE_RGBA8: return srgb ? "rgba8 srgb" : "rgba8";
+        case TS_TEXTURE_R8: return srgb ? "r8 srgb" : "r8";
+        default: return "rgba16f";
+    }
+}
+
 std::array<float, 6> transform2d(float rotationDegrees, std::array<float, 2> scale, std::array<float, 2> translation) {
     const double radians = double(rotationDegrees) * 3.14159265358979323846 / 180.0;
     const double c = std::cos(radians), s = std::sin(radians);

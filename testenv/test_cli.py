@@ -149,6 +149,24 @@ def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):
     assert rows[0]["triangles"] > 8 * rows[4]["triangles"], "16 times the area, a sixteenth of the triangles"
 
 
+def test_bench_textures_measures_loads_and_shading(tmp_path):
+    rows_file = tmp_path / "rows.json"
+    done = run("bench", "textures", "--resolution", "96x54", "--frames", "1", "--sizes", "32,64", "--stages-dir", tmp_path,
+               "--json", rows_file)
+    assert done.returncode == 0, done.stderr + done.stdout
+    assert "load + mips ms" in done.stdout and "resolve ms" in done.stdout
+    rows = json.loads(rows_file.read_text())
+    loads = [r for r in rows if r["table"] == "loads"]
+    assert [(r["texture"], r["format"]) for r in loads[:3]] == [
+        ("32x32 4ch 8-bit", "rgba8 srgb"), ("32x32 1ch 8-bit", "r8"), ("32x32 4ch 16-bit", "rgba16f")]
+    # The mip chain adds a third: 4, 1 and 8 bytes per texel become 5.33, 1.33 and 10.67.
+    assert [r["bytes_per_texel"] for r in loads[3:]] == [5.33, 1.33, 10.67]
+    shading = {r["case"]: r for r in rows if r["table"] == "shading"}
+    assert shading["untextured"]["texture_bytes"] == 0 and shading["untextured"]["textures"] == 0
+    assert shading["four textures"]["textures"] == 4 and shading["opacity mask"]["textures"] == 1
+    assert all(r["resolve_ms"] > 0 for r in shading.values())
+
+
 def test_an_unchanged_stage_is_never_built_twice(tmp_path, monkeypatch):
     monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
     stage = TESTENV / "testNativeInstancing" / "native_instancing.usda"

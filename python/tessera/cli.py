@@ -59,6 +59,14 @@ def _parser() -> argparse.ArgumentParser:
     bench_raster.add_argument("--stages-dir", default="out/bench", help="where the generated stages are kept (default out/bench)")
     bench_raster.add_argument("--device", help="Vulkan device, as for render")
     bench_raster.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
+    bench_textures = benches.add_parser("textures", help="texture loads (read, mips, bytes) and the shading cost of textured materials")
+    bench_textures.add_argument("--resolution", type=_resolution, default=(1920, 1080), help="WIDTHxHEIGHT (default 1920x1080)")
+    bench_textures.add_argument("--frames", type=int, default=5, help="frames measured after one warm-up; the median is reported")
+    bench_textures.add_argument("--sizes", type=lambda text: [int(v) for v in text.split(",")], default=[1024, 2048, 4096],
+                                help="texture sizes in pixels, comma-separated (default 1024,2048,4096; the largest is shaded)")
+    bench_textures.add_argument("--stages-dir", default="out/bench", help="where the generated textures and stages are kept (default out/bench)")
+    bench_textures.add_argument("--device", help="Vulkan device, as for render")
+    bench_textures.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
     bench_render = benches.add_parser("render", help="frame cost against source density, brute force and the error bound")
     bench_render.add_argument("--resolution", type=_resolution, default=(1920, 1080), help="WIDTHxHEIGHT (default 1920x1080)")
     bench_render.add_argument("--frames", type=int, default=5, help="frames measured after one warm-up; the median is reported")
@@ -163,9 +171,10 @@ def main(argv=None) -> int:
         if args.command == "build":
             return _build(args)
         if args.command == "bench":
-            from . import bench
+            from . import bench, bench_textures
 
-            return {"build": bench.build, "render": bench.render, "raster": bench.raster}[args.bench](args)
+            return {"build": bench.build, "render": bench.render, "raster": bench.raster,
+                    "textures": bench_textures.textures}[args.bench](args)
     except Exception as error:  # one line, never a traceback, for anything the user can fix
         print(f"tessera: error: {error}", file=sys.stderr)
         return 1

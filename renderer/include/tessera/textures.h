@@ -43,6 +43,9 @@ struct TextureImage {
     uint64_t bytes() const { return words.size() * 4; }
 };
 
+// "rgba8", "rgba8 srgb", "r8", "r8 srgb" or "rgba16f".
+const char* texture_format_name(uint32_t format);
+
 // Builds a texture from pixels in memory, top row first: `channels` values per pixel (1 to 4), 8-bit values as
 // 0-255 in `bytes` or any other depth as floats in `floats` (exactly one of the two). Used by the file reader and tests.
 TextureImage make_texture(uint32_t width, uint32_t height, uint32_t channels, const uint8_t* bytes, const float* floats,
