@@ -27,7 +27,10 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
     }
     if (dirtyBits & DirtyTransform) transform_ = scene.get_transform(id());
     if (dirtyBits & DirtyVisibility) visible_ = scene.get_visible(id());
-    if (dirtyBits & DirtyMaterialId) materialId_ = scene.get_material_id(id());
+    if (dirtyBits & DirtyMaterialId) {
+        materialId_ = scene.get_material_id(id());
+        subsetMaterialIds_ = scene.get_subset_material_ids(id());
+    }
     if ((dirtyBits & DirtyInstancer) && !instancerId_.empty()) instances_ = scene.get_instance_transforms(instancerId_, id());
 }
 

@@ -2,6 +2,7 @@
 #include "tessera/delegate.h"
 
 #include <cmath>
+#include <optional>
 #include <sstream>
 
 namespace tessera::hd {
@@ -125,16 +126,28 @@ void RenderIndex::commit_resources() {
         instance.mesh = *mesh.gpu_mesh();
         instance.primId = mesh.prim_id();
         instance.doubleSided = mesh.double_sided();
-        auto material = materialHandles.find(mesh.material_id());
-        if (material != materialHandles.end()) {
-            instance.material = material->second;
-        } else {  // no bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey
-            const BuiltMesh* built = mesh.built();
-            MaterialDesc fallback;
-            fallback.diffuseColor = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
-            fallback.useDisplayColor = !built->colors.empty();
-            fallback.ior = 1.0f;  // diffuse only, like Hydra's fallback surface
-            instance.material = scene.add_material(fallback);
+        const BuiltMesh* built = mesh.built();
+        std::optional<uint32_t> fallbackHandle;
+        auto handle_of = [&](const PrimId& materialId) {
+            auto material = materialHandles.find(materialId);
+            if (material != materialHandles.end()) return material->second;
+            if (!fallbackHandle) {  // no bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey
+                MaterialDesc fallback;
+                fallback.diffuseColor = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
+                fallback.useDisplayColor = !built->colors.empty();
+                fallback.ior = 1.0f;  // diffuse only, like Hydra's fallback surface
+                fallbackHandle = scene.add_material(fallback);
+            }
+            return *fallbackHandle;
+        };
+        instance.material = handle_of(mesh.material_id());
+        if (built->materialSlots > 1) {  // GeomSubsets: one table per prim, shared by its instances
+            std::vector<uint32_t> table{instance.material};
+            const std::vector<PrimId>& subsets = mesh.subset_material_ids();
+            for (uint32_t slot = 1; slot < built->materialSlots; ++slot)
+                table.push_back(slot <= subsets.size() && !subsets[slot - 1].empty() ? handle_of(subsets[slot - 1]) : instance.material);
+            instance.material = scene.add_material_table(table);
+            instance.materialTable = true;
         }
         if (mesh.instancer_id().empty()) {
             instance.transform = mesh.transform();

@@ -298,7 +298,7 @@ struct Renderer::Impl {
     // the frame's HZB; resolve.
     static constexpr uint32_t kTimestamps = 10;
     Buffer hardwareList, softwareList;
-    Buffer instances, meshes, levels, clusters, positions, normals, colors, uvs, triangles, materials;
+    Buffer instances, meshes, levels, clusters, positions, normals, colors, uvs, triangles, materials, materialTables;
     uint32_t instanceCount = 0, clusterCount = 0;
     uint64_t sourceTriangles = 0;
     const GpuScene* uploadedScene = nullptr;
@@ -500,9 +500,12 @@ struct Renderer::Impl {
             translations.push_back({t[0], t[1], t[2]});
             g.meshIndex = desc.mesh;
             g.primId = desc.primId;
-            g.materialIndex = std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
+            const bool table = desc.materialTable && mesh->materialSlots > 1 &&
+                               uint64_t(desc.material) + mesh->materialSlots <= scene.materialTables_.size();
+            g.materialIndex = table ? desc.material : std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
+            if (desc.materialTable && !table) g.materialIndex = 0;  // a table too short for the mesh: the first material everywhere
             g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u) |
-                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u);
+                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u) | (table ? TS_INSTANCE_MATERIAL_SLOTS : 0u);
             gpuInstances.push_back(g);
             clusterCount += mesh->leafClusters;
             sourceTriangles += mesh->sourceTriangles;
@@ -548,6 +551,9 @@ struct Renderer::Impl {
         if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 1}, {0, 0, 0, 0.5f}, 0, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0});
         upload_vector(device, materials, gpuMaterials);
         materialCount = uint32_t(gpuMaterials.size());
+        std::vector<uint32_t> tables = scene.materialTables_;
+        for (uint32_t& m : tables) m = std::min(m, materialCount - 1);
+        upload_vector(device, materialTables, tables);
         if (shadingBins.size < uint64_t(materialCount) * sizeof(gpu::GpuBin))
             shadingBins = device.create_buffer(uint64_t(materialCount) * sizeof(gpu::GpuBin), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
     }
@@ -700,6 +706,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.uvs = s.uvs.address;
         f.triangles = s.triangles.address;
         f.materials = s.materials.address;
+        f.materialTables = s.materialTables.address;
         f.visibleClusters = s.visibleClusters.address;
         f.hardwareList = s.hardwareList.address;
         f.softwareList = s.softwareList.address;

@@ -32,6 +32,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_INSTANCE_DOUBLE_SIDED 1u
 #define TS_INSTANCE_FLIP_WINDING 2u  // the transform mirrors (negative determinant); leftHanded is fixed by the builder
 #define TS_INSTANCE_CONFORMAL 4u     // the transform keeps angles (rotation, uniform scale, mirror): normal cones stay valid
+#define TS_INSTANCE_MATERIAL_SLOTS 8u  // the mesh's triangles carry material slots: materialIndex starts its material table
 
 // Material flags.
 #define TS_MATERIAL_USE_DISPLAY_COLOR 1u  // diffuse comes from the mesh's displayColor primvar
@@ -155,7 +156,7 @@ struct GpuInstance {
     vec4 translationLow;   // xyz: low part of the translation; w: largest stretch of the matrix (for bounds)
     uint meshIndex;
     uint primId;
-    uint materialIndex;
+    uint materialIndex;    // its material; with TS_INSTANCE_MATERIAL_SLOTS the first entry of its table (frame.materialTables)
     uint flags;            // TS_INSTANCE_*
 };
 TS_CHECK_SIZE(GpuInstance, 80);
@@ -244,6 +245,7 @@ struct GpuFrame {
     address uvs;             // vec2[texture coordinates]
     address triangles;       // uint[triangles], 3 x 8-bit cluster-local indices
     address materials;       // GpuMaterial[]
+    address materialTables;  // uint[]: per instance with material slots, slot -> material (pixel_material in frame.h)
     address visibleClusters; // uvec2[capacity]: (instance | TS_VISIBLE_SOFTWARE, cluster)
     address hardwareList;    // uint[capacity]: visible-cluster slots for hardware raster
     address softwareList;    // uint[capacity]: visible-cluster slots for the compute rasterizer
@@ -256,7 +258,7 @@ struct GpuFrame {
     address bins;            // GpuBin[materials]
     address binPixels;       // uint[width * height]: covered pixels, grouped by material
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 21);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 22);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

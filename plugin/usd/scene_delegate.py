@@ -125,9 +125,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             record = _Rprim(prim, np.ascontiguousarray(np.swapaxes(local[None] @ copies, 1, 2)), local)
             self.instancer_of[rprim_id] = instancer_id
         self.rprims[rprim_id] = record
-        material = self._bound_material(prim)
-        if material:
-            self.materials.add(material)
+        for bound in [self._bound_material(prim)] + [self._bound_material(s.GetPrim()) for s in self._material_subsets(prim)]:
+            if bound:
+                self.materials.add(bound)
         self.index.insert_rprim("mesh", rprim_id, instancer_id)
 
     def _add_point_instancer(self, instancer: UsdGeom.PointInstancer, copies, frame) -> None:
@@ -165,6 +165,18 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             self._visit(proto, proto_copies, proto.GetParent(), {})
 
     # -- materials ------------------------------------------------------------------------------------
+
+    @staticmethod
+    def _material_subsets(prim: Usd.Prim) -> list:
+        """A mesh's GeomSubsets of family materialBind over faces, in order: subset i is material slot i + 1 (at most 255)."""
+        if not prim.IsA(UsdGeom.Mesh):
+            return []
+        subsets = UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets()
+        return [s for s in subsets if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face][:255]
+
+    def get_subset_material_ids(self, id: str) -> list[str]:
+        """The material of each GeomSubset (slot 1, 2, ...): its own binding, else its mesh's (UsdShade's resolution)."""
+        return [self._bound_material(s.GetPrim()) for s in self._material_subsets(self.rprims[id].prim)]
 
     def _bound_material(self, prim: Usd.Prim) -> str:
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
@@ -224,6 +236,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             normals, normals_interp = array(mesh.GetNormalsAttr(), np.float32, 3), mesh.GetNormalsInterpolation()
         color, color_interp, color_idx = primvar("displayColor", "constant")
         uvs, uvs_interp, uvs_idx = primvar(self.uv_primvar(prim), "faceVarying", width=2)
+        face_materials = None
+        subsets = self._material_subsets(prim)
+        if subsets:  # faces in no subset keep slot 0 (the mesh's own material); a face in several takes the last
+            face_materials = np.zeros(len(counts), np.int32)
+            for slot, subset in enumerate(subsets, start=1):
+                faces = np.asarray(subset.GetIndicesAttr().Get(t) or [], np.int64)
+                bad = (faces < 0) | (faces >= len(counts))
+                if bad.any():
+                    self.warnings.append(f"{subset.GetPath()}: {int(bad.sum())} face indices outside 0..{len(counts) - 1}; ignored")
+                face_materials[faces[~bad]] = slot
         return _tessera.mesh_source(
             name, points, counts, indices,
             hole_indices=holes,
@@ -231,7 +253,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
             normals=normals, normals_interpolation=normals_interp, normals_indices=normals_idx,
             display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx,
-            uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx,
+            uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx, face_materials=face_materials,
             subdivision_scheme=mesh.GetSubdivisionSchemeAttr().Get(t) or "catmullClark", refine_level=self.refine_level)
 
     def uv_primvar(self, prim: Usd.Prim) -> str:
