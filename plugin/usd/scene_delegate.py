@@ -460,14 +460,22 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                     self.index.mark_dirty(id, bits)
 
     def set_time(self, time: Usd.TimeCode) -> None:
-        """Moves to another time: dirties what an edit of every time-varying attribute would (only those)."""
+        """Moves to another time: dirties what an edit of each time-varying attribute whose value differs between
+        the two times would, and nothing else (a held sample dirties nothing)."""
         if time == self.time:
             return
         if self._time_varying is None:
             self._time_varying = self._find_time_varying()
+        changed: dict[str, set[str]] = {}
+        for path, names in self._time_varying.items():
+            prim = self.stage.GetPrimAtPath(path)
+            for name in names:
+                attribute = prim.GetAttribute(name)
+                if attribute.Get(self.time) != attribute.Get(time):  # arrays: shared until they differ, cheap to compare
+                    changed.setdefault(path, set()).add(name)
         self.time = time
         self.xform_cache.SetTime(time)
-        self.apply_changes(set(), self._time_varying)
+        self.apply_changes(set(), changed)
 
     def _find_time_varying(self) -> dict[str, set[str]]:
         """Every authored attribute whose value may change with time, on the stage and in its prototypes."""
