@@ -23,7 +23,7 @@ import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import change_tracker, implicit
+from . import change_tracker, implicit, mesh_settings
 from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
@@ -68,8 +68,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                  build_settings: _tessera.BuildSettings | None = None):
         super().__init__()
         self.refine_level = refine_level  # uniform refinements of subdivision surfaces (catmullClark, loop, bilinear)
-        # Every mesh's build settings (render-wide defaults; per-mesh TesseraMeshAPI values are not read yet).
+        # The render-wide build settings; a mesh's authored TesseraMeshAPI attributes override them (mesh_settings.py).
         self.build_settings = build_settings or _tessera.BuildSettings()
+        self._mesh_settings = mesh_settings.SettingsReader()
         self.stage = stage
         self.index = render_index
         self.time = time
@@ -491,8 +492,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     # -- SceneDelegate ----------------------------------------------------------------------------------
 
     def get_mesh(self, id: str):
-        source = self._mesh_source(self.rprims[id].prim)
-        source.settings = self.build_settings
+        prim = self.rprims[id].prim
+        source = self._mesh_source(prim)
+        source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
         return source
 
     def _mesh_source(self, prim: Usd.Prim):

@@ -211,6 +211,8 @@ def _build(args) -> int:
             bar = "#" * (30 * done // max(total, 1))
             print(f"\r[{bar:<30}] {done}/{total} meshes, {triangles / 1e6:.1f} M triangles, {cached} already cached",
                   end="", file=sys.stderr, flush=True)
+    for warning in scene.warnings:  # per-mesh settings that could not be used, among others
+        print(f"\ntessera: warning: {warning}", file=sys.stderr)
     print(f"\nbuilt {total - cached - failed} mesh(es), {cached} from the cache, {failed} failed, in "
           f"{time.perf_counter() - started:.1f} s (cache: {os.environ.get('TESSERA_CACHE') or 'default'})", file=sys.stderr)
     return 1 if failed else 0
