@@ -1,6 +1,7 @@
 // The render delegate (prim factory) and the render index (prims, dirty bits, sync, commit, execute).
 #include "tessera/delegate.h"
 
+#include <algorithm>
 #include <cmath>
 #include <optional>
 #include <sstream>
@@ -90,12 +91,24 @@ std::string one_line(const std::string& text) {
     while (in >> word) out += (out.empty() ? "" : " ") + word;
     return out;
 }
+
+bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<InstanceDesc>& b) {
+    return std::equal(a.begin(), a.end(), b.begin(), b.end(), [](const InstanceDesc& x, const InstanceDesc& y) {
+        return x.mesh == y.mesh && x.transform == y.transform && x.primId == y.primId && x.material == y.material &&
+               x.doubleSided == y.doubleSided;
+    });
+}
 }  // namespace
 
 void RenderIndex::sync_all(SceneDelegate& scene) {
+    lastSynced_.clear();
     for (auto* prims : {&sprims_, &rprims_})
         for (auto& [id, entry] : *prims) {
             if (entry.dirty == Clean) continue;
+            const Mesh* mesh = prims == &rprims_ ? static_cast<const Mesh*>(entry.prim.get()) : nullptr;
+            // Hydra's rule: a hidden mesh syncs nothing until its visibility changes; its other bits stay dirty
+            // (a hidden mesh is never built).
+            if (mesh && !mesh->visible() && !(entry.dirty & DirtyVisibility)) continue;
             try {
                 entry.prim->sync(scene, param_, entry.dirty);
             } catch (const std::exception& e) {
@@ -103,7 +116,8 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
                 param_.errors.push_back(id + ": " + one_line(e.what()) + "; the prim is skipped");
                 entry.failed = true;
             }
-            entry.dirty = Clean;
+            lastSynced_.emplace_back(id, entry.dirty);
+            entry.dirty = mesh && !mesh->visible() && !entry.failed ? entry.dirty & ~uint32_t(DirtyVisibility) : Clean;
             ++syncCounts_[entry.type];
         }
     if (sceneDirty_) commit_resources();
@@ -160,7 +174,8 @@ void RenderIndex::commit_resources() {
             }
         }
     }
-    scene.set_instances(std::move(instances));
+    // Unchanged instances (a material or light edit) keep the renderer's uploads and its previous-frame HZB.
+    if (!same_instances(instances, scene.instances())) scene.set_instances(std::move(instances));
 }
 
 std::vector<Image> RenderIndex::execute(const RenderPassSettings& settings, FrameStats* stats) {

@@ -392,6 +392,13 @@ NB_MODULE(_tessera, m) {
             "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true)
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
+        .def_prop_ro(
+            "last_synced", [](const RenderIndex& index) {
+                nb::dict d;  // prim id -> the dirty bits it was synced with
+                for (const auto& [id, bits] : index.last_synced()) d[nb::cast(id)] = bits;
+                return d;
+            },
+            "The prims the last sync synced: {id: dirty bits} (tessera._tessera.dirty names the bits).")
         .def_prop_ro("rprim_count", &RenderIndex::rprim_count)
         .def("take_diagnostics", [](RenderIndex& index) {
             RenderParam p = index.take_diagnostics();

@@ -219,6 +219,8 @@ public:
     PrimId prim_path(uint32_t primId) const;
     // Syncs performed per prim type since construction (tests use this to see that only dirty prims sync).
     const std::map<std::string, uint64_t>& sync_counts() const { return syncCounts_; }
+    // The prims the last sync_all() synced, each with the dirty bits it was handed, in sync order.
+    const std::vector<std::pair<PrimId, uint32_t>>& last_synced() const { return lastSynced_; }
     RenderParam take_diagnostics() { return std::exchange(param_, {}); }
     size_t rprim_count() const { return rprims_.size(); }
 
@@ -235,6 +237,7 @@ private:
     std::map<PrimId, Entry> rprims_, sprims_, bprims_;
     std::vector<PrimId> primPaths_;  // primId -> path
     std::map<std::string, uint64_t> syncCounts_;
+    std::vector<std::pair<PrimId, uint32_t>> lastSynced_;
     RenderParam param_;
     bool sceneDirty_ = true;
 };
