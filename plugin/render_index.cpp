@@ -29,7 +29,7 @@ std::unique_ptr<Mesh> RenderDelegate::create_rprim(const std::string& type, cons
 }
 
 std::unique_ptr<Prim> RenderDelegate::create_sprim(const std::string& type, const PrimId& id) {
-    if (type == "material") return std::make_unique<Material>(id);
+    if (type == "material") return std::make_unique<Material>(id, scene_.textures());
     if (type == "camera") return std::make_unique<Camera>(id);
     if (type == "distantLight" || type == "domeLight") return std::make_unique<Light>(id);
     return nullptr;

@@ -106,6 +106,8 @@ nb::dict stats_dict(const FrameStats& s) {
     d["post_pass_clusters"] = s.postPassClusters;
     d["backface_clusters"] = s.backfaceClusters;
     d["shading_bins"] = s.shadingBins;
+    d["textures"] = s.textures;
+    d["texture_bytes"] = s.textureBytes;
     nb::dict gpuMs;
     gpuMs["cull"] = s.cullMs;
     gpuMs["sw_raster"] = s.softwareRasterMs;
@@ -253,6 +255,47 @@ NB_MODULE(_tessera, m) {
         },
         "matrices"_a, "Row-major (N, 4, 4) float64 matrices acting on column vectors.");
 
+    nb::enum_<ColorSpace>(m, "ColorSpace").value("auto", ColorSpace::Auto).value("sRGB", ColorSpace::Srgb).value("raw", ColorSpace::Raw);
+    nb::enum_<TextureWrap>(m, "TextureWrap")
+        .value("repeat", TextureWrap::Repeat)
+        .value("mirror", TextureWrap::Mirror)
+        .value("clamp", TextureWrap::Clamp)
+        .value("black", TextureWrap::Black);
+    nb::enum_<TextureChannel>(m, "TextureChannel")
+        .value("r", TextureChannel::R)
+        .value("g", TextureChannel::G)
+        .value("b", TextureChannel::B)
+        .value("a", TextureChannel::A)
+        .value("rgb", TextureChannel::Rgb);
+    nb::enum_<MaterialInput>(m, "MaterialInput")
+        .value("diffuseColor", MaterialInput::DiffuseColor)
+        .value("emissiveColor", MaterialInput::EmissiveColor)
+        .value("specularColor", MaterialInput::SpecularColor)
+        .value("metallic", MaterialInput::Metallic)
+        .value("roughness", MaterialInput::Roughness)
+        .value("opacity", MaterialInput::Opacity)
+        .value("occlusion", MaterialInput::Occlusion)
+        .value("normal", MaterialInput::Normal);
+    // A UsdUVTexture feeding one input (textures.h TextureSlot); the image is loaded when the material syncs.
+    nb::class_<TextureSlot>(m, "TextureSlot")
+        .def(nb::init<>())
+        .def_rw("input", &TextureSlot::input)
+        .def_rw("file", &TextureSlot::file)
+        .def_rw("color_space", &TextureSlot::colorSpace)
+        .def_rw("wrap_s", &TextureSlot::wrapS)
+        .def_rw("wrap_t", &TextureSlot::wrapT)
+        .def_rw("channel", &TextureSlot::channel)
+        .def_rw("scale", &TextureSlot::scale)
+        .def_rw("bias", &TextureSlot::bias)
+        .def_rw("fallback", &TextureSlot::fallback)
+        .def_rw("transform", &TextureSlot::transform)
+        .def_prop_ro("loaded", [](const TextureSlot& slot) { return slot.image != nullptr; })
+        .def("__repr__", [](const TextureSlot& slot) {
+            return std::string("TextureSlot(") + material_input_name(slot.input) + ", '" + slot.file + "')";
+        });
+    m.def("transform2d", &transform2d, "rotation"_a, "scale"_a, "translation"_a,
+          "UsdTransform2d's 2x3 matrix (row-major): scale, then rotate counter-clockwise (degrees), then translate.");
+
     nb::class_<MaterialDesc>(m, "MaterialDesc")
         .def(nb::init<>())
         .def_rw("diffuse_color", &MaterialDesc::diffuseColor)
@@ -265,7 +308,10 @@ NB_MODULE(_tessera, m) {
         .def_rw("specular_color", &MaterialDesc::specularColor)
         .def_rw("ior", &MaterialDesc::ior)
         .def_rw("occlusion", &MaterialDesc::occlusion)
-        .def_rw("use_display_color", &MaterialDesc::useDisplayColor);
+        .def_rw("use_display_color", &MaterialDesc::useDisplayColor)
+        // A list copied in and out: assign a whole list (appending to the copy `textures` returns changes nothing).
+        .def_rw("textures", &MaterialDesc::textures)
+        .def_rw("uv_primvar", &MaterialDesc::uvPrimvar);
 
     nb::enum_<LightType>(m, "LightType").value("distant", LightType::Distant).value("dome", LightType::Dome);
     nb::class_<LightDesc>(m, "LightDesc")

@@ -5,6 +5,7 @@
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
+#include "surface.h"
 
 layout(local_size_x = TS_SHADE_GROUP_SIZE) in;
 
@@ -21,52 +22,6 @@ vec3 vertex_color(GpuFrame frame, GpuMesh mesh, uint vertex) {
     uint i = vertex - mesh.vertexOffset + mesh.colorOffset;
     UintRef colors = UintRef(frame.colors);
     return vec3(unpackHalf2x16(colors.data[2u * i]), unpackHalf2x16(colors.data[2u * i + 1u]).x);
-}
-
-vec2 vertex_uv(GpuFrame frame, GpuMesh mesh, uint vertex) {
-    uint i = vertex - mesh.vertexOffset + mesh.uvOffset;
-    FloatRef uvs = FloatRef(frame.uvs);
-    return vec2(uvs.data[2u * i], uvs.data[2u * i + 1u]);
-}
-
-// The ray through a point of the image (pixel units), from the inverse view-projection (perspective and orthographic).
-void pixel_ray(GpuFrame frame, vec2 pixel, out vec3 origin, out vec3 direction) {
-    vec2 ndc = pixel / vec2(frame.viewport.xy) * 2.0 - 1.0;
-    vec4 nearPoint = frame.inverseViewProjection * vec4(ndc, 1.0, 1.0);
-    vec4 midPoint = frame.inverseViewProjection * vec4(ndc, 0.5, 1.0);
-    origin = nearPoint.xyz / nearPoint.w;
-    direction = normalize(midPoint.xyz / midPoint.w - origin);
-}
-
-// Barycentrics where a ray meets the plane of the triangle (p0, p0 + e1, p0 + e2), unclamped (Moller-Trumbore);
-// the centroid for a ray along the plane.
-vec3 plane_barycentrics(vec3 origin, vec3 direction, vec3 p0, vec3 e1, vec3 e2) {
-    vec3 pv = cross(direction, e2);
-    float det = dot(e1, pv);
-    if (!(abs(det) > 0.0)) return vec3(1.0 / 3.0);
-    vec3 tv = origin - p0;
-    float u = dot(tv, pv) / det;
-    float v = dot(direction, cross(tv, e1)) / det;
-    return vec3(1.0 - u - v, u, v);
-}
-
-// A surface attribute at the pixel and its change to the next pixel right (dx) and down (dy): the analytic
-// derivatives that pick a texture's mip level (a compute shader has no quads to difference).
-struct PixelUv {
-    vec2 uv, dx, dy;
-};
-
-PixelUv pixel_uv(GpuFrame frame, vec2 pixel, vec3 bary, vec3 p0, vec3 e1, vec3 e2, vec2 uv0, vec2 uv1, vec2 uv2) {
-    vec3 origin, direction;
-    PixelUv result;
-    result.uv = bary.x * uv0 + bary.y * uv1 + bary.z * uv2;
-    pixel_ray(frame, pixel + vec2(1.5, 0.5), origin, direction);
-    vec3 bx = plane_barycentrics(origin, direction, p0, e1, e2) - bary;
-    pixel_ray(frame, pixel + vec2(0.5, 1.5), origin, direction);
-    vec3 by = plane_barycentrics(origin, direction, p0, e1, e2) - bary;
-    result.dx = bx.x * uv0 + bx.y * uv1 + bx.z * uv2;
-    result.dy = by.x * uv0 + by.y * uv1 + by.z * uv2;
-    return result;
 }
 
 // A well-spread colour for an id (integer hash, then three 8-bit channels lifted away from black).
@@ -205,22 +160,40 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     vec3 albedo = material.diffuseColor.rgb;
     if ((material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
         albedo = bary.x * vertex_color(frame, mesh, v0) + bary.y * vertex_color(frame, mesh, v1) + bary.z * vertex_color(frame, mesh, v2);
+    vec3 emission = material.emissiveColor.rgb, f0 = material.specular.rgb;
+    float occlusion = material.emissiveColor.a, roughness = material.specular.a, metallic = material.metallic;
+
+    // Textured inputs replace their constants (a test of the whole bin's material: no texture work without textures).
+    // Opacity is not among them here: masks are cut by the rasterizers.
+    if (material.textureInputs != 0u) {
+        PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), bary, p0, e1, e2, v0, v1, v2);
+        uint inputs = material.textureInputs & ~(1u << TS_INPUT_OPACITY);
+        if ((inputs & (1u << TS_INPUT_DIFFUSE_COLOR)) != 0u) albedo = material_texture(frame, material, TS_INPUT_DIFFUSE_COLOR, uv).rgb;
+        if ((inputs & (1u << TS_INPUT_EMISSIVE_COLOR)) != 0u) emission = material_texture(frame, material, TS_INPUT_EMISSIVE_COLOR, uv).rgb;
+        if ((inputs & (1u << TS_INPUT_SPECULAR_COLOR)) != 0u) f0 = material_texture(frame, material, TS_INPUT_SPECULAR_COLOR, uv).rgb;
+        if ((inputs & (1u << TS_INPUT_METALLIC)) != 0u) metallic = clamp(material_texture(frame, material, TS_INPUT_METALLIC, uv).x, 0.0, 1.0);
+        if ((inputs & (1u << TS_INPUT_ROUGHNESS)) != 0u) roughness = clamp(material_texture(frame, material, TS_INPUT_ROUGHNESS, uv).x, 0.0, 1.0);
+        if ((inputs & (1u << TS_INPUT_OCCLUSION)) != 0u) occlusion = clamp(material_texture(frame, material, TS_INPUT_OCCLUSION, uv).x, 0.0, 1.0);
+        if ((inputs & (1u << TS_INPUT_NORMAL)) != 0u && mesh.uvOffset != TS_NO_STREAM) {
+            n = apply_normal_map(n, material_texture(frame, material, TS_INPUT_NORMAL, uv).xyz, e1, e2, vertex_uv(frame, mesh, v0),
+                                 vertex_uv(frame, mesh, v1), vertex_uv(frame, mesh, v2));
+            if (dot(n, geometric) < 0.0) n = geometric;
+        }
+    }
 
     // UsdPreviewSurface: metallic blends the reflectance towards the albedo and takes the diffuse away.
-    vec3 f0 = material.specular.rgb;
     if ((material.flags & TS_MATERIAL_METALLIC) != 0u) {
-        f0 = mix(f0, albedo, material.metallic);
-        albedo *= 1.0 - material.metallic;
+        f0 = mix(f0, albedo, metallic);
+        albedo *= 1.0 - metallic;
     }
-    float roughness = material.specular.a;
     vec3 toEye = -direction;
-    vec3 color = material.emissiveColor.rgb;
+    vec3 color = emission;
     for (uint i = 0u; i < frame.viewport.w; ++i) {
         GpuLight light = frame.lights[i];
         if (uint(light.directionType.w) == TS_LIGHT_DISTANT)
             color += light.radiance.rgb * direct_light(n, toEye, -light.directionType.xyz, albedo, f0, roughness);
         else  // a uniform dome, its light scaled by the occlusion input; no shadowing yet
-            color += light.radiance.rgb * material.emissiveColor.a * (albedo + environment_reflectance(f0, roughness, max(dot(n, toEye), 0.0)));
+            color += light.radiance.rgb * occlusion * (albedo + environment_reflectance(f0, roughness, max(dot(n, toEye), 0.0)));
     }
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }

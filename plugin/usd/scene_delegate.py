@@ -23,7 +23,7 @@ import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import change_tracker, implicit, mesh_settings
+from . import change_tracker, implicit, materials, mesh_settings
 from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
@@ -579,8 +579,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             subdivision_scheme=mesh.GetSubdivisionSchemeAttr().Get(t) or "catmullClark", refine_level=self.refine_level)
 
     def uv_primvar(self, prim: Usd.Prim) -> str:
-        """The texture coordinate set a mesh is built with: "st", the convention of UsdPreviewSurface materials."""
-        return "st"
+        """The texture coordinate set a mesh is built with: the primvar its bound material's texture readers read
+        (a UsdPrimvarReader_float2's varname), else "st", the convention of UsdPreviewSurface materials."""
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        if not material:
+            return "st"
+        return materials.material_desc(material.GetPrim(), self.time, []).uv_primvar or "st"
 
     def get_transform(self, id: str):
         return to_column_major(self.xform_cache.GetLocalToWorldTransform(self.rprims[id].prim))
@@ -598,40 +602,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return _tessera.matrix_array(self.rprims[prototype_id].instance_transforms)
 
     def get_material(self, id: str):
-        desc = _tessera.MaterialDesc()
-        material = UsdShade.Material(self.stage.GetPrimAtPath(id))
-        shader = material.ComputeSurfaceSource()[0] if material else None
-        if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
-            desc.use_display_color = True  # not a preview surface: fall back to the mesh's displayColor, diffuse only
-            desc.diffuse_color = (0.5, 0.5, 0.5)
-            desc.ior = 1.0
-            return desc
-
-        def value(name, default):
-            shader_input = shader.GetInput(name)
-            if not shader_input:
-                return default
-            source = shader_input.GetConnectedSource() if shader_input.HasConnectedSource() else None
-            if source:  # textures arrive with the renderer's material issue; use the texture's fallback
-                fallback = source[0].GetInput("fallback")
-                v = fallback.Get() if fallback else None
-                if v is None:
-                    return default
-                return tuple(v)[:3] if isinstance(default, tuple) else float(v if np.ndim(v) == 0 else tuple(v)[0])
-            v = shader_input.Get(self.time)
-            return v if v is not None else default
-
-        desc.diffuse_color = tuple(value("diffuseColor", (0.18, 0.18, 0.18)))
-        desc.emissive_color = tuple(value("emissiveColor", (0.0, 0.0, 0.0)))
-        desc.opacity = float(value("opacity", 1.0))
-        desc.opacity_threshold = float(value("opacityThreshold", 0.0))
-        desc.metallic = float(value("metallic", 0.0))
-        desc.roughness = float(value("roughness", 0.5))
-        desc.use_specular_workflow = bool(value("useSpecularWorkflow", 0))
-        desc.specular_color = tuple(value("specularColor", (0.0, 0.0, 0.0)))
-        desc.ior = float(value("ior", 1.5))
-        desc.occlusion = float(value("occlusion", 1.0))
-        return desc
+        return materials.material_desc(self.stage.GetPrimAtPath(id), self.time, self.warnings)
 
     def get_light(self, id: str):
         prim = self.stage.GetPrimAtPath(id)

@@ -126,11 +126,13 @@ private:
 // Sprims: state prims with parameters.
 class Material : public Prim {
 public:
-    using Prim::Prim;
+    Material(PrimId id, TextureStore& textures) : Prim(std::move(id)), textures_(textures) {}
+    // Pulls the material and loads its textures (a file that cannot be read is a warning naming it and the material).
     void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
     const MaterialDesc& desc() const { return desc_; }
 
 private:
+    TextureStore& textures_;
     MaterialDesc desc_;
 };
 

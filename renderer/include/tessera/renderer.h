@@ -4,6 +4,7 @@
 
 #include "tessera/builder.h"
 #include "tessera/device.h"
+#include "tessera/textures.h"
 
 #include <array>
 #include <memory>
@@ -18,8 +19,8 @@ using Matrix4d = std::array<double, 16>;
 Matrix4d identity_matrix();
 Matrix4d multiply(const Matrix4d& a, const Matrix4d& b);
 
-// UsdPreviewSurface's constant inputs, with its defaults. A surface without a preview material (displayColor
-// only) is diffuse: ior 1 reflects nothing at normal incidence.
+// UsdPreviewSurface's inputs, with its defaults: constants, and the textures that drive some of them instead. A
+// surface without a preview material (displayColor only) is diffuse: ior 1 reflects nothing at normal incidence.
 struct MaterialDesc {
     std::array<float, 3> diffuseColor{0.18f, 0.18f, 0.18f};
     std::array<float, 3> emissiveColor{0, 0, 0};
@@ -31,6 +32,8 @@ struct MaterialDesc {
     float ior = 1.5f;
     float occlusion = 1.0f;          // scales what the dome light contributes
     bool useDisplayColor = false;  // diffuse from the mesh's displayColor instead of diffuseColor
+    std::vector<TextureSlot> textures;  // at most one per input; a slot without an image uses its fallback
+    std::string uvPrimvar;  // the primvar the texture readers read as st ("" without textures)
 };
 
 struct InstanceDesc {
@@ -120,6 +123,8 @@ struct FrameStats {
     uint32_t postPassClusters = 0;      // clusters drawn by the post pass (hidden last frame, visible now)
     uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
     uint32_t shadingBins = 0;           // materials with visible pixels (each shaded by a dispatch of its own)
+    uint32_t textures = 0;              // images in the texture pool
+    uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.
     double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, hzbMs = 0, resolveMs = 0;
 };
@@ -141,6 +146,8 @@ public:
     const std::vector<LightDesc>& lights() const { return lights_; }
     const std::shared_ptr<const BuiltMesh>& mesh(uint32_t handle) const { return meshes_.at(handle); }
     size_t mesh_count() const { return meshes_.size(); }
+    // Loads materials' textures (TextureStore::load_slots), sharing images between materials.
+    TextureStore& textures() { return textures_; }
 
 private:
     friend class Renderer;
@@ -150,6 +157,7 @@ private:
     std::vector<uint32_t> materialTables_;
     std::vector<InstanceDesc> instances_;
     std::vector<LightDesc> lights_;
+    TextureStore textures_;
     // Bumped on every change; each renderer uploads what moved past the versions it last saw.
     uint64_t geometryVersion_ = 1, instancesVersion_ = 1, materialsVersion_ = 1;
 };
