@@ -104,6 +104,7 @@ std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) 
     hash_primvar(h, mesh.normals);
     hash_primvar(h, mesh.displayColor);
     hash_primvar(h, mesh.uvs);
+    h.span(mesh.faceMaterials);
     return h.hex();
 }
 

@@ -19,6 +19,7 @@ enum PageStream : uint32_t {
     kNormalWidthStream,    // bit width of each normal residual
     kColorStream,          // rgba16f of new vertices
     kUvWidthStream,        // bit width of each texture coordinate residual
+    kMaterialStream,       // each triangle's material slot, when the mesh has several (runs: compresses to little)
     kResidualBitStream,    // the residuals' bits below their top one
     kPageStreamCount
 };
@@ -36,12 +37,13 @@ struct DecodedCluster {
     std::vector<uint32_t> normals, colors, triangles;
 };
 
-// What the page file's header says about every vertex of the mesh.
+// What the page file's header says about every vertex and triangle of the mesh.
 struct VertexFormat {
     double positionStep = 1.0;
     bool colors = false;
     bool uvs = false;
     double uvStep = 1.0;
+    uint32_t materialSlots = 1;  // more than 1: each triangle stores its slot
 };
 
 // Reads units back, in order, from one page's decompressed streams; every malformed input is a PageFileError.

@@ -16,12 +16,13 @@ struct UnitDecoder::State {
           normalWidths(s[kNormalWidthStream], where + " normals"),
           colorBytes(s[kColorStream], where + " colours"),
           uvWidths(s[kUvWidthStream], where + " texture coordinates"),
+          materials(s[kMaterialStream], where + " material slots"),
           bits(s[kResidualBitStream], where + " residuals"),
           format(format),
           colors(format.colors),
           uvs(format.uvs),
           where(where) {}
-    ByteReader records, indices, codes, positionWidths, normalWidths, colorBytes, uvWidths;
+    ByteReader records, indices, codes, positionWidths, normalWidths, colorBytes, uvWidths, materials;
     BitReader bits;
     VertexFormat format;
     bool colors, uvs;
@@ -119,7 +120,7 @@ UnitDecoder::~UnitDecoder() = default;
 bool UnitDecoder::done() const {
     State& s = *state_;
     return s.records.done() && s.indices.done() && s.codes.done() && s.positionWidths.done() && s.normalWidths.done() && s.colorBytes.done() &&
-           s.uvWidths.done() &&
+           s.uvWidths.done() && s.materials.done() &&
            s.bits.bytes_left() == 0;
 }
 
@@ -150,7 +151,10 @@ void UnitDecoder::decode_unit(std::vector<DecodedCluster>& out) {
             for (uint32_t* index = &local[t]; index < &local[t + 3]; ++index)
                 if ((*index -= uint32_t(first)) >= vertexCount) throw PageFileError(s.where + ": a triangle refers past its cluster's vertices");
             rotate_smallest_first(&local[t]);  // the codec may have rotated it; the smallest rotation is the stored one
-            d.triangles.push_back(local[t] | (local[t + 1] << 8) | (local[t + 2] << 16));
+            uint32_t slot = 0;
+            if (s.format.materialSlots > 1 && (slot = s.materials.get<uint8_t>()) >= s.format.materialSlots)
+                throw PageFileError(s.where + ": a triangle's material slot is out of range");
+            d.triangles.push_back(local[t] | (local[t + 1] << 8) | (local[t + 2] << 16) | slot << 24);
         }
         const bool ordered = walk_first_use(local, vertexCount, s.opposite, [&](uint32_t v, const Neighbours& n) {
             s.read_vertex(first + v, Predictor(n, first, first + v), nextReference);

@@ -164,7 +164,11 @@ void encode_unit(const BuiltMesh& mesh, std::span<const uint32_t> clusters, Page
             rotate_smallest_first(tri);
             if (!std::equal(tri, tri + 3, &triangles[t]))
                 throw std::invalid_argument("a cluster's triangles are not in page order (order_cluster_for_pages)");
+            if ((mesh.triangles[c.triangleOffset + t / 3] >> 24) >= mesh.materialSlots)
+                throw std::invalid_argument("a triangle's material slot is not below the mesh's materialSlots");
         }
+        if (mesh.materialSlots > 1)
+            for (uint32_t t = 0; t < c.triangleCount; ++t) out[kMaterialStream].push_back(uint8_t(mesh.triangles[c.triangleOffset + t] >> 24));
         const bool ordered = walk_first_use(triangles, c.vertexCount, opposite, [&](uint32_t v, const Neighbours& n) {
             const int64_t self = first + v;
             if (const int64_t seen = firstSeen.find_or_add(self); seen >= 0) {  // a copy: its source, relative to the last one's

@@ -351,6 +351,14 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         for (size_t i = 0; i < uvs.size(); ++i) uvs[i] = float(std::round(double(mesh.uvs[i]) / uvStep) * uvStep) + 0.0f;
     }
 
+    // Material slots are a property of vertices (prepare_mesh splits vertices where slots meet): the simplifier keeps
+    // such splits as seams, so every triangle of every level has the slot of each of its vertices.
+    std::vector<uint8_t> vertexMaterial(mesh.triangleMaterials.empty() ? 0 : vertexCount, 0);
+    for (size_t t = 0; t < mesh.triangleMaterials.size(); ++t)
+        for (int k = 0; k < 3; ++k) vertexMaterial[mesh.indices[3 * t + k]] = mesh.triangleMaterials[t];
+    for (uint8_t slot : mesh.triangleMaterials) out.materialSlots = std::max(out.materialSlots, uint32_t(slot) + 1);
+    auto material_of = [&](uint32_t v) { return vertexMaterial.empty() ? 0u : uint32_t(vertexMaterial[v]); };
+
     // Attributes weighed by the simplifier: normal, then colour and texture coordinates where the mesh has them.
     // meshoptimizer normalises positions to the group's extent before weighing, even when it reports absolute
     // errors, so the weights are relative and independent of scale.
@@ -405,7 +413,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                 const float* m = &mesh.normals[3 * r];
                 const bool sameColor = !hasColors || std::memcmp(&mesh.colors[3 * v], &mesh.colors[3 * r], 12) == 0;
                 const bool sameUv = !hasUvs || std::memcmp(&uvs[2 * v], &uvs[2 * r], 8) == 0;
-                if (sameColor && sameUv && n[0] * m[0] + n[1] * m[1] + n[2] * m[2] > 0.866f) {
+                if (sameColor && sameUv && material_of(v) == material_of(r) && n[0] * m[0] + n[1] * m[1] + n[2] * m[2] > 0.866f) {
                     weld[v] = r;
                     break;
                 }
@@ -649,7 +657,9 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         std::vector<uint32_t> pageOrder = order_cluster_for_pages(corners, uint32_t(vertices.size()));
         for (uint32_t& v : pageOrder) v = vertices[v];  // cluster-local numbers to mesh vertices
         vertices.swap(pageOrder);
-        for (size_t k = 0; k < corners.size(); k += 3) clusterTriangles[i].push_back(corners[k] | (corners[k + 1] << 8) | (corners[k + 2] << 16));
+        for (size_t k = 0; k < corners.size(); k += 3)
+            clusterTriangles[i].push_back(corners[k] | (corners[k + 1] << 8) | (corners[k + 2] << 16) |
+                                          material_of(attributeOf[vertices[corners[k]]]) << 24);
         Cluster& c = emitted[i];
         c.vertexCount = uint32_t(vertices.size());
         c.triangleCount = uint32_t(w.indices.size() / 3);

@@ -181,6 +181,8 @@ std::vector<uint8_t> encode_pages(const BuiltMesh& mesh, PageLayout* layout) {
     // A mesh without a fallback (one not made by build_mesh) stores NaN: decode_pages then makes none.
     header.put(mesh.fallback.indices.empty() ? std::numeric_limits<float>::quiet_NaN() : mesh.fallback.threshold);
     header.put(mesh.fallback.error);
+    header.put(mesh.materialSlots);
+    if (header.bytes.size() > kHeaderBytes - 4) throw std::logic_error("the page file header outgrew kPageHeaderBytes");
     header.bytes.resize(kHeaderBytes - 4, 0);
     header.put(crc32(header.bytes));
 
@@ -235,9 +237,11 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
     mesh.uvPrecision = header.get<int32_t>();
     mesh.leafError = header.get<float>();
     const float fallbackThreshold = header.get<float>(), fallbackError = header.get<float>();
+    mesh.materialSlots = header.get<uint32_t>();
     if (pageBytes != kPageBytes || rootPages > pageCount) throw PageFileError(name + ": inconsistent header");
     if (mesh.uvPrecision < -1074 || mesh.uvPrecision > 1023) throw PageFileError(name + ": invalid texture coordinate precision");
-    const VertexFormat format{mesh.positionStep, colors, uvs, std::ldexp(1.0, mesh.uvPrecision)};
+    if (mesh.materialSlots < 1 || mesh.materialSlots > 256) throw PageFileError(name + ": invalid material slot count");
+    const VertexFormat format{mesh.positionStep, colors, uvs, std::ldexp(1.0, mesh.uvPrecision), mesh.materialSlots};
 
     const size_t tableBytes = size_t(pageCount) * kPageEntryBytes + 4;
     if (bytes.size() < kHeaderBytes + tableBytes) throw PageFileError(name + ": truncated page table");

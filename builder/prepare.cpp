@@ -4,6 +4,7 @@
 #include "subdivide.h"
 #include "weld.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <unordered_map>
@@ -87,12 +88,13 @@ struct CornerKey {
     uint32_t normal[3];
     uint32_t color[3];
     uint32_t uv[2];
+    uint32_t material;
     bool operator==(const CornerKey&) const = default;
 };
 struct CornerKeyHash {
     size_t operator()(const CornerKey& k) const {
         uint64_t h = k.point * 0x9E3779B97F4A7C15ull;
-        for (uint32_t v : {k.normal[0], k.normal[1], k.normal[2], k.color[0], k.color[1], k.color[2], k.uv[0], k.uv[1]})
+        for (uint32_t v : {k.normal[0], k.normal[1], k.normal[2], k.color[0], k.color[1], k.color[2], k.uv[0], k.uv[1], k.material})
             h = (h ^ v) * 0x100000001B3ull;
         return size_t(h ^ (h >> 29));
     }
@@ -148,6 +150,21 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         return name + ": dropped " + std::to_string(dropped) + " invalid face(s); first is face " + std::to_string(first) + " with " + reason;
     };
 
+    // Material slots per face (GeomSubsets): all faces or none, each 0-255.
+    std::span<const int32_t> faceMaterials = mesh.faceMaterials;
+    if (!faceMaterials.empty() && faceMaterials.size() != mesh.faceVertexCounts.size()) {
+        warnings.push_back(name + ": " + std::to_string(faceMaterials.size()) + " material slots for " +
+                           std::to_string(mesh.faceVertexCounts.size()) + " faces; one material is used");
+        faceMaterials = {};
+    }
+    for (int32_t slot : faceMaterials)
+        if (slot < 0 || slot > 255) {
+            warnings.push_back(name + ": material slot " + std::to_string(slot) + " is outside 0-255; one material is used");
+            faceMaterials = {};
+            break;
+        }
+    const bool materialSlots = std::any_of(faceMaterials.begin(), faceMaterials.end(), [](int32_t slot) { return slot != 0; });
+
     if (mesh.subdivisionScheme != SubdivisionScheme::None && mesh.refineLevel > 0) {
         // Refine the valid faces (OpenSubdiv must never see a bad index), then prepare the result as polygons.
         std::vector<int32_t> counts, indices, holes;
@@ -160,7 +177,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         const bool refineUvs = uvSource.active() && (mesh.uvs.interpolation == Interpolation::FaceVarying ||
                                                      mesh.uvs.interpolation == Interpolation::Vertex ||
                                                      mesh.uvs.interpolation == Interpolation::Varying);
-        std::vector<int32_t> uvIndices;
+        std::vector<int32_t> uvIndices, keptMaterials;
         size_t dropped = 0, firstBad = 0, start = 0;
         const char* firstReason = nullptr;
         for (size_t face = 0; face < mesh.faceVertexCounts.size(); ++face) {
@@ -173,6 +190,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             } else {
                 newIndexOf[face] = int32_t(counts.size());
                 counts.push_back(int32_t(count));
+                if (materialSlots) keptMaterials.push_back(faceMaterials[face]);
                 indices.insert(indices.end(), mesh.faceVertexIndices.begin() + start, mesh.faceVertexIndices.begin() + start + count);
                 if (refineUvs)
                     for (size_t c = start; c < start + count; ++c)
@@ -193,7 +211,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         RefinedMesh refined;
         std::string problem;
         const FaceVaryingUvs uvs{refineUvs ? mesh.uvs.values : std::span<const float>(), uvIndices};
-        if (refine_subdivision(mesh, counts, indices, holes, uniform ? uniformColors.data() : nullptr, uvs, refined, problem)) {
+        if (refine_subdivision(mesh, counts, indices, holes, uniform ? uniformColors.data() : nullptr, uvs, keptMaterials, refined, problem)) {
             MeshView view;
             view.name = name;
             view.points = refined.points;
@@ -203,6 +221,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             else if (mesh.displayColor.interpolation == Interpolation::Constant) view.displayColor = mesh.displayColor;
             if (!refined.uvIndices.empty()) view.uvs = {Interpolation::FaceVarying, 2, refined.uvs, refined.uvIndices};
             else if (mesh.uvs.interpolation == Interpolation::Constant) view.uvs = mesh.uvs;
+            view.faceMaterials = refined.faceMaterials;
             PreparedMesh result = prepare_mesh(view);
             std::vector<std::string> notes;
             if (dropped) notes.push_back(dropped_faces_warning(dropped, firstBad, firstReason));
@@ -258,7 +277,8 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         const int64_t ia = lookup.value_index(0, 0, a), ib = lookup.value_index(0, 0, b);
         return ia == ib || std::memcmp(lookup.value(ia), lookup.value(ib), lookup.components() * sizeof(float)) == 0;
     };
-    bool pointVertices = per_point(mesh.normals, normals.active()) && per_point(mesh.displayColor, vertexColors) && per_point(mesh.uvs, uvs.active());
+    bool pointVertices = per_point(mesh.normals, normals.active()) && per_point(mesh.displayColor, vertexColors) &&
+                         per_point(mesh.uvs, uvs.active()) && !materialSlots;
     for (uint32_t p = 0; p < pointCount && pointVertices; ++p)
         if (canonical[p] != p)
             pointVertices = same_values(normals, normals.active(), p, canonical[p]) && same_values(colors, vertexColors, p, canonical[p]) &&
@@ -279,7 +299,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         }
         const int64_t normal = normals.value_index(face, corner, p), color = vertexColors ? colors.value_index(face, corner, p) : -1;
         const int64_t uv = uvs.value_index(face, corner, p);
-        CornerKey key{canonical[p], {}, {}, {}};
+        CornerKey key{canonical[p], {}, {}, {}, materialSlots ? uint32_t(faceMaterials[face]) : 0u};
         value_bits(normals, normal, key.normal);
         value_bits(colors, color, key.color);
         value_bits(uvs, uv, key.uv);
@@ -319,6 +339,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             out.indices.push_back(corner_vertex(face, c1));
             out.indices.push_back(corner_vertex(face, c2));
             out.sourceFaces.push_back(uint32_t(face));
+            if (materialSlots) out.triangleMaterials.push_back(uint8_t(faceMaterials[face]));
         }
     }
     if (droppedFaces) warnings.push_back(dropped_faces_warning(droppedFaces, firstBadFace, firstBadReason.c_str()));

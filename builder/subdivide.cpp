@@ -25,6 +25,7 @@ struct Value {  // the value types OpenSubdiv's primvar refiner interpolates
 };
 using Vec3 = Value<3>;
 using Vec2 = Value<2>;
+using Scalar = Value<1>;
 
 Sdc::SchemeType scheme_type(SubdivisionScheme scheme) {
     switch (scheme) {
@@ -37,7 +38,8 @@ Sdc::SchemeType scheme_type(SubdivisionScheme scheme) {
 }  // namespace
 
 bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, std::span<const int32_t> indices, std::span<const int32_t> holes,
-                        const float* uniformColors, const FaceVaryingUvs& uvs, RefinedMesh& out, std::string& problem) {
+                        const float* uniformColors, const FaceVaryingUvs& uvs, std::span<const int32_t> faceMaterials, RefinedMesh& out,
+                        std::string& problem) {
     const int pointCount = int(mesh.points.size() / 3);
     if (mesh.subdivisionScheme == SubdivisionScheme::Loop)
         for (int32_t c : counts)
@@ -99,6 +101,11 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
     std::vector<Vec2> uvValues(uvTotal);
     for (size_t i = 0; i < uvs.values.size() / 2; ++i) uvValues[i] = {{uvs.values[2 * i], uvs.values[2 * i + 1]}};
 
+    // Material slots are face-uniform values: each refined face takes its parent's (exact in float up to 2^24).
+    std::vector<Scalar> slots(faceMaterials.empty() ? 0 : faceTotal);
+    for (size_t f = 0; f < faceMaterials.size(); ++f) slots[f].v[0] = float(faceMaterials[f]);
+    Scalar* srcSlot = slots.data();
+
     Vec2* srcUv = uvValues.data();
     Vec3* src = points.data();
     Vec3* srcColor = colors.data();
@@ -115,6 +122,11 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
             Vec3* dstFace = srcFace + refiner->GetLevel(l - 1).GetNumFaces();
             primvars.InterpolateFaceUniform(l, srcFace, dstFace);
             srcFace = dstFace;
+        }
+        if (!slots.empty()) {
+            Scalar* dstSlot = srcSlot + refiner->GetLevel(l - 1).GetNumFaces();
+            primvars.InterpolateFaceUniform(l, srcSlot, dstSlot);
+            srcSlot = dstSlot;
         }
         if (hasUvs) {
             Vec2* dstUv = srcUv + refiner->GetLevel(l - 1).GetNumFVarValues(0);
@@ -135,6 +147,7 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
         out.counts.push_back(face.size());
         for (int i = 0; i < face.size(); ++i) out.indices.push_back(face[i]);
         if (uniformColors) out.colors.insert(out.colors.end(), srcFace[f].v, srcFace[f].v + 3);
+        if (!slots.empty()) out.faceMaterials.push_back(int32_t(srcSlot[f].v[0]));
         if (hasUvs) {
             const Far::ConstIndexArray values = last.GetFaceFVarValues(f, 0);
             out.uvIndices.insert(out.uvIndices.end(), values.begin(), values.end());

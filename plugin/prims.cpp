@@ -8,6 +8,12 @@ Mesh::~Mesh() {
 }
 
 void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
+    // A hidden mesh reads only its visibility: the rest (a build among it) waits until it shows, as in Hydra
+    // (the render index keeps those bits dirty).
+    if (dirtyBits & DirtyVisibility) visible_ = scene.get_visible(id());
+    if (!visible_) return;
+    // Only points, topology, primvars and sidedness rebuild the mesh; a transform, a material or new instance
+    // transforms are read alone.
     if (dirtyBits & (DirtyPoints | DirtyTopology | DirtyPrimvar | DirtyDoubleSided)) {
         if (gpuMesh_) {
             scene_.remove_mesh(*gpuMesh_);
@@ -26,8 +32,10 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
         }
     }
     if (dirtyBits & DirtyTransform) transform_ = scene.get_transform(id());
-    if (dirtyBits & DirtyVisibility) visible_ = scene.get_visible(id());
-    if (dirtyBits & DirtyMaterialId) materialId_ = scene.get_material_id(id());
+    if (dirtyBits & DirtyMaterialId) {
+        materialId_ = scene.get_material_id(id());
+        subsetMaterialIds_ = scene.get_subset_material_ids(id());
+    }
     if ((dirtyBits & DirtyInstancer) && !instancerId_.empty()) instances_ = scene.get_instance_transforms(instancerId_, id());
 }
 

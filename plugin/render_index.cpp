@@ -1,7 +1,9 @@
 // The render delegate (prim factory) and the render index (prims, dirty bits, sync, commit, execute).
 #include "tessera/delegate.h"
 
+#include <algorithm>
 #include <cmath>
+#include <optional>
 #include <sstream>
 
 namespace tessera::hd {
@@ -89,12 +91,24 @@ std::string one_line(const std::string& text) {
     while (in >> word) out += (out.empty() ? "" : " ") + word;
     return out;
 }
+
+bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<InstanceDesc>& b) {
+    return std::equal(a.begin(), a.end(), b.begin(), b.end(), [](const InstanceDesc& x, const InstanceDesc& y) {
+        return x.mesh == y.mesh && x.transform == y.transform && x.primId == y.primId && x.material == y.material &&
+               x.doubleSided == y.doubleSided;
+    });
+}
 }  // namespace
 
 void RenderIndex::sync_all(SceneDelegate& scene) {
+    lastSynced_.clear();
     for (auto* prims : {&sprims_, &rprims_})
         for (auto& [id, entry] : *prims) {
             if (entry.dirty == Clean) continue;
+            const Mesh* mesh = prims == &rprims_ ? static_cast<const Mesh*>(entry.prim.get()) : nullptr;
+            // Hydra's rule: a hidden mesh syncs nothing until its visibility changes; its other bits stay dirty
+            // (a hidden mesh is never built).
+            if (mesh && !mesh->visible() && !(entry.dirty & DirtyVisibility)) continue;
             try {
                 entry.prim->sync(scene, param_, entry.dirty);
             } catch (const std::exception& e) {
@@ -102,7 +116,8 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
                 param_.errors.push_back(id + ": " + one_line(e.what()) + "; the prim is skipped");
                 entry.failed = true;
             }
-            entry.dirty = Clean;
+            lastSynced_.emplace_back(id, entry.dirty);
+            entry.dirty = mesh && !mesh->visible() && !entry.failed ? entry.dirty & ~uint32_t(DirtyVisibility) : Clean;
             ++syncCounts_[entry.type];
         }
     if (sceneDirty_) commit_resources();
@@ -125,16 +140,28 @@ void RenderIndex::commit_resources() {
         instance.mesh = *mesh.gpu_mesh();
         instance.primId = mesh.prim_id();
         instance.doubleSided = mesh.double_sided();
-        auto material = materialHandles.find(mesh.material_id());
-        if (material != materialHandles.end()) {
-            instance.material = material->second;
-        } else {  // no bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey
-            const BuiltMesh* built = mesh.built();
-            MaterialDesc fallback;
-            fallback.diffuseColor = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
-            fallback.useDisplayColor = !built->colors.empty();
-            fallback.ior = 1.0f;  // diffuse only, like Hydra's fallback surface
-            instance.material = scene.add_material(fallback);
+        const BuiltMesh* built = mesh.built();
+        std::optional<uint32_t> fallbackHandle;
+        auto handle_of = [&](const PrimId& materialId) {
+            auto material = materialHandles.find(materialId);
+            if (material != materialHandles.end()) return material->second;
+            if (!fallbackHandle) {  // no bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey
+                MaterialDesc fallback;
+                fallback.diffuseColor = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
+                fallback.useDisplayColor = !built->colors.empty();
+                fallback.ior = 1.0f;  // diffuse only, like Hydra's fallback surface
+                fallbackHandle = scene.add_material(fallback);
+            }
+            return *fallbackHandle;
+        };
+        instance.material = handle_of(mesh.material_id());
+        if (built->materialSlots > 1) {  // GeomSubsets: one table per prim, shared by its instances
+            std::vector<uint32_t> table{instance.material};
+            const std::vector<PrimId>& subsets = mesh.subset_material_ids();
+            for (uint32_t slot = 1; slot < built->materialSlots; ++slot)
+                table.push_back(slot <= subsets.size() && !subsets[slot - 1].empty() ? handle_of(subsets[slot - 1]) : instance.material);
+            instance.material = scene.add_material_table(table);
+            instance.materialTable = true;
         }
         if (mesh.instancer_id().empty()) {
             instance.transform = mesh.transform();
@@ -147,7 +174,8 @@ void RenderIndex::commit_resources() {
             }
         }
     }
-    scene.set_instances(std::move(instances));
+    // Unchanged instances (a material or light edit) keep the renderer's uploads and its previous-frame HZB.
+    if (!same_instances(instances, scene.instances())) scene.set_instances(std::move(instances));
 }
 
 std::vector<Image> RenderIndex::execute(const RenderPassSettings& settings, FrameStats* stats) {

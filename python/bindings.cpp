@@ -77,6 +77,7 @@ struct PySceneDelegate : SceneDelegate {
     MaterialDesc get_material(const PrimId& id) override { NB_OVERRIDE_PURE(get_material, id); }
     LightDesc get_light(const PrimId& id) override { NB_OVERRIDE_PURE(get_light, id); }
     CameraDesc get_camera(const PrimId& id) override { NB_OVERRIDE_PURE(get_camera, id); }
+    std::vector<PrimId> get_subset_material_ids(const PrimId& id) override { NB_OVERRIDE(get_subset_material_ids, id); }
 };
 
 Visualize visualize_from(const std::string& name) {
@@ -207,7 +208,8 @@ NB_MODULE(_tessera, m) {
            std::optional<Array1<int32_t>> holes, bool leftHanded, bool doubleSided, std::optional<Array1<float>> normals,
            const std::string& normalsInterpolation, std::optional<Array1<int32_t>> normalsIndices, std::optional<Array1<float>> displayColor,
            const std::string& displayColorInterpolation, std::optional<Array1<int32_t>> displayColorIndices, std::optional<Array1<float>> uvs,
-           const std::string& uvsInterpolation, std::optional<Array1<int32_t>> uvsIndices, const std::string& scheme, int refineLevel) {
+           const std::string& uvsInterpolation, std::optional<Array1<int32_t>> uvsIndices, std::optional<Array1<int32_t>> faceMaterials,
+           const std::string& scheme, int refineLevel) {
             MeshSource source;
             source.view.subdivisionScheme = scheme == "catmullClark" ? SubdivisionScheme::CatmullClark
                                             : scheme == "loop"       ? SubdivisionScheme::Loop
@@ -225,9 +227,10 @@ NB_MODULE(_tessera, m) {
             if (displayColor)
                 source.view.displayColor = {interpolation_from(displayColorInterpolation), 3, span_of(displayColor), span_of(displayColorIndices)};
             if (uvs) source.view.uvs = {interpolation_from(uvsInterpolation), 2, span_of(uvs), span_of(uvsIndices)};
+            source.view.faceMaterials = span_of(faceMaterials);
             nb::list owners;
             for (nb::handle h : {nb::cast(points), nb::cast(counts), nb::cast(indices)}) owners.append(h);
-            for (auto* o : {&holes, &normalsIndices, &displayColorIndices, &uvsIndices})
+            for (auto* o : {&holes, &normalsIndices, &displayColorIndices, &uvsIndices, &faceMaterials})
                 if (*o) owners.append(nb::cast(**o));
             for (auto* o : {&normals, &displayColor, &uvs})
                 if (*o) owners.append(nb::cast(**o));
@@ -237,7 +240,8 @@ NB_MODULE(_tessera, m) {
         "name"_a, "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "hole_indices"_a = nb::none(), "left_handed"_a = false,
         "double_sided"_a = false, "normals"_a = nb::none(), "normals_interpolation"_a = "vertex", "normals_indices"_a = nb::none(),
         "display_color"_a = nb::none(), "display_color_interpolation"_a = "constant", "display_color_indices"_a = nb::none(),
-        "uvs"_a = nb::none(), "uvs_interpolation"_a = "faceVarying", "uvs_indices"_a = nb::none(), "subdivision_scheme"_a = "none",
+        "uvs"_a = nb::none(), "uvs_interpolation"_a = "faceVarying", "uvs_indices"_a = nb::none(), "face_materials"_a = nb::none(),
+        "subdivision_scheme"_a = "none",
         "refine_level"_a = 0,
         "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples; uvs: float32 pairs).");
 
@@ -353,7 +357,8 @@ NB_MODULE(_tessera, m) {
         .def("get_instance_transforms", &SceneDelegate::get_instance_transforms)
         .def("get_material", &SceneDelegate::get_material)
         .def("get_light", &SceneDelegate::get_light)
-        .def("get_camera", &SceneDelegate::get_camera);
+        .def("get_camera", &SceneDelegate::get_camera)
+        .def("get_subset_material_ids", &SceneDelegate::get_subset_material_ids);
 
     nb::class_<Image>(m, "Image")
         .def_ro("width", &Image::width)
@@ -449,6 +454,13 @@ NB_MODULE(_tessera, m) {
             "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true)
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
+        .def_prop_ro(
+            "last_synced", [](const RenderIndex& index) {
+                nb::dict d;  // prim id -> the dirty bits it was synced with
+                for (const auto& [id, bits] : index.last_synced()) d[nb::cast(id)] = bits;
+                return d;
+            },
+            "The prims the last sync synced: {id: dirty bits} (tessera._tessera.dirty names the bits).")
         .def_prop_ro("rprim_count", &RenderIndex::rprim_count)
         .def("take_diagnostics", [](RenderIndex& index) {
             RenderParam p = index.take_diagnostics();

@@ -298,7 +298,7 @@ struct Renderer::Impl {
     // the frame's HZB; resolve.
     static constexpr uint32_t kTimestamps = 10;
     Buffer hardwareList, softwareList;
-    Buffer instances, meshes, levels, clusters, positions, normals, colors, uvs, triangles, materials;
+    Buffer instances, meshes, levels, clusters, positions, normals, colors, uvs, triangles, materials, materialTables;
     uint32_t instanceCount = 0, clusterCount = 0;
     uint64_t sourceTriangles = 0;
     const GpuScene* uploadedScene = nullptr;
@@ -484,7 +484,8 @@ struct Renderer::Impl {
         upload_vector(device, triangles, gpuTriangles);
     }
 
-    void upload_instances(GpuScene& scene) {
+    // `moved`: the instances may have moved (else only their material flags changed, and the last frame's depths hold).
+    void upload_instances(GpuScene& scene, bool moved) {
         gpuInstances.clear();
         translations.clear();
         gpuInstances.reserve(scene.instances_.size());
@@ -504,17 +505,20 @@ struct Renderer::Impl {
             translations.push_back({t[0], t[1], t[2]});
             g.meshIndex = desc.mesh;
             g.primId = desc.primId;
-            g.materialIndex = std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
+            const bool table = desc.materialTable && mesh->materialSlots > 1 &&
+                               uint64_t(desc.material) + mesh->materialSlots <= scene.materialTables_.size();
+            g.materialIndex = table ? desc.material : std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
+            if (desc.materialTable && !table) g.materialIndex = 0;  // a table too short for the mesh: the first material everywhere
             g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u) |
-                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u) |
-                      (g.materialIndex < maskedMaterials.size() && maskedMaterials[g.materialIndex] ? TS_INSTANCE_MASKED : 0u);
+                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u) | (table ? TS_INSTANCE_MATERIAL_SLOTS : 0u) |
+                      (!table && g.materialIndex < maskedMaterials.size() && maskedMaterials[g.materialIndex] ? TS_INSTANCE_MASKED : 0u);
             gpuInstances.push_back(g);
             clusterCount += mesh->leafClusters;
             sourceTriangles += mesh->sourceTriangles;
         }
         instanceCount = uint32_t(gpuInstances.size());
         relativeTo = {NAN, NAN, NAN};
-        previousValid = false;  // instances may have moved: last frame's depths say nothing about them
+        if (moved) previousValid = false;  // last frame's depths say nothing about instances that moved
         // Every cluster of every instance is an upper bound on the visible ones: start there (8 bytes each, within
         // reason) so that a frame rarely pays for an overflow redraw.
         if (!capacityPinned) capacity = std::clamp<uint32_t>(clusterCount, capacity, 1u << 22);
@@ -607,6 +611,9 @@ struct Renderer::Impl {
         if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 1}, {0, 0, 0, 0.5f}, 0, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0});
         upload_vector(device, materials, gpuMaterials);
         materialCount = uint32_t(gpuMaterials.size());
+        std::vector<uint32_t> tables = scene.materialTables_;
+        for (uint32_t& m : tables) m = std::min(m, materialCount - 1);
+        upload_vector(device, materialTables, tables);
         if (shadingBins.size < uint64_t(materialCount) * sizeof(gpu::GpuBin))
             shadingBins = device.create_buffer(uint64_t(materialCount) * sizeof(gpu::GpuBin), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         // No textures, no texture memory.
@@ -697,15 +704,16 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     Impl& s = *impl_;
     if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
         throw std::invalid_argument("resolution must be between 1x1 and 16384x16384");
+    bool instancesMoved = s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_, materialsChanged = false;
     if (s.uploadedScene != &scene || s.geometryVersion != scene.geometryVersion_) {
         s.upload_geometry(scene);
-        s.instancesVersion = 0;  // instance counts depend on the meshes
+        instancesMoved = true;  // instance counts depend on the meshes
     }
     if (s.uploadedScene != &scene || s.materialsVersion != scene.materialsVersion_) {
         s.upload_materials(scene);
-        s.instancesVersion = 0;  // instance flags say which materials mask pixels
+        materialsChanged = true;  // instance flags say which materials mask pixels and which have slots
     }
-    if (s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_) s.upload_instances(scene);
+    if (instancesMoved || materialsChanged) s.upload_instances(scene, instancesMoved);
     s.uploadedScene = &scene;
     s.geometryVersion = scene.geometryVersion_;
     s.instancesVersion = scene.instancesVersion_;
@@ -787,6 +795,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.uvs = s.uvs.address;
         f.triangles = s.triangles.address;
         f.materials = s.materials.address;
+        f.materialTables = s.materialTables.address;
         f.visibleClusters = s.visibleClusters.address;
         f.hardwareList = s.hardwareList.address;
         f.softwareList = s.softwareList.address;

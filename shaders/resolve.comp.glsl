@@ -36,7 +36,7 @@ vec3 level_color(uint level) {
     return clamp(vec3(2.0 * t - 0.5, 2.0 - abs(4.0 * t - 2.0), 1.5 - 2.0 * t), 0.0, 1.0);
 }
 
-vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software) {
+vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software, uint material) {
     if (mode == TS_VIS_RASTER_BINS) return software ? vec3(0.15, 0.45, 1.0) : vec3(1.0, 0.55, 0.1);
     if (mode == TS_VIS_TRIANGLES) return id_color(cluster.triangleOffset + triangle);
     if (mode == TS_VIS_CLUSTERS) return id_color(visible.y);
@@ -44,7 +44,7 @@ vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluste
     if (mode == TS_VIS_LOD) return level_color(cluster.levelVertices >> 16);
     if (mode == TS_VIS_INSTANCES) return id_color(visible.x);
     if (mode == TS_VIS_PRIMITIVES) return id_color(instance.primId);
-    return id_color(instance.materialIndex);  // TS_VIS_SHADING_BINS
+    return id_color(material);  // TS_VIS_SHADING_BINS
 }
 
 // Light reflected towards `toEye` from a distant light arriving from `toLight` with unit radiance: Lambert diffuse
@@ -151,12 +151,12 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
             OutputRef(frame.aovOutput).data[index] = vec4(uvColor, 1.0);
             return;
         }
-        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle, software);
+        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle, software, push.step);
         OutputRef(frame.aovOutput).data[index] = vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0);
         return;
     }
 
-    GpuMaterial material = MaterialRef(frame.materials).data[instance.materialIndex];
+    GpuMaterial material = MaterialRef(frame.materials).data[push.step];  // this dispatch's bin is one material
     vec3 albedo = material.diffuseColor.rgb;
     if ((material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
         albedo = bary.x * vertex_color(frame, mesh, v0) + bary.y * vertex_color(frame, mesh, v1) + bary.z * vertex_color(frame, mesh, v2);

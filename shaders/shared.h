@@ -32,7 +32,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_INSTANCE_DOUBLE_SIDED 1u
 #define TS_INSTANCE_FLIP_WINDING 2u  // the transform mirrors (negative determinant); leftHanded is fixed by the builder
 #define TS_INSTANCE_CONFORMAL 4u     // the transform keeps angles (rotation, uniform scale, mirror): normal cones stay valid
-#define TS_INSTANCE_MASKED 8u        // its material cuts pixels by a textured opacity (both rasterizers test each pixel)
+#define TS_INSTANCE_MATERIAL_SLOTS 8u  // the mesh's triangles carry material slots: materialIndex starts its material table
+#define TS_INSTANCE_MASKED 16u       // its material cuts pixels by a textured opacity (both rasterizers test each pixel)
 
 // Material flags.
 #define TS_MATERIAL_USE_DISPLAY_COLOR 1u  // diffuse comes from the mesh's displayColor primvar
@@ -190,7 +191,7 @@ struct GpuInstance {
     vec4 translationLow;   // xyz: low part of the translation; w: largest stretch of the matrix (for bounds)
     uint meshIndex;
     uint primId;
-    uint materialIndex;
+    uint materialIndex;    // its material; with TS_INSTANCE_MATERIAL_SLOTS the first entry of its table (frame.materialTables)
     uint flags;            // TS_INSTANCE_*
 };
 TS_CHECK_SIZE(GpuInstance, 80);
@@ -301,6 +302,7 @@ struct GpuFrame {
     address uvs;             // vec2[texture coordinates]
     address triangles;       // uint[triangles], 3 x 8-bit cluster-local indices
     address materials;       // GpuMaterial[]
+    address materialTables;  // uint[]: per instance with material slots, slot -> material (pixel_material in frame.h)
     address visibleClusters; // uvec2[capacity]: (instance | TS_VISIBLE_SOFTWARE, cluster)
     address hardwareList;    // uint[capacity]: visible-cluster slots for hardware raster
     address softwareList;    // uint[capacity]: visible-cluster slots for the compute rasterizer
@@ -315,7 +317,7 @@ struct GpuFrame {
     address textureSlots;    // GpuTextureSlot[], 0 when no material has a texture
     address textures;        // the texture pool: GpuTexture[] then texel words (uint); 0 when there are no textures
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 23);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 24);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

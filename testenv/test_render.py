@@ -265,3 +265,19 @@ def test_texture_coordinates(tmp_path):
     assert cube.sum() > 3000
     shade = color[cube][:, :2]
     assert shade.max() > 0.6 and shade.min() < 0.15, "the islands' range of st shows"
+
+
+def test_geom_subsets_bind_materials_per_face(render, tmp_path):
+    """GeomSubsets of family materialBind give one mesh several materials: its triangles carry material slots through
+    every DAG level, and each slot's pixels land in its material's bin."""
+    result = render_and_compare(render, tmp_path, "testGeomSubsets", "geom_subsets.usda", resolution=(480, 320))
+    assert any("/Strip/RedFaces: 1 face indices outside 0..3" in w for w in result.warnings)
+    assert result.stats["rprims"] == 1 and result.stats["shading_bins"] == 3
+    color = np.asarray(result["color"].pixels)
+    # Quad centres: x = -3, -1, 1, 3 at 10 units (35 mm lens, 36 mm aperture over 480 pixels: 18.9 px per unit).
+    per_unit = 35.0 / 18.0 / 10.0 * 240.0
+    expected = ["blue", "red", "green", "red"]
+    for quad, name in enumerate(expected):
+        x = int(240 + (-3 + 2 * quad) * per_unit)
+        channel = int(np.argmax(color[160, x, :3]))
+        assert ["red", "green", "blue"][channel] == name, (quad, color[160, x])

@@ -1,9 +1,16 @@
 """The USD scene delegate: reads a stage through usd-core and answers the render index's questions.
 
-Populate walks the stage once and inserts prims into the render index: every drawable gprim becomes a
-"mesh" rprim; native instances and PointInstancers become *one* rprim per prototype mesh whose instance
-transforms are composed here (nesting included), so a prototype is built once however many copies it has.
-Sync later pulls data through the get_* methods; arrays come out of USD as numpy views, without copies.
+Populate walks the stage and inserts prims into the render index: every drawable gprim becomes a "mesh" rprim
+(hidden ones too: they sync only their visibility until they show); native instances and PointInstancers become
+*one* rprim per prototype mesh whose instance transforms are composed here (nesting included), so a prototype is
+built once however many copies it has. Sync later pulls data through the get_* methods; arrays come out of USD as
+numpy views, without copies.
+
+Edits: `apply_changes` takes what the stage's change notices named (change_tracker.py) and dirties only that: a
+property edit becomes dirty bits on the prims that read it; a recomposed subtree is walked again and the index made
+to match it. Instancing is kept in *groups* (one per native prototype, one per top-level PointInstancer) whose
+rprims are re-made together when anything they read changes. `set_time` does the same for every time-varying
+attribute.
 
 Matrices handed to C++ are row-major and act on column vectors: the transpose of Gf's row-vector layout.
 """
@@ -16,9 +23,11 @@ import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import implicit, materials
+from . import change_tracker, implicit, materials, mesh_settings
+from .path_index import PathIndex, ancestors, is_at_or_under
 
-_IDENTITY = np.eye(4)
+_dirty = _tessera.dirty
+_LIGHT_TYPES = {"distantLight", "domeLight"}
 
 
 def to_column_major(gf_matrix) -> list[float]:
@@ -29,10 +38,30 @@ def to_column_major(gf_matrix) -> list[float]:
 @dataclass
 class _Rprim:
     prim: Usd.Prim
-    # For instanced rprims: world transforms of every copy (N, 4, 4), Gf row-vector convention.
+    # For instanced rprims: world transforms of every copy (N, 4, 4), in the C++ convention.
     instance_transforms: np.ndarray | None = None
-    # Transform of the gprim relative to the frame the copies are expressed in (row-vector convention).
-    local: np.ndarray = field(default_factory=lambda: _IDENTITY)
+    group: str | None = None  # key of the instancing group that made it; None for a gprim drawn once (id = path)
+    instancer_id: str = ""
+    material: str = ""  # the bound material's path, "" for none
+    subset_materials: tuple = ()  # the materials of its materialBind GeomSubsets (slots 1, 2, ...), "" for the mesh's own
+
+
+@dataclass
+class _Group:
+    """One top-level instancing context: a native prototype and its instances, or a PointInstancer."""
+    kind: str  # "native" (key: the prototype's path) or "pointInstancer" (key: the instancer's path)
+    anchors: dict[str, None] = field(default_factory=dict)  # the instance prims (stage order), or the instancer
+    rprims: set[str] = field(default_factory=set)
+    watched: set[str] = field(default_factory=set)  # prims whose subtrees it read
+
+
+@dataclass
+class _Found:
+    """What a walk of part of the stage found outside instancing contexts."""
+    rprims: dict[str, Usd.Prim] = field(default_factory=dict)
+    sprims: dict[str, tuple[str, Usd.Prim]] = field(default_factory=dict)  # cameras and lights: path -> (type, prim)
+    natives: dict[str, list[str]] = field(default_factory=dict)  # prototype path -> instance prim paths
+    instancers: list[str] = field(default_factory=list)
 
 
 class UsdSceneDelegate(_tessera.SceneDelegate):
@@ -40,28 +69,32 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                  build_settings: _tessera.BuildSettings | None = None):
         super().__init__()
         self.refine_level = refine_level  # uniform refinements of subdivision surfaces (catmullClark, loop, bilinear)
-        # Every mesh's build settings (render-wide defaults; per-mesh TesseraMeshAPI values are not read yet).
+        # The render-wide build settings; a mesh's authored TesseraMeshAPI attributes override them (mesh_settings.py).
         self.build_settings = build_settings or _tessera.BuildSettings()
+        self._mesh_settings = mesh_settings.SettingsReader()
         self.stage = stage
         self.index = render_index
         self.time = time
         self.xform_cache = UsdGeom.XformCache(time)
         self.rprims: dict[str, _Rprim] = {}
-        self.instancer_of: dict[str, str] = {}
-        self.materials: set[str] = set()
-        self.cameras: list[str] = []
+        self.sprims: dict[str, str] = {}  # id (the prim's path) -> type: cameras, lights and bound materials
+        self.groups: dict[str, _Group] = {}
+        self.cameras: list[str] = []  # in stage order; the first is the default camera
         self.lights: list[str] = []
         self.warnings: list[str] = []
-        self._instanced_contexts = 0
+        self._paths = PathIndex()  # prim path -> ids of the rprims and sprims read from that prim
+        self._watch = PathIndex()  # prim path -> keys of the instancing groups that read its subtree
+        self._material_users: dict[str, set[str]] = {}  # material path -> ids of the rprims bound to it
+        self._time_varying: dict[str, set[str]] | None = None  # prim path -> time-varying attributes (on first need)
+
+    @property
+    def materials(self) -> set[str]:
+        return set(self._material_users)
 
     # -- populate ---------------------------------------------------------------------------------
 
     def populate(self) -> None:
-        prototypes: dict[str, list[np.ndarray]] = {}
-        self._visit(self.stage.GetPseudoRoot(), None, None, prototypes)
-        # Native instances: each prototype is visited once, with every instance's transform stacked.
-        for path, transforms in prototypes.items():
-            self._visit(self.stage.GetPrimAtPath(path), np.stack(transforms), None, {})
+        self._repopulate("/", _dirty.ALL)
 
     def _relative(self, prim: Usd.Prim, frame: Usd.Prim | None) -> np.ndarray:
         if frame is None:
@@ -69,71 +102,89 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         matrix, _ = self.xform_cache.ComputeRelativeTransform(prim, frame)
         return np.asarray(matrix)
 
-    def _visit(self, root: Usd.Prim, copies: np.ndarray | None, frame: Usd.Prim | None, prototypes) -> None:
-        """Walks `root`'s subtree. `copies` (N, 4, 4) are the world transforms of `frame` for instanced
-        subtrees (None for the stage itself); transforms inside are taken relative to `frame`."""
-        if frame is None and copies is not None:
-            frame = root
+    def _walk(self, root: Usd.Prim, hidden: bool, found: _Found) -> None:
+        """Walks `root`'s subtree outside instancing. `hidden`: an ancestor of `root` is invisible. Gprims under an
+        invisible prim are still found (they sync their visibility alone); lights and instancing there are not."""
+        hidden_under = root.GetPath() if hidden else None
         it = iter(Usd.PrimRange(root))
         for prim in it:
             if prim.IsPseudoRoot():
                 continue
+            path = prim.GetPath()
+            if hidden_under is not None and not path.HasPrefix(hidden_under):
+                hidden_under = None
+            imageable = UsdGeom.Imageable(prim)
+            if imageable:
+                if imageable.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
+                    it.PruneChildren()
+                    continue
+                if hidden_under is None and imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
+                    hidden_under = path
+            if prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
+                if hidden_under is None:
+                    found.natives.setdefault(str(prim.GetPrototype().GetPath()), []).append(str(path))
+                it.PruneChildren()
+                continue
+            if prim.IsA(UsdGeom.PointInstancer):
+                if hidden_under is None:
+                    found.instancers.append(str(path))
+                it.PruneChildren()
+                continue
+            if prim.IsA(UsdGeom.Camera):  # visibility does not apply to looking through a camera
+                found.sprims[str(path)] = ("camera", prim)
+            elif prim.IsA(UsdLux.DistantLight) or prim.IsA(UsdLux.DomeLight):
+                if hidden_under is None:
+                    found.sprims[str(path)] = ("distantLight" if prim.IsA(UsdLux.DistantLight) else "domeLight", prim)
+            elif prim.IsA(UsdGeom.Gprim):
+                if not (prim.IsA(UsdGeom.Mesh) or implicit.supported(prim)):
+                    self.warnings.append(f"{path}: {prim.GetTypeName()} is not drawn (not supported yet)")
+                    continue
+                found.rprims[str(path)] = prim
+
+    def _visit(self, root: Usd.Prim, copies: np.ndarray, frame: Usd.Prim | None, context: str,
+               records: dict[str, _Rprim], watched: set[str]) -> None:
+        """Walks an instanced subtree. `copies` (N, 4, 4) are the world transforms of `frame` (row vectors);
+        transforms inside are taken relative to `frame` (`root` itself when None). `context` names this copy set
+        uniquely (it becomes the instancer id); the rprims made go into `records`, the prims read into `watched`."""
+        if frame is None:
+            frame = root
+        it = iter(Usd.PrimRange(root))
+        for prim in it:
             imageable = UsdGeom.Imageable(prim)
             if imageable:
                 if imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                     it.PruneChildren()
                     continue
-                purpose = imageable.GetPurposeAttr().Get()
-                if purpose in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
+                if imageable.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
                     it.PruneChildren()
                     continue
-            if prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
+            if prim.IsInstance():  # a nested native instance: its own context, one per encounter
+                prototype = prim.GetPrototype()
+                watched.add(str(prototype.GetPath()))
                 world = self._relative(prim, frame)
-                if copies is None:
-                    prototypes.setdefault(str(prim.GetPrototype().GetPath()), []).append(world)
-                else:  # nested native instance: its own context, one per encounter
-                    self._visit(prim.GetPrototype(), world[None] @ copies, None, {})
+                self._visit(prototype, world[None] @ copies, None, f"{context};{prim.GetPath()}", records, watched)
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdGeom.PointInstancer):
-                self._add_point_instancer(UsdGeom.PointInstancer(prim), copies, frame)
+                self._visit_point_instancer(UsdGeom.PointInstancer(prim), copies, frame, f"{context};{prim.GetPath()}",
+                                            records, watched)
                 it.PruneChildren()
                 continue
-            if prim.IsA(UsdGeom.Camera) and copies is None:
-                self.index.insert_sprim("camera", str(prim.GetPath()))
-                self.cameras.append(str(prim.GetPath()))
-            elif (prim.IsA(UsdLux.DistantLight) or prim.IsA(UsdLux.DomeLight)) and copies is None:
-                kind = "distantLight" if prim.IsA(UsdLux.DistantLight) else "domeLight"
-                self.index.insert_sprim(kind, str(prim.GetPath()))
-                self.lights.append(str(prim.GetPath()))
-            elif prim.IsA(UsdGeom.Gprim):
+            if prim.IsA(UsdGeom.Gprim):
                 if not (prim.IsA(UsdGeom.Mesh) or implicit.supported(prim)):
                     self.warnings.append(f"{prim.GetPath()}: {prim.GetTypeName()} is not drawn (not supported yet)")
                     continue
-                self._add_gprim(prim, copies, frame)
+                local = self._relative(prim, frame)
+                transforms = np.ascontiguousarray(np.swapaxes(local[None] @ copies, 1, 2))
+                records[f"{prim.GetPath()}{{{context}}}"] = _Rprim(prim, transforms, instancer_id=context)
 
-    def _add_gprim(self, prim: Usd.Prim, copies: np.ndarray | None, frame: Usd.Prim | None) -> None:
-        path = str(prim.GetPath())
-        if copies is None:
-            rprim_id, instancer_id = path, ""
-            record = _Rprim(prim)
-        else:
-            self._instanced_contexts += 1
-            instancer_id = f"/__tessera_instancer_{self._instanced_contexts}"
-            rprim_id = f"{path}{{{self._instanced_contexts}}}"
-            local = self._relative(prim, frame)
-            record = _Rprim(prim, np.ascontiguousarray(np.swapaxes(local[None] @ copies, 1, 2)), local)
-            self.instancer_of[rprim_id] = instancer_id
-        self.rprims[rprim_id] = record
-        material = self._bound_material(prim)
-        if material:
-            self.materials.add(material)
-        self.index.insert_rprim("mesh", rprim_id, instancer_id)
-
-    def _add_point_instancer(self, instancer: UsdGeom.PointInstancer, copies, frame) -> None:
+    def _visit_point_instancer(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
+                               context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
         prim = instancer.GetPrim()
         path = prim.GetPath()
+        watched.add(str(path))
         prototypes = instancer.GetPrototypesRel().GetTargets()
+        watched.update(str(target) for target in prototypes)
         proto_indices = instancer.GetProtoIndicesAttr().Get(self.time)
         if proto_indices is None or len(proto_indices) == 0:
             return
@@ -162,24 +213,307 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 continue
             # Every instance transform times every copy of the instancer.
             proto_copies = (selected[:, None] @ world[None]).reshape(-1, 4, 4)
-            self._visit(proto, proto_copies, proto.GetParent(), {})
+            self._visit(proto, proto_copies, proto.GetParent(), f"{context}[{index}]", records, watched)
+
+    # -- the index made to match the stage ----------------------------------------------------------
+
+    def _repopulate(self, path: str, survivor_bits: int) -> None:
+        """Walks `path`'s subtree again and makes the index match it: prims gone are removed, new ones inserted,
+        and those still there dirtied with `survivor_bits`. Instancing groups that read anything there are re-made."""
+        found = _Found()
+        prim = self.stage.GetPrimAtPath(path)
+        hidden = self._outside_state(prim) if prim else None
+        if hidden is not None:
+            self._walk(prim, hidden, found)
+        resync = survivor_bits == _dirty.ALL
+
+        # Gprims drawn once, cameras and lights: ids are prim paths.
+        for id in self._paths.under(path):
+            record = self.rprims.get(id)
+            if record is not None and record.group is None and id not in found.rprims:
+                self._remove_rprim(id)
+            elif self.sprims.get(id, "material") != "material" and id not in found.sprims:
+                self._remove_sprim(id)
+        for id, found_prim in found.rprims.items():
+            record = self.rprims.get(id)
+            if record is None:
+                self._insert_rprim(id, _Rprim(found_prim))
+            elif resync:
+                record.prim = found_prim  # the old handle may have expired
+                self._rebind(id, record)
+                self.index.mark_dirty(id, survivor_bits)
+            elif survivor_bits:
+                self.index.mark_dirty(id, survivor_bits)
+        for id, (kind, _) in found.sprims.items():
+            if self.sprims.get(id) not in (None, kind):
+                self._remove_sprim(id)
+            if id not in self.sprims:
+                self._insert_sprim(kind, id)
+            elif resync:
+                self.index.mark_dirty(id, _dirty.ALL)
+        if resync:  # materials defined there: re-read, and the meshes bound to them re-bound
+            for id in self._paths.under(path):
+                if self.sprims.get(id) == "material":
+                    self.index.mark_dirty(id, _dirty.ALL)
+                    for user in list(self._material_users.get(id, ())):
+                        self._rebind(user, self.rprims[user], mark=True)
+
+        # Instancing: anchors under `path` are forgotten, then those found there added back.
+        touched = self._groups_touching(path)
+        for key in touched:
+            group = self.groups[key]
+            group.anchors = {a: None for a in group.anchors if not is_at_or_under(a, path)}
+        for prototype, instances in found.natives.items():
+            group = self.groups.setdefault(prototype, _Group("native"))
+            group.anchors.update(dict.fromkeys(instances))
+            touched.add(prototype)
+        for instancer in found.instancers:
+            self.groups.setdefault(instancer, _Group("pointInstancer")).anchors[instancer] = None
+            touched.add(instancer)
+        for key in sorted(touched):
+            self._remake_group(key, path if resync else None)
+
+    def _outside_state(self, prim: Usd.Prim) -> bool | None:
+        """For a walk from `prim`: whether an ancestor hides it (True), or None when it is not walked from the top
+        (inside a prototype, an instance or a PointInstancer, where its group re-makes it; or a guide or proxy)."""
+        if prim.IsPseudoRoot():
+            return False
+        if prim.IsInPrototype() or prim.IsInstanceProxy():
+            return None
+        hidden = False
+        parent = prim.GetParent()
+        while parent and not parent.IsPseudoRoot():
+            if parent.IsA(UsdGeom.PointInstancer):
+                return None
+            imageable = UsdGeom.Imageable(parent)
+            if imageable:
+                if imageable.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
+                    return None
+                hidden = hidden or imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible
+            parent = parent.GetParent()
+        return hidden
+
+    def _groups_touching(self, path: str) -> set[str]:
+        """Instancing groups that read a prim at, under or above `path`."""
+        keys = set(self._watch.under(path))
+        for ancestor in ancestors(path):
+            keys.update(self._watch.at(ancestor))
+        return keys
+
+    def _remake_group(self, key: str, resynced: str | None) -> None:
+        """Visits an instancing group again and makes its rprims match: new ones inserted, gone ones removed, the
+        others dirtied with what changed (their copies' transforms, their material; everything where they were
+        read from the resynced path)."""
+        group = self.groups[key]
+        records: dict[str, _Rprim] = {}
+        watched = set(group.anchors)
+        if group.anchors:
+            prim = self.stage.GetPrimAtPath(key)
+            if group.kind == "native" and prim:
+                watched.add(key)
+                copies = np.stack([self._relative(self.stage.GetPrimAtPath(a), None) for a in group.anchors])
+                self._visit(prim, copies, None, key, records, watched)
+            elif group.kind == "pointInstancer" and prim:
+                self._visit_point_instancer(UsdGeom.PointInstancer(prim), None, None, key, records, watched)
+        for id in group.rprims - records.keys():
+            self._remove_rprim(id)
+        for id, record in records.items():
+            record.group = key
+            old = self.rprims.get(id)
+            if old is None:
+                self._insert_rprim(id, record)
+                continue
+            bits = 0
+            if resynced is not None and is_at_or_under(str(record.prim.GetPath()), resynced):
+                bits = _dirty.ALL
+            if not np.array_equal(old.instance_transforms, record.instance_transforms):
+                bits |= _dirty.INSTANCER
+            old.prim, old.instance_transforms = record.prim, record.instance_transforms
+            if self._rebind(id, old):
+                bits |= _dirty.MATERIAL_ID
+            if bits:
+                self.index.mark_dirty(id, bits)
+        for path in group.watched - watched:
+            self._watch.discard(path, key)
+        for path in watched - group.watched:
+            self._watch.add(path, key)
+        group.rprims, group.watched = set(records), watched
+        if not group.anchors:
+            for path in group.watched:
+                self._watch.discard(path, key)
+            del self.groups[key]
+
+    def _insert_rprim(self, id: str, record: _Rprim) -> None:
+        self.rprims[id] = record
+        self._paths.add(str(record.prim.GetPath()), id)
+        self._rebind(id, record)
+        self.index.insert_rprim("mesh", id, record.instancer_id)
+
+    def _remove_rprim(self, id: str) -> None:
+        record = self.rprims.pop(id)
+        self._paths.discard(str(record.prim.GetPath()), id)
+        for material in {record.material, *record.subset_materials}:
+            self._release_material(material, id)
+        self.index.remove_prim(id)
+
+    def _insert_sprim(self, kind: str, id: str) -> None:
+        self.sprims[id] = kind
+        self._paths.add(id, id)
+        self.index.insert_sprim(kind, id)
+        if kind == "camera":
+            self.cameras.append(id)
+        elif kind in _LIGHT_TYPES:
+            self.lights.append(id)
+
+    def _remove_sprim(self, id: str) -> None:
+        kind = self.sprims.pop(id)
+        self._paths.discard(id, id)
+        self.index.remove_prim(id)
+        for names in (self.cameras, self.lights):
+            if id in names:
+                names.remove(id)
 
     # -- materials ------------------------------------------------------------------------------------
 
+    @staticmethod
+    def _material_subsets(prim: Usd.Prim) -> list:
+        """A mesh's GeomSubsets of family materialBind over faces, in order: subset i is material slot i + 1 (at most 255)."""
+        if not prim.IsA(UsdGeom.Mesh):
+            return []
+        subsets = UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets()
+        return [s for s in subsets if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face][:255]
+
+    def get_subset_material_ids(self, id: str) -> list[str]:
+        """The material of each GeomSubset (slot 1, 2, ...): its own binding, else its mesh's (UsdShade's resolution)."""
+        return list(self.rprims[id].subset_materials)
+
     def _bound_material(self, prim: Usd.Prim) -> str:
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
-        if not material:
-            return ""
-        path = str(material.GetPath())
-        if path not in self.materials:
-            self.index.insert_sprim("material", path)
-        return path
+        return str(material.GetPath()) if material else ""
+
+    def _rebind(self, id: str, record: _Rprim, mark: bool = False) -> bool:
+        """Resolves the rprim's material binding (inserting the material's sprim when it is new); True if it changed."""
+        material = self._bound_material(record.prim)
+        subsets = tuple(self._bound_material(s.GetPrim()) for s in self._material_subsets(record.prim))
+        if (material, subsets) == (record.material, record.subset_materials) and \
+                all(id in self._material_users.get(m, ()) for m in (material, *subsets) if m):
+            return False
+        for old in {record.material, *record.subset_materials}:
+            self._release_material(old, id)
+        record.material, record.subset_materials = material, subsets
+        for new in {material, *subsets}:
+            if not new:
+                continue
+            if new not in self._material_users:
+                self._material_users[new] = set()
+                self._insert_sprim("material", new)
+            self._material_users[new].add(id)
+        if mark:
+            self.index.mark_dirty(id, _dirty.MATERIAL_ID)
+        return True
+
+    def _release_material(self, material: str, id: str) -> None:
+        users = self._material_users.get(material)
+        if users is None:
+            return
+        users.discard(id)
+        if not users:  # no mesh binds it any more
+            del self._material_users[material]
+            self._remove_sprim(material)
+
+    # -- edits and time ---------------------------------------------------------------------------------
+
+    def apply_changes(self, resynced: set[str], changed: dict[str, set[str]]) -> None:
+        """Dirties what the edits named by a ChangeTracker (recomposed prim paths; changed properties per prim)
+        touch, as change_tracker.py's table says. Call before syncing."""
+        if not resynced and not changed:
+            return
+        self.xform_cache.Clear()
+        roots = _outermost(resynced)
+        if roots:
+            self._time_varying = None  # recomposed: what varies in time is looked up again when next needed
+        for root in roots:
+            self._repopulate(root, _dirty.ALL)
+        for path, names in changed.items():
+            if any(is_at_or_under(path, root) for root in roots):
+                continue  # already re-synced whole
+            prim = self.stage.GetPrimAtPath(path)
+            if not prim:
+                continue
+            for name in sorted(names):
+                effect = change_tracker.classify(prim, name)
+                if effect is not None:
+                    self._apply(path, prim, effect)
+
+    def _apply(self, path: str, prim: Usd.Prim, effect: change_tracker.Effect) -> None:
+        scope, bits = effect
+        if scope == change_tracker.RESYNC:
+            self._repopulate(path, _dirty.ALL)
+        elif scope == change_tracker.VISIBILITY:
+            self._repopulate(path, _dirty.VISIBILITY)
+        elif scope == change_tracker.SUBTREE:
+            for id in self._paths.under(path):
+                record = self.rprims.get(id)
+                if record is not None and record.group is None:
+                    if bits & _dirty.MATERIAL_ID:
+                        self._rebind(id, record, mark=True)
+                    if bits & ~_dirty.MATERIAL_ID:
+                        self.index.mark_dirty(id, bits & ~_dirty.MATERIAL_ID)
+                elif record is None and self.sprims.get(id) in _LIGHT_TYPES | {"camera"} and bits & _dirty.TRANSFORM:
+                    self.index.mark_dirty(id, _dirty.PARAMS)
+            for key in sorted(self._groups_touching(path)):
+                self._remake_group(key, None)
+        elif scope == change_tracker.EVERY_MESH:
+            for id, record in self.rprims.items():
+                self._rebind(id, record, mark=True)
+        elif scope == change_tracker.INSTANCER:
+            for key in sorted(self._groups_touching(path)):
+                self._remake_group(key, None)
+        elif scope == change_tracker.SPRIM:
+            for candidate in (path, *ancestors(path)):  # the light or camera itself, or the material a shader is in
+                if candidate in self.sprims:
+                    self.index.mark_dirty(candidate, bits)
+                    break
+        elif scope == change_tracker.GPRIM:
+            for id in self._paths.at(path):
+                if id in self.rprims:
+                    self.index.mark_dirty(id, bits)
+
+    def set_time(self, time: Usd.TimeCode) -> None:
+        """Moves to another time: dirties what an edit of each time-varying attribute whose value differs between
+        the two times would, and nothing else (a held sample dirties nothing)."""
+        if time == self.time:
+            return
+        if self._time_varying is None:
+            self._time_varying = self._find_time_varying()
+        changed: dict[str, set[str]] = {}
+        for path, names in self._time_varying.items():
+            prim = self.stage.GetPrimAtPath(path)
+            for name in names:
+                attribute = prim.GetAttribute(name)
+                if attribute.Get(self.time) != attribute.Get(time):  # arrays: shared until they differ, cheap to compare
+                    changed.setdefault(path, set()).add(name)
+        self.time = time
+        self.xform_cache.SetTime(time)
+        self.apply_changes(set(), changed)
+
+    def _find_time_varying(self) -> dict[str, set[str]]:
+        """Every authored attribute whose value may change with time, on the stage and in its prototypes."""
+        varying: dict[str, set[str]] = {}
+        prims = [Usd.PrimRange.Stage(self.stage)] + [Usd.PrimRange(p) for p in self.stage.GetPrototypes()]
+        for prim_range in prims:
+            for prim in prim_range:
+                names = {a.GetName() for a in prim.GetAuthoredAttributes() if a.ValueMightBeTimeVarying()}
+                if names:
+                    varying[str(prim.GetPath())] = names
+        return varying
 
     # -- SceneDelegate ----------------------------------------------------------------------------------
 
     def get_mesh(self, id: str):
-        source = self._mesh_source(self.rprims[id].prim)
-        source.settings = self.build_settings
+        prim = self.rprims[id].prim
+        source = self._mesh_source(prim)
+        source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
         return source
 
     def _mesh_source(self, prim: Usd.Prim):
@@ -224,6 +558,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             normals, normals_interp = array(mesh.GetNormalsAttr(), np.float32, 3), mesh.GetNormalsInterpolation()
         color, color_interp, color_idx = primvar("displayColor", "constant")
         uvs, uvs_interp, uvs_idx = primvar(self.uv_primvar(prim), "faceVarying", width=2)
+        face_materials = None
+        subsets = self._material_subsets(prim)
+        if subsets:  # faces in no subset keep slot 0 (the mesh's own material); a face in several takes the last
+            face_materials = np.zeros(len(counts), np.int32)
+            for slot, subset in enumerate(subsets, start=1):
+                faces = np.asarray(subset.GetIndicesAttr().Get(t) or [], np.int64)
+                bad = (faces < 0) | (faces >= len(counts))
+                if bad.any():
+                    self.warnings.append(f"{subset.GetPath()}: {int(bad.sum())} face indices outside 0..{len(counts) - 1}; ignored")
+                face_materials[faces[~bad]] = slot
         return _tessera.mesh_source(
             name, points, counts, indices,
             hole_indices=holes,
@@ -231,7 +575,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
             normals=normals, normals_interpolation=normals_interp, normals_indices=normals_idx,
             display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx,
-            uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx,
+            uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx, face_materials=face_materials,
             subdivision_scheme=mesh.GetSubdivisionSchemeAttr().Get(t) or "catmullClark", refine_level=self.refine_level)
 
     def uv_primvar(self, prim: Usd.Prim) -> str:
@@ -252,7 +596,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return UsdGeom.Imageable(record.prim).ComputeVisibility(self.time) != UsdGeom.Tokens.invisible
 
     def get_material_id(self, id: str) -> str:
-        return self._bound_material(self.rprims[id].prim)
+        return self.rprims[id].material
 
     def get_instance_transforms(self, instancer_id: str, prototype_id: str):
         return _tessera.matrix_array(self.rprims[prototype_id].instance_transforms)
@@ -286,6 +630,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def get_camera(self, id: str):
         return camera_desc(UsdGeom.Camera(self.stage.GetPrimAtPath(id)).GetCamera(self.time))
+
+
+def _outermost(paths: set[str]) -> list[str]:
+    """The paths none of whose ancestors is in the set."""
+    return sorted(p for p in paths if not any(a in paths for a in ancestors(p)))
 
 
 def camera_desc(camera: Gf.Camera):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 import time
 
@@ -21,6 +22,43 @@ def _resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
+_FRAME_RANGE = re.compile(r"^(-?\d+(?:\.\d+)?)(?:[-:](-?\d+(?:\.\d+)?)(?:x(\d+(?:\.\d+)?))?)?$")
+
+
+def _frames(text: str) -> list[float]:
+    """FIRST-LAST[xSTEP] (usdrecord's FIRST:LAST also), or a single frame; several separated by commas."""
+    frames: list[float] = []
+    for part in text.split(","):
+        match = _FRAME_RANGE.match(part.strip())
+        if not match:
+            raise argparse.ArgumentTypeError(f"'{part}' is not FIRST-LAST[xSTEP] (for example 1-100 or 1-100x2) or a frame")
+        first = float(match.group(1))
+        last = float(match.group(2)) if match.group(2) is not None else first
+        step = float(match.group(3)) if match.group(3) is not None else 1.0
+        if last < first or step <= 0:
+            raise argparse.ArgumentTypeError(f"'{part}': the last frame comes before the first, or the step is not positive")
+        count = int((last - first) / step + 1e-9) + 1
+        frames += [first + i * step for i in range(count)]
+    return frames
+
+
+_FRAME_FIELD = re.compile(r"(#+)(\.#+)?")
+
+
+def frame_path(pattern: str, frame: float) -> str:
+    """The output name for `frame`: the run of `#` replaced by the frame number zero-padded to its length (husk and
+    usdrecord's convention: out.####.exr -> out.0012.exr); `.##` after it gives the decimals of fractional frames."""
+    match = _FRAME_FIELD.search(os.path.basename(pattern))
+    if match is None:
+        raise ValueError(f"{pattern}: rendering several frames needs '#' in the output name for the frame number (for example out.####.exr)")
+    digits, decimals = len(match.group(1)), len(match.group(2) or ".") - 1
+    if decimals == 0 and frame != int(frame):
+        raise ValueError(f"{pattern}: frame {frame:g} is not whole: give decimal places in the output name (for example out.####.##.exr)")
+    number = f"{frame:0{digits + decimals + 1}.{decimals}f}" if decimals else f"{int(frame):0{digits}d}"
+    head, tail = os.path.split(pattern)
+    return os.path.join(head, tail[:match.start()] + number + tail[match.end():])
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tessera", description="Tessera: virtualized-geometry renderer for USD stages")
     parser.add_argument("--version", action="version", version="tessera 0.1.0")
@@ -30,7 +68,11 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("-o", "--output", required=True, help="image file: .exr (linear float), .tif, .png, .jpg")
     render.add_argument("--camera", help="camera prim path (default: the stage's first camera, else one framing the stage)")
     render.add_argument("--resolution", type=_resolution, default=(960, 540), help="WIDTHxHEIGHT (default 960x540)")
-    render.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
+    when = render.add_mutually_exclusive_group()
+    when.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
+    when.add_argument("--frames", type=_frames, metavar="FIRST-LAST[xSTEP]",
+                      help="render a sequence through one session (only what varies in time re-syncs); the output "
+                           "name's run of '#' becomes the zero-padded frame number, for example out.####.exr")
     render.add_argument("--aov", choices=AOVS, default="color", help="what to write (default color)")
     render.add_argument("--pixel-error", type=float, default=1.0, metavar="PX",
                         help="screen-space error bound of the level-of-detail cut, in pixels (default 1)")
@@ -40,7 +82,7 @@ def _parser() -> argparse.ArgumentParser:
                         help="auto: small triangles through the compute rasterizer, large ones through hardware raster (default)")
     render.add_argument("--no-occlusion", action="store_true",
                         help="no two-pass HZB occlusion culling (it only acts from a sequence's second frame on)")
-    render.add_argument("--stats", help="write frame statistics to this JSON file")
+    render.add_argument("--stats", help="write frame statistics to this JSON file (with --frames: {\"frames\": [one per frame]})")
     render.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N",
                         help="uniform refinements of subdivision surfaces before the DAG (default 2; 0 draws the cage)")
     render.add_argument("--device", help="Vulkan device: gpu, cpu, an index or part of its name (default: $TESSERA_DEVICE, else the best)")
@@ -82,28 +124,47 @@ def _parser() -> argparse.ArgumentParser:
 def _render(args) -> int:
     from . import Session
 
+    frames = args.frames
+    if frames is not None:
+        outputs = [frame_path(args.output, frame) for frame in frames]  # a name without '#' fails before any work
+    else:
+        outputs = [args.output]
     started = time.perf_counter()
-    session = Session(args.stage, frame=args.frame, device=args.device, refine_level=args.refine_level)
+    session = Session(args.stage, frame=frames[0] if frames else args.frame, device=args.device, refine_level=args.refine_level)
     loaded = time.perf_counter()
     camera = args.camera or (session.camera_paths()[0] if session.camera_paths() else None)
-    result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov], pixel_error=args.pixel_error,
-                            lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion)
-    rendered = time.perf_counter()
-    for message in result.warnings:
-        print(f"tessera: warning: {message}", file=sys.stderr)
-    for message in result.errors:
-        print(f"tessera: error: {message}", file=sys.stderr)
-    out_dir = os.path.dirname(os.path.abspath(args.output))
-    os.makedirs(out_dir, exist_ok=True)
-    result.write(args.output, args.aov)
-    if args.stats:
+    all_stats, validation_errors = [], []
+    for number, output in enumerate(outputs):
+        frame_started = time.perf_counter()
+        if frames is not None:
+            session.set_time(frames[number])
+        result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov], pixel_error=args.pixel_error,
+                                lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion)
+        rendered = time.perf_counter()
+        where = f"frame {frames[number]:g}: " if frames is not None else ""
+        for message in result.warnings:
+            print(f"tessera: warning: {where}{message}", file=sys.stderr)
+        for message in result.errors:
+            print(f"tessera: error: {where}{message}", file=sys.stderr)
+        os.makedirs(os.path.dirname(os.path.abspath(output)), exist_ok=True)
+        result.write(output, args.aov)
+        if frames is not None:
+            synced = ", ".join(f"{count} {kind}" for kind, count in sorted(result.stats["synced"].items())) or "nothing"
+            print(f"frame {frames[number]:g} -> {output}: {rendered - frame_started:.2f} s, synced {synced}, "
+                  f"{result.stats['meshes_built']} mesh(es) built", file=sys.stderr)
         stats = dict(result.stats)
-        stats.update(camera=camera or "(framing)", resolution=list(args.resolution), aov=args.aov,
-                     seconds={"load": loaded - started, "render": rendered - loaded, "total": time.perf_counter() - started},
+        stats.update(camera=camera or "(framing)", resolution=list(args.resolution), aov=args.aov, output=output,
                      warnings=result.warnings, errors=result.errors)
+        if frames is not None:
+            stats.update(frame=frames[number], seconds={"render": rendered - frame_started})
+        else:
+            stats.update(seconds={"load": loaded - started, "render": rendered - loaded, "total": time.perf_counter() - started})
+        all_stats.append(stats)
+        validation_errors += [e for e in result.errors if e.startswith("validation error")]
+    if args.stats:
         with open(args.stats, "w") as f:
-            json.dump(stats, f, indent=2)
-    validation_errors = [e for e in result.errors if e.startswith("validation error")]
+            json.dump(all_stats[0] if frames is None else
+                      {"frames": all_stats, "seconds": {"load": loaded - started, "total": time.perf_counter() - started}}, f, indent=2)
     return 1 if validation_errors else 0
 
 
@@ -158,6 +219,8 @@ def _build(args) -> int:
             bar = "#" * (30 * done // max(total, 1))
             print(f"\r[{bar:<30}] {done}/{total} meshes, {triangles / 1e6:.1f} M triangles, {cached} already cached",
                   end="", file=sys.stderr, flush=True)
+    for warning in scene.warnings:  # per-mesh settings that could not be used, among others
+        print(f"\ntessera: warning: {warning}", file=sys.stderr)
     print(f"\nbuilt {total - cached - failed} mesh(es), {cached} from the cache, {failed} failed, in "
           f"{time.perf_counter() - started:.1f} s (cache: {os.environ.get('TESSERA_CACHE') or 'default'})", file=sys.stderr)
     return 1 if failed else 0

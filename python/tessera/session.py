@@ -62,14 +62,19 @@ def _open_stage(stage):
 
 
 class Session:
-    """Opens a stage and renders it; the render delegate and the GPU scene live as long as the session."""
+    """Opens a stage and renders it; the render delegate and the GPU scene live as long as the session.
+
+    Live edits: edit `session.stage` through the USD API (transforms, shader inputs, points, prims added or
+    removed, variants, visibility) and render again; the change notices since the last render say what re-syncs,
+    and nothing else does. `set_time` moves to another frame the same way: only time-varying attributes re-sync.
+    """
 
     def __init__(self, stage, *, frame: float | None = None, device: str | None = None, validation: bool | None = None,
                  refine_level: int = 2, build_settings: _tessera.BuildSettings | dict | None = None):
         """`build_settings` (a BuildSettings or a dict of tessera.build_mesh's keywords) applies to every mesh."""
         from pxr import Usd
 
-        from .usd import UsdSceneDelegate
+        from .usd import ChangeTracker, UsdSceneDelegate
 
         self.stage = _open_stage(stage)
         self.time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
@@ -79,6 +84,23 @@ class Session:
             build_settings = _tessera.BuildSettings(**build_settings)
         self.scene = UsdSceneDelegate(self.stage, self.index, self.time, refine_level, build_settings)
         self.scene.populate()
+        self._changes = ChangeTracker(self.stage)  # edits from here on re-sync what they touch
+
+    def close(self) -> None:
+        """Stops listening to the stage's edits (the session still renders what it has)."""
+        self._changes.close()
+
+    def set_time(self, frame: float | None) -> None:
+        """Renders from now on at `frame` (None: the default time). Dirties only what varies in time: animated
+        transforms, points, visibility, instancers, shader inputs, lights and cameras."""
+        from pxr import Usd
+
+        self._apply_edits()
+        self.time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
+        self.scene.set_time(self.time)
+
+    def _apply_edits(self) -> None:
+        self.scene.apply_changes(*self._changes.take())
 
     @property
     def device_name(self) -> str:
@@ -108,7 +130,10 @@ class Session:
             raise StageError(f"unknown raster mode '{raster}' (choose from {', '.join(RASTER_MODES)})")
         if not (pixel_error >= 0.0):
             raise StageError(f"pixel error must be a number >= 0, not {pixel_error}")
+        self._apply_edits()
+        syncs_before = dict(self.index.sync_counts)
         self.index.sync_all(self.scene)
+        syncs = {kind: count - syncs_before.get(kind, 0) for kind, count in self.index.sync_counts.items()}
         camera_id = ""
         if camera:
             if camera not in self.scene.cameras:
@@ -131,4 +156,5 @@ class Session:
         stats["rprims"] = self.index.rprim_count
         stats["meshes_built"] = diagnostics["meshes_built"]
         stats["meshes_cached"] = diagnostics["meshes_cached"]
+        stats["synced"] = {kind: count for kind, count in syncs.items() if count}  # prims synced for this render, per type
         return RenderResult(dict(zip(aovs, images)), stats, warnings, list(errors), self.index)

@@ -27,10 +27,12 @@ struct Source {
     std::vector<int32_t> counts, indices;
     std::vector<float> colors;  // uniform (per face) when set
     std::vector<float> uvs;     // face-varying (per corner) when set
+    std::vector<int32_t> faceMaterials;  // material slot per face when set
     BuiltMesh build(const BuildSettings& settings = {}) const {
         MeshView v = polygon_view(name, points, counts, indices);
         if (!colors.empty()) v.displayColor = {Interpolation::Uniform, 3, colors, {}};
         if (!uvs.empty()) v.uvs = {Interpolation::FaceVarying, 2, uvs, {}};
+        v.faceMaterials = faceMaterials;
         return build_mesh(prepare_mesh(v), settings);
     }
 };

@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <random>
+#include <map>
 #include <set>
 
 using namespace tessera;
@@ -345,4 +346,44 @@ TEST(Subdivision, FaceVaryingTextureCoordinatesAreRefinedPerIsland) {
     }
     EXPECT_TRUE(corners.count({0.0f, 0.0f}) && corners.count({6.0f, 1.0f})) << "cornersPlus1 keeps island corners";
     EXPECT_TRUE(corners.count({0.5f, 0.5f})) << "each island's centre";
+}
+
+TEST(Prepare, MaterialSlotsSplitVerticesAndFollowTheirFaces) {
+    Quad q;  // two quads sharing an edge, in two GeomSubsets
+    q.points = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 2, 0, 0, 2, 1, 0};
+    q.counts = {4, 4};
+    q.indices = {0, 1, 2, 3, 1, 4, 5, 2};
+    std::vector<int32_t> slots{0, 3};
+    MeshView v = q.view();
+    v.faceMaterials = slots;
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_EQ(m.positions.size() / 3, 8u) << "the shared edge is split between the two slots";
+    EXPECT_EQ(m.triangleMaterials, (std::vector<uint8_t>{0, 0, 3, 3}));
+    std::vector<int32_t> allZero{0, 0};
+    v.faceMaterials = allZero;
+    m = prepare_mesh(v);
+    EXPECT_TRUE(m.triangleMaterials.empty()) << "one slot: nothing stored";
+    EXPECT_EQ(m.positions.size() / 3, 6u);
+    for (std::vector<int32_t> bad : {std::vector<int32_t>{1}, std::vector<int32_t>{0, 256}, std::vector<int32_t>{-1, 0}}) {
+        v.faceMaterials = bad;
+        m = prepare_mesh(v);
+        EXPECT_TRUE(m.triangleMaterials.empty());
+        ASSERT_EQ(m.warnings.size(), 1u);
+        EXPECT_NE(m.warnings[0].find("/Quad: "), std::string::npos);
+    }
+}
+
+TEST(Subdivision, MaterialSlotsFollowRefinedFaces) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    MeshView v = cube_cage(points, counts, indices);
+    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    v.refineLevel = 2;
+    std::vector<int32_t> slots{0, 1, 2, 3, 4, 5};
+    v.faceMaterials = slots;
+    PreparedMesh m = prepare_mesh(v);
+    ASSERT_EQ(m.triangleMaterials.size(), 6u * 32u);
+    std::map<int, int> perSlot;
+    for (uint8_t slot : m.triangleMaterials) ++perSlot[slot];
+    for (int slot = 0; slot < 6; ++slot) EXPECT_EQ(perSlot[slot], 32) << "each face's 16 quads keep its slot";
 }

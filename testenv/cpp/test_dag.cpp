@@ -167,3 +167,45 @@ TEST(Dag, TextureCoordinatesCostLittleGeometricError) {
         EXPECT_LT(error_at(b, triangles), 1.25f * error_at(a, triangles));
     }
 }
+
+TEST(Dag, MaterialSlotsSurviveEveryLevel) {
+    // Three GeomSubset-like regions on a sphere (slot by the face's first point: x < -0.3, y > 0.2, else 0).
+    Source s = icosphere(5);
+    s.name = "/IcosphereWithSubsets";
+    for (size_t f = 0; f < s.counts.size(); ++f) {
+        const float* p = &s.points[3 * s.indices[3 * f]];
+        s.faceMaterials.push_back(p[0] < -0.3f ? 1 : p[1] > 0.2f ? 2 : 0);
+    }
+    BuiltMesh m = s.build();
+    EXPECT_EQ(m.materialSlots, 3u);
+    expect_monotone(m);
+    expect_crack_free_cuts(m, 25);
+    // Every corner of every level is a source vertex of its triangle's slot: slots never bleed across their borders.
+    std::set<std::array<uint32_t, 4>> source;  // position bits and slot
+    std::array<uint64_t, 3> sourceArea{}, rootArea{};
+    auto corner_key = [&](const Cluster& c, uint32_t packed, int k) {
+        std::array<uint32_t, 4> key;
+        std::memcpy(key.data(), &m.positions[3 * (c.vertexOffset + ((packed >> (8 * k)) & 0xff))], 12);
+        key[3] = packed >> 24;
+        return key;
+    };
+    for (uint32_t i = 0; i < m.leafClusters; ++i)
+        for (uint32_t t = 0; t < m.clusters[i].triangleCount; ++t) {
+            const uint32_t packed = m.triangles[m.clusters[i].triangleOffset + t];
+            for (int k = 0; k < 3; ++k) source.insert(corner_key(m.clusters[i], packed, k));
+            ++sourceArea[packed >> 24];
+        }
+    size_t foreign = 0;
+    for (const Cluster& c : m.clusters)
+        for (uint32_t t = 0; t < c.triangleCount; ++t) {
+            const uint32_t packed = m.triangles[c.triangleOffset + t];
+            for (int k = 0; k < 3; ++k) foreign += !source.count(corner_key(c, packed, k));
+            if (std::isinf(c.parentError)) ++rootArea[packed >> 24];
+        }
+    EXPECT_EQ(foreign, 0u) << "corners whose (position, slot) pair is not in the source";
+    for (int slot = 0; slot < 3; ++slot) {
+        EXPECT_GT(sourceArea[slot], 1000u);
+        EXPECT_GT(rootArea[slot], 0u) << "no slot vanishes from the coarsest level (slot " << slot << ")";
+    }
+    EXPECT_LT(m.levels.back().triangles, s.counts.size() / 10) << "slot borders slow the simplification down but do not stall it";
+}

@@ -143,6 +143,30 @@ TEST(Pages, RoundTripIsExact) {
         }
 }
 
+TEST(Pages, MaterialSlotsRoundTrip) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices, slots;
+    const int n = 120;
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x) / n, float(y) / n, 0.03f * std::sin(0.4f * x)});
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+            const int a = y * (n + 1) + x;
+            counts.push_back(4);
+            indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+            slots.push_back((x / 30 + 2 * (y / 40)) % 5);
+        }
+    MeshView v = polygon_view("/Grid", points, counts, indices);
+    v.faceMaterials = slots;
+    const BuiltMesh built = build_mesh(prepare_mesh(v));
+    ASSERT_EQ(built.materialSlots, 5u);
+    const std::vector<uint8_t> file = encode_pages(built);
+    expect_same(built, decode_pages(file, "slots.tsra"));
+    BuiltMesh wrong = built;
+    wrong.materialSlots = 2;
+    EXPECT_THROW(encode_pages(wrong), std::invalid_argument) << "slots must fit the mesh's count";
+}
+
 TEST(Pages, TextureCoordinatesCostLittle) {
     // Seams everywhere (islands of 8 x 8 quads): the UV stream is predicted like positions and stays small.
     const size_t plain = encode_pages(bumpy_grid(150, false)).size(), mapped = encode_pages(bumpy_grid(150, false, true)).size();

@@ -42,6 +42,9 @@ struct MeshView {
     PrimvarView normals;                       // 3 components
     PrimvarView displayColor;                  // 3 components
     PrimvarView uvs;                           // 2 components: the texture coordinates (USD's `st`), any interpolation
+    // Per authored face, its material slot (0-255: USD's GeomSubsets of family materialBind, slot 0 the faces in no
+    // subset), or empty: one material. Faces of different slots meet at split vertices, like a seam.
+    std::span<const int32_t> faceMaterials;
     // Subdivision surfaces are refined uniformly this many times (OpenSubdiv) before triangulation. Authored
     // normals do not describe the refined surface and are recomputed; face-varying colours and UVs are refined
     // linearly (as Storm's default face-varying interpolation of "cornersPlus1" does on the interior).
@@ -64,6 +67,7 @@ struct PreparedMesh {
     std::array<float, 3> constantColor{0.5f, 0.5f, 0.5f};
     bool hasConstantColor = false;     // displayColor authored with constant interpolation
     std::vector<uint32_t> indices;     // 3 per triangle
+    std::vector<uint8_t> triangleMaterials;  // per triangle, its material slot, when the mesh has more than one
     std::vector<uint32_t> sourceFaces; // per triangle, the authored face it came from
     std::vector<std::string> warnings; // dropped faces and the like, each naming the mesh
 };
@@ -119,7 +123,9 @@ struct BuiltMesh {
     std::vector<uint32_t> normals;      // octahedral, snorm16x2 holding kNormalBits-bit values (encode_octahedral)
     std::vector<uint32_t> colors;       // 2 per vertex (rgba16f) when the mesh has vertex colours
     std::vector<float> uvs;             // 2 per vertex when the mesh has texture coordinates: on the grid of 2^uvPrecision
-    std::vector<uint32_t> triangles;    // 3 x 8-bit cluster-local indices per triangle, in page order (order_cluster_for_pages)
+    // Per triangle: 3 x 8-bit cluster-local indices, in page order (order_cluster_for_pages), and the triangle's material
+    // slot in the top byte (0 unless the mesh has several: materialSlots).
+    std::vector<uint32_t> triangles;
     std::vector<Cluster> clusters;
     uint32_t leafClusters = 0, leafVertices = 0, leafTriangles = 0;
     std::vector<LevelStats> levels;
@@ -136,6 +142,7 @@ struct BuiltMesh {
     int uvPrecision = 0;
     std::array<float, 3> constantColor{0.5f, 0.5f, 0.5f};
     bool hasConstantColor = false;
+    uint32_t materialSlots = 1;         // 1 + the largest material slot of its triangles
     size_t sourceTriangles = 0;         // as authored (after dropping collapsed triangles); the leaf level may hold fewer
     float leafError = 0;                // error of the stored leaf level against the source (0 unless trimmed), mesh units
     FallbackMesh fallback;              // the page file keeps its cut, and decode_pages rebuilds it from the DAG
@@ -184,7 +191,7 @@ constexpr uint32_t kPageFormatVersion = 3;
 // error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
 constexpr uint32_t kBuilderRevision = 2;
 constexpr uint32_t kPageBytes = 128 * 1024;
-constexpr uint32_t kPageHeaderBytes = 128;  // the fixed-size header; the page table follows it
+constexpr uint32_t kPageHeaderBytes = 160;  // the fixed-size header; the page table follows it
 
 // A file that is not a Tessera DAG, or is truncated, corrupt or of another format version.
 struct PageFileError : std::runtime_error {

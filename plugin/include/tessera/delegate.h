@@ -61,6 +61,9 @@ public:
     virtual Matrix4d get_transform(const PrimId& id) = 0;  // mesh space -> world
     virtual bool get_visible(const PrimId& id) = 0;
     virtual PrimId get_material_id(const PrimId& id) = 0;  // "" when none is bound
+    // For a mesh whose faces carry material slots (MeshView::faceMaterials): the material of slots 1, 2, ... (Hydra's
+    // GeomSubsets); "" for a slot that takes the mesh's own. Slot 0 is get_material_id's.
+    virtual std::vector<PrimId> get_subset_material_ids(const PrimId&) { return {}; }
     // World transforms of every copy of `prototypeId` drawn by `instancerId` (nesting already composed).
     virtual MatrixArray get_instance_transforms(const PrimId& instancerId, const PrimId& prototypeId) = 0;
     virtual MaterialDesc get_material(const PrimId& id) = 0;
@@ -99,6 +102,7 @@ public:
 
     const PrimId& instancer_id() const { return instancerId_; }
     const PrimId& material_id() const { return materialId_; }
+    const std::vector<PrimId>& subset_material_ids() const { return subsetMaterialIds_; }
     uint32_t prim_id() const { return primId_; }
     bool visible() const { return visible_; }
     bool double_sided() const { return doubleSided_; }
@@ -109,6 +113,7 @@ public:
 
 private:
     PrimId instancerId_, materialId_;
+    std::vector<PrimId> subsetMaterialIds_;
     uint32_t primId_;
     GpuScene& scene_;
     const MeshCache& cache_;
@@ -216,6 +221,8 @@ public:
     PrimId prim_path(uint32_t primId) const;
     // Syncs performed per prim type since construction (tests use this to see that only dirty prims sync).
     const std::map<std::string, uint64_t>& sync_counts() const { return syncCounts_; }
+    // The prims the last sync_all() synced, each with the dirty bits it was handed, in sync order.
+    const std::vector<std::pair<PrimId, uint32_t>>& last_synced() const { return lastSynced_; }
     RenderParam take_diagnostics() { return std::exchange(param_, {}); }
     size_t rprim_count() const { return rprims_.size(); }
 
@@ -232,6 +239,7 @@ private:
     std::map<PrimId, Entry> rprims_, sprims_, bprims_;
     std::vector<PrimId> primPaths_;  // primId -> path
     std::map<std::string, uint64_t> syncCounts_;
+    std::vector<std::pair<PrimId, uint32_t>> lastSynced_;
     RenderParam param_;
     bool sceneDirty_ = true;
 };

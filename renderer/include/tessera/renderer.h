@@ -8,6 +8,7 @@
 
 #include <array>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -39,7 +40,8 @@ struct InstanceDesc {
     uint32_t mesh = 0;        // a handle from GpuScene::add_mesh
     Matrix4d transform{};     // mesh space -> world, in double
     uint32_t primId = 0;      // reported by the primId AOV
-    uint32_t material = 0;    // a handle from GpuScene::add_material
+    uint32_t material = 0;    // a handle from GpuScene::add_material; with materialTable, one from add_material_table
+    bool materialTable = false;  // the mesh's triangles carry material slots (BuiltMesh::materialSlots > 1)
     bool doubleSided = false;
 };
 
@@ -133,7 +135,10 @@ public:
     uint32_t add_mesh(std::shared_ptr<const BuiltMesh> mesh);
     void remove_mesh(uint32_t handle);
     uint32_t add_material(const MaterialDesc& material);
-    void clear_materials();
+    // For meshes whose triangles carry material slots: slot s draws with material handle `materials[s]`. Instances of
+    // one prim share a table.
+    uint32_t add_material_table(std::span<const uint32_t> materials);
+    void clear_materials();  // and the tables
     void set_instances(std::vector<InstanceDesc> instances);
     void set_lights(std::vector<LightDesc> lights);
 
@@ -149,6 +154,7 @@ private:
     std::vector<std::shared_ptr<const BuiltMesh>> meshes_;  // null where removed
     std::vector<uint32_t> freeMeshes_;
     std::vector<MaterialDesc> materials_;
+    std::vector<uint32_t> materialTables_;
     std::vector<InstanceDesc> instances_;
     std::vector<LightDesc> lights_;
     TextureStore textures_;
