@@ -291,6 +291,9 @@ struct Renderer::Impl {
     VkPipelineLayout layout = VK_NULL_HANDLE;
     VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, rasterSoftware = VK_NULL_HANDLE;
     VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE, resolve = VK_NULL_HANDLE;
+    // Variants with texture code (TS_SPEC_TEXTURES), made when a scene first needs them: resolve for textured
+    // materials, both rasterizers for frames with opacity masks.
+    VkPipeline resolveTextured = VK_NULL_HANDLE, rasterMasked = VK_NULL_HANDLE, rasterSoftwareMasked = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
@@ -316,6 +319,8 @@ struct Renderer::Impl {
     Buffer textureSlots, texturePool;
     std::vector<std::shared_ptr<const TextureImage>> poolImages;
     std::vector<bool> maskedMaterials;  // per material: a textured opacity under an opacityThreshold (TS_INSTANCE_MASKED)
+    std::vector<bool> texturedMaterials;  // per material: resolve samples textures (its bin uses resolveTextured)
+    bool anyMasked = false;  // an instance is flagged TS_INSTANCE_MASKED: the rasterizers' mask variants draw the frame
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbPrevious, hzbCurrent;
@@ -339,14 +344,28 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, raster, nullptr);
         vkDestroyPipeline(vk, rasterSoftware, nullptr);
         vkDestroyPipeline(vk, resolve, nullptr);
+        vkDestroyPipeline(vk, resolveTextured, nullptr);
+        vkDestroyPipeline(vk, rasterMasked, nullptr);
+        vkDestroyPipeline(vk, rasterSoftwareMasked, nullptr);
         vkDestroyPipelineLayout(vk, layout, nullptr);
         vkDestroyQueryPool(vk, timestamps, nullptr);
     }
 
-    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes) {
+    // TS_SPEC_TEXTURES on: the variant with texture code.
+    struct TexturesOn {
+        VkBool32 value = VK_TRUE;
+        VkSpecializationMapEntry entry{TS_SPEC_TEXTURES, 0, sizeof(VkBool32)};
+        VkSpecializationInfo info{1, &entry, sizeof(VkBool32), &value};
+        TexturesOn() = default;
+        TexturesOn(const TexturesOn&) = delete;
+    };
+
+    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
+        const TexturesOn on;
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
-        info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main"};
+        info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
+                      textures ? &on.info : nullptr};
         info.layout = layout;
         VkPipeline pipeline;
         const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
@@ -368,13 +387,32 @@ struct Renderer::Impl {
         bins = compute_pipeline(bins_comp, sizeof(bins_comp));
         background = compute_pipeline(background_comp, sizeof(background_comp));
         rasterSoftware = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp));
+        raster = graphics_pipeline(false);
 
-        // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
+        VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
+        queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
+        queryInfo.queryCount = kTimestamps;
+        check_vk(vkCreateQueryPool(device.handle(), &queryInfo, nullptr, &timestamps), "vkCreateQueryPool");
+    }
+
+    // The variants a scene's materials need, made once (a few tens of ms each on lavapipe, cold).
+    void ensure_texture_pipelines(bool textured, bool masks) {
+        if (textured && !resolveTextured) resolveTextured = compute_pipeline(resolve_comp, sizeof(resolve_comp), true);
+        if (masks && !rasterMasked) {
+            rasterMasked = graphics_pipeline(true);
+            rasterSoftwareMasked = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), true);
+        }
+    }
+
+    // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
+    VkPipeline graphics_pipeline(bool masks) {
         VkShaderModule vert = create_module(device.handle(), raster_vert, sizeof(raster_vert));
         VkShaderModule frag = create_module(device.handle(), raster_frag, sizeof(raster_frag));
         VkPipelineShaderStageCreateInfo stages[2] = {
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
+        const TexturesOn on;
+        if (masks) stages[1].pSpecializationInfo = &on.info;
         VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
         VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
         assembly.topology = VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST;
@@ -407,15 +445,12 @@ struct Renderer::Impl {
         info.pColorBlendState = &blend;
         info.pDynamicState = &dynamic;
         info.layout = layout;
-        const VkResult result = vkCreateGraphicsPipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &raster);
+        VkPipeline pipeline;
+        const VkResult result = vkCreateGraphicsPipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
         vkDestroyShaderModule(device.handle(), vert, nullptr);
         vkDestroyShaderModule(device.handle(), frag, nullptr);
         check_vk(result, "vkCreateGraphicsPipelines");
-
-        VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
-        queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
-        queryInfo.queryCount = kTimestamps;
-        check_vk(vkCreateQueryPool(device.handle(), &queryInfo, nullptr, &timestamps), "vkCreateQueryPool");
+        return pipeline;
     }
 
     void upload_geometry(GpuScene& scene) {
@@ -491,6 +526,7 @@ struct Renderer::Impl {
         gpuInstances.reserve(scene.instances_.size());
         clusterCount = 0;
         sourceTriangles = 0;
+        anyMasked = false;
         for (const InstanceDesc& desc : scene.instances_) {
             const BuiltMesh* mesh = desc.mesh < scene.meshes_.size() ? scene.meshes_[desc.mesh].get() : nullptr;
             if (!mesh) continue;
@@ -509,9 +545,18 @@ struct Renderer::Impl {
                                uint64_t(desc.material) + mesh->materialSlots <= scene.materialTables_.size();
             g.materialIndex = table ? desc.material : std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
             if (desc.materialTable && !table) g.materialIndex = 0;  // a table too short for the mesh: the first material everywhere
+            // Masked: its material, or any material of its table, cuts pixels by a textured opacity.
+            bool masked = false;
+            if (!table) masked = g.materialIndex < maskedMaterials.size() && maskedMaterials[g.materialIndex];
+            else
+                for (uint32_t k = 0; k < mesh->materialSlots; ++k) {
+                    const uint32_t material = scene.materialTables_[g.materialIndex + k];
+                    masked |= material < maskedMaterials.size() && maskedMaterials[material];
+                }
+            anyMasked |= masked;
             g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u) |
                       (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u) | (table ? TS_INSTANCE_MATERIAL_SLOTS : 0u) |
-                      (!table && g.materialIndex < maskedMaterials.size() && maskedMaterials[g.materialIndex] ? TS_INSTANCE_MASKED : 0u);
+                      (masked ? TS_INSTANCE_MASKED : 0u);
             gpuInstances.push_back(g);
             clusterCount += mesh->leafClusters;
             sourceTriangles += mesh->sourceTriangles;
@@ -604,9 +649,11 @@ struct Renderer::Impl {
         std::vector<gpu::GpuTextureSlot> slots;
         std::vector<std::shared_ptr<const TextureImage>> images;
         maskedMaterials.clear();
+        texturedMaterials.clear();
         for (const MaterialDesc& m : scene.materials_) {
             gpuMaterials.push_back(gpu_material(m, slots, images));
             maskedMaterials.push_back((gpuMaterials.back().textureInputs & (1u << TS_INPUT_OPACITY)) != 0);
+            texturedMaterials.push_back((gpuMaterials.back().textureInputs & ~(1u << TS_INPUT_OPACITY)) != 0);
         }
         if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 1}, {0, 0, 0, 0.5f}, 0, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0});
         upload_vector(device, materials, gpuMaterials);
@@ -719,6 +766,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     s.instancesVersion = scene.instancesVersion_;
     s.materialsVersion = scene.materialsVersion_;
 
+    s.ensure_texture_pipelines(std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(), s.anyMasked);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
@@ -839,7 +887,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.rasterSoftware);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.anyMasked ? s.rasterSoftwareMasked : s.rasterSoftware);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX));
                 mark();
                 // Both rasterizers only do atomic max into the visibility buffer, which commutes; the barrier keeps the
@@ -854,7 +902,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 VkRect2D scissor{{0, 0}, {settings.width, settings.height}};
                 vkCmdSetViewport(cmd, 0, 1, &viewport);
                 vkCmdSetScissor(cmd, 0, 1, &scissor);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.raster);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.anyMasked ? s.rasterMasked : s.raster);
                 vkCmdDrawIndirect(cmd, s.drawState.handle, 0, 1, sizeof(VkDrawIndirectCommand));
                 vkCmdEndRendering(cmd);
                 mark();
@@ -929,8 +977,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.background);
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.resolve);
+                VkPipeline bound = VK_NULL_HANDLE;
                 for (uint32_t m = 0; m < s.materialCount; ++m) {
+                    // Materials with textures through the variant that samples them; only the colour AOV shades.
+                    const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
+                    const VkPipeline pipeline = textured ? s.resolveTextured : s.resolve;
+                    if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                     PushConstants shade{s.frame.address, uint32_t(aovs[i]), m, 0};
                     vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
                     vkCmdDispatchIndirect(cmd, s.shadingBins.handle, m * sizeof(gpu::GpuBin));

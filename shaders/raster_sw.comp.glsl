@@ -11,6 +11,9 @@
 
 layout(local_size_x = TS_SW_RASTER_GROUP_SIZE) in;
 
+// The pipeline variant for frames with textured opacity masks (the others carry no mask code).
+layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
+
 shared ivec2 screen[TS_CLUSTER_MAX_VERTICES];  // sub-pixel position
 shared float depth[TS_CLUSTER_MAX_VERTICES];   // reversed-Z depth (z / w)
 
@@ -118,7 +121,7 @@ void main() {
             ivec2 hi = min((max(a, max(b, c)) - center) / step, ivec2(frame.viewport.xy) - 1);
             uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
             vec4 z = vec4(za, zb, zc, 1.0 / float(-area));
-            bool masked = (instance.flags & TS_INSTANCE_MASKED) != 0u;
+            bool masked = MASKS && (instance.flags & TS_INSTANCE_MASKED) != 0u;
             if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload, masked);
             else scan_large(frame, a, b, c, lo, hi, step, center, z, payload, masked);
         }

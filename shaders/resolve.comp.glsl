@@ -9,6 +9,9 @@
 
 layout(local_size_x = TS_SHADE_GROUP_SIZE) in;
 
+// The pipeline variant for materials with textures (the renderer picks it per bin).
+layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
+
 const float PI = 3.14159265358979;
 
 vec3 decode_octahedral(uint packed) {
@@ -163,9 +166,9 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     vec3 emission = material.emissiveColor.rgb, f0 = material.specular.rgb;
     float occlusion = material.emissiveColor.a, roughness = material.specular.a, metallic = material.metallic;
 
-    // Textured inputs replace their constants (a test of the whole bin's material: no texture work without textures).
+    // Textured inputs replace their constants (only in the textured variant: no texture code at all for the others).
     // Opacity is not among them here: masks are cut by the rasterizers.
-    if (material.textureInputs != 0u) {
+    if (TEXTURED && material.textureInputs != 0u) {
         PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), bary, p0, e1, e2, v0, v1, v2);
         uint inputs = material.textureInputs & ~(1u << TS_INPUT_OPACITY);
         if ((inputs & (1u << TS_INPUT_DIFFUSE_COLOR)) != 0u) albedo = material_texture(frame, material, TS_INPUT_DIFFUSE_COLOR, uv).rgb;

@@ -128,6 +128,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_LIGHT_DISTANT 0u
 #define TS_LIGHT_DOME 1u
 
+// Specialization constant (constant_id) that compiles texture work into a pipeline variant: resolve's variant for
+// materials with textures, the rasterizers' for frames with opacity masks. Lavapipe runs the untaken side of a branch
+// masked rather than skipping it, so texture code merely present would cost every pixel of every material.
+#define TS_SPEC_TEXTURES 0
+
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
 #define TS_PIXEL_TILE 8         // classify: 8x8 pixels per workgroup

@@ -74,8 +74,9 @@ bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
     GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
+    GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
+    if ((material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;  // another slot of the mesh's materials
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
-    GpuMaterial material = MaterialRef(frame.materials).data[instance.materialIndex];
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
     vec3 translation = camera_relative_translation(instance);
     uint v0 = corner_vertex(frame, cluster, triangle, 0u, flip);

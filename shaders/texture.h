@@ -31,25 +31,25 @@ uint texture_level_offset(GpuTexture texture, uint level) {
 
 float srgb_to_linear(float c) { return c <= 0.04045 ? c / 12.92 : pow((c + 0.055) / 1.055, 2.4); }
 
-// i mod n for any sign of i (GLSL leaves % undefined for negative operands).
-int positive_mod(int i, int n) { return i >= 0 ? i % n : n - 1 - (-i - 1) % n; }
-
-// The texel an integer coordinate reads after wrapping, or -1 outside the image with TS_WRAP_BLACK.
-int wrap_texel(int i, int n, uint mode) {
-    if (mode == TS_WRAP_CLAMP) return clamp(i, 0, n - 1);
-    if (mode == TS_WRAP_BLACK) return i < 0 || i >= n ? -1 : i;
-    if (mode == TS_WRAP_MIRROR) {
-        int m = positive_mod(i, 2 * n);
-        return m < n ? m : 2 * n - 1 - m;
-    }
-    return positive_mod(i, n);
-}
-
-// A coordinate brought near [0, 1] without changing what it samples, so that texel indices stay small integers.
+// A coordinate brought into one period without changing what it samples: [0, 1] for repeat, [0, 2] for mirror,
+// [-1, 2] otherwise. Texel indices then stay within a period of the image on either side, and wrap_texel needs no
+// integer division (which lavapipe does lane by lane).
 float wrap_coordinate(float u, uint mode) {
     if (mode == TS_WRAP_REPEAT) return fract(u);
     if (mode == TS_WRAP_MIRROR) return u - 2.0 * floor(0.5 * u);
     return clamp(u, -1.0, 2.0);
+}
+
+// The texel an integer coordinate reads after wrapping, or -1 outside the image with TS_WRAP_BLACK; `i` comes from a
+// coordinate wrap_coordinate brought into range, so it lies in [-1, n] (repeat) or [-1, 2n] (mirror).
+int wrap_texel(int i, int n, uint mode) {
+    if (mode == TS_WRAP_CLAMP) return clamp(i, 0, n - 1);
+    if (mode == TS_WRAP_BLACK) return i < 0 || i >= n ? -1 : i;
+    if (mode == TS_WRAP_MIRROR) {
+        int m = i < 0 ? i + 2 * n : (i >= 2 * n ? i - 2 * n : i);
+        return m < n ? m : 2 * n - 1 - m;
+    }
+    return i < 0 ? i + n : (i >= n ? i - n : i);
 }
 
 // One texel as linear RGBA (transparent black for x or y < 0: outside a TS_WRAP_BLACK image).
@@ -57,14 +57,15 @@ vec4 texture_texel(uint64_t pool, uint format, bool srgb, uint levelOffset, uint
     if (x < 0 || y < 0) return vec4(0.0);
     uint i = uint(y) * levelWidth + uint(x);
     TextureWordRef words = TextureWordRef(pool);
+    // One load for the 8-bit formats (lavapipe gathers lane by lane: loads are what texels cost), two for half.
+    uint word = words.data[levelOffset + (format == TS_TEXTURE_RGBA8 ? i : format == TS_TEXTURE_R8 ? i >> 2u : 2u * i)];
     vec4 v;
     if (format == TS_TEXTURE_RGBA8) {
-        v = unpackUnorm4x8(words.data[levelOffset + i]);
+        v = unpackUnorm4x8(word);
     } else if (format == TS_TEXTURE_R8) {
-        uint byte = (words.data[levelOffset + (i >> 2u)] >> (8u * (i & 3u))) & 0xffu;
-        v = vec4(vec3(float(byte) / 255.0), 1.0);
+        v = vec4(vec3(float((word >> (8u * (i & 3u))) & 0xffu) / 255.0), 1.0);
     } else {
-        v = vec4(unpackHalf2x16(words.data[levelOffset + 2u * i]), unpackHalf2x16(words.data[levelOffset + 2u * i + 1u]));
+        v = vec4(unpackHalf2x16(word), unpackHalf2x16(words.data[levelOffset + 2u * i + 1u]));
     }
     if (srgb) v.rgb = vec3(srgb_to_linear(v.r), srgb_to_linear(v.g), srgb_to_linear(v.b));
     return v;
