@@ -332,3 +332,47 @@ def test_both_rasterizers_cut_a_textured_mask_at_the_same_pixels(tmp_path):
     assert seen_behind[120, 120] and card[120, 75], "the hole shows the card behind; the card's edge is drawn"
     assert seen_behind.sum() > 1000, "all of the card behind shows through the hole"
     assert np.array_equal(software, hardware), f"{(software != hardware).sum()} pixels differ"
+
+
+def test_a_mask_on_one_geom_subset_cuts_only_its_faces(render):
+    """Two faces of one mesh, each its own GeomSubset: the left one's material cuts a round hole (textured opacity),
+    the right one's is plain; a card behind shows through the left face's hole only."""
+    from conftest import TESTENV
+
+    stage = Usd.Stage.CreateInMemory()
+    _camera(stage, aperture=12.0)
+    mesh = UsdGeom.Mesh.Define(stage, "/Pair")
+    mesh.GetPointsAttr().Set([(-2, -1, 0), (0, -1, 0), (0, 1, 0), (-2, 1, 0), (2, -1, 0), (2, 1, 0)])
+    mesh.GetFaceVertexCountsAttr().Set([4, 4])
+    mesh.GetFaceVertexIndicesAttr().Set([0, 1, 2, 3, 1, 4, 5, 2])
+    mesh.GetSubdivisionSchemeAttr().Set("none")
+    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+    st.Set([(0, 0), (1, 0), (1, 1), (0, 1)] * 2)  # each face spans the whole texture
+    behind = _quad(stage, "/Behind")
+    behind.GetPointsAttr().Set([(-2.5, -0.4, 0), (2.5, -0.4, 0), (2.5, 0.4, 0), (-2.5, 0.4, 0)])
+    behind.AddTranslateOp().Set(Gf.Vec3d(0, 0, -1))
+    hole = _textured_material(stage, "/Looks/Hole", str(TESTENV / "testTextures" / "hole.png"), input_name="opacity", output="a")
+    UsdShade.Shader(stage.GetPrimAtPath("/Looks/Hole/Surface")).CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
+    hole.GetInput("uvSet").Set("st")
+    transform = UsdShade.Shader(stage.GetPrimAtPath("/Looks/Hole/Transform"))
+    transform.GetInput("rotation").Set(0.0)
+    transform.GetInput("scale").Set(Gf.Vec2f(1, 1))
+    transform.GetInput("translation").Set(Gf.Vec2f(0, 0))
+    plain = UsdShade.Material.Define(stage, "/Looks/Plain")
+    surface = UsdShade.Shader.Define(stage, "/Looks/Plain/Surface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    plain.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    binding = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
+    for name, face, material in (("Left", 0, hole), ("Right", 1, plain)):
+        subset = binding.CreateMaterialBindSubset(name, [face])
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
+
+    result = render(stage, resolution=(240, 60), aovs=("primId",))
+    assert not [w for w in result.warnings if "Looks" in w], result.warnings
+    ids = result["primId"].ids()
+    at = lambda x: result.prim_path(int(ids[30, x]))
+    # 50 pixels a unit: the left face's centre (x = -1) is pixel 70, the right face's (x = 1) pixel 170; the hole's
+    # radius is 0.625 units (31 pixels).
+    assert at(70) == "/Behind", "the hole of the masked subset"
+    assert at(170) == "/Pair", "the other subset keeps its centre"
+    assert at(30) == "/Pair", "the masked face outside its hole"
