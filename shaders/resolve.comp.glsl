@@ -170,16 +170,25 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     // Opacity is not among them here: masks are cut by the rasterizers.
     if (TEXTURED && material.textureInputs != 0u) {
         PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), bary, p0, e1, e2, v0, v1, v2);
-        uint inputs = material.textureInputs & ~(1u << TS_INPUT_OPACITY);
-        if ((inputs & (1u << TS_INPUT_DIFFUSE_COLOR)) != 0u) albedo = material_texture(frame, material, TS_INPUT_DIFFUSE_COLOR, uv).rgb;
-        if ((inputs & (1u << TS_INPUT_EMISSIVE_COLOR)) != 0u) emission = material_texture(frame, material, TS_INPUT_EMISSIVE_COLOR, uv).rgb;
-        if ((inputs & (1u << TS_INPUT_SPECULAR_COLOR)) != 0u) f0 = material_texture(frame, material, TS_INPUT_SPECULAR_COLOR, uv).rgb;
-        if ((inputs & (1u << TS_INPUT_METALLIC)) != 0u) metallic = clamp(material_texture(frame, material, TS_INPUT_METALLIC, uv).x, 0.0, 1.0);
-        if ((inputs & (1u << TS_INPUT_ROUGHNESS)) != 0u) roughness = clamp(material_texture(frame, material, TS_INPUT_ROUGHNESS, uv).x, 0.0, 1.0);
-        if ((inputs & (1u << TS_INPUT_OCCLUSION)) != 0u) occlusion = clamp(material_texture(frame, material, TS_INPUT_OCCLUSION, uv).x, 0.0, 1.0);
-        if ((inputs & (1u << TS_INPUT_NORMAL)) != 0u && mesh.uvOffset != TS_NO_STREAM) {
-            n = apply_normal_map(n, material_texture(frame, material, TS_INPUT_NORMAL, uv).xyz, e1, e2, vertex_uv(frame, mesh, v0),
-                                 vertex_uv(frame, mesh, v1), vertex_uv(frame, mesh, v2));
+        // One sample per textured input, in a loop: the trip count is the bin's (uniform), where a branch per input
+        // would run every input's sampling masked on lavapipe, textured or not.
+        TextureSlotRef slots = TextureSlotRef(frame.textureSlots);
+        uint slot = material.firstTextureSlot;
+        vec3 tangentNormal = vec3(0.0);
+        for (uint inputs = material.textureInputs; inputs != 0u; inputs &= inputs - 1u, ++slot) {
+            uint textured = uint(findLSB(inputs));
+            if (textured == TS_INPUT_OPACITY) continue;  // masks are cut by the rasterizers
+            vec4 v = texture_slot_value(frame.textures, slots.data[slot], uv.uv, uv.dx, uv.dy);
+            if (textured == TS_INPUT_DIFFUSE_COLOR) albedo = v.rgb;
+            else if (textured == TS_INPUT_EMISSIVE_COLOR) emission = v.rgb;
+            else if (textured == TS_INPUT_SPECULAR_COLOR) f0 = v.rgb;
+            else if (textured == TS_INPUT_METALLIC) metallic = clamp(v.x, 0.0, 1.0);
+            else if (textured == TS_INPUT_ROUGHNESS) roughness = clamp(v.x, 0.0, 1.0);
+            else if (textured == TS_INPUT_OCCLUSION) occlusion = clamp(v.x, 0.0, 1.0);
+            else tangentNormal = v.xyz;  // TS_INPUT_NORMAL
+        }
+        if ((material.textureInputs & (1u << TS_INPUT_NORMAL)) != 0u && mesh.uvOffset != TS_NO_STREAM) {
+            n = apply_normal_map(n, tangentNormal, e1, e2, vertex_uv(frame, mesh, v0), vertex_uv(frame, mesh, v1), vertex_uv(frame, mesh, v2));
             if (dot(n, geometric) < 0.0) n = geometric;
         }
     }
