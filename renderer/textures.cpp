@@ -220,6 +220,19 @@ TextureImage make_texture(uint32_t width, uint32_t height, uint32_t channels, co
             v[c] = from < channels ? source(x, fileRow, from) : (eightBit ? 255.0f : 1.0f);
         }
     };
+    // Level 0 as linear RGBA, row by row: the stored bytes decoded (8-bit), or the source floats (no full float copy
+    // of a large image is ever made: at 4K that would be 256 MiB).
+    auto level0_row = [&](uint32_t y, float* out) {
+        if (eightBit) {
+            decode_row(t, offsets[0], width, y, out);
+            return;
+        }
+        for (uint32_t x = 0; x < width; ++x) {
+            rgba(x, height - 1 - y, out + 4 * x);
+            if (srgb)
+                for (int c = 0; c < 3; ++c) out[4 * x + c] = srgb_to_linear(out[4 * x + c]);
+        }
+    };
     if (eightBit) {  // the file's bytes as they are
         for (uint32_t y = 0; y < height; ++y)
             for (uint32_t x = 0; x < width; ++x) {
@@ -230,23 +243,19 @@ TextureImage make_texture(uint32_t width, uint32_t height, uint32_t channels, co
                 else t.words[i] = uint32_t(v[0]) | uint32_t(v[1]) << 8 | uint32_t(v[2]) << 16 | uint32_t(v[3]) << 24;
             }
     } else {
-        std::vector<float> level0(size_t(width) * height * 4);
-        for (uint32_t y = 0; y < height; ++y)
-            for (uint32_t x = 0; x < width; ++x) {
-                float* v = &level0[(size_t(y) * width + x) * 4];
-                rgba(x, height - 1 - y, v);
-                if (srgb)
-                    for (int c = 0; c < 3; ++c) v[c] = srgb_to_linear(v[c]);
-            }
-        encode_level(t, 0, level0);
+        std::vector<float> row(size_t(width) * 4);
+        for (uint32_t y = 0; y < height; ++y) {
+            level0_row(y, row.data());
+            encode_level(t, uint32_t(2 * size_t(y) * width), row);  // RGBA16F: two words per texel
+        }
     }
 
-    // Each level from the one above it, in linear light: level 1 from the stored level 0, the rest from the unrounded
-    // level above (rounding to 8 bits once per level, not once per level above it).
+    // Each level from the one above it, in linear light and unrounded (rounding once per level, not once per level
+    // above it): level 1 from level 0's rows, the others from the float level above.
     std::vector<float> above;
     for (uint32_t l = 1; l < t.levels; ++l) {
         const uint32_t w = std::max(1u, width >> (l - 1)), h = std::max(1u, height >> (l - 1));
-        std::vector<float> level = l == 1 ? downsample(w, h, [&](uint32_t y, float* out) { decode_row(t, offsets[0], w, y, out); })
+        std::vector<float> level = l == 1 ? downsample(w, h, level0_row)
                                           : downsample(w, h, [&](uint32_t y, float* out) { std::memcpy(out, &above[size_t(y) * w * 4], size_t(w) * 16); });
         encode_level(t, offsets[l], level);
         above = std::move(level);
