@@ -5,6 +5,7 @@
 #include <cmath>
 #include <optional>
 #include <sstream>
+#include <tuple>
 
 namespace tessera::hd {
 
@@ -44,15 +45,19 @@ void RenderIndex::insert_rprim(const std::string& type, const PrimId& id, const 
     auto prim = delegate_.create_rprim(type, id, instancerId, uint32_t(primPaths_.size()));
     if (!prim) throw std::invalid_argument("unsupported rprim type '" + type + "' for " + id);
     primPaths_.push_back(id);
-    rprims_[id] = {type, std::move(prim), AllDirty, false};
-    sceneDirty_ = true;
+    Entry& entry = rprims_[id];
+    entry = {type, std::move(prim), AllDirty, false};
+    dirtyRprims_.insert(&entry);
+    structureDirty_ = true;
 }
 
 void RenderIndex::insert_sprim(const std::string& type, const PrimId& id) {
     auto prim = delegate_.create_sprim(type, id);
     if (!prim) throw std::invalid_argument("unsupported sprim type '" + type + "' for " + id);
-    sprims_[id] = {type, std::move(prim), AllDirty, false};
-    sceneDirty_ = true;
+    Entry& entry = sprims_[id];
+    entry = {type, std::move(prim), AllDirty, false};
+    dirtySprims_.insert(&entry);
+    structureDirty_ = true;
 }
 
 void RenderIndex::insert_bprim(const std::string& type, const PrimId& id) {
@@ -62,25 +67,33 @@ void RenderIndex::insert_bprim(const std::string& type, const PrimId& id) {
 }
 
 void RenderIndex::remove_prim(const PrimId& id) {
-    sceneDirty_ |= rprims_.erase(id) + sprims_.erase(id) > 0;
+    for (auto [prims, dirty] : {std::pair{&rprims_, &dirtyRprims_}, std::pair{&sprims_, &dirtySprims_}}) {
+        auto it = prims->find(id);
+        if (it == prims->end()) continue;
+        dirty->erase(&it->second);
+        prims->erase(it);
+        structureDirty_ = true;
+    }
     bprims_.erase(id);
 }
 
 void RenderIndex::mark_dirty(const PrimId& id, uint32_t bits) {
-    for (auto* prims : {&rprims_, &sprims_, &bprims_}) {
+    for (auto [prims, dirty] : {std::pair{&rprims_, &dirtyRprims_}, std::pair{&sprims_, &dirtySprims_}}) {
         auto it = prims->find(id);
-        if (it != prims->end()) {
-            it->second.dirty |= bits;
-            it->second.failed = false;  // a changed prim gets another chance
-            sceneDirty_ = true;
-        }
+        if (it == prims->end()) continue;
+        it->second.dirty |= bits;
+        it->second.failed = false;  // a changed prim gets another chance (sync_all decides what to commit)
+        dirty->insert(&it->second);
     }
 }
 
 void RenderIndex::mark_all_dirty(uint32_t bits) {
-    for (auto* prims : {&rprims_, &sprims_})
-        for (auto& [id, entry] : *prims) entry.dirty |= bits;
-    sceneDirty_ = true;
+    for (auto [prims, dirty] : {std::pair{&rprims_, &dirtyRprims_}, std::pair{&sprims_, &dirtySprims_}})
+        for (auto& [id, entry] : *prims) {
+            entry.dirty |= bits;
+            dirty->insert(&entry);
+        }
+    structureDirty_ = true;
 }
 
 namespace {
@@ -102,13 +115,23 @@ bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<Instan
 
 void RenderIndex::sync_all(SceneDelegate& scene) {
     lastSynced_.clear();
-    for (auto* prims : {&sprims_, &rprims_})
-        for (auto& [id, entry] : *prims) {
+    std::vector<const Entry*> moved;  // plain meshes whose transform alone changed: patched into the instance list
+    // Only the prims marked dirty are visited (sprims first: rprims refer to materials), in id order.
+    for (auto* dirty : {&dirtySprims_, &dirtyRprims_}) {
+        std::vector<Entry*> entries(dirty->begin(), dirty->end());
+        std::sort(entries.begin(), entries.end(), [](const Entry* a, const Entry* b) { return a->prim->id() < b->prim->id(); });
+        dirty->clear();
+        for (Entry* entryPointer : entries) {
+            Entry& entry = *entryPointer;
+            const PrimId& id = entry.prim->id();
             if (entry.dirty == Clean) continue;
-            const Mesh* mesh = prims == &rprims_ ? static_cast<const Mesh*>(entry.prim.get()) : nullptr;
+            const Mesh* mesh = dirty == &dirtyRprims_ ? static_cast<const Mesh*>(entry.prim.get()) : nullptr;
             // Hydra's rule: a hidden mesh syncs nothing until its visibility changes; its other bits stay dirty
             // (a hidden mesh is never built).
-            if (mesh && !mesh->visible() && !(entry.dirty & DirtyVisibility)) continue;
+            if (mesh && !mesh->visible() && !(entry.dirty & DirtyVisibility)) {
+                dirty->insert(&entry);
+                continue;
+            }
             try {
                 entry.prim->sync(scene, param_, entry.dirty);
             } catch (const std::exception& e) {
@@ -117,11 +140,29 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
                 entry.failed = true;
             }
             lastSynced_.emplace_back(id, entry.dirty);
+            if (mesh) {
+                const bool drawn = !entry.failed && mesh->visible() && mesh->gpu_mesh();
+                if (entry.dirty == DirtyTransform && mesh->instancer_id().empty() && drawn && entry.instanceCount == 1)
+                    moved.push_back(&entry);
+                else if (drawn || entry.instanceCount > 0)
+                    structureDirty_ = true;  // drawn differently, or no longer drawn
+            } else if (entry.type == "material") {
+                structureDirty_ = true;  // cameras and lights are read at execute()
+            }
             entry.dirty = mesh && !mesh->visible() && !entry.failed ? entry.dirty & ~uint32_t(DirtyVisibility) : Clean;
+            if (entry.dirty != Clean) dirty->insert(&entry);
             ++syncCounts_[entry.type];
         }
-    if (sceneDirty_) commit_resources();
-    sceneDirty_ = false;
+    }
+    if (structureDirty_) {
+        commit_resources();
+    } else if (!moved.empty()) {
+        // A transform edit: the instance list is patched, not rebuilt (an edit of one prim of 100k costs one copy).
+        std::vector<InstanceDesc> instances = delegate_.scene().instances();
+        for (const Entry* entry : moved) instances[entry->firstInstance].transform = static_cast<const Mesh&>(*entry->prim).transform();
+        delegate_.scene().set_instances(std::move(instances));
+    }
+    structureDirty_ = false;
 }
 
 // Rebuilds the instance, material and light lists of the GPU scene from the synced prims.
@@ -131,28 +172,36 @@ void RenderIndex::commit_resources() {
     std::unordered_map<PrimId, uint32_t> materialHandles;
     for (auto& [id, entry] : sprims_)
         if (entry.type == "material") materialHandles[id] = scene.add_material(static_cast<Material&>(*entry.prim).desc());
+    // Meshes without a material share one fallback per colour: their displayColor (constant, or per vertex), else
+    // Hydra's grey, diffuse only like Hydra's fallback surface.
+    std::map<std::tuple<float, float, float, bool>, uint32_t> fallbackHandles;
 
     std::vector<InstanceDesc> instances;
     for (auto& [id, entry] : rprims_) {
         const Mesh& mesh = static_cast<Mesh&>(*entry.prim);
+        entry.firstInstance = instances.size();
+        entry.instanceCount = 0;
         if (entry.failed || !mesh.visible() || !mesh.gpu_mesh()) continue;
         InstanceDesc instance;
         instance.mesh = *mesh.gpu_mesh();
         instance.primId = mesh.prim_id();
         instance.doubleSided = mesh.double_sided();
         const BuiltMesh* built = mesh.built();
-        std::optional<uint32_t> fallbackHandle;
         auto handle_of = [&](const PrimId& materialId) {
             auto material = materialHandles.find(materialId);
             if (material != materialHandles.end()) return material->second;
-            if (!fallbackHandle) {  // no bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey
+            // No bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey; one per colour.
+            const auto color = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
+            const auto key = std::make_tuple(color[0], color[1], color[2], !built->colors.empty());
+            auto [it, added] = fallbackHandles.try_emplace(key, 0);
+            if (added) {
                 MaterialDesc fallback;
-                fallback.diffuseColor = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
-                fallback.useDisplayColor = !built->colors.empty();
+                fallback.diffuseColor = color;
+                fallback.useDisplayColor = std::get<3>(key);
                 fallback.ior = 1.0f;  // diffuse only, like Hydra's fallback surface
-                fallbackHandle = scene.add_material(fallback);
+                it->second = scene.add_material(fallback);
             }
-            return *fallbackHandle;
+            return it->second;
         };
         instance.material = handle_of(mesh.material_id());
         if (built->materialSlots > 1) {  // GeomSubsets: one table per prim, shared by its instances
@@ -173,6 +222,7 @@ void RenderIndex::commit_resources() {
                 instances.push_back(instance);
             }
         }
+        entry.instanceCount = instances.size() - entry.firstInstance;
     }
     // Unchanged instances (a material or light edit) keep the renderer's uploads and its previous-frame HZB.
     if (!same_instances(instances, scene.instances())) scene.set_instances(std::move(instances));

@@ -53,6 +53,10 @@ class _Group:
     anchors: dict[str, None] = field(default_factory=dict)  # the instance prims (stage order), or the instancer
     rprims: set[str] = field(default_factory=set)
     watched: set[str] = field(default_factory=set)  # prims whose subtrees it read
+    # Native: the instances' world transforms (N, 4, 4, row vectors) in `order`, kept so that an edit re-reads only
+    # the instances it moved.
+    copies: np.ndarray | None = None
+    order: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -271,7 +275,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             self.groups.setdefault(instancer, _Group("pointInstancer")).anchors[instancer] = None
             touched.add(instancer)
         for key in sorted(touched):
-            self._remake_group(key, path if resync else None)
+            self._remake_group(key, path if resync else None, moved=path)
 
     def _outside_state(self, prim: Usd.Prim) -> bool | None:
         """For a walk from `prim`: whether an ancestor hides it (True), or None when it is not walked from the top
@@ -300,10 +304,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             keys.update(self._watch.at(ancestor))
         return keys
 
-    def _remake_group(self, key: str, resynced: str | None) -> None:
+    def _remake_group(self, key: str, resynced: str | None, moved: str | None = None) -> None:
         """Visits an instancing group again and makes its rprims match: new ones inserted, gone ones removed, the
         others dirtied with what changed (their copies' transforms, their material; everything where they were
-        read from the resynced path)."""
+        read from the resynced path). `moved`: a path whose transforms changed (instances under it are re-read)."""
         group = self.groups[key]
         records: dict[str, _Rprim] = {}
         watched = set(group.anchors)
@@ -311,8 +315,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             prim = self.stage.GetPrimAtPath(key)
             if group.kind == "native" and prim:
                 watched.add(key)
-                copies = np.stack([self._relative(self.stage.GetPrimAtPath(a), None) for a in group.anchors])
-                self._visit(prim, copies, None, key, records, watched)
+                self._visit(prim, self._instance_copies(group, moved or resynced), None, key, records, watched)
             elif group.kind == "pointInstancer" and prim:
                 self._visit_point_instancer(UsdGeom.PointInstancer(prim), None, None, key, records, watched)
         for id in group.rprims - records.keys():
@@ -342,6 +345,23 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for path in group.watched:
                 self._watch.discard(path, key)
             del self.groups[key]
+
+    def _instance_copies(self, group: _Group, moved: str | None) -> np.ndarray:
+        """A native group's instance world transforms: those kept, except under `moved` and for new instances."""
+        anchors = list(group.anchors)
+        read = lambda anchor: self._relative(self.stage.GetPrimAtPath(anchor), None)
+        if group.copies is not None and group.order == anchors:
+            if moved in group.anchors:  # one instance moved (the common edit): its row alone
+                group.copies[anchors.index(moved)] = read(moved)
+            elif moved is not None:
+                for row, anchor in enumerate(anchors):
+                    if is_at_or_under(anchor, moved):
+                        group.copies[row] = read(anchor)
+            return group.copies
+        kept = dict(zip(group.order, group.copies)) if group.copies is not None else {}
+        group.copies = np.stack([kept[a] if a in kept and not (moved and is_at_or_under(a, moved)) else read(a) for a in anchors])
+        group.order = anchors
+        return group.copies
 
     def _insert_rprim(self, id: str, record: _Rprim) -> None:
         self.rprims[id] = record
@@ -462,7 +482,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 elif record is None and self.sprims.get(id) in _LIGHT_TYPES | {"camera"} and bits & _dirty.TRANSFORM:
                     self.index.mark_dirty(id, _dirty.PARAMS)
             for key in sorted(self._groups_touching(path)):
-                self._remake_group(key, None)
+                self._remake_group(key, None, path if bits & _dirty.TRANSFORM else None)
         elif scope == change_tracker.EVERY_MESH:
             for id, record in self.rprims.items():
                 self._rebind(id, record, mark=True)

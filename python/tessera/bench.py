@@ -1,6 +1,7 @@
 """`tessera bench ...`: benchmarks that print tables of speed, memory and error (never timed tests).
 
     tessera bench build [STAGE.usd | MESH.obj ...] [--json FILE]
+    tessera bench usd [--prims N] [--instances N] [--edits N] [--json FILE]
 
 Each mesh is built in a child process so that its peak memory is its own (the input arrays excluded).
 """
@@ -456,4 +457,149 @@ def raster(args) -> int:
     if args.json:
         with open(args.json, "w") as f:
             json.dump(outcome, f, indent=2)
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# tessera bench usd: translating a stage into the render index (populate, first sync, commit), its memory, and
+# re-syncing one edited transform.
+
+def _write_usd_stage(path, case: str, count: int):
+    """`count` cubes (12 triangles) on a grid: each its own Mesh prim under its own Xform ("prims"), or native
+    instances of one Xform holding the cube ("instances"). Written through Sdf in one change block (fast)."""
+    from pxr import Sdf, Usd, UsdGeom, Vt
+
+    layer = Sdf.Layer.CreateNew(str(path))
+    stage = Usd.Stage.Open(layer)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    points = Vt.Vec3fArray([(x, y, z) for z in (-0.4, 0.4) for y in (-0.4, 0.4) for x in (-0.4, 0.4)])
+    counts = Vt.IntArray([4] * 6)
+    indices = Vt.IntArray([0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 2, 6, 7, 3, 0, 4, 6, 2, 1, 3, 7, 5])
+    side = int(np.ceil(np.sqrt(count)))
+    with Sdf.ChangeBlock():
+        def mesh_spec(parent):
+            mesh = Sdf.PrimSpec(parent, "Cube", Sdf.SpecifierDef, "Mesh")
+            Sdf.AttributeSpec(mesh, "points", Sdf.ValueTypeNames.Point3fArray).default = points
+            Sdf.AttributeSpec(mesh, "faceVertexCounts", Sdf.ValueTypeNames.IntArray).default = counts
+            Sdf.AttributeSpec(mesh, "faceVertexIndices", Sdf.ValueTypeNames.IntArray).default = indices
+            Sdf.AttributeSpec(mesh, "subdivisionScheme", Sdf.ValueTypeNames.Token, variability=Sdf.VariabilityUniform).default = "none"
+
+        world = Sdf.PrimSpec(layer, "World", Sdf.SpecifierDef, "Xform")
+        if case == "instances":
+            assets = Sdf.PrimSpec(layer, "Assets", Sdf.SpecifierClass, "Xform")
+            mesh_spec(Sdf.PrimSpec(assets, "Block", Sdf.SpecifierDef, "Xform"))
+        for i in range(count):
+            item = Sdf.PrimSpec(world, f"Item{i}", Sdf.SpecifierDef, "Xform")
+            Sdf.AttributeSpec(item, "xformOp:translate", Sdf.ValueTypeNames.Double3).default = (2.0 * (i % side), 2.0 * (i // side), 0.0)
+            Sdf.AttributeSpec(item, "xformOpOrder", Sdf.ValueTypeNames.TokenArray, variability=Sdf.VariabilityUniform).default = \
+                Vt.TokenArray(["xformOp:translate"])
+            if case == "instances":
+                item.referenceList.Prepend(Sdf.Reference("", "/Assets/Block"))
+                item.instanceable = True
+            else:
+                mesh_spec(item)
+    layer.Save()
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * resource.getpagesize()
+
+
+def _usd_case(queue, case, stage_path, count, edits, device, device_cost=(0, 0.0)):
+    """Runs in a child process, so that its memory is its own. `device_cost`: the bytes and seconds a session over
+    an empty stage takes (the Vulkan device, the renderer), taken off the translation's."""
+    try:
+        from pxr import Gf, Usd
+
+        from tessera import Session
+
+        started = time.perf_counter()
+        stage = Usd.Stage.Open(stage_path)
+        opened = time.perf_counter()
+        stage_rss = _rss_bytes()
+        session = Session(stage, device=device)  # the device, then populate
+        populated = time.perf_counter()
+        session.index.sync_all(session.scene)  # every mesh built or loaded from the cache, then commit
+        synced = time.perf_counter()
+        device_bytes, device_seconds = device_cost
+        translated_rss = _rss_bytes() - device_bytes
+        if case == "empty":
+            queue.put((translated_rss - stage_rss, populated - opened))
+            return
+        diagnostics = session.index.take_diagnostics()
+        # One transform edited, then re-synced (notice -> dirty bits -> sync -> commit), `edits` times.
+        target = stage.GetPrimAtPath("/World/Item0").GetAttribute("xformOp:translate")
+        times, synced_counts = [], []
+        for k in range(edits):
+            target.Set(Gf.Vec3d(0.0, 0.0, 0.1 * (k + 1)))
+            edit_started = time.perf_counter()
+            session._apply_edits()
+            session.index.sync_all(session.scene)
+            times.append(time.perf_counter() - edit_started)
+            synced_counts.append(len(session.index.last_synced))
+        queue.put({
+            "case": f"{count:,} {'mesh prims' if case == 'prims' else 'native instances'}",
+            "prims_on_stage": count,
+            "rprims": session.index.rprim_count,
+            "meshes_built": diagnostics["meshes_built"] + diagnostics["meshes_cached"],
+            "open_seconds": round(opened - started, 2),
+            "populate_seconds": round(populated - opened - device_seconds, 2),
+            "first_sync_seconds": round(synced - populated, 2),
+            "translate_seconds": round(synced - opened - device_seconds, 2),
+            "stage_memory_mib": round(stage_rss / 2**20),
+            "translate_memory_mib": round((translated_rss - stage_rss) / 2**20, 1),
+            "translate_bytes_per_prim": round((translated_rss - stage_rss) / count),
+            "edit_resync_ms": round(1000 * float(np.median(times)), 2),
+            "edit_resynced_prims": max(synced_counts),
+            "device": session.device_name,
+        })
+    except Exception as error:  # reported by the parent, which goes on with the other cases
+        queue.put(error)
+
+
+USD_COLUMNS = [("case", "case"), ("rprims", "rprims"), ("meshes_built", "meshes built"), ("open_seconds", "open s"),
+               ("populate_seconds", "populate s"), ("first_sync_seconds", "first sync s"), ("translate_seconds", "translate s"),
+               ("stage_memory_mib", "RSS after open MiB"), ("translate_memory_mib", "translate MiB"), ("translate_bytes_per_prim", "B/prim"),
+               ("edit_resync_ms", "edit re-sync ms"), ("edit_resynced_prims", "prims re-synced")]
+
+
+def usd(args) -> int:
+    """Translate time and memory of big stages, and one transform edit re-synced (median of --edits)."""
+    from pathlib import Path
+
+    directory = Path(args.stages_dir)
+    directory.mkdir(parents=True, exist_ok=True)
+    rows = []
+
+    def run(case, stage, count, device_cost=(0, 0.0)):
+        queue = multiprocessing.get_context("fork").Queue()
+        process = multiprocessing.get_context("fork").Process(
+            target=_usd_case, args=(queue, case, str(stage), count, args.edits, args.device, device_cost))
+        process.start()
+        result = queue.get()
+        process.join()
+        return result
+
+    empty = directory / "usd_empty.usda"
+    if not empty.exists():
+        empty.write_text("#usda 1.0\n")
+    device_cost = run("empty", empty, 0)
+    if isinstance(device_cost, Exception):
+        print(f"tessera: error: {device_cost}")
+        return 1
+    print(" | ".join(title for _, title in USD_COLUMNS))
+    for case, count in (("prims", args.prims), ("instances", args.instances)):
+        stage = directory / f"usd_{case}_{count}.usdc"
+        if not stage.exists():
+            _write_usd_stage(stage, case, count)
+        row = run(case, stage, count, device_cost)
+        if isinstance(row, Exception):
+            print(f"tessera: error: {case}: {row}")
+            continue
+        rows.append(row)
+        print(" | ".join(str(row[key]) for key, _ in USD_COLUMNS), flush=True)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=2)
     return 0

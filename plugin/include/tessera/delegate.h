@@ -17,6 +17,7 @@
 #include <span>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 #include <utility>
 #include <vector>
 
@@ -234,14 +235,16 @@ private:
         std::unique_ptr<Prim> prim;
         uint32_t dirty = AllDirty;
         bool failed = false;  // its last sync threw; left out of the frame until it is dirtied again
+        size_t firstInstance = 0, instanceCount = 0;  // a mesh's range of the committed instance list
     };
     RenderDelegate& delegate_;
     std::map<PrimId, Entry> rprims_, sprims_, bprims_;
+    std::unordered_set<Entry*> dirtyRprims_, dirtySprims_;  // what sync_all visits: an edit costs what it dirtied
     std::vector<PrimId> primPaths_;  // primId -> path
     std::map<std::string, uint64_t> syncCounts_;
     std::vector<std::pair<PrimId, uint32_t>> lastSynced_;
     RenderParam param_;
-    bool sceneDirty_ = true;
+    bool structureDirty_ = true;  // the instance and material lists must be rebuilt, not just patched
 };
 
 }  // namespace tessera::hd
