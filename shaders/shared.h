@@ -129,8 +129,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_LIGHT_DOME 1u
 
 // Specialization constant (constant_id) that compiles texture work into a pipeline variant: resolve's variant for
-// materials with textures, the rasterizers' for frames with opacity masks. Lavapipe runs the untaken side of a branch
-// masked rather than skipping it, so texture code merely present would cost every pixel of every material.
+// materials with textures, the rasterizers' for frames with opacity masks. On lavapipe the texture code merely present
+// in a shader, its branch never taken, made every pixel of every material 5x slower to resolve (docs/benchmarks.md).
 #define TS_SPEC_TEXTURES 0
 
 // Workgroup sizes.
