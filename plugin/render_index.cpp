@@ -25,7 +25,7 @@ const std::vector<std::string>& RenderDelegate::supported_bprim_types() {
 
 std::unique_ptr<Mesh> RenderDelegate::create_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t primId) {
     if (type != "mesh") return nullptr;
-    return std::make_unique<Mesh>(id, instancerId, primId, scene_, cache_);
+    return std::make_unique<Mesh>(id, instancerId, primId, scene_, meshes_);
 }
 
 std::unique_ptr<Prim> RenderDelegate::create_sprim(const std::string& type, const PrimId& id) {
@@ -156,10 +156,9 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
     if (structureDirty_) {
         commit_resources();
     } else if (!moved.empty()) {
-        // A transform edit: the instance list is patched, not rebuilt (an edit of one prim of 100k costs one copy).
-        std::vector<InstanceDesc> instances = delegate_.scene().instances();
-        for (const Entry* entry : moved) instances[entry->firstInstance].transform = static_cast<const Mesh&>(*entry->prim).transform();
-        delegate_.scene().set_instances(std::move(instances));
+        // A transform edit: the instance list is patched in place, not rebuilt.
+        for (const Entry* entry : moved)
+            delegate_.scene().set_instance_transform(entry->firstInstance, static_cast<const Mesh&>(*entry->prim).transform());
     }
     structureDirty_ = false;
 }
