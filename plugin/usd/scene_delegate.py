@@ -62,7 +62,7 @@ class _Group:
 class _Found:
     """What a walk of part of the stage found outside instancing contexts."""
     rprims: dict[str, Usd.Prim] = field(default_factory=dict)
-    sprims: dict[str, tuple[str, Usd.Prim]] = field(default_factory=dict)  # cameras and lights: path -> (type, prim)
+    sprims: dict[str, str] = field(default_factory=dict)  # cameras and lights: path -> type
     natives: dict[str, list[str]] = field(default_factory=dict)  # prototype path -> instance prim paths
     instancers: list[str] = field(default_factory=list)
 
@@ -137,10 +137,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                     found.instancers.append(str(path))
                 it.PruneChildren()
             elif role == "camera":  # visibility does not apply to looking through a camera
-                found.sprims[str(path)] = ("camera", prim)
+                found.sprims[str(path)] = "camera"
             elif role in _LIGHT_TYPES:
                 if hidden_under is None:
-                    found.sprims[str(path)] = (role, prim)
+                    found.sprims[str(path)] = role
             elif role == "mesh":
                 found.rprims[str(path)] = prim
             else:
@@ -269,7 +269,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 self.index.mark_dirty(id, survivor_bits)
             elif survivor_bits:
                 self.index.mark_dirty(id, survivor_bits)
-        for id, (kind, _) in found.sprims.items():
+        for id, kind in found.sprims.items():
             if self.sprims.get(id) not in (None, kind):
                 self._remove_sprim(id)
             if id not in self.sprims:
