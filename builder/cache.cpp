@@ -103,6 +103,8 @@ std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) 
     h.word(uint64_t(mesh.refineLevel));
     hash_primvar(h, mesh.normals);
     hash_primvar(h, mesh.displayColor);
+    hash_primvar(h, mesh.uvs);
+    h.span(mesh.faceMaterials);
     return h.hex();
 }
 

@@ -18,6 +18,8 @@ enum PageStream : uint32_t {
     kPositionWidthStream,  // bit width of each position residual
     kNormalWidthStream,    // bit width of each normal residual
     kColorStream,          // rgba16f of new vertices
+    kUvWidthStream,        // bit width of each texture coordinate residual
+    kMaterialStream,       // each triangle's material slot, when the mesh has several (runs: compresses to little)
     kResidualBitStream,    // the residuals' bits below their top one
     kPageStreamCount
 };
@@ -31,13 +33,23 @@ struct DecodedCluster {
     uint32_t index = 0;  // its place in the mesh
     Cluster cluster{};
     std::vector<float> positions;
+    std::vector<float> uvs;
     std::vector<uint32_t> normals, colors, triangles;
+};
+
+// What the page file's header says about every vertex and triangle of the mesh.
+struct VertexFormat {
+    double positionStep = 1.0;
+    bool colors = false;
+    bool uvs = false;
+    double uvStep = 1.0;
+    uint32_t materialSlots = 1;  // more than 1: each triangle stores its slot
 };
 
 // Reads units back, in order, from one page's decompressed streams; every malformed input is a PageFileError.
 class UnitDecoder {
 public:
-    UnitDecoder(const PageStreams& streams, double positionStep, bool colors, const std::string& where);
+    UnitDecoder(const PageStreams& streams, const VertexFormat& format, const std::string& where);
     ~UnitDecoder();
     void decode_unit(std::vector<DecodedCluster>& out);
     bool done() const;  // every stream consumed

@@ -8,21 +8,24 @@
 namespace tessera {
 
 struct UnitDecoder::State {
-    State(const PageStreams& s, double step, bool colors, const std::string& where)
+    State(const PageStreams& s, const VertexFormat& format, const std::string& where)
         : records(s[kRecordStream], where + " records"),
           indices(s[kIndexStream], where + " indices"),
           codes(s[kVertexCodeStream], where + " vertices"),
           positionWidths(s[kPositionWidthStream], where + " positions"),
           normalWidths(s[kNormalWidthStream], where + " normals"),
           colorBytes(s[kColorStream], where + " colours"),
+          uvWidths(s[kUvWidthStream], where + " texture coordinates"),
+          materials(s[kMaterialStream], where + " material slots"),
           bits(s[kResidualBitStream], where + " residuals"),
-          step(step),
-          colors(colors),
+          format(format),
+          colors(format.colors),
+          uvs(format.uvs),
           where(where) {}
-    ByteReader records, indices, codes, positionWidths, normalWidths, colorBytes;
+    ByteReader records, indices, codes, positionWidths, normalWidths, colorBytes, uvWidths, materials;
     BitReader bits;
-    double step;
-    bool colors;
+    VertexFormat format;
+    bool colors, uvs;
     std::string where;
     OppositeCorners opposite;
     UnitVertices vertices;
@@ -73,6 +76,7 @@ struct UnitDecoder::State {
             std::copy_n(&vertices.grid[3 * source], 3, &vertices.grid[3 * self]);
             std::copy_n(&vertices.normal[2 * source], 2, &vertices.normal[2 * self]);
             if (colors) std::copy_n(&vertices.color[2 * source], 2, &vertices.color[2 * self]);
+            if (uvs) std::copy_n(&vertices.uv[2 * source], 2, &vertices.uv[2 * self]);
             nextReference = source + 1;
             return;
         }
@@ -88,6 +92,11 @@ struct UnitDecoder::State {
         }
         if (colors)
             for (int k = 0; k < 2; ++k) vertices.color[2 * self + k] = colorBytes.get<uint32_t>();
+        for (int k = 0; uvs && k < 2; ++k) {
+            const int64_t uv = predict(vertices.uv, 2, k) + residual(uvWidths);
+            if (uv <= -kGridLimit || uv >= kGridLimit) throw PageFileError(where + ": a texture coordinate is out of range");
+            vertices.uv[2 * self + k] = uv;
+        }
     }
 
     // A decoded cluster's vertices as the builder lays them out.
@@ -96,20 +105,22 @@ struct UnitDecoder::State {
         d.positions.reserve(3 * count);
         d.normals.reserve(count);
         for (int64_t at = first; at < first + count; ++at) {
-            for (int k = 0; k < 3; ++k) d.positions.push_back(float(double(vertices.grid[3 * at + k]) * step) + 0.0f);
+            for (int k = 0; k < 3; ++k) d.positions.push_back(float(double(vertices.grid[3 * at + k]) * format.positionStep) + 0.0f);
+            for (int k = 0; uvs && k < 2; ++k) d.uvs.push_back(float(double(vertices.uv[2 * at + k]) * format.uvStep) + 0.0f);
             d.normals.push_back(octahedral_from_bits(int32_t(vertices.normal[2 * at]), int32_t(vertices.normal[2 * at + 1])));
             if (colors) d.colors.insert(d.colors.end(), &vertices.color[2 * at], &vertices.color[2 * at] + 2);
         }
     }
 };
 
-UnitDecoder::UnitDecoder(const PageStreams& streams, double positionStep, bool colors, const std::string& where)
-    : state_(std::make_unique<State>(streams, positionStep, colors, where)) {}
+UnitDecoder::UnitDecoder(const PageStreams& streams, const VertexFormat& format, const std::string& where)
+    : state_(std::make_unique<State>(streams, format, where)) {}
 UnitDecoder::~UnitDecoder() = default;
 
 bool UnitDecoder::done() const {
     State& s = *state_;
     return s.records.done() && s.indices.done() && s.codes.done() && s.positionWidths.done() && s.normalWidths.done() && s.colorBytes.done() &&
+           s.uvWidths.done() && s.materials.done() &&
            s.bits.bytes_left() == 0;
 }
 
@@ -127,7 +138,7 @@ void UnitDecoder::decode_unit(std::vector<DecodedCluster>& out) {
     if (meshopt_decodeIndexBuffer(s.corners.data(), s.corners.size(), 4, encoded.data(), encoded.size()) != 0)
         throw PageFileError(s.where + ": a cluster group's triangles do not decode");
 
-    s.vertices.resize(unitVertices, s.colors);
+    s.vertices.resize(unitVertices, s.colors, s.uvs);
     int64_t first = 0, nextReference = 0;
     size_t corner = 0;
     for (size_t i = firstOut; i < out.size(); ++i) {
@@ -140,7 +151,10 @@ void UnitDecoder::decode_unit(std::vector<DecodedCluster>& out) {
             for (uint32_t* index = &local[t]; index < &local[t + 3]; ++index)
                 if ((*index -= uint32_t(first)) >= vertexCount) throw PageFileError(s.where + ": a triangle refers past its cluster's vertices");
             rotate_smallest_first(&local[t]);  // the codec may have rotated it; the smallest rotation is the stored one
-            d.triangles.push_back(local[t] | (local[t + 1] << 8) | (local[t + 2] << 16));
+            uint32_t slot = 0;
+            if (s.format.materialSlots > 1 && (slot = s.materials.get<uint8_t>()) >= s.format.materialSlots)
+                throw PageFileError(s.where + ": a triangle's material slot is out of range");
+            d.triangles.push_back(local[t] | (local[t + 1] << 8) | (local[t + 2] << 16) | slot << 24);
         }
         const bool ordered = walk_first_use(local, vertexCount, s.opposite, [&](uint32_t v, const Neighbours& n) {
             s.read_vertex(first + v, Predictor(n, first, first + v), nextReference);

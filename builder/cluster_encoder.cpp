@@ -38,10 +38,11 @@ private:
         return size_t(h >> 20);
     }
     bool equal(int64_t a, int64_t b) const {
-        const bool colors = !vertices_.color.empty();
+        const bool colors = !vertices_.color.empty(), uvs = !vertices_.uv.empty();
         return std::equal(&vertices_.grid[3 * a], &vertices_.grid[3 * a + 3], &vertices_.grid[3 * b]) &&
                std::equal(&vertices_.normal[2 * a], &vertices_.normal[2 * a + 2], &vertices_.normal[2 * b]) &&
-               (!colors || std::equal(&vertices_.color[2 * a], &vertices_.color[2 * a + 2], &vertices_.color[2 * b]));
+               (!colors || std::equal(&vertices_.color[2 * a], &vertices_.color[2 * a + 2], &vertices_.color[2 * b])) &&
+               (!uvs || std::equal(&vertices_.uv[2 * a], &vertices_.uv[2 * a + 2], &vertices_.uv[2 * b]));
     }
     const UnitVertices& vertices_;
     std::vector<int64_t> slots_;
@@ -107,11 +108,12 @@ std::vector<uint8_t> encode_indices(const BuiltMesh& mesh, std::span<const uint3
 
 // The unit's vertices as integers: grid coordinates and normal bits, both checked to give back the mesh's values.
 UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clusters) {
-    const bool colors = !mesh.colors.empty();
+    const bool colors = !mesh.colors.empty(), uvs = !mesh.uvs.empty();
+    const double uvStep = std::ldexp(1.0, mesh.uvPrecision);
     size_t count = 0;
     for (uint32_t index : clusters) count += mesh.clusters[index].vertexCount;
     UnitVertices vertices;
-    vertices.resize(count, colors);
+    vertices.resize(count, colors, uvs);
     size_t at = 0;
     for (uint32_t index : clusters) {
         const Cluster& c = mesh.clusters[index];
@@ -129,6 +131,13 @@ UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clus
             vertices.normal[2 * at] = normal[0];
             vertices.normal[2 * at + 1] = normal[1];
             if (colors) std::copy_n(&mesh.colors[2 * source], 2, &vertices.color[2 * at]);
+            for (int k = 0; uvs && k < 2; ++k) {
+                const float uv = mesh.uvs[2 * source + k];
+                const int64_t grid = std::llround(double(uv) / uvStep);
+                if (std::llabs(grid) >= kGridLimit || double(grid) * uvStep != double(uv))
+                    throw std::invalid_argument("a texture coordinate is off the mesh's UV grid");
+                vertices.uv[2 * at + k] = grid;
+            }
         }
     }
     return vertices;
@@ -155,7 +164,11 @@ void encode_unit(const BuiltMesh& mesh, std::span<const uint32_t> clusters, Page
             rotate_smallest_first(tri);
             if (!std::equal(tri, tri + 3, &triangles[t]))
                 throw std::invalid_argument("a cluster's triangles are not in page order (order_cluster_for_pages)");
+            if ((mesh.triangles[c.triangleOffset + t / 3] >> 24) >= mesh.materialSlots)
+                throw std::invalid_argument("a triangle's material slot is not below the mesh's materialSlots");
         }
+        if (mesh.materialSlots > 1)
+            for (uint32_t t = 0; t < c.triangleCount; ++t) out[kMaterialStream].push_back(uint8_t(mesh.triangles[c.triangleOffset + t] >> 24));
         const bool ordered = walk_first_use(triangles, c.vertexCount, opposite, [&](uint32_t v, const Neighbours& n) {
             const int64_t self = first + v;
             if (const int64_t seen = firstSeen.find_or_add(self); seen >= 0) {  // a copy: its source, relative to the last one's
@@ -170,6 +183,8 @@ void encode_unit(const BuiltMesh& mesh, std::span<const uint32_t> clusters, Page
             if (colors)
                 for (int k = 0; k < 2; ++k)
                     for (int byte = 0; byte < 4; ++byte) out[kColorStream].push_back(uint8_t(vertices.color[2 * self + k] >> (8 * byte)));
+            if (!vertices.uv.empty())
+                for (int k = 0; k < 2; ++k) put_residual(vertices.uv[2 * self + k] - predict(vertices.uv, 2, k), out[kUvWidthStream], bits);
         });
         if (!ordered) throw std::invalid_argument("a cluster's vertices are not numbered by first use (order_cluster_for_pages)");
         first += c.vertexCount;

@@ -80,12 +80,13 @@ bool walk_first_use(std::span<const uint32_t> corners, uint32_t vertexCount, Opp
 
 // A unit's vertices, in unit order (cluster after cluster): grid positions, normal bits, colours.
 struct UnitVertices {
-    std::vector<int64_t> grid, normal;
+    std::vector<int64_t> grid, normal, uv;  // uv: texture coordinates on the mesh's UV grid, when it has them
     std::vector<uint32_t> color;
-    void resize(size_t count, bool colors) {
+    void resize(size_t count, bool colors, bool uvs) {
         grid.resize(3 * count);
         normal.resize(2 * count);
         color.resize(colors ? 2 * count : 0);
+        uv.resize(uvs ? 2 * count : 0);
     }
 };
 

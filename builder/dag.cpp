@@ -338,20 +338,48 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     PositionWelder welder;
     std::vector<uint32_t> positionId = weld_equal_positions(local.data(), vertexCount, &welder);
 
-    // Attributes weighed by the simplifier. meshoptimizer normalises positions to the group's extent before
-    // weighing, even when it reports absolute errors, so the weights are relative and independent of scale.
+    // Texture coordinates on their grid (BuiltMesh::uvPrecision): at most 2^-16, and coarse enough that float holds
+    // every grid point of the mesh's range exactly.
+    const bool hasUvs = !mesh.uvs.empty();
+    std::vector<float> uvs;
+    if (hasUvs) {
+        float largest = 1.0f;
+        for (float u : mesh.uvs) largest = std::max(largest, std::fabs(u));
+        out.uvPrecision = std::max(-16, int(std::ceil(std::log2(double(largest)))) - 22);
+        const double uvStep = std::ldexp(1.0, out.uvPrecision);
+        uvs.resize(mesh.uvs.size());
+        for (size_t i = 0; i < uvs.size(); ++i) uvs[i] = float(std::round(double(mesh.uvs[i]) / uvStep) * uvStep) + 0.0f;
+    }
+
+    // Material slots are a property of vertices (prepare_mesh splits vertices where slots meet): the simplifier keeps
+    // such splits as seams, so every triangle of every level has the slot of each of its vertices.
+    std::vector<uint8_t> vertexMaterial(mesh.triangleMaterials.empty() ? 0 : vertexCount, 0);
+    for (size_t t = 0; t < mesh.triangleMaterials.size(); ++t)
+        for (int k = 0; k < 3; ++k) vertexMaterial[mesh.indices[3 * t + k]] = mesh.triangleMaterials[t];
+    for (uint8_t slot : mesh.triangleMaterials) out.materialSlots = std::max(out.materialSlots, uint32_t(slot) + 1);
+    auto material_of = [&](uint32_t v) { return vertexMaterial.empty() ? 0u : uint32_t(vertexMaterial[v]); };
+
+    // Attributes weighed by the simplifier: normal, then colour and texture coordinates where the mesh has them.
+    // meshoptimizer normalises positions to the group's extent before weighing, even when it reports absolute
+    // errors, so the weights are relative and independent of scale.
     const bool hasColors = !mesh.colors.empty();
-    const size_t attributeCount = hasColors ? 6 : 3;
+    const size_t colorAttribute = 3, uvAttribute = hasColors ? 6 : 3;
+    const size_t attributeCount = uvAttribute + (hasUvs ? 2 : 0);
     std::vector<float> attributes(vertexCount * attributeCount);
     for (size_t v = 0; v < vertexCount; ++v) {
         for (int k = 0; k < 3; ++k) attributes[v * attributeCount + k] = mesh.normals[3 * v + k];
         if (hasColors)
-            for (int k = 0; k < 3; ++k) attributes[v * attributeCount + 3 + k] = mesh.colors[3 * v + k];
+            for (int k = 0; k < 3; ++k) attributes[v * attributeCount + colorAttribute + k] = mesh.colors[3 * v + k];
+        if (hasUvs)
+            for (int k = 0; k < 2; ++k) attributes[v * attributeCount + uvAttribute + k] = uvs[2 * v + k];
     }
     // Normals weigh little: the simplifier's error, which the cut projects to pixels, includes the attribute terms,
     // and at 0.5 they steered collapses into surfaces about 2.6x farther off at coarse levels (0.10 against 0.038
-    // mesh units on a bumpy unit sphere at 3k triangles; docs/benchmarks.md).
-    const float weights[6] = {0.1f, 0.1f, 0.1f, 1.0f, 1.0f, 1.0f};
+    // mesh units on a bumpy unit sphere at 3k triangles; docs/benchmarks.md). Texture coordinates are weighed per
+    // group, like positions, relative to the group's own UV extent (set in the loop below): UV distortion of 10 % of
+    // the group's texture span counts as a geometric error of 2.5 % of the group's extent.
+    constexpr float kNormalWeight = 0.1f, kColorWeight = 1.0f, kUvWeight = 0.25f;
+    float weights[8] = {kNormalWeight, kNormalWeight, kNormalWeight, kColorWeight, kColorWeight, kColorWeight, 0.0f, 0.0f};
 
     std::vector<WorkCluster> clusters;
     std::vector<Group> groups;
@@ -384,7 +412,8 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                 const float* n = &mesh.normals[3 * v];
                 const float* m = &mesh.normals[3 * r];
                 const bool sameColor = !hasColors || std::memcmp(&mesh.colors[3 * v], &mesh.colors[3 * r], 12) == 0;
-                if (sameColor && n[0] * m[0] + n[1] * m[1] + n[2] * m[2] > 0.866f) {
+                const bool sameUv = !hasUvs || std::memcmp(&uvs[2 * v], &uvs[2 * r], 8) == 0;
+                if (sameColor && sameUv && material_of(v) == material_of(r) && n[0] * m[0] + n[1] * m[1] + n[2] * m[2] > 0.866f) {
                     weld[v] = r;
                     break;
                 }
@@ -464,10 +493,22 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             std::vector<uint32_t> simplified(merged.size());
             float error = 0;
             const size_t target = (merged.size() / 3 / 2) * 3;
+            float groupWeights[8];
+            std::copy_n(weights, 8, groupWeights);
+            if (hasUvs) {
+                float lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+                for (uint32_t v : merged)
+                    for (int k = 0; k < 2; ++k) {
+                        lo[k] = std::min(lo[k], attributes[v * attributeCount + uvAttribute + k]);
+                        hi[k] = std::max(hi[k], attributes[v * attributeCount + uvAttribute + k]);
+                    }
+                const float span = std::max({hi[0] - lo[0], hi[1] - lo[1], float(std::ldexp(1.0, out.uvPrecision))});
+                groupWeights[uvAttribute] = groupWeights[uvAttribute + 1] = kUvWeight / span;
+            }
             auto simplify = [&](const std::vector<uint32_t>& from, size_t to, float& passError) {
                 passError = 0;
                 return meshopt_simplifyWithAttributes(simplified.data(), from.data(), from.size(), local.data(), roundVertices, 12, attributes.data(),
-                                                      attributeCount * sizeof(float), weights, attributeCount, lock.data(), to, FLT_MAX,
+                                                      attributeCount * sizeof(float), groupWeights, attributeCount, lock.data(), to, FLT_MAX,
                                                       meshopt_SimplifySparse | meshopt_SimplifyErrorAbsolute, &passError);
             };
             size_t kept = 0;
@@ -616,7 +657,9 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         std::vector<uint32_t> pageOrder = order_cluster_for_pages(corners, uint32_t(vertices.size()));
         for (uint32_t& v : pageOrder) v = vertices[v];  // cluster-local numbers to mesh vertices
         vertices.swap(pageOrder);
-        for (size_t k = 0; k < corners.size(); k += 3) clusterTriangles[i].push_back(corners[k] | (corners[k + 1] << 8) | (corners[k + 2] << 16));
+        for (size_t k = 0; k < corners.size(); k += 3)
+            clusterTriangles[i].push_back(corners[k] | (corners[k + 1] << 8) | (corners[k + 2] << 16) |
+                                          material_of(attributeOf[vertices[corners[k]]]) << 24);
         Cluster& c = emitted[i];
         c.vertexCount = uint32_t(vertices.size());
         c.triangleCount = uint32_t(w.indices.size() / 3);
@@ -648,6 +691,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.positions.resize(3 * size_t(vertexTotal));
     out.normals.resize(vertexTotal);
     out.colors.resize(hasColors ? 2 * size_t(vertexTotal) : 0);
+    out.uvs.resize(hasUvs ? 2 * size_t(vertexTotal) : 0);
     parallel_for(order.size(), [&](size_t i) {
         uint32_t at = emitted[i].vertexOffset;
         for (uint32_t v : clusterVertices[i]) {
@@ -659,6 +703,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                 out.colors[2 * size_t(at)] = float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16);
                 out.colors[2 * size_t(at) + 1] = float_to_half(col[2]) | (uint32_t(float_to_half(1.0f)) << 16);
             }
+            if (hasUvs) std::copy_n(&uvs[2 * a], 2, &out.uvs[2 * size_t(at)]);
             ++at;
         }
         clusterVertices[i] = {};

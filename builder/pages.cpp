@@ -1,6 +1,7 @@
 // The page file: a BuiltMesh on disk.
 //
-//   header      (kHeaderBytes)  magic "TSRA", version, counts, origin, precision, size, colour mode, checksum
+//   header      (kHeaderBytes)  magic "TSRA", version, counts, origin, precision, size, colour mode, UV grid, leaf error,
+//                               fallback cut (threshold and error: the fallback mesh is rebuilt from the DAG), checksum
 //   page table  (pages x 24)    per page: offset (u64), bytes, first cluster, cluster count, CRC32; then its CRC32
 //   pages                       per stream (cluster_codec.h): size before and after compression; then the streams,
 //                               each zstd-compressed, or as is where that would not make it smaller
@@ -21,6 +22,7 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <memory>
 
@@ -30,7 +32,7 @@ namespace tessera {
 namespace {
 
 constexpr char kMagic[4] = {'T', 'S', 'R', 'A'};
-constexpr size_t kHeaderBytes = 112;
+constexpr size_t kHeaderBytes = kPageHeaderBytes;
 constexpr size_t kPageEntryBytes = 24;
 constexpr size_t kStreamTableBytes = kPageStreamCount * 8;
 constexpr size_t kMinClusterRecordBytes = 41;  // a cluster's record alone, before compression
@@ -173,6 +175,14 @@ std::vector<uint8_t> encode_pages(const BuiltMesh& mesh, PageLayout* layout) {
     for (float c : mesh.constantColor) header.put(c);
     header.put(uint32_t(mesh.hasConstantColor));
     for (float f : mesh.sphere) header.put(f);
+    header.put(uint32_t(!mesh.uvs.empty()));
+    header.put(int32_t(mesh.uvPrecision));
+    header.put(mesh.leafError);
+    // A mesh without a fallback (one not made by build_mesh) stores NaN: decode_pages then makes none.
+    header.put(mesh.fallback.indices.empty() ? std::numeric_limits<float>::quiet_NaN() : mesh.fallback.threshold);
+    header.put(mesh.fallback.error);
+    header.put(mesh.materialSlots);
+    if (header.bytes.size() > kHeaderBytes - 4) throw std::logic_error("the page file header outgrew kPageHeaderBytes");
     header.bytes.resize(kHeaderBytes - 4, 0);
     header.put(crc32(header.bytes));
 
@@ -223,7 +233,15 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
     for (float& c : mesh.constantColor) c = header.get<float>();
     mesh.hasConstantColor = header.get<uint32_t>() != 0;
     for (float& f : mesh.sphere) f = header.get<float>();
+    const bool uvs = header.get<uint32_t>() != 0;
+    mesh.uvPrecision = header.get<int32_t>();
+    mesh.leafError = header.get<float>();
+    const float fallbackThreshold = header.get<float>(), fallbackError = header.get<float>();
+    mesh.materialSlots = header.get<uint32_t>();
     if (pageBytes != kPageBytes || rootPages > pageCount) throw PageFileError(name + ": inconsistent header");
+    if (mesh.uvPrecision < -1074 || mesh.uvPrecision > 1023) throw PageFileError(name + ": invalid texture coordinate precision");
+    if (mesh.materialSlots < 1 || mesh.materialSlots > 256) throw PageFileError(name + ": invalid material slot count");
+    const VertexFormat format{mesh.positionStep, colors, uvs, std::ldexp(1.0, mesh.uvPrecision), mesh.materialSlots};
 
     const size_t tableBytes = size_t(pageCount) * kPageEntryBytes + 4;
     if (bytes.size() < kHeaderBytes + tableBytes) throw PageFileError(name + ": truncated page table");
@@ -256,7 +274,7 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
         const std::string where = name + ": page " + std::to_string(p);
         if (crc32(entries[p].bytes) != entries[p].crc) throw PageFileError(where + ": checksum mismatch (corrupt file)");
         const PageStreams streams = decompress_page(entries[p].bytes, where);
-        UnitDecoder units(streams, mesh.positionStep, colors, where);
+        UnitDecoder units(streams, format, where);
         while (pageClusters[p].size() < entries[p].clusters) units.decode_unit(pageClusters[p]);
         if (pageClusters[p].size() != entries[p].clusters || !units.done()) throw PageFileError(where + ": holds other clusters than its table entry says");
     });
@@ -277,8 +295,13 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
         mesh.positions.insert(mesh.positions.end(), d.positions.begin(), d.positions.end());
         mesh.normals.insert(mesh.normals.end(), d.normals.begin(), d.normals.end());
         mesh.colors.insert(mesh.colors.end(), d.colors.begin(), d.colors.end());
+        mesh.uvs.insert(mesh.uvs.end(), d.uvs.begin(), d.uvs.end());
         mesh.triangles.insert(mesh.triangles.end(), d.triangles.begin(), d.triangles.end());
         append_cluster(mesh, c);
+    }
+    if (std::isfinite(fallbackThreshold)) {
+        mesh.fallback = extract_fallback(mesh, fallbackThreshold);
+        mesh.fallback.error = fallbackError;
     }
     return mesh;
 }

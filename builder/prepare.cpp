@@ -4,6 +4,7 @@
 #include "subdivide.h"
 #include "weld.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <unordered_map>
@@ -73,6 +74,7 @@ public:
     }
 
     const float* value(int64_t index) const { return view_.values.data() + index * view_.components; }
+    int components() const { return view_.components; }
 
 private:
     const PrimvarView& view_;
@@ -85,21 +87,25 @@ struct CornerKey {
     uint32_t point;
     uint32_t normal[3];
     uint32_t color[3];
+    uint32_t uv[2];
+    uint32_t material;
     bool operator==(const CornerKey&) const = default;
 };
 struct CornerKeyHash {
     size_t operator()(const CornerKey& k) const {
         uint64_t h = k.point * 0x9E3779B97F4A7C15ull;
-        for (uint32_t v : {k.normal[0], k.normal[1], k.normal[2], k.color[0], k.color[1], k.color[2]}) h = (h ^ v) * 0x100000001B3ull;
+        for (uint32_t v : {k.normal[0], k.normal[1], k.normal[2], k.color[0], k.color[1], k.color[2], k.uv[0], k.uv[1], k.material})
+            h = (h ^ v) * 0x100000001B3ull;
         return size_t(h ^ (h >> 29));
     }
 };
-void value_bits(const PrimvarLookup& primvar, int64_t index, uint32_t bits[3]) {
+template <size_t N>
+void value_bits(const PrimvarLookup& primvar, int64_t index, uint32_t (&bits)[N]) {
     if (index < 0) {
-        bits[0] = bits[1] = bits[2] = 0xffffffffu;
+        for (uint32_t& b : bits) b = 0xffffffffu;
         return;
     }
-    std::memcpy(bits, primvar.value(index), 3 * sizeof(float));
+    std::memcpy(bits, primvar.value(index), N * sizeof(float));
 }
 
 }  // namespace
@@ -144,12 +150,34 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         return name + ": dropped " + std::to_string(dropped) + " invalid face(s); first is face " + std::to_string(first) + " with " + reason;
     };
 
+    // Material slots per face (GeomSubsets): all faces or none, each 0-255.
+    std::span<const int32_t> faceMaterials = mesh.faceMaterials;
+    if (!faceMaterials.empty() && faceMaterials.size() != mesh.faceVertexCounts.size()) {
+        warnings.push_back(name + ": " + std::to_string(faceMaterials.size()) + " material slots for " +
+                           std::to_string(mesh.faceVertexCounts.size()) + " faces; one material is used");
+        faceMaterials = {};
+    }
+    for (int32_t slot : faceMaterials)
+        if (slot < 0 || slot > 255) {
+            warnings.push_back(name + ": material slot " + std::to_string(slot) + " is outside 0-255; one material is used");
+            faceMaterials = {};
+            break;
+        }
+    const bool materialSlots = std::any_of(faceMaterials.begin(), faceMaterials.end(), [](int32_t slot) { return slot != 0; });
+
     if (mesh.subdivisionScheme != SubdivisionScheme::None && mesh.refineLevel > 0) {
         // Refine the valid faces (OpenSubdiv must never see a bad index), then prepare the result as polygons.
         std::vector<int32_t> counts, indices, holes;
         std::vector<float> uniformColors;
         std::vector<int32_t> newIndexOf(mesh.faceVertexCounts.size(), -1);
         const bool uniform = mesh.displayColor.interpolation == Interpolation::Uniform && !mesh.displayColor.values.empty();
+        // Texture coordinates per point or per corner go through OpenSubdiv as one face-varying channel.
+        std::vector<std::string> uvNotes;
+        const PrimvarLookup uvSource(mesh.uvs, mesh, "texture coordinates", pointCount, uvNotes);
+        const bool refineUvs = uvSource.active() && (mesh.uvs.interpolation == Interpolation::FaceVarying ||
+                                                     mesh.uvs.interpolation == Interpolation::Vertex ||
+                                                     mesh.uvs.interpolation == Interpolation::Varying);
+        std::vector<int32_t> uvIndices, keptMaterials;
         size_t dropped = 0, firstBad = 0, start = 0;
         const char* firstReason = nullptr;
         for (size_t face = 0; face < mesh.faceVertexCounts.size(); ++face) {
@@ -162,7 +190,11 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             } else {
                 newIndexOf[face] = int32_t(counts.size());
                 counts.push_back(int32_t(count));
+                if (materialSlots) keptMaterials.push_back(faceMaterials[face]);
                 indices.insert(indices.end(), mesh.faceVertexIndices.begin() + start, mesh.faceVertexIndices.begin() + start + count);
+                if (refineUvs)
+                    for (size_t c = start; c < start + count; ++c)
+                        uvIndices.push_back(int32_t(uvSource.value_index(face, c, size_t(mesh.faceVertexIndices[c]))));
                 if (uniform) {
                     const size_t slot = mesh.displayColor.indices.empty() ? face : size_t(mesh.displayColor.indices[face]);
                     if (3 * slot + 2 < mesh.displayColor.values.size())
@@ -178,7 +210,8 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         if (counts.empty()) throw MeshError(name + ": no drawable faces" + (firstReason ? std::string(" (every face is invalid: ") + firstReason + ")" : ""));
         RefinedMesh refined;
         std::string problem;
-        if (refine_subdivision(mesh, counts, indices, holes, uniform ? uniformColors.data() : nullptr, refined, problem)) {
+        const FaceVaryingUvs uvs{refineUvs ? mesh.uvs.values : std::span<const float>(), uvIndices};
+        if (refine_subdivision(mesh, counts, indices, holes, uniform ? uniformColors.data() : nullptr, uvs, keptMaterials, refined, problem)) {
             MeshView view;
             view.name = name;
             view.points = refined.points;
@@ -186,12 +219,18 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             view.faceVertexIndices = refined.indices;
             if (refined.colorInterpolation != Interpolation::None) view.displayColor = {refined.colorInterpolation, 3, refined.colors, {}};
             else if (mesh.displayColor.interpolation == Interpolation::Constant) view.displayColor = mesh.displayColor;
+            if (!refined.uvIndices.empty()) view.uvs = {Interpolation::FaceVarying, 2, refined.uvs, refined.uvIndices};
+            else if (mesh.uvs.interpolation == Interpolation::Constant) view.uvs = mesh.uvs;
+            view.faceMaterials = refined.faceMaterials;
             PreparedMesh result = prepare_mesh(view);
             std::vector<std::string> notes;
             if (dropped) notes.push_back(dropped_faces_warning(dropped, firstBad, firstReason));
             if (nonFinitePoints) notes.push_back(name + ": " + std::to_string(nonFinitePoints) + " point(s) are NaN or infinite");
             if (mesh.displayColor.interpolation == Interpolation::FaceVarying)
                 notes.push_back(name + ": face-varying displayColor is not refined yet; the subdivided mesh is drawn without it");
+            notes.insert(notes.end(), uvNotes.begin(), uvNotes.end());
+            if (mesh.uvs.interpolation == Interpolation::Uniform && uvSource.active())
+                notes.push_back(name + ": uniform texture coordinates are not refined; the subdivided mesh is drawn without them");
             result.warnings.insert(result.warnings.begin(), notes.begin(), notes.end());
             return result;
         }
@@ -218,11 +257,13 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         out.hasConstantColor = true;
     }
     const bool vertexColors = colors.active() && !out.hasConstantColor;
+    PrimvarLookup uvs(mesh.uvs, mesh, "texture coordinates", pointCount, warnings);
+    if (uvs.active() && uvs.components() != 2) throw MeshError(name + ": texture coordinates must have 2 components");
 
     // Triangulate (a fan per polygon, as Hydra does) and split vertices at attribute seams.
     std::unordered_map<CornerKey, uint32_t, CornerKeyHash> vertexOf;
     std::vector<uint32_t> vertexPoint;
-    std::vector<int64_t> vertexNormal, vertexColor;
+    std::vector<int64_t> vertexNormal, vertexColor, vertexUv;
     size_t droppedFaces = 0, droppedDegenerate = 0, firstBadFace = SIZE_MAX;
     std::string firstBadReason;
     // Fast path: when no primvar varies per face or per corner, a vertex is just its (welded) point.
@@ -234,12 +275,14 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     auto same_values = [&](const PrimvarLookup& lookup, bool active, uint32_t a, uint32_t b) {
         if (!active) return true;
         const int64_t ia = lookup.value_index(0, 0, a), ib = lookup.value_index(0, 0, b);
-        return ia == ib || std::memcmp(lookup.value(ia), lookup.value(ib), 3 * sizeof(float)) == 0;
+        return ia == ib || std::memcmp(lookup.value(ia), lookup.value(ib), lookup.components() * sizeof(float)) == 0;
     };
-    bool pointVertices = per_point(mesh.normals, normals.active()) && per_point(mesh.displayColor, vertexColors);
+    bool pointVertices = per_point(mesh.normals, normals.active()) && per_point(mesh.displayColor, vertexColors) &&
+                         per_point(mesh.uvs, uvs.active()) && !materialSlots;
     for (uint32_t p = 0; p < pointCount && pointVertices; ++p)
         if (canonical[p] != p)
-            pointVertices = same_values(normals, normals.active(), p, canonical[p]) && same_values(colors, vertexColors, p, canonical[p]);
+            pointVertices = same_values(normals, normals.active(), p, canonical[p]) && same_values(colors, vertexColors, p, canonical[p]) &&
+                            same_values(uvs, uvs.active(), p, canonical[p]);
     std::vector<uint32_t> vertexOfPoint(pointVertices ? pointCount : 0, UINT32_MAX);
     auto corner_vertex = [&](size_t face, size_t corner) {
         const uint32_t p = uint32_t(mesh.faceVertexIndices[corner]);
@@ -250,18 +293,22 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
                 vertexPoint.push_back(canonical[p]);
                 vertexNormal.push_back(normals.value_index(face, corner, p));
                 vertexColor.push_back(vertexColors ? colors.value_index(face, corner, p) : -1);
+                vertexUv.push_back(uvs.value_index(face, corner, p));
             }
             return v;
         }
         const int64_t normal = normals.value_index(face, corner, p), color = vertexColors ? colors.value_index(face, corner, p) : -1;
-        CornerKey key{canonical[p], {}, {}};
+        const int64_t uv = uvs.value_index(face, corner, p);
+        CornerKey key{canonical[p], {}, {}, {}, materialSlots ? uint32_t(faceMaterials[face]) : 0u};
         value_bits(normals, normal, key.normal);
         value_bits(colors, color, key.color);
+        value_bits(uvs, uv, key.uv);
         auto [it, inserted] = vertexOf.try_emplace(key, uint32_t(vertexPoint.size()));
         if (inserted) {
             vertexPoint.push_back(canonical[p]);
             vertexNormal.push_back(normal);
             vertexColor.push_back(color);
+            vertexUv.push_back(uv);
         }
         return it->second;
     };
@@ -292,6 +339,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             out.indices.push_back(corner_vertex(face, c1));
             out.indices.push_back(corner_vertex(face, c2));
             out.sourceFaces.push_back(uint32_t(face));
+            if (materialSlots) out.triangleMaterials.push_back(uint8_t(faceMaterials[face]));
         }
     }
     if (droppedFaces) warnings.push_back(dropped_faces_warning(droppedFaces, firstBadFace, firstBadReason.c_str()));
@@ -352,6 +400,20 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             out.colors[3 * v + 1] = c[1];
             out.colors[3 * v + 2] = c[2];
         }
+    }
+
+    if (uvs.active()) {
+        out.uvs.resize(2 * vertexCount);
+        size_t nonFinite = 0;
+        for (size_t v = 0; v < vertexCount; ++v) {
+            const float* uv = uvs.value(vertexUv[v]);
+            for (int k = 0; k < 2; ++k) {
+                const bool finite = std::isfinite(uv[k]);
+                nonFinite += !finite;
+                out.uvs[2 * v + k] = finite ? uv[k] : 0.0f;
+            }
+        }
+        if (nonFinite) warnings.push_back(name + ": " + std::to_string(nonFinite) + " texture coordinate(s) are NaN or infinite; set to 0");
     }
     return out;
 }

@@ -13,13 +13,19 @@ namespace {
 
 using namespace OpenSubdiv;
 
-struct Vec3 {  // the value type OpenSubdiv's primvar refiner interpolates
-    float v[3];
-    void Clear() { v[0] = v[1] = v[2] = 0.0f; }
-    void AddWithWeight(const Vec3& src, float weight) {
-        for (int k = 0; k < 3; ++k) v[k] += weight * src.v[k];
+template <int N>
+struct Value {  // the value types OpenSubdiv's primvar refiner interpolates
+    float v[N];
+    void Clear() {
+        for (float& x : v) x = 0.0f;
+    }
+    void AddWithWeight(const Value& src, float weight) {
+        for (int k = 0; k < N; ++k) v[k] += weight * src.v[k];
     }
 };
+using Vec3 = Value<3>;
+using Vec2 = Value<2>;
+using Scalar = Value<1>;
 
 Sdc::SchemeType scheme_type(SubdivisionScheme scheme) {
     switch (scheme) {
@@ -32,7 +38,8 @@ Sdc::SchemeType scheme_type(SubdivisionScheme scheme) {
 }  // namespace
 
 bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, std::span<const int32_t> indices, std::span<const int32_t> holes,
-                        const float* uniformColors, RefinedMesh& out, std::string& problem) {
+                        const float* uniformColors, const FaceVaryingUvs& uvs, std::span<const int32_t> faceMaterials, RefinedMesh& out,
+                        std::string& problem) {
     const int pointCount = int(mesh.points.size() / 3);
     if (mesh.subdivisionScheme == SubdivisionScheme::Loop)
         for (int32_t c : counts)
@@ -48,8 +55,17 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
     descriptor.numHoles = int(holes.size());
     descriptor.holeIndices = holes.data();
     descriptor.isLeftHanded = mesh.leftHanded;
+    const bool hasUvs = !uvs.indices.empty();
+    Far::TopologyDescriptor::FVarChannel uvChannel;
+    if (hasUvs) {
+        uvChannel.numValues = int(uvs.values.size() / 2);
+        uvChannel.valueIndices = uvs.indices.data();
+        descriptor.numFVarChannels = 1;
+        descriptor.fvarChannels = &uvChannel;
+    }
     Sdc::Options options;
-    options.SetVtxBoundaryInterpolation(Sdc::Options::VTX_BOUNDARY_EDGE_AND_CORNER);  // USD's default
+    options.SetVtxBoundaryInterpolation(Sdc::Options::VTX_BOUNDARY_EDGE_AND_CORNER);  // USD's defaults
+    options.SetFVarLinearInterpolation(Sdc::Options::FVAR_LINEAR_CORNERS_PLUS1);
     using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
     std::unique_ptr<Far::TopologyRefiner> refiner(Factory::Create(descriptor, Factory::Options(scheme_type(mesh.subdivisionScheme), options)));
     if (!refiner) {
@@ -57,7 +73,9 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
         return false;
     }
     const int levels = mesh.refineLevel;
-    refiner->RefineUniform(Far::TopologyRefiner::UniformOptions(levels));
+    Far::TopologyRefiner::UniformOptions uniformOptions(levels);
+    uniformOptions.fullTopologyInLastLevel = hasUvs;  // the last level's face-varying indices
+    refiner->RefineUniform(uniformOptions);
 
     // Positions through the scheme; colours linearly (vertex / varying) or per face (uniform).
     Far::PrimvarRefiner primvars(*refiner);
@@ -78,6 +96,17 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
         for (size_t f = 0; f < counts.size(); ++f)
             for (int k = 0; k < 3; ++k) faceColors[f].v[k] = uniformColors[3 * f + k];
 
+    size_t uvTotal = 0;
+    for (int l = 0; hasUvs && l <= levels; ++l) uvTotal += size_t(refiner->GetLevel(l).GetNumFVarValues(0));
+    std::vector<Vec2> uvValues(uvTotal);
+    for (size_t i = 0; i < uvs.values.size() / 2; ++i) uvValues[i] = {{uvs.values[2 * i], uvs.values[2 * i + 1]}};
+
+    // Material slots are face-uniform values: each refined face takes its parent's (exact in float up to 2^24).
+    std::vector<Scalar> slots(faceMaterials.empty() ? 0 : faceTotal);
+    for (size_t f = 0; f < faceMaterials.size(); ++f) slots[f].v[0] = float(faceMaterials[f]);
+    Scalar* srcSlot = slots.data();
+
+    Vec2* srcUv = uvValues.data();
     Vec3* src = points.data();
     Vec3* srcColor = colors.data();
     Vec3* srcFace = faceColors.data();
@@ -94,6 +123,16 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
             primvars.InterpolateFaceUniform(l, srcFace, dstFace);
             srcFace = dstFace;
         }
+        if (!slots.empty()) {
+            Scalar* dstSlot = srcSlot + refiner->GetLevel(l - 1).GetNumFaces();
+            primvars.InterpolateFaceUniform(l, srcSlot, dstSlot);
+            srcSlot = dstSlot;
+        }
+        if (hasUvs) {
+            Vec2* dstUv = srcUv + refiner->GetLevel(l - 1).GetNumFVarValues(0);
+            primvars.InterpolateFaceVarying(l, srcUv, dstUv, 0);
+            srcUv = dstUv;
+        }
         src = dst;
     }
 
@@ -108,7 +147,13 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
         out.counts.push_back(face.size());
         for (int i = 0; i < face.size(); ++i) out.indices.push_back(face[i]);
         if (uniformColors) out.colors.insert(out.colors.end(), srcFace[f].v, srcFace[f].v + 3);
+        if (!slots.empty()) out.faceMaterials.push_back(int32_t(srcSlot[f].v[0]));
+        if (hasUvs) {
+            const Far::ConstIndexArray values = last.GetFaceFVarValues(f, 0);
+            out.uvIndices.insert(out.uvIndices.end(), values.begin(), values.end());
+        }
     }
+    for (int i = 0; hasUvs && i < last.GetNumFVarValues(0); ++i) out.uvs.insert(out.uvs.end(), srcUv[i].v, srcUv[i].v + 2);
     out.colorInterpolation = vertexColors ? Interpolation::Vertex : uniformColors ? Interpolation::Uniform : Interpolation::None;
     return true;
 }

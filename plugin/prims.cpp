@@ -56,12 +56,18 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
         }
     }
     if (dirtyBits & DirtyTransform) transform_ = scene.get_transform(id());
-    if (dirtyBits & DirtyMaterialId) materialId_ = scene.get_material_id(id());
+    if (dirtyBits & DirtyMaterialId) {
+        materialId_ = scene.get_material_id(id());
+        subsetMaterialIds_ = scene.get_subset_material_ids(id());
+    }
     if ((dirtyBits & DirtyInstancer) && !instancerId_.empty()) instances_ = scene.get_instance_transforms(instancerId_, id());
 }
 
-void Material::sync(SceneDelegate& scene, RenderParam&, uint32_t dirtyBits) {
-    if (dirtyBits & DirtyParams) desc_ = scene.get_material(id());
+void Material::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
+    if (!(dirtyBits & DirtyParams)) return;
+    MaterialDesc desc = scene.get_material(id());
+    textures_.load_slots(desc.textures, id(), param.warnings);  // while desc_ still holds the old images: shared, not re-read
+    desc_ = std::move(desc);
 }
 
 void Light::sync(SceneDelegate& scene, RenderParam&, uint32_t dirtyBits) {

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <sstream>
 #include <tuple>
 
@@ -29,7 +30,7 @@ std::unique_ptr<Mesh> RenderDelegate::create_rprim(const std::string& type, cons
 }
 
 std::unique_ptr<Prim> RenderDelegate::create_sprim(const std::string& type, const PrimId& id) {
-    if (type == "material") return std::make_unique<Material>(id);
+    if (type == "material") return std::make_unique<Material>(id, scene_.textures());
     if (type == "camera") return std::make_unique<Camera>(id);
     if (type == "distantLight" || type == "domeLight") return std::make_unique<Light>(id);
     return nullptr;
@@ -184,11 +185,11 @@ void RenderIndex::commit_resources() {
         instance.mesh = *mesh.gpu_mesh();
         instance.primId = mesh.prim_id();
         instance.doubleSided = mesh.double_sided();
-        auto material = materialHandles.find(mesh.material_id());
-        if (material != materialHandles.end()) {
-            instance.material = material->second;
-        } else {
-            const BuiltMesh* built = mesh.built();
+        const BuiltMesh* built = mesh.built();
+        auto handle_of = [&](const PrimId& materialId) {
+            auto material = materialHandles.find(materialId);
+            if (material != materialHandles.end()) return material->second;
+            // No bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey; one per colour.
             const auto color = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
             const auto key = std::make_tuple(color[0], color[1], color[2], !built->colors.empty());
             auto [it, added] = fallbackHandles.try_emplace(key, 0);
@@ -196,10 +197,19 @@ void RenderIndex::commit_resources() {
                 MaterialDesc fallback;
                 fallback.diffuseColor = color;
                 fallback.useDisplayColor = std::get<3>(key);
-                fallback.ior = 1.0f;
+                fallback.ior = 1.0f;  // diffuse only, like Hydra's fallback surface
                 it->second = scene.add_material(fallback);
             }
-            instance.material = it->second;
+            return it->second;
+        };
+        instance.material = handle_of(mesh.material_id());
+        if (built->materialSlots > 1) {  // GeomSubsets: one table per prim, shared by its instances
+            std::vector<uint32_t> table{instance.material};
+            const std::vector<PrimId>& subsets = mesh.subset_material_ids();
+            for (uint32_t slot = 1; slot < built->materialSlots; ++slot)
+                table.push_back(slot <= subsets.size() && !subsets[slot - 1].empty() ? handle_of(subsets[slot - 1]) : instance.material);
+            instance.material = scene.add_material_table(table);
+            instance.materialTable = true;
         }
         if (mesh.instancer_id().empty()) {
             instance.transform = mesh.transform();

@@ -77,10 +77,11 @@ struct PySceneDelegate : SceneDelegate {
     MaterialDesc get_material(const PrimId& id) override { NB_OVERRIDE_PURE(get_material, id); }
     LightDesc get_light(const PrimId& id) override { NB_OVERRIDE_PURE(get_light, id); }
     CameraDesc get_camera(const PrimId& id) override { NB_OVERRIDE_PURE(get_camera, id); }
+    std::vector<PrimId> get_subset_material_ids(const PrimId& id) override { NB_OVERRIDE(get_subset_material_ids, id); }
 };
 
 Visualize visualize_from(const std::string& name) {
-    for (int mode = 0; mode <= int(Visualize::Overdraw); ++mode)
+    for (int mode = 0; mode <= int(Visualize::Uv); ++mode)
         if (name == visualize_name(Visualize(mode))) return Visualize(mode);
     throw nb::value_error(("unknown visualization mode '" + name + "'").c_str());
 }
@@ -105,6 +106,8 @@ nb::dict stats_dict(const FrameStats& s) {
     d["post_pass_clusters"] = s.postPassClusters;
     d["backface_clusters"] = s.backfaceClusters;
     d["shading_bins"] = s.shadingBins;
+    d["textures"] = s.textures;
+    d["texture_bytes"] = s.textureBytes;
     nb::dict gpuMs;
     gpuMs["cull"] = s.cullMs;
     gpuMs["sw_raster"] = s.softwareRasterMs;
@@ -203,8 +206,9 @@ NB_MODULE(_tessera, m) {
         [](const std::string& name, Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices,
            std::optional<Array1<int32_t>> holes, bool leftHanded, bool doubleSided, std::optional<Array1<float>> normals,
            const std::string& normalsInterpolation, std::optional<Array1<int32_t>> normalsIndices, std::optional<Array1<float>> displayColor,
-           const std::string& displayColorInterpolation, std::optional<Array1<int32_t>> displayColorIndices, const std::string& scheme,
-           int refineLevel) {
+           const std::string& displayColorInterpolation, std::optional<Array1<int32_t>> displayColorIndices, std::optional<Array1<float>> uvs,
+           const std::string& uvsInterpolation, std::optional<Array1<int32_t>> uvsIndices, std::optional<Array1<int32_t>> faceMaterials,
+           const std::string& scheme, int refineLevel) {
             MeshSource source;
             source.view.subdivisionScheme = scheme == "catmullClark" ? SubdivisionScheme::CatmullClark
                                             : scheme == "loop"       ? SubdivisionScheme::Loop
@@ -221,11 +225,13 @@ NB_MODULE(_tessera, m) {
             if (normals) source.view.normals = {interpolation_from(normalsInterpolation), 3, span_of(normals), span_of(normalsIndices)};
             if (displayColor)
                 source.view.displayColor = {interpolation_from(displayColorInterpolation), 3, span_of(displayColor), span_of(displayColorIndices)};
+            if (uvs) source.view.uvs = {interpolation_from(uvsInterpolation), 2, span_of(uvs), span_of(uvsIndices)};
+            source.view.faceMaterials = span_of(faceMaterials);
             nb::list owners;
             for (nb::handle h : {nb::cast(points), nb::cast(counts), nb::cast(indices)}) owners.append(h);
-            for (auto* o : {&holes, &normalsIndices, &displayColorIndices})
+            for (auto* o : {&holes, &normalsIndices, &displayColorIndices, &uvsIndices, &faceMaterials})
                 if (*o) owners.append(nb::cast(**o));
-            for (auto* o : {&normals, &displayColor})
+            for (auto* o : {&normals, &displayColor, &uvs})
                 if (*o) owners.append(nb::cast(**o));
             source.keepAlive = keep_alive(owners);
             return source;
@@ -233,8 +239,10 @@ NB_MODULE(_tessera, m) {
         "name"_a, "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "hole_indices"_a = nb::none(), "left_handed"_a = false,
         "double_sided"_a = false, "normals"_a = nb::none(), "normals_interpolation"_a = "vertex", "normals_indices"_a = nb::none(),
         "display_color"_a = nb::none(), "display_color_interpolation"_a = "constant", "display_color_indices"_a = nb::none(),
-        "subdivision_scheme"_a = "none", "refine_level"_a = 0,
-        "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples).");
+        "uvs"_a = nb::none(), "uvs_interpolation"_a = "faceVarying", "uvs_indices"_a = nb::none(), "face_materials"_a = nb::none(),
+        "subdivision_scheme"_a = "none",
+        "refine_level"_a = 0,
+        "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples; uvs: float32 pairs).");
 
     nb::class_<MatrixArray>(m, "MatrixArray").def_prop_ro("size", &MatrixArray::size);
     m.def(
@@ -246,6 +254,47 @@ NB_MODULE(_tessera, m) {
             return array;
         },
         "matrices"_a, "Row-major (N, 4, 4) float64 matrices acting on column vectors.");
+
+    nb::enum_<ColorSpace>(m, "ColorSpace").value("auto", ColorSpace::Auto).value("sRGB", ColorSpace::Srgb).value("raw", ColorSpace::Raw);
+    nb::enum_<TextureWrap>(m, "TextureWrap")
+        .value("repeat", TextureWrap::Repeat)
+        .value("mirror", TextureWrap::Mirror)
+        .value("clamp", TextureWrap::Clamp)
+        .value("black", TextureWrap::Black);
+    nb::enum_<TextureChannel>(m, "TextureChannel")
+        .value("r", TextureChannel::R)
+        .value("g", TextureChannel::G)
+        .value("b", TextureChannel::B)
+        .value("a", TextureChannel::A)
+        .value("rgb", TextureChannel::Rgb);
+    nb::enum_<MaterialInput>(m, "MaterialInput")
+        .value("diffuseColor", MaterialInput::DiffuseColor)
+        .value("emissiveColor", MaterialInput::EmissiveColor)
+        .value("specularColor", MaterialInput::SpecularColor)
+        .value("metallic", MaterialInput::Metallic)
+        .value("roughness", MaterialInput::Roughness)
+        .value("opacity", MaterialInput::Opacity)
+        .value("occlusion", MaterialInput::Occlusion)
+        .value("normal", MaterialInput::Normal);
+    // A UsdUVTexture feeding one input (textures.h TextureSlot); the image is loaded when the material syncs.
+    nb::class_<TextureSlot>(m, "TextureSlot")
+        .def(nb::init<>())
+        .def_rw("input", &TextureSlot::input)
+        .def_rw("file", &TextureSlot::file)
+        .def_rw("color_space", &TextureSlot::colorSpace)
+        .def_rw("wrap_s", &TextureSlot::wrapS)
+        .def_rw("wrap_t", &TextureSlot::wrapT)
+        .def_rw("channel", &TextureSlot::channel)
+        .def_rw("scale", &TextureSlot::scale)
+        .def_rw("bias", &TextureSlot::bias)
+        .def_rw("fallback", &TextureSlot::fallback)
+        .def_rw("transform", &TextureSlot::transform)
+        .def_prop_ro("loaded", [](const TextureSlot& slot) { return slot.image != nullptr; })
+        .def("__repr__", [](const TextureSlot& slot) {
+            return std::string("TextureSlot(") + material_input_name(slot.input) + ", '" + slot.file + "')";
+        });
+    m.def("transform2d", &transform2d, "rotation"_a, "scale"_a, "translation"_a,
+          "UsdTransform2d's 2x3 matrix (row-major): scale, then rotate counter-clockwise (degrees), then translate.");
 
     nb::class_<MaterialDesc>(m, "MaterialDesc")
         .def(nb::init<>())
@@ -259,7 +308,10 @@ NB_MODULE(_tessera, m) {
         .def_rw("specular_color", &MaterialDesc::specularColor)
         .def_rw("ior", &MaterialDesc::ior)
         .def_rw("occlusion", &MaterialDesc::occlusion)
-        .def_rw("use_display_color", &MaterialDesc::useDisplayColor);
+        .def_rw("use_display_color", &MaterialDesc::useDisplayColor)
+        // A list copied in and out: assign a whole list (appending to the copy `textures` returns changes nothing).
+        .def_rw("textures", &MaterialDesc::textures)
+        .def_rw("uv_primvar", &MaterialDesc::uvPrimvar);
 
     nb::enum_<LightType>(m, "LightType").value("distant", LightType::Distant).value("dome", LightType::Dome);
     nb::class_<LightDesc>(m, "LightDesc")
@@ -289,7 +341,8 @@ NB_MODULE(_tessera, m) {
         .def("get_instance_transforms", &SceneDelegate::get_instance_transforms)
         .def("get_material", &SceneDelegate::get_material)
         .def("get_light", &SceneDelegate::get_light)
-        .def("get_camera", &SceneDelegate::get_camera);
+        .def("get_camera", &SceneDelegate::get_camera)
+        .def("get_subset_material_ids", &SceneDelegate::get_subset_material_ids);
 
     nb::class_<Image>(m, "Image")
         .def_ro("width", &Image::width)

@@ -39,8 +39,15 @@ uint32_t GpuScene::add_material(const MaterialDesc& material) {
     return uint32_t(materials_.size() - 1);
 }
 
+uint32_t GpuScene::add_material_table(std::span<const uint32_t> materials) {
+    materialTables_.insert(materialTables_.end(), materials.begin(), materials.end());
+    ++materialsVersion_;
+    return uint32_t(materialTables_.size() - materials.size());
+}
+
 void GpuScene::clear_materials() {
     materials_.clear();
+    materialTables_.clear();
     ++materialsVersion_;
 }
 

@@ -53,10 +53,12 @@ const char* visualize_name(Visualize mode) {
         case Visualize::ShadingBins: return "shading-bins";
         case Visualize::RasterBins: return "raster-bins";
         case Visualize::Overdraw: return "overdraw";
+        case Visualize::Uv: return "uv";
     }
     return "?";
 }
-static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::Overdraw) == TS_VIS_OVERDRAW,
+static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::Overdraw) == TS_VIS_OVERDRAW &&
+                  uint32_t(Visualize::Uv) == TS_VIS_UV,
               "Visualize must match the TS_VIS_* modes");
 
 bool aov_is_id(Aov aov) { return aov == Aov::PrimId || aov == Aov::InstanceId || aov == Aov::ClusterId || aov == Aov::TriangleId; }
@@ -296,7 +298,7 @@ struct Renderer::Impl {
     // the frame's HZB; resolve.
     static constexpr uint32_t kTimestamps = 10;
     Buffer hardwareList, softwareList;
-    Buffer instances, meshes, levels, clusters, positions, normals, colors, triangles, materials;
+    Buffer instances, meshes, levels, clusters, positions, normals, colors, uvs, triangles, materials, materialTables;
     uint32_t instanceCount = 0, clusterCount = 0;
     uint64_t sourceTriangles = 0;
     const GpuScene* uploadedScene = nullptr;
@@ -310,6 +312,10 @@ struct Renderer::Impl {
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
     uint32_t materialCount = 1;
+    // Textures: the slots of textured materials, and the pool of the images they read (both empty without textures).
+    Buffer textureSlots, texturePool;
+    std::vector<std::shared_ptr<const TextureImage>> poolImages;
+    std::vector<bool> maskedMaterials;  // per material: a textured opacity under an opacityThreshold (TS_INSTANCE_MASKED)
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbPrevious, hzbCurrent;
@@ -416,19 +422,20 @@ struct Renderer::Impl {
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
         std::vector<gpu::GpuCluster> gpuClusters;
         std::vector<gpu::GpuLevel> gpuLevels;
-        std::vector<float> gpuPositions;
+        std::vector<float> gpuPositions, gpuUvs;
         std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles;
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
             const BuiltMesh* mesh = scene.meshes_[m].get();
             gpu::GpuMesh& g = gpuMeshes[m];
             g = {};
-            g.colorOffset = TS_NO_STREAM;
+            g.colorOffset = g.uvOffset = TS_NO_STREAM;
             if (!mesh) continue;
             const uint32_t vertexBase = uint32_t(gpuPositions.size() / 3), triangleBase = uint32_t(gpuTriangles.size());
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
             g.clusterOffset = uint32_t(gpuClusters.size());
             g.vertexOffset = vertexBase;
             if (!mesh->colors.empty()) g.colorOffset = uint32_t(gpuColors.size() / 2);
+            if (!mesh->uvs.empty()) g.uvOffset = uint32_t(gpuUvs.size() / 2);
             // The whole DAG goes up; the cull pass picks the cut. Clusters come level by level, level 0 first.
             g.clusterCount = uint32_t(mesh->clusters.size());
             g.leafClusterCount = mesh->leafClusters;
@@ -463,6 +470,7 @@ struct Renderer::Impl {
             gpuPositions.insert(gpuPositions.end(), mesh->positions.begin(), mesh->positions.end());
             gpuNormals.insert(gpuNormals.end(), mesh->normals.begin(), mesh->normals.end());
             gpuColors.insert(gpuColors.end(), mesh->colors.begin(), mesh->colors.end());
+            gpuUvs.insert(gpuUvs.end(), mesh->uvs.begin(), mesh->uvs.end());
             gpuTriangles.insert(gpuTriangles.end(), mesh->triangles.begin(), mesh->triangles.end());
         }
         if (gpuLevels.empty()) gpuLevels.push_back({});
@@ -472,10 +480,12 @@ struct Renderer::Impl {
         upload_vector(device, positions, gpuPositions);
         upload_vector(device, normals, gpuNormals);
         upload_vector(device, colors, gpuColors);
+        upload_vector(device, uvs, gpuUvs);
         upload_vector(device, triangles, gpuTriangles);
     }
 
-    void upload_instances(GpuScene& scene) {
+    // `moved`: the instances may have moved (else only their material flags changed, and the last frame's depths hold).
+    void upload_instances(GpuScene& scene, bool moved) {
         gpuInstances.clear();
         translations.clear();
         gpuInstances.reserve(scene.instances_.size());
@@ -495,16 +505,20 @@ struct Renderer::Impl {
             translations.push_back({t[0], t[1], t[2]});
             g.meshIndex = desc.mesh;
             g.primId = desc.primId;
-            g.materialIndex = std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
+            const bool table = desc.materialTable && mesh->materialSlots > 1 &&
+                               uint64_t(desc.material) + mesh->materialSlots <= scene.materialTables_.size();
+            g.materialIndex = table ? desc.material : std::min<uint32_t>(desc.material, uint32_t(std::max<size_t>(scene.materials_.size(), 1) - 1));
+            if (desc.materialTable && !table) g.materialIndex = 0;  // a table too short for the mesh: the first material everywhere
             g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u) |
-                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u);
+                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u) | (table ? TS_INSTANCE_MATERIAL_SLOTS : 0u) |
+                      (!table && g.materialIndex < maskedMaterials.size() && maskedMaterials[g.materialIndex] ? TS_INSTANCE_MASKED : 0u);
             gpuInstances.push_back(g);
             clusterCount += mesh->leafClusters;
             sourceTriangles += mesh->sourceTriangles;
         }
         instanceCount = uint32_t(gpuInstances.size());
         relativeTo = {NAN, NAN, NAN};
-        previousValid = false;  // instances may have moved: last frame's depths say nothing about them
+        if (moved) previousValid = false;  // last frame's depths say nothing about instances that moved
         // Every cluster of every instance is an upper bound on the visible ones: start there (8 bytes each, within
         // reason) so that a frame rarely pays for an overflow redraw.
         if (!capacityPinned) capacity = std::clamp<uint32_t>(clusterCount, capacity, 1u << 22);
@@ -525,26 +539,106 @@ struct Renderer::Impl {
         relativeTo = camera;
     }
 
+    // A material's inputs as the GPU reads them: the textured ones get slots (in TS_INPUT_* order), and the inputs of
+    // slots whose file could not be read take the slot's fallback as their constant.
+    gpu::GpuMaterial gpu_material(MaterialDesc m, std::vector<gpu::GpuTextureSlot>& slots, std::vector<std::shared_ptr<const TextureImage>>& images) {
+        std::array<const TextureSlot*, TS_INPUT_COUNT> textured{};
+        for (const TextureSlot& slot : m.textures) {
+            // An input this material's workflow ignores costs nothing; nor does opacity without a threshold (no blending).
+            if ((slot.input == MaterialInput::SpecularColor && !m.useSpecularWorkflow) || (slot.input == MaterialInput::Metallic && m.useSpecularWorkflow) ||
+                (slot.input == MaterialInput::Opacity && !(m.opacityThreshold > 0)))
+                continue;
+            if (slot.image) {
+                textured[size_t(slot.input)] = &slot;
+                continue;
+            }
+            const auto& f = slot.fallback;
+            const std::array<float, 3> rgb = slot.channel == TextureChannel::Rgb ? std::array<float, 3>{f[0], f[1], f[2]}
+                                                                                   : std::array<float, 3>{f[size_t(slot.channel)], f[size_t(slot.channel)], f[size_t(slot.channel)]};
+            switch (slot.input) {
+                case MaterialInput::DiffuseColor: m.diffuseColor = rgb, m.useDisplayColor = false; break;
+                case MaterialInput::EmissiveColor: m.emissiveColor = rgb; break;
+                case MaterialInput::SpecularColor: m.specularColor = rgb; break;
+                case MaterialInput::Metallic: m.metallic = rgb[0]; break;
+                case MaterialInput::Roughness: m.roughness = rgb[0]; break;
+                case MaterialInput::Opacity: m.opacity = rgb[0]; break;
+                case MaterialInput::Occlusion: m.occlusion = rgb[0]; break;
+                case MaterialInput::Normal: break;  // no normal map
+            }
+        }
+        gpu::GpuMaterial g{};
+        g.diffuseColor = {m.diffuseColor[0], m.diffuseColor[1], m.diffuseColor[2], m.opacity};
+        g.emissiveColor = {m.emissiveColor[0], m.emissiveColor[1], m.emissiveColor[2], std::clamp(m.occlusion, 0.0f, 1.0f)};
+        // UsdPreviewSurface: reflectance at normal incidence from the index of refraction, ((ior - 1) / (ior + 1))^2.
+        const float fromIor = (m.ior - 1) / (m.ior + 1) * ((m.ior - 1) / (m.ior + 1));
+        const std::array<float, 3> f0 = m.useSpecularWorkflow ? m.specularColor : std::array<float, 3>{fromIor, fromIor, fromIor};
+        g.specular = {f0[0], f0[1], f0[2], std::clamp(m.roughness, 0.0f, 1.0f)};
+        g.metallic = std::clamp(m.metallic, 0.0f, 1.0f);
+        const bool texturedDiffuse = textured[TS_INPUT_DIFFUSE_COLOR] != nullptr, texturedOpacity = textured[TS_INPUT_OPACITY] != nullptr;
+        g.flags = (m.useDisplayColor && !texturedDiffuse ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u) | (m.useSpecularWorkflow ? 0u : TS_MATERIAL_METALLIC) |
+                  (!texturedOpacity && m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
+        if (texturedOpacity) g.diffuseColor.w = m.opacityThreshold;  // masked per pixel: the threshold takes opacity's place
+        g.firstTextureSlot = uint32_t(slots.size());
+        for (uint32_t input = 0; input < TS_INPUT_COUNT; ++input) {
+            const TextureSlot* slot = textured[input];
+            if (!slot) continue;
+            auto image = std::find(images.begin(), images.end(), slot->image);
+            if (image == images.end()) image = images.insert(images.end(), slot->image);
+            const auto& t = slot->transform;
+            gpu::GpuTextureSlot s{};
+            s.scale = {slot->scale[0], slot->scale[1], slot->scale[2], slot->scale[3]};
+            s.bias = {slot->bias[0], slot->bias[1], slot->bias[2], slot->bias[3]};
+            s.transform = {t[0], t[1], t[3], t[4]};
+            s.translationS = t[2];
+            s.translationT = t[5];
+            s.texture = uint32_t(image - images.begin());
+            s.mode = uint32_t(slot->wrapS) | uint32_t(slot->wrapT) << 2 | uint32_t(slot->channel) << 4;
+            slots.push_back(s);
+            g.textureInputs |= 1u << input;
+        }
+        return g;
+    }
+
     void upload_materials(GpuScene& scene) {
         std::vector<gpu::GpuMaterial> gpuMaterials;
+        std::vector<gpu::GpuTextureSlot> slots;
+        std::vector<std::shared_ptr<const TextureImage>> images;
+        maskedMaterials.clear();
         for (const MaterialDesc& m : scene.materials_) {
-            gpu::GpuMaterial g{};
-            g.diffuseColor = {m.diffuseColor[0], m.diffuseColor[1], m.diffuseColor[2], m.opacity};
-            g.emissiveColor = {m.emissiveColor[0], m.emissiveColor[1], m.emissiveColor[2], std::clamp(m.occlusion, 0.0f, 1.0f)};
-            // UsdPreviewSurface: reflectance at normal incidence from the index of refraction, ((ior - 1) / (ior + 1))^2.
-            const float fromIor = (m.ior - 1) / (m.ior + 1) * ((m.ior - 1) / (m.ior + 1));
-            const std::array<float, 3> f0 = m.useSpecularWorkflow ? m.specularColor : std::array<float, 3>{fromIor, fromIor, fromIor};
-            g.specular = {f0[0], f0[1], f0[2], std::clamp(m.roughness, 0.0f, 1.0f)};
-            g.metallic = std::clamp(m.metallic, 0.0f, 1.0f);
-            g.flags = (m.useDisplayColor ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u) | (m.useSpecularWorkflow ? 0u : TS_MATERIAL_METALLIC) |
-                      (m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
-            gpuMaterials.push_back(g);
+            gpuMaterials.push_back(gpu_material(m, slots, images));
+            maskedMaterials.push_back((gpuMaterials.back().textureInputs & (1u << TS_INPUT_OPACITY)) != 0);
         }
         if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 1}, {0, 0, 0, 0.5f}, 0, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0});
         upload_vector(device, materials, gpuMaterials);
         materialCount = uint32_t(gpuMaterials.size());
+        std::vector<uint32_t> tables = scene.materialTables_;
+        for (uint32_t& m : tables) m = std::min(m, materialCount - 1);
+        upload_vector(device, materialTables, tables);
         if (shadingBins.size < uint64_t(materialCount) * sizeof(gpu::GpuBin))
             shadingBins = device.create_buffer(uint64_t(materialCount) * sizeof(gpu::GpuBin), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
+        // No textures, no texture memory.
+        if (slots.empty()) textureSlots = Buffer{};
+        else upload_vector(device, textureSlots, slots);
+        if (images != poolImages) upload_texture_pool(images);
+    }
+
+    // The texture pool: a GpuTexture record per image, then every image's words. Rebuilt when the set of images changes.
+    void upload_texture_pool(std::vector<std::shared_ptr<const TextureImage>> images) {
+        poolImages = std::move(images);
+        texturePool = Buffer{};
+        if (poolImages.empty()) return;
+        uint64_t words = poolImages.size() * 4;
+        for (const auto& image : poolImages) words += image->words.size();
+        if (words > 0xffffffffull) throw std::runtime_error("the texture pool would exceed 16 GiB");
+        std::vector<uint32_t> pool;
+        pool.reserve(words);
+        uint32_t offset = uint32_t(poolImages.size() * 4);
+        for (const auto& image : poolImages) {
+            pool.insert(pool.end(), {image->width, image->height, offset, image->format | image->levels << 8});
+            offset += uint32_t(image->words.size());
+        }
+        for (const auto& image : poolImages) pool.insert(pool.end(), image->words.begin(), image->words.end());
+        upload_vector(device, texturePool, pool);
     }
 
     void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount) {
@@ -610,12 +704,16 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     Impl& s = *impl_;
     if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
         throw std::invalid_argument("resolution must be between 1x1 and 16384x16384");
+    bool instancesMoved = s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_, materialsChanged = false;
     if (s.uploadedScene != &scene || s.geometryVersion != scene.geometryVersion_) {
         s.upload_geometry(scene);
-        s.instancesVersion = 0;  // instance counts depend on the meshes
+        instancesMoved = true;  // instance counts depend on the meshes
     }
-    if (s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_) s.upload_instances(scene);
-    if (s.uploadedScene != &scene || s.materialsVersion != scene.materialsVersion_) s.upload_materials(scene);
+    if (s.uploadedScene != &scene || s.materialsVersion != scene.materialsVersion_) {
+        s.upload_materials(scene);
+        materialsChanged = true;  // instance flags say which materials mask pixels and which have slots
+    }
+    if (instancesMoved || materialsChanged) s.upload_instances(scene, instancesMoved);
     s.uploadedScene = &scene;
     s.geometryVersion = scene.geometryVersion_;
     s.instancesVersion = scene.instancesVersion_;
@@ -627,6 +725,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.instances = uint32_t(scene.instances_.size());
     frameStats.clusters = s.clusterCount;
     frameStats.sourceTriangles = s.sourceTriangles;
+    frameStats.textures = uint32_t(s.poolImages.size());
+    frameStats.textureBytes = s.texturePool.size + s.textureSlots.size;
     const uint64_t pixels = uint64_t(settings.width) * settings.height;
 
     for (;;) {
@@ -692,8 +792,10 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.positions = s.positions.address;
         f.normals = s.normals.address;
         f.colors = s.colors.address;
+        f.uvs = s.uvs.address;
         f.triangles = s.triangles.address;
         f.materials = s.materials.address;
+        f.materialTables = s.materialTables.address;
         f.visibleClusters = s.visibleClusters.address;
         f.hardwareList = s.hardwareList.address;
         f.softwareList = s.softwareList.address;
@@ -707,6 +809,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.overdraw = countOverdraw ? s.overdraw.address : 0;
         f.bins = s.shadingBins.address;
         f.binPixels = s.binPixels.address;
+        f.textureSlots = s.textureSlots.address;
+        f.textures = s.texturePool.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {

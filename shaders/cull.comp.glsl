@@ -188,7 +188,8 @@ void main_pass(GpuFrame frame) {
     uint instanceIndex = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (instanceIndex >= frame.counts.x) return;
     GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
-    if ((MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
+    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u &&
+        (MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
     vec4 sphere = instance_sphere(frame, instance);
     if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
     if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {

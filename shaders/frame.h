@@ -90,3 +90,11 @@ void count_fragment(GpuFrame frame, uint pixel) {
 uvec2 visible_cluster(GpuFrame frame, uint64_t value) {
     return VisibleClusterRef(frame.visibleClusters).data[uint(value & 0xfffffffful) >> TS_VIS_TRIANGLE_BITS];
 }
+
+// The material of a visible triangle: the instance's own, or, for meshes whose triangles carry material slots
+// (GeomSubsets), the slot's entry in the instance's material table.
+uint pixel_material(GpuFrame frame, GpuInstance instance, uint cluster, uint triangle) {
+    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u) return instance.materialIndex;
+    uint slot = UintRef(frame.triangles).data[ClusterRef(frame.clusters).data[cluster].triangleOffset + triangle] >> 24;
+    return UintRef(frame.materialTables).data[instance.materialIndex + slot];
+}

@@ -7,6 +7,7 @@
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_shader_atomic_int64 : require
 #include "frame.h"
+#include "surface.h"
 
 layout(local_size_x = TS_SW_RASTER_GROUP_SIZE) in;
 
@@ -25,14 +26,16 @@ int edge_bias(ivec2 from, ivec2 to) {
 // edge functions (z: the vertex depths, w: one over twice the area).
 float depth_at(vec3 edges, vec4 z) { return (edges.x * z.x + edges.y * z.y + edges.z * z.z) * z.w; }
 
-void write_pixel(GpuFrame frame, int x, int y, float depth, uint64_t payload) {
+// `masked`: the instance's material cuts pixels by a textured opacity (TS_INSTANCE_MASKED; the same for a workgroup).
+void write_pixel(GpuFrame frame, int x, int y, float depth, uint64_t payload, bool masked) {
     if (depth < 0.0 || depth > 1.0) return;  // beyond the far plane
+    if (masked && masked_out(frame, uint(payload), uvec2(x, y))) return;
     uint pixel = uint(y) * frame.viewport.x + uint(x);
     atomicMax(VisibilityRef(frame.visibility).data[pixel], (uint64_t(floatBitsToUint(depth)) << 32) | payload);
     count_fragment(frame, pixel);
 }
 
-void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload) {
+void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload, bool masked) {
     ivec2 p = lo * step + center;
     ivec3 row = ivec3((b.x - c.x) * (p.y - b.y) - (b.y - c.y) * (p.x - b.x),
                       (c.x - a.x) * (p.y - c.y) - (c.y - a.y) * (p.x - c.x),
@@ -43,11 +46,11 @@ void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, i
     for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
         ivec3 w = row;
         for (int x = lo.x; x <= hi.x; ++x, w += stepX)
-            if (all(greaterThanEqual(w + bias, ivec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload);
+            if (all(greaterThanEqual(w + bias, ivec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload, masked);
     }
 }
 
-void scan_large(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload) {
+void scan_large(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload, bool masked) {
     ivec2 p = lo * step + center;
     i64vec3 row = i64vec3(int64_t(b.x - c.x) * int64_t(p.y - b.y) - int64_t(b.y - c.y) * int64_t(p.x - b.x),
                           int64_t(c.x - a.x) * int64_t(p.y - c.y) - int64_t(c.y - a.y) * int64_t(p.x - c.x),
@@ -58,7 +61,7 @@ void scan_large(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, i
     for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
         i64vec3 w = row;
         for (int x = lo.x; x <= hi.x; ++x, w += stepX)
-            if (all(greaterThanEqual(w + bias, i64vec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload);
+            if (all(greaterThanEqual(w + bias, i64vec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload, masked);
     }
 }
 
@@ -115,8 +118,9 @@ void main() {
             ivec2 hi = min((max(a, max(b, c)) - center) / step, ivec2(frame.viewport.xy) - 1);
             uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
             vec4 z = vec4(za, zb, zc, 1.0 / float(-area));
-            if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload);
-            else scan_large(frame, a, b, c, lo, hi, step, center, z, payload);
+            bool masked = (instance.flags & TS_INSTANCE_MASKED) != 0u;
+            if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload, masked);
+            else scan_large(frame, a, b, c, lo, hi, step, center, z, payload, masked);
         }
     }
 }

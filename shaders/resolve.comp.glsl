@@ -5,6 +5,7 @@
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
+#include "surface.h"
 
 layout(local_size_x = TS_SHADE_GROUP_SIZE) in;
 
@@ -35,7 +36,7 @@ vec3 level_color(uint level) {
     return clamp(vec3(2.0 * t - 0.5, 2.0 - abs(4.0 * t - 2.0), 1.5 - 2.0 * t), 0.0, 1.0);
 }
 
-vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software) {
+vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software, uint material) {
     if (mode == TS_VIS_RASTER_BINS) return software ? vec3(0.15, 0.45, 1.0) : vec3(1.0, 0.55, 0.1);
     if (mode == TS_VIS_TRIANGLES) return id_color(cluster.triangleOffset + triangle);
     if (mode == TS_VIS_CLUSTERS) return id_color(visible.y);
@@ -43,7 +44,7 @@ vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluste
     if (mode == TS_VIS_LOD) return level_color(cluster.levelVertices >> 16);
     if (mode == TS_VIS_INSTANCES) return id_color(visible.x);
     if (mode == TS_VIS_PRIMITIVES) return id_color(instance.primId);
-    return id_color(instance.materialIndex);  // TS_VIS_SHADING_BINS
+    return id_color(material);  // TS_VIS_SHADING_BINS
 }
 
 // Light reflected towards `toEye` from a distant light arriving from `toLight` with unit radiance: Lambert diffuse
@@ -108,25 +109,12 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     vec3 p1 = to_camera_relative(instance, translation, vertex_position(frame, v1));
     vec3 p2 = to_camera_relative(instance, translation, vertex_position(frame, v2));
 
-    // The pixel's ray, from the inverse view-projection (works for perspective and orthographic).
-    vec2 ndc = (vec2(pixel) + 0.5) / vec2(frame.viewport.xy) * 2.0 - 1.0;
-    vec4 nearPoint = frame.inverseViewProjection * vec4(ndc, 1.0, 1.0);
-    vec4 midPoint = frame.inverseViewProjection * vec4(ndc, 0.5, 1.0);
-    vec3 origin = nearPoint.xyz / nearPoint.w;
-    vec3 direction = normalize(midPoint.xyz / midPoint.w - origin);
-
-    // Barycentrics where the ray meets the triangle's plane (Moller-Trumbore, unclamped).
+    // The pixel's ray and where it meets the triangle's plane.
+    vec3 origin, direction;
+    pixel_ray(frame, vec2(pixel) + 0.5, origin, direction);
     vec3 e1 = p1 - p0, e2 = p2 - p0;
-    vec3 pv = cross(direction, e2);
-    float det = dot(e1, pv);
-    vec3 bary = vec3(1.0 / 3.0);
+    vec3 bary = plane_barycentrics(origin, direction, p0, e1, e2);
     float t = dot(p0 - origin, cross(e1, e2)) / dot(direction, cross(e1, e2));
-    if (abs(det) > 0.0) {
-        vec3 tv = origin - p0;
-        float u = dot(tv, pv) / det;
-        float v = dot(direction, cross(tv, e1)) / det;
-        bary = vec3(1.0 - u - v, u, v);
-    }
     if (!(t > 0.0) || isinf(t)) t = 0.0;  // edge-on triangle: the plane test is meaningless
     vec3 hit = origin + t * direction;
 
@@ -153,31 +141,59 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     }
 
     if (frame.counts.w != TS_VIS_NONE) {  // flat id colours, lit from the eye so that shapes stay readable
-        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle, software);
+        if (frame.counts.w == TS_VIS_UV) {  // data, not a picture: unlit
+            vec3 uvColor = vec3(1.0, 0.0, 1.0);
+            if (mesh.uvOffset != TS_NO_STREAM) {
+                PixelUv uv = pixel_uv(frame, vec2(pixel), bary, p0, e1, e2, vertex_uv(frame, mesh, v0), vertex_uv(frame, mesh, v1),
+                                      vertex_uv(frame, mesh, v2));
+                uvColor = vec3(fract(uv.uv), 0.0);
+            }
+            OutputRef(frame.aovOutput).data[index] = vec4(uvColor, 1.0);
+            return;
+        }
+        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle, software, push.step);
         OutputRef(frame.aovOutput).data[index] = vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0);
         return;
     }
 
-    GpuMaterial material = MaterialRef(frame.materials).data[instance.materialIndex];
+    GpuMaterial material = MaterialRef(frame.materials).data[push.step];  // this dispatch's bin is one material
     vec3 albedo = material.diffuseColor.rgb;
     if ((material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
         albedo = bary.x * vertex_color(frame, mesh, v0) + bary.y * vertex_color(frame, mesh, v1) + bary.z * vertex_color(frame, mesh, v2);
+    vec3 emission = material.emissiveColor.rgb, f0 = material.specular.rgb;
+    float occlusion = material.emissiveColor.a, roughness = material.specular.a, metallic = material.metallic;
+
+    // Textured inputs replace their constants (a test of the whole bin's material: no texture work without textures).
+    // Opacity is not among them here: masks are cut by the rasterizers.
+    if (material.textureInputs != 0u) {
+        PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), bary, p0, e1, e2, v0, v1, v2);
+        uint inputs = material.textureInputs & ~(1u << TS_INPUT_OPACITY);
+        if ((inputs & (1u << TS_INPUT_DIFFUSE_COLOR)) != 0u) albedo = material_texture(frame, material, TS_INPUT_DIFFUSE_COLOR, uv).rgb;
+        if ((inputs & (1u << TS_INPUT_EMISSIVE_COLOR)) != 0u) emission = material_texture(frame, material, TS_INPUT_EMISSIVE_COLOR, uv).rgb;
+        if ((inputs & (1u << TS_INPUT_SPECULAR_COLOR)) != 0u) f0 = material_texture(frame, material, TS_INPUT_SPECULAR_COLOR, uv).rgb;
+        if ((inputs & (1u << TS_INPUT_METALLIC)) != 0u) metallic = clamp(material_texture(frame, material, TS_INPUT_METALLIC, uv).x, 0.0, 1.0);
+        if ((inputs & (1u << TS_INPUT_ROUGHNESS)) != 0u) roughness = clamp(material_texture(frame, material, TS_INPUT_ROUGHNESS, uv).x, 0.0, 1.0);
+        if ((inputs & (1u << TS_INPUT_OCCLUSION)) != 0u) occlusion = clamp(material_texture(frame, material, TS_INPUT_OCCLUSION, uv).x, 0.0, 1.0);
+        if ((inputs & (1u << TS_INPUT_NORMAL)) != 0u && mesh.uvOffset != TS_NO_STREAM) {
+            n = apply_normal_map(n, material_texture(frame, material, TS_INPUT_NORMAL, uv).xyz, e1, e2, vertex_uv(frame, mesh, v0),
+                                 vertex_uv(frame, mesh, v1), vertex_uv(frame, mesh, v2));
+            if (dot(n, geometric) < 0.0) n = geometric;
+        }
+    }
 
     // UsdPreviewSurface: metallic blends the reflectance towards the albedo and takes the diffuse away.
-    vec3 f0 = material.specular.rgb;
     if ((material.flags & TS_MATERIAL_METALLIC) != 0u) {
-        f0 = mix(f0, albedo, material.metallic);
-        albedo *= 1.0 - material.metallic;
+        f0 = mix(f0, albedo, metallic);
+        albedo *= 1.0 - metallic;
     }
-    float roughness = material.specular.a;
     vec3 toEye = -direction;
-    vec3 color = material.emissiveColor.rgb;
+    vec3 color = emission;
     for (uint i = 0u; i < frame.viewport.w; ++i) {
         GpuLight light = frame.lights[i];
         if (uint(light.directionType.w) == TS_LIGHT_DISTANT)
             color += light.radiance.rgb * direct_light(n, toEye, -light.directionType.xyz, albedo, f0, roughness);
         else  // a uniform dome, its light scaled by the occlusion input; no shadowing yet
-            color += light.radiance.rgb * material.emissiveColor.a * (albedo + environment_reflectance(f0, roughness, max(dot(n, toEye), 0.0)));
+            color += light.radiance.rgb * occlusion * (albedo + environment_reflectance(f0, roughness, max(dot(n, toEye), 0.0)));
     }
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }

@@ -32,11 +32,47 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_INSTANCE_DOUBLE_SIDED 1u
 #define TS_INSTANCE_FLIP_WINDING 2u  // the transform mirrors (negative determinant); leftHanded is fixed by the builder
 #define TS_INSTANCE_CONFORMAL 4u     // the transform keeps angles (rotation, uniform scale, mirror): normal cones stay valid
+#define TS_INSTANCE_MATERIAL_SLOTS 8u  // the mesh's triangles carry material slots: materialIndex starts its material table
+#define TS_INSTANCE_MASKED 16u       // its material cuts pixels by a textured opacity (both rasterizers test each pixel)
 
 // Material flags.
 #define TS_MATERIAL_USE_DISPLAY_COLOR 1u  // diffuse comes from the mesh's displayColor primvar
 #define TS_MATERIAL_METALLIC 2u           // metallic workflow: reflectance blends towards the albedo with `metallic`
 #define TS_MATERIAL_CUT_OUT 4u            // masked and below its opacity threshold everywhere: never drawn
+
+// Textures live in one storage buffer, the texture pool (GpuFrame.textures), and are sampled by hand in texture.h:
+// lavapipe has no descriptor indexing, and the renderer reaches all data by buffer device address. Rows are stored
+// bottom row first, so that texel row j covers t in [j, j + 1) / height (USD's st has its origin at the bottom left).
+#define TS_TEXTURE_RGBA8 0u     // 8-bit images: unorm8x4, one word per texel
+#define TS_TEXTURE_R8 1u        // 8-bit single-channel images: one byte per texel, four to a word; reads (r, r, r, 1)
+#define TS_TEXTURE_RGBA16F 2u   // everything else (16-bit, half, float): float16x4, two words per texel
+#define TS_TEXTURE_FORMAT_MASK 0xfu
+#define TS_TEXTURE_SRGB 0x10u   // colour channels are sRGB-encoded: decoded per texel, before filtering
+
+// UsdUVTexture wrapS / wrapT ('useMetadata' reads as repeat). Black: transparent black outside [0, 1].
+#define TS_WRAP_REPEAT 0u
+#define TS_WRAP_MIRROR 1u
+#define TS_WRAP_CLAMP 2u
+#define TS_WRAP_BLACK 3u
+
+// The UsdUVTexture output a slot uses.
+#define TS_CHANNEL_R 0u
+#define TS_CHANNEL_G 1u
+#define TS_CHANNEL_B 2u
+#define TS_CHANNEL_A 3u
+#define TS_CHANNEL_RGB 4u
+
+// UsdPreviewSurface inputs a texture can drive: bit i of GpuMaterial.textureInputs. A material's slots follow one
+// another in this order from GpuMaterial.firstTextureSlot, one per set bit.
+#define TS_INPUT_DIFFUSE_COLOR 0u
+#define TS_INPUT_EMISSIVE_COLOR 1u
+#define TS_INPUT_SPECULAR_COLOR 2u
+#define TS_INPUT_METALLIC 3u
+#define TS_INPUT_ROUGHNESS 4u
+#define TS_INPUT_OPACITY 5u
+#define TS_INPUT_OCCLUSION 6u
+#define TS_INPUT_NORMAL 7u
+#define TS_INPUT_COUNT 8u
 
 // Mesh vertex streams.
 #define TS_NO_STREAM 0xffffffffu
@@ -61,6 +97,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIS_SHADING_BINS 7u  // materials
 #define TS_VIS_RASTER_BINS 8u   // software (compute) raster blue, hardware raster orange
 #define TS_VIS_OVERDRAW 9u      // fragments rasterized per pixel, both rasterizers: 1 blue through 9 or more red
+#define TS_VIS_UV 10u           // texture coordinates: fract(u) red, fract(v) green; magenta where the mesh has none
 
 // Frame flags (GpuFrame.counts.z).
 #define TS_FRAME_NO_LOD 1u      // draw every source triangle (level 0), the DAG off: the full-detail reference
@@ -141,8 +178,10 @@ struct GpuMesh {
     uint levelCount;
     uint leafClusterCount;  // level 0: the source triangles
     float lodRadius;     // about `sphere`'s centre, encloses every LOD and parent sphere of the mesh
+    uint uvOffset;       // first entry of the texture coordinate stream (indexed like colours), or TS_NO_STREAM
+    uint pad0, pad1, pad2;
 };
-TS_CHECK_SIZE(GpuMesh, 48);
+TS_CHECK_SIZE(GpuMesh, 64);
 
 // A drawn copy of a mesh. The transform maps mesh space to camera-relative world space: the CPU subtracts
 // the camera position from the translation in double and stores the result as a high and a low float, so
@@ -152,21 +191,43 @@ struct GpuInstance {
     vec4 translationLow;   // xyz: low part of the translation; w: largest stretch of the matrix (for bounds)
     uint meshIndex;
     uint primId;
-    uint materialIndex;
+    uint materialIndex;    // its material; with TS_INSTANCE_MATERIAL_SLOTS the first entry of its table (frame.materialTables)
     uint flags;            // TS_INSTANCE_*
 };
 TS_CHECK_SIZE(GpuInstance, 80);
 
-// UsdPreviewSurface: a Lambert diffuse lobe and a GGX specular lobe with Schlick's Fresnel.
+// UsdPreviewSurface: a Lambert diffuse lobe and a GGX specular lobe with Schlick's Fresnel. The constants hold the
+// inputs no texture drives; a material without textures (textureInputs 0) does no texture work at all.
 struct GpuMaterial {
-    vec4 diffuseColor;     // linear RGB; a is opacity
+    vec4 diffuseColor;     // linear RGB; a: opacity, or with a textured opacity (masked) the opacityThreshold
     vec4 emissiveColor;    // rgb; a: occlusion (scales the dome light)
     vec4 specular;         // rgb: reflectance at normal incidence (specularColor, or from ior); a: roughness
     float metallic;
     uint flags;            // TS_MATERIAL_*
-    uint pad0, pad1;
+    uint firstTextureSlot; // GpuTextureSlot of the lowest set bit of textureInputs
+    uint textureInputs;    // bit TS_INPUT_*: that input comes from a texture
 };
 TS_CHECK_SIZE(GpuMaterial, 64);
+
+// One image in the texture pool: its mip levels follow one another from `offset`, each starting on a word.
+struct GpuTexture {
+    uint width, height;    // level 0; level l is max(1, size >> l)
+    uint offset;           // first word of level 0, counted from the start of the pool
+    uint formatLevels;     // TS_TEXTURE_* | TS_TEXTURE_SRGB in bits 0-7, mip level count in bits 8-15
+};
+TS_CHECK_SIZE(GpuTexture, 16);
+
+// A UsdUVTexture feeding one material input: which image, how it is read (wrap, output), the UsdTransform2d applied
+// to st first, and the texture's scale and bias: value = texel * scale + bias, then the output's channel(s).
+struct GpuTextureSlot {
+    vec4 scale;
+    vec4 bias;
+    vec4 transform;        // rows of the 2x2 part: st' = (x y, z w) st + translation
+    float translationS, translationT;
+    uint texture;          // GpuTexture index in the pool
+    uint mode;             // wrapS | wrapT << 2 | TS_CHANNEL_* << 4
+};
+TS_CHECK_SIZE(GpuTextureSlot, 64);
 
 struct GpuLight {
     vec4 directionType;    // xyz: direction the light travels (world); w: TS_LIGHT_* as float
@@ -238,8 +299,10 @@ struct GpuFrame {
     address positions;       // float[3 * vertices], mesh space
     address normals;         // uint[vertices], octahedral snorm16x2
     address colors;          // uint[2 * colours], rgba16f
+    address uvs;             // vec2[texture coordinates]
     address triangles;       // uint[triangles], 3 x 8-bit cluster-local indices
     address materials;       // GpuMaterial[]
+    address materialTables;  // uint[]: per instance with material slots, slot -> material (pixel_material in frame.h)
     address visibleClusters; // uvec2[capacity]: (instance | TS_VISIBLE_SOFTWARE, cluster)
     address hardwareList;    // uint[capacity]: visible-cluster slots for hardware raster
     address softwareList;    // uint[capacity]: visible-cluster slots for the compute rasterizer
@@ -251,8 +314,10 @@ struct GpuFrame {
     address overdraw;        // uint[width * height]: fragments per pixel, only with TS_VIS_OVERDRAW (else 0)
     address bins;            // GpuBin[materials]
     address binPixels;       // uint[width * height]: covered pixels, grouped by material
+    address textureSlots;    // GpuTextureSlot[], 0 when no material has a texture
+    address textures;        // the texture pool: GpuTexture[] then texel words (uint); 0 when there are no textures
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 20);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 24);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

@@ -231,3 +231,53 @@ def test_preview_surface_inputs(render):
     assert 0.8 < a < 0.95 and 0.0 <= b < 0.02 and abs(metal[2] - (0.125 * a + b)) < 1e-3, metal
     assert result["primId"].ids()[50, 350] == NO_HIT, "opacity below opacityThreshold masks the quad"
     assert "/Plastic" in {result.prim_path(int(i)) for i in np.unique(result["primId"].ids()) if i != NO_HIT}
+
+
+def test_texture_coordinates(tmp_path):
+    """primvars:st of each interpolation reaches the resolve pass (--vis uv: red fract(u), green fract(v)); subdivided
+    meshes carry their UV islands through OpenSubdiv; a wrongly typed st is a warning naming the prim."""
+    session = tessera.Session(TESTENV / "testUvs" / "uvs.usda", validation=True)
+    result = session.render(camera="/Camera", resolution=(480, 320), vis="uv", aovs=("color", "primId"))
+    assert not result.errors, "\n".join(result.errors)
+    assert any("/WrongType: primvars:st is float3[]" in w for w in result.warnings)
+    out = tmp_path / "uvs.png"
+    result.write(out)
+    assert_matches_baseline(out, TESTENV / "testUvs" / "baseline" / "uvs.png")
+
+    color = np.asarray(result["color"].pixels)
+    # The face-varying quad spans st (0, 0)-(1, 1) over 2 units; the camera sits 9 units away (35 mm, 36 mm
+    # aperture over 480 pixels): 51.85 pixels per unit, centre at pixel (110.4, 92.6).
+    per_unit = 35.0 / 18.0 / 9.0 * 240.0
+    centre_x, centre_y = 240.0 - 2.5 * per_unit, 160.0 - 1.3 * per_unit
+    for du, dv in [(0.0, 0.0), (0.3, 0.0), (0.0, 0.3), (-0.35, -0.35), (0.4, -0.2)]:
+        x, y = int(centre_x + du * 2 * per_unit), int(centre_y - dv * 2 * per_unit)
+        expected_u = 0.5 + ((x + 0.5) - centre_x) / (2 * per_unit)
+        expected_v = 0.5 - ((y + 0.5) - centre_y) / (2 * per_unit)
+        assert color[y, x, 0] == pytest.approx(expected_u, abs=0.01), (x, y)
+        assert color[y, x, 1] == pytest.approx(expected_v, abs=0.01), (x, y)
+    # The meshes without (usable) texture coordinates show magenta.
+    ids = result["primId"].ids()
+    for path in ("/NoUvs", "/WrongType"):
+        mask = ids == next(i for i in np.unique(ids) if i != NO_HIT and result.prim_path(int(i)) == path)
+        assert np.allclose(color[mask][:, :3], [1.0, 0.0, 1.0], atol=1e-6), path
+    # The subdivided cube: six islands spanning st 0..0.9, refined smoothly within each.
+    cube = ids == next(i for i in np.unique(ids) if i != NO_HIT and result.prim_path(int(i)) == "/SubdividedCube")
+    assert cube.sum() > 3000
+    shade = color[cube][:, :2]
+    assert shade.max() > 0.6 and shade.min() < 0.15, "the islands' range of st shows"
+
+
+def test_geom_subsets_bind_materials_per_face(render, tmp_path):
+    """GeomSubsets of family materialBind give one mesh several materials: its triangles carry material slots through
+    every DAG level, and each slot's pixels land in its material's bin."""
+    result = render_and_compare(render, tmp_path, "testGeomSubsets", "geom_subsets.usda", resolution=(480, 320))
+    assert any("/Strip/RedFaces: 1 face indices outside 0..3" in w for w in result.warnings)
+    assert result.stats["rprims"] == 1 and result.stats["shading_bins"] == 3
+    color = np.asarray(result["color"].pixels)
+    # Quad centres: x = -3, -1, 1, 3 at 10 units (35 mm lens, 36 mm aperture over 480 pixels: 18.9 px per unit).
+    per_unit = 35.0 / 18.0 / 10.0 * 240.0
+    expected = ["blue", "red", "green", "red"]
+    for quad, name in enumerate(expected):
+        x = int(240 + (-3 + 2 * quad) * per_unit)
+        channel = int(np.argmax(color[160, x, :3]))
+        assert ["red", "green", "blue"][channel] == name, (quad, color[160, x])

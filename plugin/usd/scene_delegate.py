@@ -23,7 +23,7 @@ import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import change_tracker, implicit, mesh_settings
+from . import change_tracker, implicit, materials, mesh_settings
 from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
@@ -43,6 +43,7 @@ class _Rprim:
     group: str | None = None  # key of the instancing group that made it; None for a gprim drawn once (id = path)
     instancer_id: str = ""
     material: str = ""  # the bound material's path, "" for none
+    subset_materials: tuple = ()  # the materials of its materialBind GeomSubsets (slots 1, 2, ...), "" for the mesh's own
 
 
 @dataclass
@@ -393,7 +394,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     def _remove_rprim(self, id: str) -> None:
         record = self.rprims.pop(id)
         self._paths.discard(str(record.prim.GetPath()), id)
-        self._release_material(record.material, id)
+        for material in {record.material, *record.subset_materials}:
+            self._release_material(material, id)
         self.index.remove_prim(id)
 
     def _insert_sprim(self, kind: str, id: str) -> None:
@@ -415,6 +417,18 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     # -- materials ------------------------------------------------------------------------------------
 
+    @staticmethod
+    def _material_subsets(prim: Usd.Prim) -> list:
+        """A mesh's GeomSubsets of family materialBind over faces, in order: subset i is material slot i + 1 (at most 255)."""
+        if not prim.IsA(UsdGeom.Mesh):
+            return []
+        subsets = UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets()
+        return [s for s in subsets if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face][:255]
+
+    def get_subset_material_ids(self, id: str) -> list[str]:
+        """The material of each GeomSubset (slot 1, 2, ...): its own binding, else its mesh's (UsdShade's resolution)."""
+        return list(self.rprims[id].subset_materials)
+
     def _bound_material(self, prim: Usd.Prim) -> str:
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
         return str(material.GetPath()) if material else ""
@@ -422,15 +436,20 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     def _rebind(self, id: str, record: _Rprim, mark: bool = False) -> bool:
         """Resolves the rprim's material binding (inserting the material's sprim when it is new); True if it changed."""
         material = self._bound_material(record.prim)
-        if material == record.material and (not material or id in self._material_users.get(material, ())):
+        subsets = tuple(self._bound_material(s.GetPrim()) for s in self._material_subsets(record.prim))
+        if (material, subsets) == (record.material, record.subset_materials) and \
+                all(id in self._material_users.get(m, ()) for m in (material, *subsets) if m):
             return False
-        self._release_material(record.material, id)
-        record.material = material
-        if material:
-            if material not in self._material_users:
-                self._material_users[material] = set()
-                self._insert_sprim("material", material)
-            self._material_users[material].add(id)
+        for old in {record.material, *record.subset_materials}:
+            self._release_material(old, id)
+        record.material, record.subset_materials = material, subsets
+        for new in {material, *subsets}:
+            if not new:
+                continue
+            if new not in self._material_users:
+                self._material_users[new] = set()
+                self._insert_sprim("material", new)
+            self._material_users[new].add(id)
         if mark:
             self.index.mark_dirty(id, _dirty.MATERIAL_ID)
         return True
@@ -561,20 +580,36 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         holes = array(mesh.GetHoleIndicesAttr(), np.int32)
         primvars = UsdGeom.PrimvarsAPI(prim)
 
-        def primvar(primvar_name, default_interpolation):
-            """(values, interpolation, indices) of an authored primvar, else (None, default, None)."""
+        def primvar(primvar_name, default_interpolation, width=3):
+            """(values, interpolation, indices) of an authored primvar of `width` components, else (None, default, None)."""
             pv = primvars.GetPrimvar(primvar_name)
             if not (pv and pv.HasAuthoredValue()):
                 return None, default_interpolation, None
+            values = pv.Get(t)
+            shape = np.shape(values) if values is not None else ()
+            if len(shape) != 2 or shape[1] != width:
+                self.warnings.append(f"{name}: primvars:{primvar_name} is {pv.GetTypeName()}, not {width} floats per element; ignored")
+                return None, default_interpolation, None
             idx = pv.GetIndices(t)
             idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
-            return array(pv, np.float32, 3), pv.GetInterpolation(), idx
+            return np.ascontiguousarray(np.asarray(values, np.float32).reshape(-1)), pv.GetInterpolation(), idx
 
         # primvars:normals wins over the normals attribute, as in UsdImaging.
         normals, normals_interp, normals_idx = primvar("normals", "vertex")
         if normals is None and mesh.GetNormalsAttr().HasAuthoredValue():
             normals, normals_interp = array(mesh.GetNormalsAttr(), np.float32, 3), mesh.GetNormalsInterpolation()
         color, color_interp, color_idx = primvar("displayColor", "constant")
+        uvs, uvs_interp, uvs_idx = primvar(self.uv_primvar(prim), "faceVarying", width=2)
+        face_materials = None
+        subsets = self._material_subsets(prim)
+        if subsets:  # faces in no subset keep slot 0 (the mesh's own material); a face in several takes the last
+            face_materials = np.zeros(len(counts), np.int32)
+            for slot, subset in enumerate(subsets, start=1):
+                faces = np.asarray(subset.GetIndicesAttr().Get(t) or [], np.int64)
+                bad = (faces < 0) | (faces >= len(counts))
+                if bad.any():
+                    self.warnings.append(f"{subset.GetPath()}: {int(bad.sum())} face indices outside 0..{len(counts) - 1}; ignored")
+                face_materials[faces[~bad]] = slot
         return _tessera.mesh_source(
             name, points, counts, indices,
             hole_indices=holes,
@@ -582,7 +617,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
             normals=normals, normals_interpolation=normals_interp, normals_indices=normals_idx,
             display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx,
+            uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx, face_materials=face_materials,
             subdivision_scheme=mesh.GetSubdivisionSchemeAttr().Get(t) or "catmullClark", refine_level=self.refine_level)
+
+    def uv_primvar(self, prim: Usd.Prim) -> str:
+        """The texture coordinate set a mesh is built with: the primvar its bound material's texture readers read
+        (a UsdPrimvarReader_float2's varname), else "st", the convention of UsdPreviewSurface materials."""
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        if not material:
+            return "st"
+        return materials.material_desc(material.GetPrim(), self.time, []).uv_primvar or "st"
 
     def get_transform(self, id: str):
         return to_column_major(self.xform_cache.GetLocalToWorldTransform(self.rprims[id].prim))
@@ -600,40 +644,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return _tessera.matrix_array(self.rprims[prototype_id].instance_transforms)
 
     def get_material(self, id: str):
-        desc = _tessera.MaterialDesc()
-        material = UsdShade.Material(self.stage.GetPrimAtPath(id))
-        shader = material.ComputeSurfaceSource()[0] if material else None
-        if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
-            desc.use_display_color = True  # not a preview surface: fall back to the mesh's displayColor, diffuse only
-            desc.diffuse_color = (0.5, 0.5, 0.5)
-            desc.ior = 1.0
-            return desc
-
-        def value(name, default):
-            shader_input = shader.GetInput(name)
-            if not shader_input:
-                return default
-            source = shader_input.GetConnectedSource() if shader_input.HasConnectedSource() else None
-            if source:  # textures arrive with the renderer's material issue; use the texture's fallback
-                fallback = source[0].GetInput("fallback")
-                v = fallback.Get() if fallback else None
-                if v is None:
-                    return default
-                return tuple(v)[:3] if isinstance(default, tuple) else float(v if np.ndim(v) == 0 else tuple(v)[0])
-            v = shader_input.Get(self.time)
-            return v if v is not None else default
-
-        desc.diffuse_color = tuple(value("diffuseColor", (0.18, 0.18, 0.18)))
-        desc.emissive_color = tuple(value("emissiveColor", (0.0, 0.0, 0.0)))
-        desc.opacity = float(value("opacity", 1.0))
-        desc.opacity_threshold = float(value("opacityThreshold", 0.0))
-        desc.metallic = float(value("metallic", 0.0))
-        desc.roughness = float(value("roughness", 0.5))
-        desc.use_specular_workflow = bool(value("useSpecularWorkflow", 0))
-        desc.specular_color = tuple(value("specularColor", (0.0, 0.0, 0.0)))
-        desc.ior = float(value("ior", 1.5))
-        desc.occlusion = float(value("occlusion", 1.0))
-        return desc
+        return materials.material_desc(self.stage.GetPrimAtPath(id), self.time, self.warnings)
 
     def get_light(self, id: str):
         prim = self.stage.GetPrimAtPath(id)

@@ -12,7 +12,7 @@ from . import _tessera
 
 AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triangleId")
 # Debug views the color AOV can show instead of shading (renderer.h: Visualize).
-VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw")
+VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw", "uv")
 RASTER_MODES = ("auto", "hardware", "software")
 
 

@@ -26,9 +26,13 @@ struct Source {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
     std::vector<float> colors;  // uniform (per face) when set
+    std::vector<float> uvs;     // face-varying (per corner) when set
+    std::vector<int32_t> faceMaterials;  // material slot per face when set
     BuiltMesh build(const BuildSettings& settings = {}) const {
         MeshView v = polygon_view(name, points, counts, indices);
         if (!colors.empty()) v.displayColor = {Interpolation::Uniform, 3, colors, {}};
+        if (!uvs.empty()) v.uvs = {Interpolation::FaceVarying, 2, uvs, {}};
+        v.faceMaterials = faceMaterials;
         return build_mesh(prepare_mesh(v), settings);
     }
 };
@@ -67,6 +71,30 @@ inline Source icosphere(int level, double scale = 1.0, double offset = 0.0) {
     for (auto& tri : f) {
         s.counts.push_back(3);
         s.indices.insert(s.indices.end(), tri.begin(), tri.end());
+    }
+    return s;
+}
+
+// Spherical texture coordinates about the origin, per corner, with the seam where u wraps from 1 to 0.
+inline Source with_spherical_uvs(Source s) {
+    s.name += "WithUvs";
+    s.uvs.clear();
+    size_t corner = 0;
+    for (int32_t count : s.counts) {
+        std::vector<float> face;
+        for (int32_t c = 0; c < count; ++c) {
+            const float* p = &s.points[3 * s.indices[corner + c]];
+            const double r = std::sqrt(double(p[0]) * p[0] + double(p[1]) * p[1] + double(p[2]) * p[2]);
+            face.push_back(float(std::atan2(p[2], p[0]) / (2 * M_PI) + 0.5));
+            face.push_back(float(std::acos(std::clamp(p[1] / r, -1.0, 1.0)) / M_PI));
+        }
+        float lo = 1, hi = 0;
+        for (size_t i = 0; i < face.size(); i += 2) lo = std::min(lo, face[i]), hi = std::max(hi, face[i]);
+        if (hi - lo > 0.5f)
+            for (size_t i = 0; i < face.size(); i += 2)
+                if (face[i] < 0.5f) face[i] += 1.0f;
+        s.uvs.insert(s.uvs.end(), face.begin(), face.end());
+        corner += size_t(count);
     }
     return s;
 }

@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <random>
+#include <map>
 #include <set>
 
 using namespace tessera;
@@ -276,4 +277,113 @@ TEST(Subdivision, BadFacesAreDroppedBeforeRefinement) {
     EXPECT_EQ(m.indices.size() / 3, 6u * 4u * 2u);
     ASSERT_FALSE(m.warnings.empty());
     EXPECT_NE(m.warnings[0].find("dropped 1 invalid face(s); first is face 6 with a vertex index out of range"), std::string::npos) << m.warnings[0];
+}
+
+TEST(Prepare, TextureCoordinateSeamsSplitVerticesAndAreKept) {
+    Quad q;  // two quads sharing an edge; each its own UV island (a seam along the shared edge)
+    q.points = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 2, 0, 0, 2, 1, 0};
+    q.counts = {4, 4};
+    q.indices = {0, 1, 2, 3, 1, 4, 5, 2};
+    std::vector<float> islands{0, 0, 0.5f, 0, 0.5f, 1, 0, 1, 0.5f, 0, 1, 0, 1, 1, 0.5f, 1};
+    std::vector<int32_t> islandIndices{0, 1, 2, 3, 4, 5, 6, 7};
+    MeshView v = q.view();
+    v.uvs = {Interpolation::FaceVarying, 2, islands, islandIndices};
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_EQ(m.positions.size() / 3, 6u) << "the islands meet at the same st: one vertex per point";
+    ASSERT_EQ(m.uvs.size(), 2 * m.positions.size() / 3);
+    std::vector<float> split = islands;
+    split[8] = 0.55f;  // the second island's corner at point 1 moves away: a seam
+    v.uvs = {Interpolation::FaceVarying, 2, split, islandIndices};
+    m = prepare_mesh(v);
+    EXPECT_EQ(m.positions.size() / 3, 7u) << "point 1 is split by the UV seam";
+    // Every corner keeps its authored coordinate.
+    for (size_t t = 0; t < m.indices.size(); ++t) {
+        const float* p = &m.positions[3 * m.indices[t]];
+        const float* uv = &m.uvs[2 * m.indices[t]];
+        if (p[0] == 0) EXPECT_EQ(uv[0], 0.0f);
+        if (p[0] == 2) EXPECT_EQ(uv[0], 1.0f);
+        if (p[0] == 1) EXPECT_TRUE(uv[0] == 0.5f || uv[0] == 0.55f);
+    }
+    // Non-finite coordinates become 0 with a warning; a short array is ignored with one.
+    split[0] = NAN;
+    v.uvs = {Interpolation::FaceVarying, 2, split, islandIndices};
+    m = prepare_mesh(v);
+    EXPECT_FALSE(m.uvs.empty());
+    EXPECT_NE(m.warnings.size(), 0u);
+    std::vector<float> tooShort{0, 0, 1, 1};
+    v.uvs = {Interpolation::Vertex, 2, tooShort, {}};
+    m = prepare_mesh(v);
+    EXPECT_TRUE(m.uvs.empty());
+    ASSERT_EQ(m.warnings.size(), 1u);
+    EXPECT_NE(m.warnings[0].find("texture coordinates"), std::string::npos) << m.warnings[0];
+}
+
+TEST(Subdivision, FaceVaryingTextureCoordinatesAreRefinedPerIsland) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    MeshView v = cube_cage(points, counts, indices);
+    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    v.refineLevel = 2;
+    // Face f is the island (f, 0)-(f + 1, 1): seams on every cube edge.
+    std::vector<float> islands;
+    std::vector<int32_t> islandIndices;
+    for (int f = 0; f < 6; ++f) {
+        islands.insert(islands.end(), {float(f), 0, float(f + 1), 0, float(f + 1), 1, float(f), 1});
+        islandIndices.insert(islandIndices.end(), {4 * f, 4 * f + 1, 4 * f + 2, 4 * f + 3});
+    }
+    v.uvs = {Interpolation::FaceVarying, 2, islands, islandIndices};
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_TRUE(m.warnings.empty());
+    ASSERT_EQ(m.uvs.size(), 2 * m.positions.size() / 3);
+    EXPECT_EQ(m.positions.size() / 3, 6u * 25u) << "5 x 5 refined vertices per face, split along every cube edge";
+    std::set<std::pair<float, float>> corners;
+    for (size_t i = 0; i < m.uvs.size(); i += 2) {
+        EXPECT_GE(m.uvs[i], 0.0f);
+        EXPECT_LE(m.uvs[i], 6.0f);
+        EXPECT_GE(m.uvs[i + 1], 0.0f);
+        EXPECT_LE(m.uvs[i + 1], 1.0f);
+        corners.insert({m.uvs[i], m.uvs[i + 1]});
+    }
+    EXPECT_TRUE(corners.count({0.0f, 0.0f}) && corners.count({6.0f, 1.0f})) << "cornersPlus1 keeps island corners";
+    EXPECT_TRUE(corners.count({0.5f, 0.5f})) << "each island's centre";
+}
+
+TEST(Prepare, MaterialSlotsSplitVerticesAndFollowTheirFaces) {
+    Quad q;  // two quads sharing an edge, in two GeomSubsets
+    q.points = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 2, 0, 0, 2, 1, 0};
+    q.counts = {4, 4};
+    q.indices = {0, 1, 2, 3, 1, 4, 5, 2};
+    std::vector<int32_t> slots{0, 3};
+    MeshView v = q.view();
+    v.faceMaterials = slots;
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_EQ(m.positions.size() / 3, 8u) << "the shared edge is split between the two slots";
+    EXPECT_EQ(m.triangleMaterials, (std::vector<uint8_t>{0, 0, 3, 3}));
+    std::vector<int32_t> allZero{0, 0};
+    v.faceMaterials = allZero;
+    m = prepare_mesh(v);
+    EXPECT_TRUE(m.triangleMaterials.empty()) << "one slot: nothing stored";
+    EXPECT_EQ(m.positions.size() / 3, 6u);
+    for (std::vector<int32_t> bad : {std::vector<int32_t>{1}, std::vector<int32_t>{0, 256}, std::vector<int32_t>{-1, 0}}) {
+        v.faceMaterials = bad;
+        m = prepare_mesh(v);
+        EXPECT_TRUE(m.triangleMaterials.empty());
+        ASSERT_EQ(m.warnings.size(), 1u);
+        EXPECT_NE(m.warnings[0].find("/Quad: "), std::string::npos);
+    }
+}
+
+TEST(Subdivision, MaterialSlotsFollowRefinedFaces) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    MeshView v = cube_cage(points, counts, indices);
+    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    v.refineLevel = 2;
+    std::vector<int32_t> slots{0, 1, 2, 3, 4, 5};
+    v.faceMaterials = slots;
+    PreparedMesh m = prepare_mesh(v);
+    ASSERT_EQ(m.triangleMaterials.size(), 6u * 32u);
+    std::map<int, int> perSlot;
+    for (uint8_t slot : m.triangleMaterials) ++perSlot[slot];
+    for (int slot = 0; slot < 6; ++slot) EXPECT_EQ(perSlot[slot], 32) << "each face's 16 quads keep its slot";
 }

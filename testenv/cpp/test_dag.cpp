@@ -111,3 +111,101 @@ TEST(Quantization, NeighbouringMeshesOfTheSamePrecisionShareBorderVerticesExactl
     EXPECT_GT(border, 0u);
     EXPECT_GE(matched, 16u) << "rows at multiples of 1/15 are shared by both grids and must match exactly";
 }
+
+namespace {
+// Simplification only removes vertices: every vertex of every level, position and texture coordinate together, is a
+// vertex of the source (snapped), so no level invents a UV or a seam.
+void expect_source_vertices(const BuiltMesh& m) {
+    std::set<std::array<uint32_t, 5>> source;
+    auto key = [&](uint32_t v) {
+        std::array<uint32_t, 5> k;
+        std::memcpy(k.data(), &m.positions[3 * size_t(v)], 12);
+        std::memcpy(k.data() + 3, &m.uvs[2 * size_t(v)], 8);
+        return k;
+    };
+    for (uint32_t v = 0; v < m.leafVertices; ++v) source.insert(key(v));
+    size_t foreign = 0;
+    for (uint32_t v = m.leafVertices; v < m.positions.size() / 3; ++v) foreign += !source.count(key(v));
+    EXPECT_EQ(foreign, 0u) << "vertices of coarser levels whose (position, uv) pair is not in the source";
+}
+}  // namespace
+
+TEST(Dag, TextureCoordinatesSurviveEveryLevel) {
+    Source islands = grid(96);  // UV islands of 6 x 6 quads, each in a tile of its own: seams on every island border
+    islands.name = "/GridWithUvIslands";
+    for (int y = 0; y < 96; ++y)
+        for (int x = 0; x < 96; ++x) {
+            const float u = float(x % 6) / 6 + float(x / 6), v = float(y % 6) / 6 + float(y / 6), d = 1.0f / 6;
+            islands.uvs.insert(islands.uvs.end(), {u, v, u + d, v, u + d, v + d, u, v + d});
+        }
+    for (const Source& s : {with_spherical_uvs(icosphere(5)), islands}) {
+        SCOPED_TRACE(s.name);
+        BuiltMesh m = s.build();
+        ASSERT_EQ(m.uvs.size(), 2 * m.positions.size() / 3);
+        expect_monotone(m);
+        expect_crack_free_cuts(m, 25);
+        expect_source_vertices(m);
+        const double step = std::ldexp(1.0, m.uvPrecision);
+        EXPECT_LE(m.uvPrecision, -16 + 4) << "fine enough for a 4K texture's texels";
+        for (float uv : m.uvs) ASSERT_EQ(std::round(uv / step) * step, double(uv)) << "texture coordinates lie on their grid";
+        EXPECT_LT(m.levels.back().triangles, s.counts.size() / 10) << "seams slow the simplification down but do not stall it";
+    }
+}
+
+TEST(Dag, TextureCoordinatesCostLittleGeometricError) {
+    // UVs are weighed per group against the group's own UV extent: the coarse levels of a mapped sphere stay about as
+    // close to the surface as those of the same sphere without UVs.
+    const Source plain = icosphere(5), mapped = with_spherical_uvs(plain);
+    const BuiltMesh a = plain.build(), b = mapped.build();
+    auto error_at = [](const BuiltMesh& m, uint64_t triangles) {  // the error of the finest level with at most that many
+        for (const LevelStats& l : m.levels)
+            if (l.triangles <= triangles) return l.maxError;
+        return m.levels.back().maxError;
+    };
+    for (uint64_t triangles : {5000u, 1500u}) {
+        SCOPED_TRACE(triangles);
+        EXPECT_LT(error_at(b, triangles), 1.25f * error_at(a, triangles));
+    }
+}
+
+TEST(Dag, MaterialSlotsSurviveEveryLevel) {
+    // Three GeomSubset-like regions on a sphere (slot by the face's first point: x < -0.3, y > 0.2, else 0).
+    Source s = icosphere(5);
+    s.name = "/IcosphereWithSubsets";
+    for (size_t f = 0; f < s.counts.size(); ++f) {
+        const float* p = &s.points[3 * s.indices[3 * f]];
+        s.faceMaterials.push_back(p[0] < -0.3f ? 1 : p[1] > 0.2f ? 2 : 0);
+    }
+    BuiltMesh m = s.build();
+    EXPECT_EQ(m.materialSlots, 3u);
+    expect_monotone(m);
+    expect_crack_free_cuts(m, 25);
+    // Every corner of every level is a source vertex of its triangle's slot: slots never bleed across their borders.
+    std::set<std::array<uint32_t, 4>> source;  // position bits and slot
+    std::array<uint64_t, 3> sourceArea{}, rootArea{};
+    auto corner_key = [&](const Cluster& c, uint32_t packed, int k) {
+        std::array<uint32_t, 4> key;
+        std::memcpy(key.data(), &m.positions[3 * (c.vertexOffset + ((packed >> (8 * k)) & 0xff))], 12);
+        key[3] = packed >> 24;
+        return key;
+    };
+    for (uint32_t i = 0; i < m.leafClusters; ++i)
+        for (uint32_t t = 0; t < m.clusters[i].triangleCount; ++t) {
+            const uint32_t packed = m.triangles[m.clusters[i].triangleOffset + t];
+            for (int k = 0; k < 3; ++k) source.insert(corner_key(m.clusters[i], packed, k));
+            ++sourceArea[packed >> 24];
+        }
+    size_t foreign = 0;
+    for (const Cluster& c : m.clusters)
+        for (uint32_t t = 0; t < c.triangleCount; ++t) {
+            const uint32_t packed = m.triangles[c.triangleOffset + t];
+            for (int k = 0; k < 3; ++k) foreign += !source.count(corner_key(c, packed, k));
+            if (std::isinf(c.parentError)) ++rootArea[packed >> 24];
+        }
+    EXPECT_EQ(foreign, 0u) << "corners whose (position, slot) pair is not in the source";
+    for (int slot = 0; slot < 3; ++slot) {
+        EXPECT_GT(sourceArea[slot], 1000u);
+        EXPECT_GT(rootArea[slot], 0u) << "no slot vanishes from the coarsest level (slot " << slot << ")";
+    }
+    EXPECT_LT(m.levels.back().triangles, s.counts.size() / 10) << "slot borders slow the simplification down but do not stall it";
+}

@@ -16,8 +16,8 @@ using namespace tessera;
 
 namespace {
 
-BuiltMesh bumpy_grid(int n, bool colors) {
-    std::vector<float> points, colorValues;
+BuiltMesh bumpy_grid(int n, bool colors, bool uvs = false) {
+    std::vector<float> points, colorValues, uvValues;
     std::vector<int32_t> counts, indices;
     for (int y = 0; y <= n; ++y)
         for (int x = 0; x <= n; ++x)
@@ -28,9 +28,13 @@ BuiltMesh bumpy_grid(int n, bool colors) {
             counts.push_back(4);
             indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
             colorValues.insert(colorValues.end(), {float((x / 8 + y / 8) % 2), 0.3f, 0.7f});
+            // UV islands of 8 x 8 quads, each placed in its own tile: seams on every island border.
+            const float u0 = float(x % 8) / 8 + float(x / 8), v0 = float(y % 8) / 8 + float(y / 8);
+            uvValues.insert(uvValues.end(), {u0, v0, u0 + 0.125f, v0, u0 + 0.125f, v0 + 0.125f, u0, v0 + 0.125f});
         }
     MeshView v = polygon_view("/Grid", points, counts, indices);
     if (colors) v.displayColor = {Interpolation::Uniform, 3, colorValues, {}};
+    if (uvs) v.uvs = {Interpolation::FaceVarying, 2, uvValues, {}};
     return build_mesh(prepare_mesh(v));
 }
 
@@ -84,7 +88,7 @@ BuiltMesh single_cluster(uint32_t vertexCount, uint32_t triangleCount, std::vect
 void fix_checksums(std::vector<uint8_t>& file) {
     uint32_t pages;
     std::memcpy(&pages, &file[12], 4);
-    const size_t table = 112;
+    const size_t table = kPageHeaderBytes;
     for (uint32_t p = 0; p < pages; ++p) {
         uint64_t offset;
         uint32_t size;
@@ -103,6 +107,8 @@ void expect_same(const BuiltMesh& a, const BuiltMesh& b) {
     EXPECT_EQ(a.positions, b.positions);
     EXPECT_EQ(a.normals, b.normals);
     EXPECT_EQ(a.colors, b.colors);
+    EXPECT_EQ(a.uvs, b.uvs);
+    EXPECT_EQ(a.uvPrecision, b.uvPrecision);
     EXPECT_EQ(a.triangles, b.triangles);
     ASSERT_EQ(a.clusters.size(), b.clusters.size());
     EXPECT_EQ(std::memcmp(a.clusters.data(), b.clusters.data(), a.clusters.size() * sizeof(Cluster)), 0);
@@ -114,17 +120,64 @@ void expect_same(const BuiltMesh& a, const BuiltMesh& b) {
     EXPECT_EQ(a.sourceTriangles, b.sourceTriangles);
     ASSERT_EQ(a.levels.size(), b.levels.size());
     for (size_t l = 0; l < a.levels.size(); ++l) EXPECT_EQ(a.levels[l].triangles, b.levels[l].triangles);
+    EXPECT_EQ(a.leafError, b.leafError);
+    // The fallback mesh is rebuilt from its cut, bit for bit.
+    EXPECT_EQ(a.fallback.threshold, b.fallback.threshold);
+    EXPECT_EQ(a.fallback.error, b.fallback.error);
+    EXPECT_EQ(a.fallback.positions, b.fallback.positions);
+    EXPECT_EQ(a.fallback.normals, b.fallback.normals);
+    EXPECT_EQ(a.fallback.indices, b.fallback.indices);
 }
 
 }  // namespace
 
 TEST(Pages, RoundTripIsExact) {
-    for (bool colors : {false, true}) {
-        BuiltMesh built = bumpy_grid(150, colors);
-        const std::vector<uint8_t> file = encode_pages(built);
-        expect_same(built, decode_pages(file, "grid.tsra"));
-        EXPECT_EQ(file, encode_pages(built)) << "same mesh, same bytes";
-    }
+    for (bool colors : {false, true})
+        for (bool uvs : {false, true}) {
+            BuiltMesh built = bumpy_grid(150, colors, uvs);
+            ASSERT_EQ(built.uvs.empty(), !uvs);
+            ASSERT_FALSE(built.fallback.indices.empty());
+            const std::vector<uint8_t> file = encode_pages(built);
+            expect_same(built, decode_pages(file, "grid.tsra"));
+            EXPECT_EQ(file, encode_pages(built)) << "same mesh, same bytes";
+        }
+}
+
+TEST(Pages, MaterialSlotsRoundTrip) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices, slots;
+    const int n = 120;
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x) / n, float(y) / n, 0.03f * std::sin(0.4f * x)});
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+            const int a = y * (n + 1) + x;
+            counts.push_back(4);
+            indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+            slots.push_back((x / 30 + 2 * (y / 40)) % 5);
+        }
+    MeshView v = polygon_view("/Grid", points, counts, indices);
+    v.faceMaterials = slots;
+    const BuiltMesh built = build_mesh(prepare_mesh(v));
+    ASSERT_EQ(built.materialSlots, 5u);
+    const std::vector<uint8_t> file = encode_pages(built);
+    expect_same(built, decode_pages(file, "slots.tsra"));
+    BuiltMesh wrong = built;
+    wrong.materialSlots = 2;
+    EXPECT_THROW(encode_pages(wrong), std::invalid_argument) << "slots must fit the mesh's count";
+}
+
+TEST(Pages, TextureCoordinatesCostLittle) {
+    // Seams everywhere (islands of 8 x 8 quads): the UV stream is predicted like positions and stays small.
+    const size_t plain = encode_pages(bumpy_grid(150, false)).size(), mapped = encode_pages(bumpy_grid(150, false, true)).size();
+    const double extraPerTriangle = double(mapped - plain) / (150.0 * 150.0 * 2.0);
+    EXPECT_LT(extraPerTriangle, 2.5) << plain << " bytes without UVs, " << mapped << " with";
+}
+
+TEST(Pages, OffGridTextureCoordinatesAreRefused) {
+    BuiltMesh built = bumpy_grid(20, false, true);
+    built.uvs[7] = std::nextafter(built.uvs[7], 10.0f);
+    EXPECT_THROW(encode_pages(built), std::invalid_argument);
 }
 
 TEST(Pages, GroupsNeverStraddlePagesAndRootsHaveTheirOwn) {
@@ -230,7 +283,7 @@ TEST(Pages, CorruptPagesWithValidChecksumsAreErrorsNotCrashes) {
     // crash or a hang.
     const std::vector<uint8_t> file = encode_pages(bumpy_grid(40, true));
     uint64_t firstPage;
-    std::memcpy(&firstPage, &file[112], 8);
+    std::memcpy(&firstPage, &file[kPageHeaderBytes], 8);
     std::mt19937 rng(17);
     int errors = 0;
     const int trials = 3000;

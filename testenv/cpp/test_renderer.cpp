@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include "test_meshes.h"
+#include "shared.h"
 
 #include <cmath>
 #include <cstdlib>
@@ -470,6 +471,58 @@ TEST_F(RendererTest, MaterialBinsShadeEachMaterialsPixels) {
             checked += prim != 0xffffffffu;
         }
     EXPECT_GT(checked, 96u * 32u / 3u) << "the grids must fill a good part of the image";
+}
+
+TEST_F(RendererTest, TexturesCostNothingUntilUsedAreSharedAndUnreadableOnesShowTheirFallback) {
+    GpuScene scene;
+    const uint32_t grid = scene.add_mesh(grid_mesh(4));
+    MaterialDesc plain;
+    plain.diffuseColor = {0, 0, 0};
+    plain.emissiveColor = {0.5f, 0.5f, 0.5f};
+    InstanceDesc instance = identity_instance(grid);
+    instance.material = scene.add_material(plain);
+    scene.set_instances({instance});
+    Renderer renderer(*device);
+    RenderSettings settings{32, 32, {0, 0, 0, 0}};
+    FrameStats stats;
+    renderer.render(scene, camera_at(0, 0, 1.3), settings, {Aov::Color}, &stats);
+    EXPECT_EQ(stats.textures, 0u);
+    EXPECT_EQ(stats.textureBytes, 0u) << "a scene without textures has no texture memory";
+
+    // An emissive texture whose file is missing: a warning, and the slot's fallback (green) as the emission.
+    MaterialDesc missing = plain;
+    TextureSlot slot;
+    slot.input = MaterialInput::EmissiveColor;
+    slot.file = "/nonexistent/emission.png";
+    slot.fallback = {0, 1, 0, 1};
+    missing.textures = {slot};
+    std::vector<std::string> warnings;
+    scene.textures().load_slots(missing.textures, "/Looks/Missing", warnings);
+    ASSERT_EQ(warnings.size(), 1u);
+    // Two materials reading one image (loaded once) share it in the pool.
+    const uint8_t texel[] = {10, 20, 30, 255};
+    auto image = std::make_shared<const TextureImage>(make_texture(1, 1, 4, texel, nullptr, ColorSpace::Raw));
+    MaterialDesc textured = plain;
+    slot.file = "memory";
+    slot.image = image;
+    textured.textures = {slot};
+    MaterialDesc roughness = plain;
+    slot.input = MaterialInput::Roughness;
+    roughness.textures = {slot};
+    scene.clear_materials();
+    instance.material = scene.add_material(missing);
+    InstanceDesc other = identity_instance(grid);
+    other.transform[3] = 100.0;  // out of view: only the counts matter
+    other.material = scene.add_material(textured);
+    InstanceDesc third = other;
+    third.material = scene.add_material(roughness);
+    scene.set_instances({instance, other, third});
+    const Image color = renderer.render(scene, camera_at(0, 0, 1.3), settings, {Aov::Color}, &stats)[0];
+    const float* centre = &color.pixels[4 * (16 * 32 + 16)];
+    EXPECT_EQ(centre[0], 0.0f);
+    EXPECT_EQ(centre[1], 1.0f) << "the fallback of the unreadable texture";
+    EXPECT_EQ(stats.textures, 1u) << "one image, however many materials read it";
+    EXPECT_EQ(stats.textureBytes, sizeof(gpu::GpuTexture) + image->bytes() + 2 * sizeof(gpu::GpuTextureSlot));
 }
 
 TEST_F(RendererTest, MoreThan65535WorkgroupsSpillIntoTheSecondDimension) {

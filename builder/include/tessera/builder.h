@@ -41,8 +41,13 @@ struct MeshView {
     bool leftHanded = false;                   // faces wind clockwise
     PrimvarView normals;                       // 3 components
     PrimvarView displayColor;                  // 3 components
+    PrimvarView uvs;                           // 2 components: the texture coordinates (USD's `st`), any interpolation
+    // Per authored face, its material slot (0-255: USD's GeomSubsets of family materialBind, slot 0 the faces in no
+    // subset), or empty: one material. Faces of different slots meet at split vertices, like a seam.
+    std::span<const int32_t> faceMaterials;
     // Subdivision surfaces are refined uniformly this many times (OpenSubdiv) before triangulation. Authored
-    // normals do not describe the refined surface and are recomputed; face-varying colours are not refined yet.
+    // normals do not describe the refined surface and are recomputed; face-varying colours and UVs are refined
+    // linearly (as Storm's default face-varying interpolation of "cornersPlus1" does on the interior).
     SubdivisionScheme subdivisionScheme = SubdivisionScheme::None;
     int refineLevel = 0;
 };
@@ -58,9 +63,11 @@ struct PreparedMesh {
     std::vector<float> positions;      // 3 per vertex, as authored (float)
     std::vector<float> normals;        // 3 per vertex, unit length
     std::vector<float> colors;         // 3 per vertex when the mesh has varying displayColor, else empty
+    std::vector<float> uvs;            // 2 per vertex when the mesh has texture coordinates, else empty
     std::array<float, 3> constantColor{0.5f, 0.5f, 0.5f};
     bool hasConstantColor = false;     // displayColor authored with constant interpolation
     std::vector<uint32_t> indices;     // 3 per triangle
+    std::vector<uint8_t> triangleMaterials;  // per triangle, its material slot, when the mesh has more than one
     std::vector<uint32_t> sourceFaces; // per triangle, the authored face it came from
     std::vector<std::string> warnings; // dropped faces and the like, each naming the mesh
 };
@@ -115,7 +122,10 @@ struct BuiltMesh {
     std::vector<float> positions;       // 3 per vertex, relative to origin
     std::vector<uint32_t> normals;      // octahedral, snorm16x2 holding kNormalBits-bit values (encode_octahedral)
     std::vector<uint32_t> colors;       // 2 per vertex (rgba16f) when the mesh has vertex colours
-    std::vector<uint32_t> triangles;    // 3 x 8-bit cluster-local indices per triangle, in page order (order_cluster_for_pages)
+    std::vector<float> uvs;             // 2 per vertex when the mesh has texture coordinates: on the grid of 2^uvPrecision
+    // Per triangle: 3 x 8-bit cluster-local indices, in page order (order_cluster_for_pages), and the triangle's material
+    // slot in the top byte (0 unless the mesh has several: materialSlots).
+    std::vector<uint32_t> triangles;
     std::vector<Cluster> clusters;
     uint32_t leafClusters = 0, leafVertices = 0, leafTriangles = 0;
     std::vector<LevelStats> levels;
@@ -126,11 +136,16 @@ struct BuiltMesh {
     // the same grid, so meshes built with the same precision share vertices exactly.
     int positionPrecision = 0;
     double positionStep = 1.0;
+    // Texture coordinates lie on a grid of this step (a power of two: 2^-16, a quarter texel of a 16K texture, or
+    // coarser where the coordinates are so large that float holds no finer steps), so that clusters sharing a
+    // vertex share its UV bit for bit and the page file stores integers.
+    int uvPrecision = 0;
     std::array<float, 3> constantColor{0.5f, 0.5f, 0.5f};
     bool hasConstantColor = false;
+    uint32_t materialSlots = 1;         // 1 + the largest material slot of its triangles
     size_t sourceTriangles = 0;         // as authored (after dropping collapsed triangles); the leaf level may hold fewer
     float leafError = 0;                // error of the stored leaf level against the source (0 unless trimmed), mesh units
-    FallbackMesh fallback;              // not in the page file: empty for a mesh decoded from pages
+    FallbackMesh fallback;              // the page file keeps its cut, and decode_pages rebuilds it from the DAG
 };
 
 // Per-mesh build settings (the schema's tessera:* attributes; render-wide defaults), after Nanite's. Relative errors
@@ -171,11 +186,12 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings = {
 // Clusters are stored in pages of at most kPageBytes (before compression too); the children of one group never
 // straddle pages (a parent refines by loading one page), and root clusters (no parent) fill pages of their own that
 // stay resident.
-constexpr uint32_t kPageFormatVersion = 2;
+constexpr uint32_t kPageFormatVersion = 3;
 // Bumped whenever the builder makes a different DAG from the same input and settings (simplifier weights, grouping,
 // error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
 constexpr uint32_t kBuilderRevision = 2;
 constexpr uint32_t kPageBytes = 128 * 1024;
+constexpr uint32_t kPageHeaderBytes = 160;  // the fixed-size header; the page table follows it
 
 // A file that is not a Tessera DAG, or is truncated, corrupt or of another format version.
 struct PageFileError : std::runtime_error {

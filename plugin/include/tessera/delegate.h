@@ -62,6 +62,9 @@ public:
     virtual Matrix4d get_transform(const PrimId& id) = 0;  // mesh space -> world
     virtual bool get_visible(const PrimId& id) = 0;
     virtual PrimId get_material_id(const PrimId& id) = 0;  // "" when none is bound
+    // For a mesh whose faces carry material slots (MeshView::faceMaterials): the material of slots 1, 2, ... (Hydra's
+    // GeomSubsets); "" for a slot that takes the mesh's own. Slot 0 is get_material_id's.
+    virtual std::vector<PrimId> get_subset_material_ids(const PrimId&) { return {}; }
     // World transforms of every copy of `prototypeId` drawn by `instancerId` (nesting already composed).
     virtual MatrixArray get_instance_transforms(const PrimId& instancerId, const PrimId& prototypeId) = 0;
     virtual MaterialDesc get_material(const PrimId& id) = 0;
@@ -125,6 +128,7 @@ public:
 
     const PrimId& instancer_id() const { return instancerId_; }
     const PrimId& material_id() const { return materialId_; }
+    const std::vector<PrimId>& subset_material_ids() const { return subsetMaterialIds_; }
     uint32_t prim_id() const { return primId_; }
     bool visible() const { return visible_; }
     bool double_sided() const { return doubleSided_; }
@@ -135,6 +139,7 @@ public:
 
 private:
     PrimId instancerId_, materialId_;
+    std::vector<PrimId> subsetMaterialIds_;
     uint32_t primId_;
     GpuScene& scene_;
     MeshTable& meshes_;
@@ -147,11 +152,13 @@ private:
 // Sprims: state prims with parameters.
 class Material : public Prim {
 public:
-    using Prim::Prim;
+    Material(PrimId id, TextureStore& textures) : Prim(std::move(id)), textures_(textures) {}
+    // Pulls the material and loads its textures (a file that cannot be read is a warning naming it and the material).
     void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
     const MaterialDesc& desc() const { return desc_; }
 
 private:
+    TextureStore& textures_;
     MaterialDesc desc_;
 };
 

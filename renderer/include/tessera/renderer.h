@@ -4,9 +4,11 @@
 
 #include "tessera/builder.h"
 #include "tessera/device.h"
+#include "tessera/textures.h"
 
 #include <array>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -17,8 +19,8 @@ using Matrix4d = std::array<double, 16>;
 Matrix4d identity_matrix();
 Matrix4d multiply(const Matrix4d& a, const Matrix4d& b);
 
-// UsdPreviewSurface's constant inputs, with its defaults. A surface without a preview material (displayColor
-// only) is diffuse: ior 1 reflects nothing at normal incidence.
+// UsdPreviewSurface's inputs, with its defaults: constants, and the textures that drive some of them instead. A
+// surface without a preview material (displayColor only) is diffuse: ior 1 reflects nothing at normal incidence.
 struct MaterialDesc {
     std::array<float, 3> diffuseColor{0.18f, 0.18f, 0.18f};
     std::array<float, 3> emissiveColor{0, 0, 0};
@@ -30,13 +32,16 @@ struct MaterialDesc {
     float ior = 1.5f;
     float occlusion = 1.0f;          // scales what the dome light contributes
     bool useDisplayColor = false;  // diffuse from the mesh's displayColor instead of diffuseColor
+    std::vector<TextureSlot> textures;  // at most one per input; a slot without an image uses its fallback
+    std::string uvPrimvar;  // the primvar the texture readers read as st ("" without textures)
 };
 
 struct InstanceDesc {
     uint32_t mesh = 0;        // a handle from GpuScene::add_mesh
     Matrix4d transform{};     // mesh space -> world, in double
     uint32_t primId = 0;      // reported by the primId AOV
-    uint32_t material = 0;    // a handle from GpuScene::add_material
+    uint32_t material = 0;    // a handle from GpuScene::add_material; with materialTable, one from add_material_table
+    bool materialTable = false;  // the mesh's triangles carry material slots (BuiltMesh::materialSlots > 1)
     bool doubleSided = false;
 };
 
@@ -74,7 +79,7 @@ struct Image {
 };
 
 // What the color AOV shows instead of shading (debug views in the manner of Nanite's visualization modes).
-enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins, RasterBins, Overdraw };
+enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins, RasterBins, Overdraw, Uv };
 
 // Which rasterizer draws a cluster. Auto: the compute rasterizer for clusters of small triangles, hardware raster
 // for the rest. The forced modes exist for tests and measurements (Software still sends clusters that touch the
@@ -118,6 +123,8 @@ struct FrameStats {
     uint32_t postPassClusters = 0;      // clusters drawn by the post pass (hidden last frame, visible now)
     uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
     uint32_t shadingBins = 0;           // materials with visible pixels (each shaded by a dispatch of its own)
+    uint32_t textures = 0;              // images in the texture pool
+    uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.
     double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, hzbMs = 0, resolveMs = 0;
 };
@@ -128,7 +135,10 @@ public:
     uint32_t add_mesh(std::shared_ptr<const BuiltMesh> mesh);
     void remove_mesh(uint32_t handle);
     uint32_t add_material(const MaterialDesc& material);
-    void clear_materials();
+    // For meshes whose triangles carry material slots: slot s draws with material handle `materials[s]`. Instances of
+    // one prim share a table.
+    uint32_t add_material_table(std::span<const uint32_t> materials);
+    void clear_materials();  // and the tables
     void set_instances(std::vector<InstanceDesc> instances);
     void set_instance_transform(size_t index, const Matrix4d& transform);  // one instance moved (a live edit)
     void set_lights(std::vector<LightDesc> lights);
@@ -137,14 +147,18 @@ public:
     const std::vector<LightDesc>& lights() const { return lights_; }
     const std::shared_ptr<const BuiltMesh>& mesh(uint32_t handle) const { return meshes_.at(handle); }
     size_t mesh_count() const { return meshes_.size(); }
+    // Loads materials' textures (TextureStore::load_slots), sharing images between materials.
+    TextureStore& textures() { return textures_; }
 
 private:
     friend class Renderer;
     std::vector<std::shared_ptr<const BuiltMesh>> meshes_;  // null where removed
     std::vector<uint32_t> freeMeshes_;
     std::vector<MaterialDesc> materials_;
+    std::vector<uint32_t> materialTables_;
     std::vector<InstanceDesc> instances_;
     std::vector<LightDesc> lights_;
+    TextureStore textures_;
     // Bumped on every change; each renderer uploads what moved past the versions it last saw.
     uint64_t geometryVersion_ = 1, instancesVersion_ = 1, materialsVersion_ = 1;
 };

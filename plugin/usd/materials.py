@@ -1,0 +1,194 @@
+"""UsdPreviewSurface networks as the renderer's MaterialDesc: the surface's constant inputs, and a texture slot for
+each input driven by a UsdUVTexture (file, wrap modes, colour space, scale, bias, fallback, output channel), its st
+through UsdTransform2d nodes down to a UsdPrimvarReader_float2, whose primvar is the material's UV set.
+
+Values are followed through NodeGraph and Material interface inputs (UsdShade's value-producing attributes). Asset
+paths are resolved relative to the layer that authored them; the C++ side loads the files when the material syncs.
+"""
+
+from __future__ import annotations
+
+from pxr import Sdf, UsdShade
+
+from tessera import _tessera
+
+# UsdPreviewSurface inputs a UsdUVTexture may drive, with their defaults (the spec's).
+_TEXTURE_INPUTS = {
+    "diffuseColor": _tessera.MaterialInput.diffuseColor,
+    "emissiveColor": _tessera.MaterialInput.emissiveColor,
+    "specularColor": _tessera.MaterialInput.specularColor,
+    "metallic": _tessera.MaterialInput.metallic,
+    "roughness": _tessera.MaterialInput.roughness,
+    "opacity": _tessera.MaterialInput.opacity,
+    "occlusion": _tessera.MaterialInput.occlusion,
+    "normal": _tessera.MaterialInput.normal,
+}
+_WRAPS = {"repeat": _tessera.TextureWrap.repeat, "mirror": _tessera.TextureWrap.mirror,
+          "clamp": _tessera.TextureWrap.clamp, "black": _tessera.TextureWrap.black,
+          "useMetadata": _tessera.TextureWrap.repeat}  # texture files carry no wrap metadata we read: repeat
+_COLOR_SPACES = {"auto": _tessera.ColorSpace.auto, "sRGB": _tessera.ColorSpace.sRGB, "raw": _tessera.ColorSpace.raw}
+_CHANNELS = {"r": _tessera.TextureChannel.r, "g": _tessera.TextureChannel.g, "b": _tessera.TextureChannel.b,
+             "a": _tessera.TextureChannel.a, "rgb": _tessera.TextureChannel.rgb}
+_IDENTITY_2X3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+
+
+def _producer(shader_input):
+    """The attribute that gives an input its value: an upstream shader's output, or an input holding a value
+    (through NodeGraph and Material interface connections). None when nothing is authored."""
+    if not shader_input:
+        return None
+    attributes = shader_input.GetValueProducingAttributes()
+    return attributes[0] if attributes else None
+
+
+def _is_output(attribute) -> bool:
+    return UsdShade.Utils.GetType(attribute.GetName()) == UsdShade.AttributeType.Output
+
+
+def _compose(outer, inner):
+    """2x3 matrices (row-major, acting on (s, t, 1)): outer after inner."""
+    a, b, c, d, e, f = outer
+    g, h, i, j, k, l = inner
+    return (a * g + b * j, a * h + b * k, a * i + b * l + c, d * g + e * j, d * h + e * k, d * i + e * l + f)
+
+
+class _Reader:
+    """Reads one material's network; `warnings` collects what it cannot use, naming the material."""
+
+    def __init__(self, path: str, time, warnings: list[str]):
+        self.path = path
+        self.time = time
+        self.warnings = warnings
+
+    def value(self, shader, name: str, default):
+        """A constant input (through interface connections); the default when unauthored or connected to a shader."""
+        producer = _producer(shader.GetInput(name))
+        if producer is None or _is_output(producer):
+            return default
+        v = producer.Get(self.time)
+        return default if v is None else v
+
+    # -- UsdUVTexture ------------------------------------------------------------------------------
+
+    def texture_slot(self, input_name: str, texture: UsdShade.Shader, output: str):
+        """(TextureSlot, primvar name or None) for a UsdUVTexture output feeding `input_name`."""
+        slot = _tessera.TextureSlot()
+        slot.input = _TEXTURE_INPUTS[input_name]
+        where = f"{self.path}: {texture.GetPath()}"
+        if output not in _CHANNELS:
+            self.warnings.append(f"{where}: output '{output}' is not a UsdUVTexture output (r, g, b, a, rgb); rgb is used")
+        slot.channel = _CHANNELS.get(output, _tessera.TextureChannel.rgb)
+        slot.file = self.texture_file(texture, where)
+        for attr, name in (("wrap_s", "wrapS"), ("wrap_t", "wrapT")):
+            token = str(self.value(texture, name, "useMetadata"))
+            if token not in _WRAPS:
+                self.warnings.append(f"{where}: {name} '{token}' is not a wrap mode (black, clamp, repeat, mirror); repeat is used")
+            setattr(slot, attr, _WRAPS.get(token, _tessera.TextureWrap.repeat))
+        space = str(self.value(texture, "sourceColorSpace", "auto"))
+        if space not in _COLOR_SPACES:
+            self.warnings.append(f"{where}: sourceColorSpace '{space}' is not auto, sRGB or raw; auto is used")
+        slot.color_space = _COLOR_SPACES.get(space, _tessera.ColorSpace.auto)
+        slot.scale = tuple(float(x) for x in self.value(texture, "scale", (1.0, 1.0, 1.0, 1.0)))
+        slot.bias = tuple(float(x) for x in self.value(texture, "bias", (0.0, 0.0, 0.0, 0.0)))
+        slot.fallback = tuple(float(x) for x in self.value(texture, "fallback", (0.0, 0.0, 0.0, 1.0)))
+        slot.transform, primvar = self.st(texture.GetInput("st"), where)
+        return slot, primvar
+
+    def texture_file(self, texture: UsdShade.Shader, where: str) -> str:
+        """The absolute path of inputs:file: resolved by USD's resolver, else (a file that does not exist, which the
+        resolver leaves unresolved) anchored to the layer that authored it, so that the warning names the real path."""
+        producer = _producer(texture.GetInput("file"))
+        asset = producer.Get(self.time) if producer is not None and not _is_output(producer) else None
+        if not isinstance(asset, Sdf.AssetPath) or not asset.path:
+            return ""
+        if "<UDIM>" in asset.path:
+            self.warnings.append(f"{where}: UDIM textures ({asset.path}) are not supported; the fallback is used")
+        if asset.resolvedPath:
+            return asset.resolvedPath
+        specs = producer.GetPropertyStack(self.time)  # strongest opinion first
+        return Sdf.ComputeAssetPathRelativeToLayer(specs[0].layer, asset.path) if specs else asset.path
+
+    def st(self, st_input, where: str):
+        """(2x3 matrix, primvar name or None) of a texture's st: UsdTransform2d nodes composed down to a
+        UsdPrimvarReader_float2; a constant st is a matrix that ignores its input."""
+        matrix = _IDENTITY_2X3
+        producer = _producer(st_input)
+        for _ in range(32):  # a chain of UsdTransform2d nodes (a cycle is not valid UsdShade)
+            if producer is None or not _is_output(producer):
+                constant = producer.Get(self.time) if producer is not None else None
+                s, t = (float(constant[0]), float(constant[1])) if constant is not None else (0.0, 0.0)
+                return _compose(matrix, (0.0, 0.0, s, 0.0, 0.0, t)), None
+            node = UsdShade.Shader(producer.GetPrim())
+            kind = node.GetShaderId()
+            if kind == "UsdTransform2d":
+                rotation = float(self.value(node, "rotation", 0.0))
+                scale = tuple(float(x) for x in self.value(node, "scale", (1.0, 1.0)))
+                translation = tuple(float(x) for x in self.value(node, "translation", (0.0, 0.0)))
+                matrix = _compose(matrix, tuple(_tessera.transform2d(rotation, scale, translation)))
+                producer = _producer(node.GetInput("in"))
+                continue
+            if kind and kind.startswith("UsdPrimvarReader"):
+                varname = self.value(node, "varname", "")
+                return matrix, str(varname) if varname else None
+            self.warnings.append(f"{where}: st comes from {node.GetPath()} ({kind or 'no info:id'}), which is not a primvar reader "
+                                 "or UsdTransform2d; st (0, 0) is used")
+            return _compose(matrix, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)), None
+        return matrix, None
+
+
+def material_desc(material_prim, time, warnings: list[str]):
+    """The MaterialDesc of a material prim's UsdPreviewSurface (its textures not loaded yet: the material's sync
+    loads them). Not a preview surface: the mesh's displayColor, diffuse only."""
+    desc = _tessera.MaterialDesc()
+    material = UsdShade.Material(material_prim)
+    shader = material.ComputeSurfaceSource()[0] if material else None
+    if not shader or shader.GetShaderId() != "UsdPreviewSurface":
+        desc.use_display_color = True  # not a preview surface: fall back to the mesh's displayColor, diffuse only
+        desc.diffuse_color = (0.5, 0.5, 0.5)
+        desc.ior = 1.0
+        return desc
+    path = str(material_prim.GetPath())
+    reader = _Reader(path, time, warnings)
+    slots, primvars = [], []
+
+    def value(name, default):
+        producer = _producer(shader.GetInput(name))
+        if producer is None:
+            return default
+        if not _is_output(producer):
+            v = producer.Get(time)
+            return default if v is None else v
+        upstream = UsdShade.Shader(producer.GetPrim())
+        kind = upstream.GetShaderId()
+        output = UsdShade.Utils.GetBaseNameAndType(producer.GetName())[0]
+        if kind == "UsdUVTexture" and name in _TEXTURE_INPUTS:
+            slot, primvar = reader.texture_slot(name, upstream, output)
+            slots.append(slot)
+            if primvar:
+                primvars.append(primvar)
+        elif name == "diffuseColor" and kind == "UsdPrimvarReader_float3" and reader.value(upstream, "varname", "") == "displayColor":
+            desc.use_display_color = True
+        else:
+            warnings.append(f"{path}: {name} is connected to {upstream.GetPath()} ({kind or 'no info:id'}), which Tessera does not "
+                            "evaluate; its default is used")
+        return default
+
+    desc.diffuse_color = tuple(value("diffuseColor", (0.18, 0.18, 0.18)))
+    desc.emissive_color = tuple(value("emissiveColor", (0.0, 0.0, 0.0)))
+    desc.opacity = float(value("opacity", 1.0))
+    desc.opacity_threshold = float(value("opacityThreshold", 0.0))
+    desc.metallic = float(value("metallic", 0.0))
+    desc.roughness = float(value("roughness", 0.5))
+    desc.use_specular_workflow = bool(value("useSpecularWorkflow", 0))
+    desc.specular_color = tuple(value("specularColor", (0.0, 0.0, 0.0)))
+    desc.ior = float(value("ior", 1.5))
+    desc.occlusion = float(value("occlusion", 1.0))
+    value("normal", (0.0, 0.0, 1.0))
+    desc.textures = slots
+    if primvars:
+        desc.uv_primvar = primvars[0]
+        others = sorted(set(primvars) - {primvars[0]})
+        if others:
+            warnings.append(f"{path}: its textures read several UV sets ({', '.join([primvars[0]] + others)}); "
+                            f"only {primvars[0]} is read, for all of them")
+    return desc

@@ -1,0 +1,316 @@
+// Textures: image files to mip chains in the GPU pool's formats (shared.h TS_TEXTURE_*), shared between materials.
+#include "tessera/textures.h"
+
+#include "shared.h"
+
+#include <OpenImageIO/imageio.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <functional>
+
+namespace tessera {
+
+static_assert(int(MaterialInput::DiffuseColor) == TS_INPUT_DIFFUSE_COLOR && int(MaterialInput::EmissiveColor) == TS_INPUT_EMISSIVE_COLOR &&
+                  int(MaterialInput::SpecularColor) == TS_INPUT_SPECULAR_COLOR && int(MaterialInput::Metallic) == TS_INPUT_METALLIC &&
+                  int(MaterialInput::Roughness) == TS_INPUT_ROUGHNESS && int(MaterialInput::Opacity) == TS_INPUT_OPACITY &&
+                  int(MaterialInput::Occlusion) == TS_INPUT_OCCLUSION && int(MaterialInput::Normal) == TS_INPUT_NORMAL,
+              "MaterialInput must follow the TS_INPUT_* bits");
+static_assert(int(TextureWrap::Repeat) == TS_WRAP_REPEAT && int(TextureWrap::Mirror) == TS_WRAP_MIRROR &&
+                  int(TextureWrap::Clamp) == TS_WRAP_CLAMP && int(TextureWrap::Black) == TS_WRAP_BLACK,
+              "TextureWrap must follow TS_WRAP_*");
+static_assert(int(TextureChannel::R) == TS_CHANNEL_R && int(TextureChannel::A) == TS_CHANNEL_A && int(TextureChannel::Rgb) == TS_CHANNEL_RGB,
+              "TextureChannel must follow TS_CHANNEL_*");
+
+const char* material_input_name(MaterialInput input) {
+    switch (input) {
+        case MaterialInput::DiffuseColor: return "diffuseColor";
+        case MaterialInput::EmissiveColor: return "emissiveColor";
+        case MaterialInput::SpecularColor: return "specularColor";
+        case MaterialInput::Metallic: return "metallic";
+        case MaterialInput::Roughness: return "roughness";
+        case MaterialInput::Opacity: return "opacity";
+        case MaterialInput::Occlusion: return "occlusion";
+        case MaterialInput::Normal: return "normal";
+    }
+    return "?";
+}
+
+std::array<float, 6> transform2d(float rotationDegrees, std::array<float, 2> scale, std::array<float, 2> translation) {
+    const double radians = double(rotationDegrees) * 3.14159265358979323846 / 180.0;
+    const double c = std::cos(radians), s = std::sin(radians);
+    return {float(c * scale[0]), float(-s * scale[1]), translation[0], float(s * scale[0]), float(c * scale[1]), translation[1]};
+}
+
+namespace {
+
+constexpr uint32_t kMaxTextureSize = 16384;
+
+float srgb_to_linear(float c) { return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f); }
+float linear_to_srgb(float c) { return c <= 0.0031308f ? c * 12.92f : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f; }
+
+uint32_t to_byte(float v) { return uint32_t(std::lround(std::clamp(v, 0.0f, 1.0f) * 255.0f)); }
+
+// IEEE half from float, rounding to nearest even; beyond the half range clamps to +-65504, NaN reads as 0 (a texture
+// of NaNs would poison every filtered sample near it).
+uint16_t float_to_half(float value) {
+    if (std::isnan(value)) return 0;
+    value = std::clamp(value, -65504.0f, 65504.0f);
+    uint32_t bits;
+    std::memcpy(&bits, &value, 4);
+    const uint32_t sign = (bits >> 16) & 0x8000u;
+    const uint32_t magnitude = bits & 0x7fffffffu;
+    if (magnitude < 0x38800000u) {  // below the smallest normal half: a subnormal (or zero)
+        if (magnitude < 0x33000000u) return uint16_t(sign);  // rounds to zero
+        const uint32_t exponent = magnitude >> 23, mantissa = (magnitude & 0x7fffffu) | 0x800000u;
+        const uint32_t shift = 126 - exponent;  // 14 - (exponent - 127) + 13 - 1 ... into 10 bits
+        uint32_t half = mantissa >> shift;
+        const uint32_t rest = mantissa & ((1u << shift) - 1), halfway = 1u << (shift - 1);
+        if (rest > halfway || (rest == halfway && (half & 1u))) ++half;
+        return uint16_t(sign | half);
+    }
+    uint32_t half = ((magnitude - 0x38000000u) >> 13);
+    const uint32_t rest = magnitude & 0x1fffu;
+    if (rest > 0x1000u || (rest == 0x1000u && (half & 1u))) ++half;
+    return uint16_t(sign | half);
+}
+
+float half_to_float(uint16_t h) {
+    const uint32_t sign = uint32_t(h & 0x8000u) << 16, exponent = (h >> 10) & 0x1fu, mantissa = h & 0x3ffu;
+    float magnitude;
+    if (exponent == 0) magnitude = std::ldexp(float(mantissa), -24);
+    else if (exponent == 31) magnitude = mantissa ? NAN : INFINITY;
+    else magnitude = std::ldexp(float(mantissa | 0x400u), int(exponent) - 25);
+    uint32_t bits;
+    std::memcpy(&bits, &magnitude, 4);
+    bits |= sign;
+    std::memcpy(&magnitude, &bits, 4);
+    return magnitude;
+}
+
+uint32_t level_words(uint32_t format, uint32_t width, uint32_t height) {
+    const uint64_t texels = uint64_t(width) * height;
+    return uint32_t(format == TS_TEXTURE_R8 ? (texels + 3) / 4 : format == TS_TEXTURE_RGBA16F ? 2 * texels : texels);
+}
+
+// Box filter weights from `source` texels down to `target` (= max(1, source / 2)): each target texel averages the
+// source interval it covers, fractions of texels at its ends included (odd sizes).
+std::vector<std::vector<std::pair<uint32_t, float>>> box_weights(uint32_t source, uint32_t target) {
+    std::vector<std::vector<std::pair<uint32_t, float>>> weights(target);
+    const double ratio = double(source) / target;
+    for (uint32_t i = 0; i < target; ++i) {
+        const double lo = i * ratio, hi = (i + 1) * ratio;
+        for (uint32_t s = uint32_t(lo); s < source && s < hi; ++s) {
+            const double covered = std::min(hi, double(s) + 1) - std::max(lo, double(s));
+            if (covered > 1e-9) weights[i].push_back({s, float(covered / ratio)});
+        }
+    }
+    return weights;
+}
+
+// Linear RGBA of one row of a stored level (decoding sRGB and the storage format).
+void decode_row(const TextureImage& t, uint32_t offset, uint32_t width, uint32_t row, float* rgba) {
+    const uint32_t format = t.format & TS_TEXTURE_FORMAT_MASK;
+    const bool srgb = (t.format & TS_TEXTURE_SRGB) != 0;
+    for (uint32_t x = 0; x < width; ++x) {
+        const uint64_t i = uint64_t(row) * width + x;
+        float* v = rgba + 4 * x;
+        if (format == TS_TEXTURE_RGBA8) {
+            const uint32_t w = t.words[offset + i];
+            for (int c = 0; c < 4; ++c) v[c] = float((w >> (8 * c)) & 0xffu) / 255.0f;
+        } else if (format == TS_TEXTURE_R8) {
+            const uint32_t byte = (t.words[offset + i / 4] >> (8 * (i % 4))) & 0xffu;
+            v[0] = v[1] = v[2] = float(byte) / 255.0f;
+            v[3] = 1.0f;
+        } else {
+            const uint32_t a = t.words[offset + 2 * i], b = t.words[offset + 2 * i + 1];
+            v[0] = half_to_float(uint16_t(a)), v[1] = half_to_float(uint16_t(a >> 16));
+            v[2] = half_to_float(uint16_t(b)), v[3] = half_to_float(uint16_t(b >> 16));
+        }
+        if (srgb)
+            for (int c = 0; c < 3; ++c) v[c] = srgb_to_linear(v[c]);
+    }
+}
+
+// Stores linear RGBA texels (a whole level) in the texture's format at `offset`.
+void encode_level(TextureImage& t, uint32_t offset, const std::vector<float>& rgba) {
+    const uint32_t format = t.format & TS_TEXTURE_FORMAT_MASK;
+    const bool srgb = (t.format & TS_TEXTURE_SRGB) != 0;
+    const size_t texels = rgba.size() / 4;
+    auto channel = [&](size_t i, int c) { return srgb && c < 3 ? linear_to_srgb(rgba[4 * i + c]) : rgba[4 * i + c]; };
+    for (size_t i = 0; i < texels; ++i) {
+        if (format == TS_TEXTURE_RGBA8) {
+            t.words[offset + i] = to_byte(channel(i, 0)) | to_byte(channel(i, 1)) << 8 | to_byte(channel(i, 2)) << 16 | to_byte(channel(i, 3)) << 24;
+        } else if (format == TS_TEXTURE_R8) {
+            t.words[offset + i / 4] |= to_byte(channel(i, 0)) << (8 * (i % 4));
+        } else {
+            t.words[offset + 2 * i] = uint32_t(float_to_half(rgba[4 * i])) | uint32_t(float_to_half(rgba[4 * i + 1])) << 16;
+            t.words[offset + 2 * i + 1] = uint32_t(float_to_half(rgba[4 * i + 2])) | uint32_t(float_to_half(rgba[4 * i + 3])) << 16;
+        }
+    }
+}
+
+// Level l + 1 from level l (linear RGBA rows from `row`), box-filtered in both directions.
+std::vector<float> downsample(uint32_t width, uint32_t height, const std::function<void(uint32_t, float*)>& row) {
+    const uint32_t w = std::max(1u, width / 2), h = std::max(1u, height / 2);
+    const auto wx = box_weights(width, w), wy = box_weights(height, h);
+    std::vector<float> out(size_t(w) * h * 4, 0.0f), source(size_t(width) * 4), filtered(size_t(w) * 4);
+    for (uint32_t y = 0; y < h; ++y)
+        for (const auto& [sy, weightY] : wy[y]) {
+            row(sy, source.data());
+            for (uint32_t x = 0; x < w; ++x) {
+                float sum[4] = {0, 0, 0, 0};
+                for (const auto& [sx, weightX] : wx[x])
+                    for (int c = 0; c < 4; ++c) sum[c] += weightX * source[4 * sx + c];
+                for (int c = 0; c < 4; ++c) out[(size_t(y) * w + x) * 4 + c] += weightY * sum[c];
+            }
+        }
+    return out;
+}
+
+}  // namespace
+
+TextureImage make_texture(uint32_t width, uint32_t height, uint32_t channels, const uint8_t* bytes, const float* floats,
+                          ColorSpace colorSpace, std::string path) {
+    if (width == 0 || height == 0 || width > kMaxTextureSize || height > kMaxTextureSize)
+        throw TextureError(std::to_string(width) + "x" + std::to_string(height) + " pixels (textures are 1 to 16384 pixels on a side)");
+    if (channels < 1 || channels > 4) throw TextureError(std::to_string(channels) + " channels (1 to 4 are read)");
+    if (!bytes == !floats) throw std::invalid_argument("make_texture takes 8-bit or float pixels, not both");
+    const bool eightBit = bytes != nullptr;
+    const bool srgb = colorSpace == ColorSpace::Srgb || (colorSpace == ColorSpace::Auto && eightBit && channels >= 3);
+
+    TextureImage t;
+    t.path = std::move(path);
+    t.width = width;
+    t.height = height;
+    t.channels = channels;
+    t.levels = 1;
+    while ((std::max(width, height) >> t.levels) > 0) ++t.levels;
+    const uint32_t format = eightBit ? (channels == 1 ? TS_TEXTURE_R8 : TS_TEXTURE_RGBA8) : TS_TEXTURE_RGBA16F;
+    // 8-bit sRGB stays encoded (8 bits of linear would band in the darks); float data is decoded here, once.
+    t.format = format | (eightBit && srgb ? TS_TEXTURE_SRGB : 0u);
+    std::vector<uint32_t> offsets;
+    uint64_t total = 0;
+    for (uint32_t l = 0; l < t.levels; ++l) {
+        offsets.push_back(uint32_t(total));
+        total += level_words(format, std::max(1u, width >> l), std::max(1u, height >> l));
+    }
+    t.words.assign(total, 0u);
+
+    // Level 0: the file's channels as RGBA (one channel: r r r 1; two: l l l a; three: r g b 1), bottom row first.
+    auto source = [&](uint32_t x, uint32_t fileRow, uint32_t c) {
+        const size_t i = (size_t(fileRow) * width + x) * channels + c;
+        return eightBit ? float(bytes[i]) : floats[i];
+    };
+    auto rgba = [&](uint32_t x, uint32_t fileRow, float v[4]) {
+        for (uint32_t c = 0; c < 4; ++c) {
+            const uint32_t from = channels == 1 ? (c < 3 ? 0 : 4) : channels == 2 ? (c < 3 ? 0 : 1) : (c < channels ? c : 4);
+            v[c] = from < channels ? source(x, fileRow, from) : (eightBit ? 255.0f : 1.0f);
+        }
+    };
+    if (eightBit) {  // the file's bytes as they are
+        for (uint32_t y = 0; y < height; ++y)
+            for (uint32_t x = 0; x < width; ++x) {
+                float v[4];
+                rgba(x, height - 1 - y, v);
+                const size_t i = size_t(y) * width + x;
+                if (format == TS_TEXTURE_R8) t.words[i / 4] |= uint32_t(v[0]) << (8 * (i % 4));
+                else t.words[i] = uint32_t(v[0]) | uint32_t(v[1]) << 8 | uint32_t(v[2]) << 16 | uint32_t(v[3]) << 24;
+            }
+    } else {
+        std::vector<float> level0(size_t(width) * height * 4);
+        for (uint32_t y = 0; y < height; ++y)
+            for (uint32_t x = 0; x < width; ++x) {
+                float* v = &level0[(size_t(y) * width + x) * 4];
+                rgba(x, height - 1 - y, v);
+                if (srgb)
+                    for (int c = 0; c < 3; ++c) v[c] = srgb_to_linear(v[c]);
+            }
+        encode_level(t, 0, level0);
+    }
+
+    // Each level from the one above it, in linear light: level 1 from the stored level 0, the rest from the unrounded
+    // level above (rounding to 8 bits once per level, not once per level above it).
+    std::vector<float> above;
+    for (uint32_t l = 1; l < t.levels; ++l) {
+        const uint32_t w = std::max(1u, width >> (l - 1)), h = std::max(1u, height >> (l - 1));
+        std::vector<float> level = l == 1 ? downsample(w, h, [&](uint32_t y, float* out) { decode_row(t, offsets[0], w, y, out); })
+                                          : downsample(w, h, [&](uint32_t y, float* out) { std::memcpy(out, &above[size_t(y) * w * 4], size_t(w) * 16); });
+        encode_level(t, offsets[l], level);
+        above = std::move(level);
+    }
+    return t;
+}
+
+TextureImage read_texture(const std::string& path, ColorSpace colorSpace) {
+    OIIO::ImageSpec config;
+    config.attribute("oiio:UnassociatedAlpha", 1);  // colours as stored: UsdUVTexture reads straight alpha
+    auto in = OIIO::ImageInput::open(path, &config);
+    if (!in) {
+        std::string why = OIIO::geterror();
+        if (!std::filesystem::exists(path)) why = "no such file";
+        throw TextureError(why.empty() ? "OpenImageIO cannot read it" : why);
+    }
+    const OIIO::ImageSpec& spec = in->spec();
+    if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0) throw TextureError("an empty image");
+    if (spec.depth > 1) throw TextureError("a volume image");
+    if (uint32_t(spec.width) > kMaxTextureSize || uint32_t(spec.height) > kMaxTextureSize)
+        throw TextureError(std::to_string(spec.width) + "x" + std::to_string(spec.height) + " pixels (textures are at most 16384 on a side)");
+    const uint32_t channels = uint32_t(std::min(spec.nchannels, 4));
+    const bool eightBit = spec.format == OIIO::TypeDesc::UINT8;
+    const size_t values = size_t(spec.width) * spec.height * channels;
+    std::vector<uint8_t> bytes(eightBit ? values : 0);
+    std::vector<float> floats(eightBit ? 0 : values);
+    const bool ok = eightBit ? in->read_image(0, 0, 0, int(channels), OIIO::TypeDesc::UINT8, bytes.data())
+                             : in->read_image(0, 0, 0, int(channels), OIIO::TypeDesc::FLOAT, floats.data());
+    if (!ok) throw TextureError(in->geterror());
+    TextureImage t = make_texture(uint32_t(spec.width), uint32_t(spec.height), channels, eightBit ? bytes.data() : nullptr,
+                                  eightBit ? nullptr : floats.data(), colorSpace, path);
+    return t;
+}
+
+std::shared_ptr<const TextureImage> TextureStore::load(const std::string& path, ColorSpace colorSpace) {
+    std::error_code error;
+    const auto time = std::filesystem::last_write_time(path, error);
+    const int64_t fileTime = error ? 0 : int64_t(time.time_since_epoch().count());
+    const uint64_t fileSize = error ? 0 : uint64_t(std::filesystem::file_size(path, error));
+    const auto key = std::make_pair(path, colorSpace);
+    {
+        std::lock_guard lock(mutex_);
+        auto it = images_.find(key);
+        if (it != images_.end()) {
+            auto image = it->second.lock();
+            if (image && image->fileTime == fileTime && image->fileSize == fileSize) return image;
+        }
+    }
+    auto image = std::make_shared<TextureImage>(read_texture(path, colorSpace));
+    image->fileTime = fileTime;
+    image->fileSize = fileSize;
+    std::lock_guard lock(mutex_);
+    ++filesRead_;
+    images_[key] = image;
+    for (auto it = images_.begin(); it != images_.end();)  // forget images nobody holds any more
+        it = it->second.expired() ? images_.erase(it) : std::next(it);
+    return image;
+}
+
+void TextureStore::load_slots(std::vector<TextureSlot>& slots, const std::string& materialName, std::vector<std::string>& warnings) {
+    for (TextureSlot& slot : slots) {
+        if (slot.image) continue;
+        try {
+            if (slot.file.empty()) throw TextureError("no file is given");
+            slot.image = load(slot.file, slot.colorSpace);
+        } catch (const TextureError& e) {
+            const auto& f = slot.fallback;
+            char fallback[96];
+            std::snprintf(fallback, sizeof(fallback), "(%g, %g, %g, %g)", f[0], f[1], f[2], f[3]);
+            warnings.push_back(materialName + ": texture '" + slot.file + "' for " + material_input_name(slot.input) + " cannot be read (" +
+                               e.what() + "); its fallback " + fallback + " is used");
+        }
+    }
+}
+
+}  // namespace tessera

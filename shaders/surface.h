@@ -1,0 +1,109 @@
+// What the rasterizers and resolve share about a point of a surface: the pixel's ray, barycentrics on the triangle's
+// plane, texture coordinates with their analytic screen derivatives, and the UsdPreviewSurface inputs that textures
+// drive (texture.h samples them). Include after frame.h.
+#ifndef TESSERA_SURFACE_H
+#define TESSERA_SURFACE_H
+
+#include "texture.h"
+
+vec2 vertex_uv(GpuFrame frame, GpuMesh mesh, uint vertex) {
+    uint i = vertex - mesh.vertexOffset + mesh.uvOffset;
+    FloatRef uvs = FloatRef(frame.uvs);
+    return vec2(uvs.data[2u * i], uvs.data[2u * i + 1u]);
+}
+
+// The ray through a point of the image (pixel units), from the inverse view-projection (perspective and orthographic).
+void pixel_ray(GpuFrame frame, vec2 pixel, out vec3 origin, out vec3 direction) {
+    vec2 ndc = pixel / vec2(frame.viewport.xy) * 2.0 - 1.0;
+    vec4 nearPoint = frame.inverseViewProjection * vec4(ndc, 1.0, 1.0);
+    vec4 midPoint = frame.inverseViewProjection * vec4(ndc, 0.5, 1.0);
+    origin = nearPoint.xyz / nearPoint.w;
+    direction = normalize(midPoint.xyz / midPoint.w - origin);
+}
+
+// Barycentrics where a ray meets the plane of the triangle (p0, p0 + e1, p0 + e2), unclamped (Moller-Trumbore);
+// the centroid for a ray along the plane.
+vec3 plane_barycentrics(vec3 origin, vec3 direction, vec3 p0, vec3 e1, vec3 e2) {
+    vec3 pv = cross(direction, e2);
+    float det = dot(e1, pv);
+    if (!(abs(det) > 0.0)) return vec3(1.0 / 3.0);
+    vec3 tv = origin - p0;
+    float u = dot(tv, pv) / det;
+    float v = dot(direction, cross(tv, e1)) / det;
+    return vec3(1.0 - u - v, u, v);
+}
+
+// A surface attribute at the pixel and its change to the next pixel right (dx) and down (dy): the analytic
+// derivatives that pick a texture's mip level (a compute shader has no quads to difference).
+struct PixelUv {
+    vec2 uv, dx, dy;
+};
+
+PixelUv pixel_uv(GpuFrame frame, vec2 pixel, vec3 bary, vec3 p0, vec3 e1, vec3 e2, vec2 uv0, vec2 uv1, vec2 uv2) {
+    vec3 origin, direction;
+    PixelUv result;
+    result.uv = bary.x * uv0 + bary.y * uv1 + bary.z * uv2;
+    pixel_ray(frame, pixel + vec2(1.5, 0.5), origin, direction);
+    vec3 bx = plane_barycentrics(origin, direction, p0, e1, e2) - bary;
+    pixel_ray(frame, pixel + vec2(0.5, 1.5), origin, direction);
+    vec3 by = plane_barycentrics(origin, direction, p0, e1, e2) - bary;
+    result.dx = bx.x * uv0 + bx.y * uv1 + bx.z * uv2;
+    result.dy = by.x * uv0 + by.y * uv1 + by.z * uv2;
+    return result;
+}
+
+// The texture coordinates of a triangle's pixel (the pixel's top-left corner in image units), with derivatives.
+// Without a UV set: (0, 0), as UsdPrimvarReader_float2's fallback, and no derivatives (level 0).
+PixelUv triangle_pixel_uv(GpuFrame frame, GpuMesh mesh, vec2 pixel, vec3 bary, vec3 p0, vec3 e1, vec3 e2, uint v0, uint v1, uint v2) {
+    if (mesh.uvOffset == TS_NO_STREAM) return PixelUv(vec2(0.0), vec2(0.0), vec2(0.0));
+    return pixel_uv(frame, pixel, bary, p0, e1, e2, vertex_uv(frame, mesh, v0), vertex_uv(frame, mesh, v1), vertex_uv(frame, mesh, v2));
+}
+
+// A textured input's value: the material's slot for `materialInput` (one of its textureInputs bits, TS_INPUT_*).
+vec4 material_texture(GpuFrame frame, GpuMaterial material, uint materialInput, PixelUv uv) {
+    uint slot = material.firstTextureSlot + uint(bitCount(material.textureInputs & ((1u << materialInput) - 1u)));
+    return texture_slot_value(frame.textures, TextureSlotRef(frame.textureSlots).data[slot], uv.uv, uv.dx, uv.dy);
+}
+
+// UsdPreviewSurface opacityThreshold over a textured opacity (instances flagged TS_INSTANCE_MASKED): true where the
+// opacity at this pixel is below the threshold, so that the rasterizer leaves the pixel to what lies behind. Both
+// rasterizers call this same code for a pixel with the payload they write (visible cluster << 7 | triangle), so they
+// cut the same pixels.
+bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
+    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[payload >> TS_VIS_TRIANGLE_BITS];
+    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
+    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    GpuMaterial material = MaterialRef(frame.materials).data[instance.materialIndex];
+    bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
+    vec3 translation = camera_relative_translation(instance);
+    uint v0 = corner_vertex(frame, cluster, triangle, 0u, flip);
+    uint v1 = corner_vertex(frame, cluster, triangle, 1u, flip);
+    uint v2 = corner_vertex(frame, cluster, triangle, 2u, flip);
+    vec3 p0 = to_camera_relative(instance, translation, vertex_position(frame, v0));
+    vec3 e1 = to_camera_relative(instance, translation, vertex_position(frame, v1)) - p0;
+    vec3 e2 = to_camera_relative(instance, translation, vertex_position(frame, v2)) - p0;
+    vec3 origin, direction;
+    pixel_ray(frame, vec2(pixel) + 0.5, origin, direction);
+    vec3 bary = plane_barycentrics(origin, direction, p0, e1, e2);
+    PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), bary, p0, e1, e2, v0, v1, v2);
+    return material_texture(frame, material, TS_INPUT_OPACITY, uv).x < material.diffuseColor.a;  // a: the threshold
+}
+
+// A tangent-space normal (UsdPreviewSurface's normal input, after the texture's scale and bias) turned into the world
+// frame of the triangle's UV parametrization around the shading normal n. A triangle whose UVs are degenerate keeps n.
+vec3 apply_normal_map(vec3 n, vec3 tangentNormal, vec3 e1, vec3 e2, vec2 uv0, vec2 uv1, vec2 uv2) {
+    vec2 d1 = uv1 - uv0, d2 = uv2 - uv0;
+    float det = d1.x * d2.y - d2.x * d1.y;
+    if (!(abs(det) > 0.0)) return n;
+    vec3 dpdu = (e1 * d2.y - e2 * d1.y) / det, dpdv = (e2 * d1.x - e1 * d2.x) / det;
+    vec3 t = dpdu - n * dot(n, dpdu);
+    if (!(dot(t, t) > 0.0)) return n;
+    t = normalize(t);
+    vec3 b = cross(n, t) * (dot(cross(n, t), dpdv) < 0.0 ? -1.0 : 1.0);  // mirrored UVs flip the bitangent
+    vec3 mapped = t * tangentNormal.x + b * tangentNormal.y + n * tangentNormal.z;
+    return dot(mapped, mapped) > 0.0 ? normalize(mapped) : n;
+}
+
+#endif

@@ -1,0 +1,118 @@
+// Texture sampling by hand from the texture pool (shared.h: GpuTexture, GpuTextureSlot). Lavapipe has no descriptor
+// indexing and the renderer binds no descriptor sets, so there are no samplers: texels are fetched from one storage
+// buffer by device address and filtered here. Per axis wrap modes; bilinear filtering within a mip level, trilinear
+// between the two levels that the UV derivatives pick (isotropic: the longer footprint axis decides, as most GPUs do
+// without anisotropic filtering). sRGB texels are decoded before they are filtered, as hardware sRGB formats are.
+// testenv/cpp/test_textures.cpp checks every path against a CPU reference of the same arithmetic.
+// Include after shared.h and the buffer reference and int64 extensions.
+#ifndef TESSERA_TEXTURE_H
+#define TESSERA_TEXTURE_H
+
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer TextureRecordRef { GpuTexture data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer TextureSlotRef { GpuTextureSlot data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer TextureWordRef { uint data[]; };
+
+uvec2 texture_level_size(GpuTexture texture, uint level) {
+    return max(uvec2(texture.width, texture.height) >> level, uvec2(1u));
+}
+
+uint texture_level_words(uint format, uvec2 size) {
+    uint texels = size.x * size.y;
+    return format == TS_TEXTURE_R8 ? (texels + 3u) / 4u : format == TS_TEXTURE_RGBA16F ? 2u * texels : texels;
+}
+
+// First word of a mip level: the levels before it, one after another from the texture's offset.
+uint texture_level_offset(GpuTexture texture, uint level) {
+    uint format = texture.formatLevels & TS_TEXTURE_FORMAT_MASK;
+    uint offset = texture.offset;
+    for (uint l = 0u; l < level; ++l) offset += texture_level_words(format, texture_level_size(texture, l));
+    return offset;
+}
+
+float srgb_to_linear(float c) { return c <= 0.04045 ? c / 12.92 : pow((c + 0.055) / 1.055, 2.4); }
+
+// i mod n for any sign of i (GLSL leaves % undefined for negative operands).
+int positive_mod(int i, int n) { return i >= 0 ? i % n : n - 1 - (-i - 1) % n; }
+
+// The texel an integer coordinate reads after wrapping, or -1 outside the image with TS_WRAP_BLACK.
+int wrap_texel(int i, int n, uint mode) {
+    if (mode == TS_WRAP_CLAMP) return clamp(i, 0, n - 1);
+    if (mode == TS_WRAP_BLACK) return i < 0 || i >= n ? -1 : i;
+    if (mode == TS_WRAP_MIRROR) {
+        int m = positive_mod(i, 2 * n);
+        return m < n ? m : 2 * n - 1 - m;
+    }
+    return positive_mod(i, n);
+}
+
+// A coordinate brought near [0, 1] without changing what it samples, so that texel indices stay small integers.
+float wrap_coordinate(float u, uint mode) {
+    if (mode == TS_WRAP_REPEAT) return fract(u);
+    if (mode == TS_WRAP_MIRROR) return u - 2.0 * floor(0.5 * u);
+    return clamp(u, -1.0, 2.0);
+}
+
+// One texel as linear RGBA (transparent black for x or y < 0: outside a TS_WRAP_BLACK image).
+vec4 texture_texel(uint64_t pool, uint format, bool srgb, uint levelOffset, uint levelWidth, int x, int y) {
+    if (x < 0 || y < 0) return vec4(0.0);
+    uint i = uint(y) * levelWidth + uint(x);
+    TextureWordRef words = TextureWordRef(pool);
+    vec4 v;
+    if (format == TS_TEXTURE_RGBA8) {
+        v = unpackUnorm4x8(words.data[levelOffset + i]);
+    } else if (format == TS_TEXTURE_R8) {
+        uint byte = (words.data[levelOffset + (i >> 2u)] >> (8u * (i & 3u))) & 0xffu;
+        v = vec4(vec3(float(byte) / 255.0), 1.0);
+    } else {
+        v = vec4(unpackHalf2x16(words.data[levelOffset + 2u * i]), unpackHalf2x16(words.data[levelOffset + 2u * i + 1u]));
+    }
+    if (srgb) v.rgb = vec3(srgb_to_linear(v.r), srgb_to_linear(v.g), srgb_to_linear(v.b));
+    return v;
+}
+
+// Bilinear filtering of one mip level; texel centres sit at (i + 0.5) / size.
+vec4 sample_texture_level(uint64_t pool, GpuTexture texture, uint level, vec2 uv, uint wrapS, uint wrapT) {
+    uint format = texture.formatLevels & TS_TEXTURE_FORMAT_MASK;
+    bool srgb = (texture.formatLevels & TS_TEXTURE_SRGB) != 0u;
+    uvec2 size = texture_level_size(texture, level);
+    uint offset = texture_level_offset(texture, level);
+    vec2 p = vec2(wrap_coordinate(uv.x, wrapS), wrap_coordinate(uv.y, wrapT)) * vec2(size) - 0.5;
+    vec2 base = floor(p);
+    vec2 f = p - base;
+    int x0 = wrap_texel(int(base.x), int(size.x), wrapS), x1 = wrap_texel(int(base.x) + 1, int(size.x), wrapS);
+    int y0 = wrap_texel(int(base.y), int(size.y), wrapT), y1 = wrap_texel(int(base.y) + 1, int(size.y), wrapT);
+    vec4 t00 = texture_texel(pool, format, srgb, offset, size.x, x0, y0);
+    vec4 t10 = texture_texel(pool, format, srgb, offset, size.x, x1, y0);
+    vec4 t01 = texture_texel(pool, format, srgb, offset, size.x, x0, y1);
+    vec4 t11 = texture_texel(pool, format, srgb, offset, size.x, x1, y1);
+    return mix(mix(t00, t10, f.x), mix(t01, t11, f.x), f.y);
+}
+
+// Trilinear sample of texture `index` at uv, its mip level from uv's derivatives along the two screen axes:
+// lod = log2 of the longer footprint in level-0 texels, clamped to the chain; magnification samples level 0.
+// `wrap`: wrapS | wrapT << 2.
+vec4 sample_texture(uint64_t pool, uint index, uint wrap, vec2 uv, vec2 duvdx, vec2 duvdy) {
+    GpuTexture texture = TextureRecordRef(pool).data[index];
+    uint levels = (texture.formatLevels >> 8u) & 0xffu;
+    vec2 size = vec2(texture.width, texture.height);
+    vec2 fx = duvdx * size, fy = duvdy * size;
+    float footprint2 = max(dot(fx, fx), dot(fy, fy));
+    float lod = footprint2 > 1.0 ? min(0.5 * log2(footprint2), float(levels - 1u)) : 0.0;  // also 0 for NaN
+    uint level = uint(lod);
+    float blend = lod - float(level);
+    vec4 value = sample_texture_level(pool, texture, level, uv, wrap & 3u, (wrap >> 2u) & 3u);
+    if (blend > 0.0) value = mix(value, sample_texture_level(pool, texture, level + 1u, uv, wrap & 3u, (wrap >> 2u) & 3u), blend);
+    return value;
+}
+
+// A UsdUVTexture's output at st (with st's derivatives along the screen axes): UsdTransform2d, then the sample
+// times scale plus bias, then the output's channel (a single channel comes back in every component).
+vec4 texture_slot_value(uint64_t pool, GpuTextureSlot slot, vec2 st, vec2 dstdx, vec2 dstdy) {
+    mat2 linear = mat2(slot.transform.x, slot.transform.z, slot.transform.y, slot.transform.w);  // columns
+    vec2 uv = linear * st + vec2(slot.translationS, slot.translationT);
+    vec4 value = sample_texture(pool, slot.texture, slot.mode & 15u, uv, linear * dstdx, linear * dstdy) * slot.scale + slot.bias;
+    uint channel = slot.mode >> 4u;
+    return channel == TS_CHANNEL_RGB ? value : vec4(value[channel]);
+}
+
+#endif
