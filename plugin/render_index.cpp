@@ -108,7 +108,7 @@ std::string one_line(const std::string& text) {
 bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<InstanceDesc>& b) {
     return std::equal(a.begin(), a.end(), b.begin(), b.end(), [](const InstanceDesc& x, const InstanceDesc& y) {
         return x.mesh == y.mesh && x.transform == y.transform && x.primId == y.primId && x.material == y.material &&
-               x.doubleSided == y.doubleSided;
+               x.materialTable == y.materialTable && x.doubleSided == y.doubleSided;
     });
 }
 }  // namespace
