@@ -26,7 +26,7 @@ const std::vector<std::string>& RenderDelegate::supported_bprim_types() {
 
 std::unique_ptr<Mesh> RenderDelegate::create_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t primId) {
     if (type != "mesh") return nullptr;
-    return std::make_unique<Mesh>(id, instancerId, primId, scene_, cache_);
+    return std::make_unique<Mesh>(id, instancerId, primId, scene_, meshes_);
 }
 
 std::unique_ptr<Prim> RenderDelegate::create_sprim(const std::string& type, const PrimId& id) {
@@ -108,7 +108,7 @@ std::string one_line(const std::string& text) {
 bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<InstanceDesc>& b) {
     return std::equal(a.begin(), a.end(), b.begin(), b.end(), [](const InstanceDesc& x, const InstanceDesc& y) {
         return x.mesh == y.mesh && x.transform == y.transform && x.primId == y.primId && x.material == y.material &&
-               x.doubleSided == y.doubleSided;
+               x.materialTable == y.materialTable && x.doubleSided == y.doubleSided;
     });
 }
 }  // namespace
@@ -157,10 +157,9 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
     if (structureDirty_) {
         commit_resources();
     } else if (!moved.empty()) {
-        // A transform edit: the instance list is patched, not rebuilt (an edit of one prim of 100k costs one copy).
-        std::vector<InstanceDesc> instances = delegate_.scene().instances();
-        for (const Entry* entry : moved) instances[entry->firstInstance].transform = static_cast<const Mesh&>(*entry->prim).transform();
-        delegate_.scene().set_instances(std::move(instances));
+        // A transform edit: the instance list is patched in place, not rebuilt.
+        for (const Entry* entry : moved)
+            delegate_.scene().set_instance_transform(entry->firstInstance, static_cast<const Mesh&>(*entry->prim).transform());
     }
     structureDirty_ = false;
 }

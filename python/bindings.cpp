@@ -469,6 +469,7 @@ NB_MODULE(_tessera, m) {
             d["errors"] = p.errors;
             d["meshes_built"] = p.meshesBuilt;
             d["meshes_cached"] = p.meshesFromCache;
+            d["meshes_shared"] = p.meshesShared;
             return d;
         });
 

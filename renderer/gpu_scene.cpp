@@ -56,6 +56,11 @@ void GpuScene::set_instances(std::vector<InstanceDesc> instances) {
     ++instancesVersion_;
 }
 
+void GpuScene::set_instance_transform(size_t index, const Matrix4d& transform) {
+    instances_.at(index).transform = transform;
+    ++instancesVersion_;
+}
+
 void GpuScene::set_lights(std::vector<LightDesc> lights) { lights_ = std::move(lights); }
 
 }  // namespace tessera

@@ -167,6 +167,18 @@ def test_bench_textures_measures_loads_and_shading(tmp_path):
     assert all(r["resolve_ms"] > 0 for r in shading.values())
 
 
+def test_bench_usd_translates_and_resyncs_one_edit(tmp_path):
+    rows_file = tmp_path / "rows.json"
+    done = run("bench", "usd", "--prims", "50", "--instances", "40", "--edits", "2", "--stages-dir", tmp_path, "--json", rows_file)
+    assert done.returncode == 0, done.stderr + done.stdout
+    assert "edit re-sync ms" in done.stdout
+    one_shape, distinct, instances = json.loads(rows_file.read_text())
+    assert one_shape["rprims"] == distinct["rprims"] == 50 and instances["rprims"] == 1
+    assert one_shape["meshes_shared"] == 49, "one shape: built or loaded once, shared by the other 49"
+    assert distinct["meshes_built"] + distinct["meshes_cached"] == 50 and distinct["meshes_shared"] == 0
+    assert all(row["edit_resynced_prims"] == 1 and row["edit_resync_ms"] > 0 for row in (one_shape, distinct, instances))
+
+
 def test_an_unchanged_stage_is_never_built_twice(tmp_path, monkeypatch):
     monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
     stage = TESTENV / "testNativeInstancing" / "native_instancing.usda"

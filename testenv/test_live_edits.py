@@ -168,6 +168,24 @@ def test_prims_added_and_removed(live):
     assert live.session.index.rprim_count == 6
 
 
+def test_identical_meshes_share_one_build_until_one_is_edited(live):
+    twin = UsdGeom.Xform.Define(live.stage, "/World/TwinXform")
+    twin.AddTranslateOp().Set(Gf.Vec3d(0, 0.6, 0))
+    _quad(live.stage, "/World/TwinXform/Twin", 0, 0)  # the same points as /World/Left/Quad
+    first, _ = live.render()
+    assert first.stats["meshes_shared"] == 1 and first.stats["meshes_built"] + first.stats["meshes_cached"] == 5
+    assert _mask(first, "/World/TwinXform/Twin").sum() == _mask(first, "/World/Left/Quad").sum() > 0
+    points = live.stage.GetPrimAtPath("/World/TwinXform/Twin").GetAttribute("points")
+    points.Set(Vt.Vec3fArray([Gf.Vec3f(p[0] * 0.5, p[1] * 0.5, 0) for p in points.Get()]))
+    edited, synced = live.render()
+    assert synced == {"/World/TwinXform/Twin": DIRTY.POINTS} and edited.stats["meshes_built"] == 1
+    assert np.array_equal(_mask(edited, "/World/Left/Quad"), _mask(first, "/World/Left/Quad")), "the other keeps the shared mesh"
+    assert _mask(edited, "/World/TwinXform/Twin").sum() == pytest.approx(_mask(first, "/World/TwinXform/Twin").sum() / 4, rel=0.15)
+    live.stage.RemovePrim("/World/Left")
+    gone, _ = live.render()
+    assert "/World/Left/Quad" not in _drawn(gone) and "/World/TwinXform/Twin" in _drawn(gone)
+
+
 def test_a_variant_switch_resyncs_that_subtree_alone(live):
     before, _ = live.render()
     live.stage.GetPrimAtPath("/World/Switch").GetVariantSets().GetVariantSet("shape").SetVariantSelection("wide")

@@ -63,7 +63,7 @@ class _Group:
 class _Found:
     """What a walk of part of the stage found outside instancing contexts."""
     rprims: dict[str, Usd.Prim] = field(default_factory=dict)
-    sprims: dict[str, tuple[str, Usd.Prim]] = field(default_factory=dict)  # cameras and lights: path -> (type, prim)
+    sprims: dict[str, str] = field(default_factory=dict)  # cameras and lights: path -> type
     natives: dict[str, list[str]] = field(default_factory=dict)  # prototype path -> instance prim paths
     instancers: list[str] = field(default_factory=list)
 
@@ -90,6 +90,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         self._watch = PathIndex()  # prim path -> keys of the instancing groups that read its subtree
         self._material_users: dict[str, set[str]] = {}  # material path -> ids of the rprims bound to it
         self._time_varying: dict[str, set[str]] | None = None  # prim path -> time-varying attributes (on first need)
+        self._kinds: dict[str, tuple[bool, str | None]] = {}  # prim type name -> (imageable, role)
 
     @property
     def materials(self) -> set[str]:
@@ -117,33 +118,54 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             path = prim.GetPath()
             if hidden_under is not None and not path.HasPrefix(hidden_under):
                 hidden_under = None
-            imageable = UsdGeom.Imageable(prim)
+            imageable, role = self._kind(prim)
             if imageable:
-                if imageable.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
+                geom = UsdGeom.Imageable(prim)
+                if geom.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
                     it.PruneChildren()
                     continue
-                if hidden_under is None and imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
+                if hidden_under is None and geom.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
             if prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
                 if hidden_under is None:
                     found.natives.setdefault(str(prim.GetPrototype().GetPath()), []).append(str(path))
                 it.PruneChildren()
                 continue
-            if prim.IsA(UsdGeom.PointInstancer):
+            if role is None:
+                continue
+            if role == "pointInstancer":
                 if hidden_under is None:
                     found.instancers.append(str(path))
                 it.PruneChildren()
-                continue
-            if prim.IsA(UsdGeom.Camera):  # visibility does not apply to looking through a camera
-                found.sprims[str(path)] = ("camera", prim)
-            elif prim.IsA(UsdLux.DistantLight) or prim.IsA(UsdLux.DomeLight):
+            elif role == "camera":  # visibility does not apply to looking through a camera
+                found.sprims[str(path)] = "camera"
+            elif role in _LIGHT_TYPES:
                 if hidden_under is None:
-                    found.sprims[str(path)] = ("distantLight" if prim.IsA(UsdLux.DistantLight) else "domeLight", prim)
-            elif prim.IsA(UsdGeom.Gprim):
-                if not (prim.IsA(UsdGeom.Mesh) or implicit.supported(prim)):
-                    self.warnings.append(f"{path}: {prim.GetTypeName()} is not drawn (not supported yet)")
-                    continue
+                    found.sprims[str(path)] = role
+            elif role == "mesh":
                 found.rprims[str(path)] = prim
+            else:
+                self.warnings.append(f"{path}: {prim.GetTypeName()} is not drawn (not supported yet)")
+
+    def _kind(self, prim: Usd.Prim) -> tuple[bool, str | None]:
+        """(imageable, role) of a prim's type, found once per type name (IsA depends on the type alone). Roles:
+        pointInstancer, camera, distantLight, domeLight, mesh (drawn), unsupported (a gprim not drawn), None."""
+        type_name = prim.GetTypeName()
+        kind = self._kinds.get(type_name)
+        if kind is None:
+            role = None
+            if prim.IsA(UsdGeom.PointInstancer):
+                role = "pointInstancer"
+            elif prim.IsA(UsdGeom.Camera):
+                role = "camera"
+            elif prim.IsA(UsdLux.DistantLight):
+                role = "distantLight"
+            elif prim.IsA(UsdLux.DomeLight):
+                role = "domeLight"
+            elif prim.IsA(UsdGeom.Gprim):
+                role = "mesh" if prim.IsA(UsdGeom.Mesh) or implicit.supported(prim) else "unsupported"
+            kind = self._kinds[type_name] = (prim.IsA(UsdGeom.Imageable), role)
+        return kind
 
     def _visit(self, root: Usd.Prim, copies: np.ndarray, frame: Usd.Prim | None, context: str,
                records: dict[str, _Rprim], watched: set[str]) -> None:
@@ -248,7 +270,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 self.index.mark_dirty(id, survivor_bits)
             elif survivor_bits:
                 self.index.mark_dirty(id, survivor_bits)
-        for id, (kind, _) in found.sprims.items():
+        for id, kind in found.sprims.items():
             if self.sprims.get(id) not in (None, kind):
                 self._remove_sprim(id)
             if id not in self.sprims:

@@ -465,7 +465,8 @@ def raster(args) -> int:
 # re-syncing one edited transform.
 
 def _write_usd_stage(path, case: str, count: int):
-    """`count` cubes (12 triangles) on a grid: each its own Mesh prim under its own Xform ("prims"), or native
+    """`count` cubes (12 triangles) on a grid: each its own Mesh prim under its own Xform, all the same shape
+    ("prims") or each a little larger than the one before ("distinct": every mesh its own build), or native
     instances of one Xform holding the cube ("instances"). Written through Sdf in one change block (fast)."""
     from pxr import Sdf, Usd, UsdGeom, Vt
 
@@ -477,9 +478,10 @@ def _write_usd_stage(path, case: str, count: int):
     indices = Vt.IntArray([0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 2, 6, 7, 3, 0, 4, 6, 2, 1, 3, 7, 5])
     side = int(np.ceil(np.sqrt(count)))
     with Sdf.ChangeBlock():
-        def mesh_spec(parent):
+        def mesh_spec(parent, scale=1.0):
             mesh = Sdf.PrimSpec(parent, "Cube", Sdf.SpecifierDef, "Mesh")
-            Sdf.AttributeSpec(mesh, "points", Sdf.ValueTypeNames.Point3fArray).default = points
+            Sdf.AttributeSpec(mesh, "points", Sdf.ValueTypeNames.Point3fArray).default = points if scale == 1.0 else \
+                Vt.Vec3fArray([p * scale for p in points])
             Sdf.AttributeSpec(mesh, "faceVertexCounts", Sdf.ValueTypeNames.IntArray).default = counts
             Sdf.AttributeSpec(mesh, "faceVertexIndices", Sdf.ValueTypeNames.IntArray).default = indices
             Sdf.AttributeSpec(mesh, "subdivisionScheme", Sdf.ValueTypeNames.Token, variability=Sdf.VariabilityUniform).default = "none"
@@ -497,70 +499,93 @@ def _write_usd_stage(path, case: str, count: int):
                 item.referenceList.Prepend(Sdf.Reference("", "/Assets/Block"))
                 item.instanceable = True
             else:
-                mesh_spec(item)
+                mesh_spec(item, 1.0 + 1e-5 * i if case == "distinct" else 1.0)
     layer.Save()
 
 
 def _rss_bytes() -> int:
+    """Resident memory, after handing freed heap back to the system (so that it counts what is held)."""
+    import ctypes
+    import gc
+
+    gc.collect()
+    ctypes.CDLL("libc.so.6").malloc_trim(0)
     with open("/proc/self/statm") as f:
         return int(f.read().split()[1]) * resource.getpagesize()
 
 
-def _usd_case(queue, case, stage_path, count, edits, device, device_cost=(0, 0.0)):
-    """Runs in a child process, so that its memory is its own. `device_cost`: the bytes and seconds a session over
-    an empty stage takes (the Vulkan device, the renderer), taken off the translation's."""
+def _usd_case(queue, case, stage_path, count, edits, device):
+    """Runs in a child process, so that its memory is its own. The session's parts are made here one by one so
+    that the device's memory is measured apart from the translation's."""
     try:
+        from pathlib import Path
+
         from pxr import Gf, Usd
 
-        from tessera import Session
+        from tessera import _tessera
+        from tessera.usd import ChangeTracker, UsdSceneDelegate
 
         started = time.perf_counter()
         stage = Usd.Stage.Open(stage_path)
         opened = time.perf_counter()
-        stage_rss = _rss_bytes()
-        session = Session(stage, device=device)  # the device, then populate
+        delegate = _tessera.RenderDelegate(device=device)
+        # A small stage of the same kind through its own index first: code and USD caches the first use loads
+        # are then not counted as this stage's translation.
+        warm_path = str(Path(stage_path).with_suffix(".warmup.usdc"))
+        if not Path(warm_path).exists():
+            _write_usd_stage(warm_path, case, 4)
+        warm_index = _tessera.RenderIndex(delegate)
+        warm = UsdSceneDelegate(Usd.Stage.Open(warm_path), warm_index)
+        warm.populate()
+        warm_index.sync_all(warm)
+        del warm, warm_index
+        index = _tessera.RenderIndex(delegate)
+        before_rss = _rss_bytes()
+        translating = time.perf_counter()
+        scene = UsdSceneDelegate(stage, index)
+        scene.populate()
         populated = time.perf_counter()
-        session.index.sync_all(session.scene)  # every mesh built or loaded from the cache, then commit
+        index.sync_all(scene)  # every mesh built, loaded from the cache or shared, then committed
         synced = time.perf_counter()
-        device_bytes, device_seconds = device_cost
-        translated_rss = _rss_bytes() - device_bytes
-        if case == "empty":
-            queue.put((translated_rss - stage_rss, populated - opened))
-            return
-        diagnostics = session.index.take_diagnostics()
+        translated_rss = _rss_bytes()
+        diagnostics = index.take_diagnostics()
         # One transform edited, then re-synced (notice -> dirty bits -> sync -> commit), `edits` times.
+        changes = ChangeTracker(stage)
         target = stage.GetPrimAtPath("/World/Item0").GetAttribute("xformOp:translate")
         times, synced_counts = [], []
         for k in range(edits):
             target.Set(Gf.Vec3d(0.0, 0.0, 0.1 * (k + 1)))
             edit_started = time.perf_counter()
-            session._apply_edits()
-            session.index.sync_all(session.scene)
+            scene.apply_changes(*changes.take())
+            index.sync_all(scene)
             times.append(time.perf_counter() - edit_started)
-            synced_counts.append(len(session.index.last_synced))
+            synced_counts.append(len(index.last_synced))
         queue.put({
-            "case": f"{count:,} {'mesh prims' if case == 'prims' else 'native instances'}",
+            "case": f"{count:,} " + {"prims": "mesh prims, one shape", "distinct": "mesh prims, distinct",
+                                     "instances": "native instances"}[case],
             "prims_on_stage": count,
-            "rprims": session.index.rprim_count,
-            "meshes_built": diagnostics["meshes_built"] + diagnostics["meshes_cached"],
+            "rprims": index.rprim_count,
+            "meshes_built": diagnostics["meshes_built"],
+            "meshes_cached": diagnostics["meshes_cached"],
+            "meshes_shared": diagnostics["meshes_shared"],
             "open_seconds": round(opened - started, 2),
-            "populate_seconds": round(populated - opened - device_seconds, 2),
+            "populate_seconds": round(populated - translating, 2),
             "first_sync_seconds": round(synced - populated, 2),
-            "translate_seconds": round(synced - opened - device_seconds, 2),
-            "stage_memory_mib": round(stage_rss / 2**20),
-            "translate_memory_mib": round((translated_rss - stage_rss) / 2**20, 1),
-            "translate_bytes_per_prim": round((translated_rss - stage_rss) / count),
+            "translate_seconds": round(synced - translating, 2),
+            "translate_memory_mib": round((translated_rss - before_rss) / 2**20, 1),
+            "translate_bytes_per_prim": round((translated_rss - before_rss) / count),
             "edit_resync_ms": round(1000 * float(np.median(times)), 2),
             "edit_resynced_prims": max(synced_counts),
-            "device": session.device_name,
+            "device": delegate.device_name,
         })
     except Exception as error:  # reported by the parent, which goes on with the other cases
         queue.put(error)
 
 
-USD_COLUMNS = [("case", "case"), ("rprims", "rprims"), ("meshes_built", "meshes built"), ("open_seconds", "open s"),
+USD_COLUMNS = [("case", "case"), ("rprims", "rprims"), ("meshes_built", "built"), ("meshes_cached", "cached"),
+               ("meshes_shared", "shared"), ("open_seconds", "open s"),
                ("populate_seconds", "populate s"), ("first_sync_seconds", "first sync s"), ("translate_seconds", "translate s"),
-               ("stage_memory_mib", "RSS after open MiB"), ("translate_memory_mib", "translate MiB"), ("translate_bytes_per_prim", "B/prim"),
+               ("translate_memory_mib", "translate MiB"), ("translate_bytes_per_prim", "B/prim"),
                ("edit_resync_ms", "edit re-sync ms"), ("edit_resynced_prims", "prims re-synced")]
 
 
@@ -571,29 +596,16 @@ def usd(args) -> int:
     directory = Path(args.stages_dir)
     directory.mkdir(parents=True, exist_ok=True)
     rows = []
-
-    def run(case, stage, count, device_cost=(0, 0.0)):
-        queue = multiprocessing.get_context("fork").Queue()
-        process = multiprocessing.get_context("fork").Process(
-            target=_usd_case, args=(queue, case, str(stage), count, args.edits, args.device, device_cost))
-        process.start()
-        result = queue.get()
-        process.join()
-        return result
-
-    empty = directory / "usd_empty.usda"
-    if not empty.exists():
-        empty.write_text("#usda 1.0\n")
-    device_cost = run("empty", empty, 0)
-    if isinstance(device_cost, Exception):
-        print(f"tessera: error: {device_cost}")
-        return 1
     print(" | ".join(title for _, title in USD_COLUMNS))
-    for case, count in (("prims", args.prims), ("instances", args.instances)):
+    for case, count in (("prims", args.prims), ("distinct", args.prims), ("instances", args.instances)):
         stage = directory / f"usd_{case}_{count}.usdc"
         if not stage.exists():
             _write_usd_stage(stage, case, count)
-        row = run(case, stage, count, device_cost)
+        queue = multiprocessing.get_context("fork").Queue()
+        process = multiprocessing.get_context("fork").Process(target=_usd_case, args=(queue, case, str(stage), count, args.edits, args.device))
+        process.start()
+        row = queue.get()
+        process.join()
         if isinstance(row, Exception):
             print(f"tessera: error: {case}: {row}")
             continue

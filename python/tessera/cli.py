@@ -119,7 +119,8 @@ def _parser() -> argparse.ArgumentParser:
     bench_render.add_argument("--plot", help="write the speed-against-error plot (PNG) here")
     bench_render.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
     bench_usd = benches.add_parser("usd", help="translating a stage into the render index: time, memory, one edit re-synced")
-    bench_usd.add_argument("--prims", type=int, default=100_000, help="mesh prims of the first stage (default 100000)")
+    bench_usd.add_argument("--prims", type=int, default=100_000,
+                           help="mesh prims of the first two stages, one shape shared and every mesh distinct (default 100000)")
     bench_usd.add_argument("--instances", type=int, default=10_000, help="native instances of the second stage (default 10000)")
     bench_usd.add_argument("--edits", type=int, default=20, help="transform edits timed; the median is reported (default 20)")
     bench_usd.add_argument("--stages-dir", default="out/bench", help="where the generated stages are kept (default out/bench)")

@@ -156,5 +156,6 @@ class Session:
         stats["rprims"] = self.index.rprim_count
         stats["meshes_built"] = diagnostics["meshes_built"]
         stats["meshes_cached"] = diagnostics["meshes_cached"]
+        stats["meshes_shared"] = diagnostics["meshes_shared"]  # identical to a mesh already in the scene: that one is used
         stats["synced"] = {kind: count for kind, count in syncs.items() if count}  # prims synced for this render, per type
         return RenderResult(dict(zip(aovs, images)), stats, warnings, list(errors), self.index)

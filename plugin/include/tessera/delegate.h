@@ -79,6 +79,31 @@ struct RenderParam {
     std::vector<std::string> warnings;
     std::vector<std::string> errors;
     uint32_t meshesBuilt = 0, meshesFromCache = 0;
+    uint32_t meshesShared = 0;  // meshes identical to one already in the GPU scene: that one is used
+};
+
+// Built meshes shared by content: rprims whose meshes are identical (the mesh cache's key: points, topology,
+// primvars, build settings) use one GPU scene mesh, built or loaded once, however many prims author it.
+class MeshTable {
+public:
+    MeshTable(GpuScene& scene, const MeshCache& cache) : scene_(scene), cache_(cache) {}
+    struct Handle {
+        uint32_t gpuMesh;
+        std::string key;
+    };
+    // The GPU scene mesh for `view`: shared, else loaded from the cache, else built (throws MeshError).
+    Handle acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param);
+    void release(const Handle& handle);
+
+private:
+    struct Shared {
+        uint32_t gpuMesh = 0, users = 0;
+        std::string name;  // of the prim it was built for: its warnings name it
+        std::vector<std::string> warnings;
+    };
+    GpuScene& scene_;
+    const MeshCache& cache_;
+    std::unordered_map<std::string, Shared> byKey_;
 };
 
 // Base of every prim kind.
@@ -96,8 +121,8 @@ private:
 // The geometry prim (Hydra's Rprim "mesh"): holds its built mesh in the GPU scene.
 class Mesh : public Prim {
 public:
-    Mesh(PrimId id, PrimId instancerId, uint32_t primId, GpuScene& scene, const MeshCache& cache)
-        : Prim(std::move(id)), instancerId_(std::move(instancerId)), primId_(primId), scene_(scene), cache_(cache) {}
+    Mesh(PrimId id, PrimId instancerId, uint32_t primId, GpuScene& scene, MeshTable& meshes)
+        : Prim(std::move(id)), instancerId_(std::move(instancerId)), primId_(primId), scene_(scene), meshes_(meshes) {}
     ~Mesh() override;
     void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
 
@@ -107,18 +132,18 @@ public:
     uint32_t prim_id() const { return primId_; }
     bool visible() const { return visible_; }
     bool double_sided() const { return doubleSided_; }
-    std::optional<uint32_t> gpu_mesh() const { return gpuMesh_; }
+    std::optional<uint32_t> gpu_mesh() const { return mesh_ ? std::optional(mesh_->gpuMesh) : std::nullopt; }
     const Matrix4d& transform() const { return transform_; }
     const MatrixArray& instance_transforms() const { return instances_; }
-    const BuiltMesh* built() const { return gpuMesh_ ? scene_.mesh(*gpuMesh_).get() : nullptr; }
+    const BuiltMesh* built() const { return mesh_ ? scene_.mesh(mesh_->gpuMesh).get() : nullptr; }
 
 private:
     PrimId instancerId_, materialId_;
     std::vector<PrimId> subsetMaterialIds_;
     uint32_t primId_;
     GpuScene& scene_;
-    const MeshCache& cache_;
-    std::optional<uint32_t> gpuMesh_;
+    MeshTable& meshes_;
+    std::optional<MeshTable::Handle> mesh_;
     Matrix4d transform_ = identity_matrix();
     MatrixArray instances_;
     bool visible_ = true, doubleSided_ = false;
@@ -190,6 +215,7 @@ private:
     Device device_;
     Renderer renderer_;
     GpuScene scene_;
+    MeshTable meshes_{scene_, cache_};
 };
 
 // Settings of one render pass (Hydra's render pass state plus the render settings map).

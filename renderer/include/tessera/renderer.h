@@ -140,6 +140,7 @@ public:
     uint32_t add_material_table(std::span<const uint32_t> materials);
     void clear_materials();  // and the tables
     void set_instances(std::vector<InstanceDesc> instances);
+    void set_instance_transform(size_t index, const Matrix4d& transform);  // one instance moved (a live edit)
     void set_lights(std::vector<LightDesc> lights);
 
     const std::vector<InstanceDesc>& instances() const { return instances_; }
