@@ -103,20 +103,11 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     }
 
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
-    bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
-    vec3 translation = camera_relative_translation(instance);
-    uint v0 = corner_vertex(frame, cluster, triangle, 0u, flip);
-    uint v1 = corner_vertex(frame, cluster, triangle, 1u, flip);
-    uint v2 = corner_vertex(frame, cluster, triangle, 2u, flip);
-    vec3 p0 = to_camera_relative(instance, translation, vertex_position(frame, v0));
-    vec3 p1 = to_camera_relative(instance, translation, vertex_position(frame, v1));
-    vec3 p2 = to_camera_relative(instance, translation, vertex_position(frame, v2));
-
-    // The pixel's ray and where it meets the triangle's plane.
-    vec3 origin, direction;
-    pixel_ray(frame, vec2(pixel) + 0.5, origin, direction);
-    vec3 e1 = p1 - p0, e2 = p2 - p0;
-    vec3 bary = plane_barycentrics(origin, direction, p0, e1, e2);
+    // The pixel's ray and where it meets the triangle's plane (the rasterizers' masks use the same code).
+    PixelTriangle hitTriangle = pixel_triangle(frame, instance, cluster, triangle, pixel);
+    uint v0 = hitTriangle.v0, v1 = hitTriangle.v1, v2 = hitTriangle.v2;
+    vec3 p0 = hitTriangle.p0, e1 = hitTriangle.e1, e2 = hitTriangle.e2;
+    vec3 origin = hitTriangle.origin, direction = hitTriangle.direction, bary = hitTriangle.bary;
     float t = dot(p0 - origin, cross(e1, e2)) / dot(direction, cross(e1, e2));
     if (!(t > 0.0) || isinf(t)) t = 0.0;  // edge-on triangle: the plane test is meaningless
     vec3 hit = origin + t * direction;
@@ -147,8 +138,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
         if (frame.counts.w == TS_VIS_UV) {  // data, not a picture: unlit
             vec3 uvColor = vec3(1.0, 0.0, 1.0);
             if (mesh.uvOffset != TS_NO_STREAM) {
-                PixelUv uv = pixel_uv(frame, vec2(pixel), bary, p0, e1, e2, vertex_uv(frame, mesh, v0), vertex_uv(frame, mesh, v1),
-                                      vertex_uv(frame, mesh, v2));
+                PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), bary, p0, e1, e2, v0, v1, v2);
                 uvColor = vec3(fract(uv.uv), 0.0);
             }
             OutputRef(frame.aovOutput).data[index] = vec4(uvColor, 1.0);

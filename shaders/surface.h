@@ -65,6 +65,30 @@ vec4 material_texture(GpuFrame frame, GpuMaterial material, uint materialInput, 
     return texture_slot_value(frame.textures, TextureSlotRef(frame.textureSlots).data[slot], uv.uv, uv.dx, uv.dy);
 }
 
+// A visible triangle seen through a pixel: its vertices, its first corner and edges relative to the camera, the
+// pixel's ray and the unclamped barycentrics where that ray meets the triangle's plane.
+struct PixelTriangle {
+    uint v0, v1, v2;
+    vec3 p0, e1, e2;
+    vec3 origin, direction;
+    vec3 bary;
+};
+
+PixelTriangle pixel_triangle(GpuFrame frame, GpuInstance instance, GpuCluster cluster, uint triangle, uvec2 pixel) {
+    PixelTriangle t;
+    bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
+    vec3 translation = camera_relative_translation(instance);
+    t.v0 = corner_vertex(frame, cluster, triangle, 0u, flip);
+    t.v1 = corner_vertex(frame, cluster, triangle, 1u, flip);
+    t.v2 = corner_vertex(frame, cluster, triangle, 2u, flip);
+    t.p0 = to_camera_relative(instance, translation, vertex_position(frame, t.v0));
+    t.e1 = to_camera_relative(instance, translation, vertex_position(frame, t.v1)) - t.p0;
+    t.e2 = to_camera_relative(instance, translation, vertex_position(frame, t.v2)) - t.p0;
+    pixel_ray(frame, vec2(pixel) + 0.5, t.origin, t.direction);
+    t.bary = plane_barycentrics(t.origin, t.direction, t.p0, t.e1, t.e2);
+    return t;
+}
+
 // UsdPreviewSurface opacityThreshold over a textured opacity (instances flagged TS_INSTANCE_MASKED): true where the
 // opacity at this pixel is below the threshold, so that the rasterizer leaves the pixel to what lies behind. Both
 // rasterizers call this same code for a pixel with the payload they write (visible cluster << 7 | triangle), so they
@@ -77,18 +101,8 @@ bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
     GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
     if ((material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;  // another slot of the mesh's materials
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
-    bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
-    vec3 translation = camera_relative_translation(instance);
-    uint v0 = corner_vertex(frame, cluster, triangle, 0u, flip);
-    uint v1 = corner_vertex(frame, cluster, triangle, 1u, flip);
-    uint v2 = corner_vertex(frame, cluster, triangle, 2u, flip);
-    vec3 p0 = to_camera_relative(instance, translation, vertex_position(frame, v0));
-    vec3 e1 = to_camera_relative(instance, translation, vertex_position(frame, v1)) - p0;
-    vec3 e2 = to_camera_relative(instance, translation, vertex_position(frame, v2)) - p0;
-    vec3 origin, direction;
-    pixel_ray(frame, vec2(pixel) + 0.5, origin, direction);
-    vec3 bary = plane_barycentrics(origin, direction, p0, e1, e2);
-    PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), bary, p0, e1, e2, v0, v1, v2);
+    PixelTriangle t = pixel_triangle(frame, instance, cluster, triangle, pixel);
+    PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), t.bary, t.p0, t.e1, t.e2, t.v0, t.v1, t.v2);
     return material_texture(frame, material, TS_INPUT_OPACITY, uv).x < material.diffuseColor.a;  // a: the threshold
 }
 

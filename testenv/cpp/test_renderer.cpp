@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include "device_fixture.h"
 #include "test_meshes.h"
 #include "shared.h"
 
@@ -120,21 +121,7 @@ CameraDesc camera_at(double x, double y, double z) {
     return c;
 }
 
-class RendererTest : public ::testing::Test {
-protected:
-    static void SetUpTestSuite() {
-        device = new Device();
-        const char* wanted = std::getenv("TESSERA_VALIDATION");
-        if (wanted && std::string(wanted) == "1") EXPECT_TRUE(device->validation_enabled()) << "the validation layer must be active";
-    }
-    static void TearDownTestSuite() {
-        EXPECT_EQ(device->validation_error_count(), 0u);
-        for (auto& m : device->take_validation_messages()) ADD_FAILURE() << m;
-        delete device;
-    }
-    static Device* device;
-};
-Device* RendererTest::device = nullptr;
+class RendererTest : public DeviceTest {};
 }  // namespace
 
 TEST_F(RendererTest, GridCoversTheExpectedPixels) {

@@ -9,6 +9,7 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include "device_fixture.h"
 #include "shared.h"
 #include "spirv/texture_probe_comp.h"
 
@@ -142,19 +143,8 @@ struct Probe {
     uint32_t slot, pad;
 };
 
-class TextureSamplingTest : public ::testing::Test {
+class TextureSamplingTest : public DeviceTest {
 protected:
-    static void SetUpTestSuite() {
-        device = new Device();
-        const char* wanted = std::getenv("TESSERA_VALIDATION");
-        if (wanted && std::string(wanted) == "1") EXPECT_TRUE(device->validation_enabled()) << "the validation layer must be active";
-    }
-    static void TearDownTestSuite() {
-        EXPECT_EQ(device->validation_error_count(), 0u);
-        for (auto& m : device->take_validation_messages()) ADD_FAILURE() << m;
-        delete device;
-    }
-
     // texture_slot_value() of every probe, through shaders/texture.h on the device. The pool and the slots are laid
     // out as the renderer lays them out (records, then each image's words).
     static std::vector<std::array<float, 4>> sample_on_device(const std::vector<const TextureImage*>& images, const std::vector<TextureSlot>& slots,
@@ -227,10 +217,7 @@ protected:
         vkDestroyPipelineLayout(vk, layout, nullptr);
         return out;
     }
-
-    static Device* device;
 };
-Device* TextureSamplingTest::device = nullptr;
 
 TextureImage random_texture(std::mt19937& rng, uint32_t width, uint32_t height, uint32_t channels, bool eightBit, ColorSpace colorSpace) {
     std::vector<uint8_t> bytes(size_t(width) * height * channels);
