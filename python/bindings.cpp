@@ -81,7 +81,7 @@ struct PySceneDelegate : SceneDelegate {
 };
 
 Visualize visualize_from(const std::string& name) {
-    for (int mode = 0; mode <= int(Visualize::Uv); ++mode)
+    for (int mode = 0; mode <= int(Visualize::Tessellation); ++mode)
         if (name == visualize_name(Visualize(mode))) return Visualize(mode);
     throw nb::value_error(("unknown visualization mode '" + name + "'").c_str());
 }
@@ -108,10 +108,16 @@ nb::dict stats_dict(const FrameStats& s) {
     d["shading_bins"] = s.shadingBins;
     d["textures"] = s.textures;
     d["texture_bytes"] = s.textureBytes;
+    d["tessellated_clusters"] = s.tessellatedClusters;
+    d["tessellated_triangles"] = s.tessellatedTriangles;
+    d["patches"] = s.patches;
+    d["micro_triangles"] = s.microTriangles;
+    d["tessellation_bytes"] = s.tessellationBytes;
     nb::dict gpuMs;
     gpuMs["cull"] = s.cullMs;
     gpuMs["sw_raster"] = s.softwareRasterMs;
     gpuMs["hw_raster"] = s.rasterMs;
+    gpuMs["tessellation"] = s.tessellationMs;
     gpuMs["hzb"] = s.hzbMs;
     gpuMs["resolve"] = s.resolveMs;
     d["gpu_ms"] = gpuMs;
@@ -276,7 +282,8 @@ NB_MODULE(_tessera, m) {
         .value("roughness", MaterialInput::Roughness)
         .value("opacity", MaterialInput::Opacity)
         .value("occlusion", MaterialInput::Occlusion)
-        .value("normal", MaterialInput::Normal);
+        .value("normal", MaterialInput::Normal)
+        .value("displacement", MaterialInput::Displacement);
     // A UsdUVTexture feeding one input (textures.h TextureSlot); the image is loaded when the material syncs.
     nb::class_<TextureSlot>(m, "TextureSlot")
         .def(nb::init<>())
@@ -326,6 +333,11 @@ NB_MODULE(_tessera, m) {
         .def_rw("occlusion", &MaterialDesc::occlusion)
         .def_rw("use_display_color", &MaterialDesc::useDisplayColor)
         // A list copied in and out: assign a whole list (appending to the copy `textures` returns changes nothing).
+        .def_rw("displacement", &MaterialDesc::displacement)
+        .def_rw("displacement_magnitude", &MaterialDesc::displacementMagnitude)
+        .def_rw("displacement_center", &MaterialDesc::displacementCenter)
+        .def_rw("displacement_fade_start", &MaterialDesc::displacementFadeStart)
+        .def_rw("displacement_fade_end", &MaterialDesc::displacementFadeEnd)
         .def_rw("textures", &MaterialDesc::textures)
         .def_rw("uv_primvar", &MaterialDesc::uvPrimvar);
 
@@ -413,6 +425,7 @@ NB_MODULE(_tessera, m) {
         .def_prop_ro("validation_error_count", [](RenderDelegate& d) { return d.device().validation_error_count(); })
         .def_prop_ro("cache_directory", [](RenderDelegate& d) { return d.cache().directory(); })
         .def("set_visible_cluster_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_visible_cluster_capacity(c); })
+        .def("set_patch_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_patch_capacity(c); })
         .def_static("supported_rprim_types", &RenderDelegate::supported_rprim_types)
         .def_static("supported_sprim_types", &RenderDelegate::supported_sprim_types)
         .def_static("supported_bprim_types", &RenderDelegate::supported_bprim_types);
@@ -429,8 +442,10 @@ NB_MODULE(_tessera, m) {
             "execute",
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
                const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
-               const std::string& visualize, const std::string& raster, bool occlusion) {
+               const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate) {
                 RenderPassSettings settings;
+                if (!(dicingRate > 0.0f)) throw nb::value_error("the dicing rate must be a number of pixels > 0");
+                settings.render.dicingRate = dicingRate;
                 settings.render.pixelError = pixelError;
                 settings.render.lod = lod;
                 settings.render.occlusion = occlusion;
@@ -451,7 +466,7 @@ NB_MODULE(_tessera, m) {
                 return std::make_pair(images, stats_dict(stats));
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
-            "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true)
+            "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f)
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
         .def_prop_ro(

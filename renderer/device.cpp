@@ -86,6 +86,10 @@ std::vector<std::string> missing_features(VkPhysicalDevice device) {
     need(f12.shaderBufferInt64Atomics, "shaderBufferInt64Atomics");
     need(f13.dynamicRendering, "dynamicRendering");
     need(f13.synchronization2, "synchronization2");
+    // Runtime tessellation draws one indirect draw per patch, counted on the GPU.
+    need(f.features.multiDrawIndirect, "multiDrawIndirect");
+    need(f.features.drawIndirectFirstInstance, "drawIndirectFirstInstance");
+    need(f12.drawIndirectCount, "drawIndirectCount");
     return missing;
 }
 
@@ -212,9 +216,12 @@ Device::Device(const DeviceOptions& options) {
     VkPhysicalDeviceVulkan12Features f12{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_FEATURES, &f13};
     f12.bufferDeviceAddress = VK_TRUE;
     f12.shaderBufferInt64Atomics = VK_TRUE;
+    f12.drawIndirectCount = VK_TRUE;
     VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &f12};
     features.features.shaderInt64 = VK_TRUE;
     features.features.fragmentStoresAndAtomics = VK_TRUE;
+    features.features.multiDrawIndirect = VK_TRUE;
+    features.features.drawIndirectFirstInstance = VK_TRUE;
     const float priority = 1.0f;
     VkDeviceQueueCreateInfo queueInfo{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO};
     queueInfo.queueFamilyIndex = queueFamily_;

@@ -40,6 +40,8 @@ uint32_t GpuScene::add_material(const MaterialDesc& material) {
 }
 
 uint32_t GpuScene::add_material_table(std::span<const uint32_t> materials) {
+    materialTables_.push_back(0);  // the header word: the renderer puts the table's largest displacement there
+    materialTableRanges_.push_back({uint32_t(materialTables_.size()), uint32_t(materials.size())});
     materialTables_.insert(materialTables_.end(), materials.begin(), materials.end());
     ++materialsVersion_;
     return uint32_t(materialTables_.size() - materials.size());
@@ -48,6 +50,7 @@ uint32_t GpuScene::add_material_table(std::span<const uint32_t> materials) {
 void GpuScene::clear_materials() {
     materials_.clear();
     materialTables_.clear();
+    materialTableRanges_.clear();
     ++materialsVersion_;
 }
 

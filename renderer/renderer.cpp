@@ -12,15 +12,18 @@
 #include "spirv/classify_comp.h"
 #include "spirv/cull_comp.h"
 #include "spirv/hzb_comp.h"
+#include "spirv/patch_vert.h"
 #include "spirv/raster_frag.h"
 #include "spirv/raster_sw_comp.h"
 #include "spirv/raster_vert.h"
 #include "spirv/resolve_comp.h"
+#include "spirv/tessellate_comp.h"
 
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstring>
+#include <unordered_map>
 
 namespace tessera {
 
@@ -54,11 +57,12 @@ const char* visualize_name(Visualize mode) {
         case Visualize::RasterBins: return "raster-bins";
         case Visualize::Overdraw: return "overdraw";
         case Visualize::Uv: return "uv";
+        case Visualize::Tessellation: return "tessellation";
     }
     return "?";
 }
 static_assert(uint32_t(Visualize::Triangles) == TS_VIS_TRIANGLES && uint32_t(Visualize::Overdraw) == TS_VIS_OVERDRAW &&
-                  uint32_t(Visualize::Uv) == TS_VIS_UV,
+                  uint32_t(Visualize::Uv) == TS_VIS_UV && uint32_t(Visualize::Tessellation) == TS_VIS_TESSELLATION,
               "Visualize must match the TS_VIS_* modes");
 
 bool aov_is_id(Aov aov) { return aov == Aov::PrimId || aov == Aov::InstanceId || aov == Aov::ClusterId || aov == Aov::TriangleId; }
@@ -277,6 +281,45 @@ void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2
     vkCmdPipelineBarrier2(cmd, &dependency);
 }
 
+// Per vertex, the direction displacement moves it: the mean of the distinct normals that the source (level 0) has at its
+// position. Split vertices (hard edges, UV seams) share a position, so they move alike and a displaced hard edge does not
+// tear. Every vertex of every level is a source vertex (simplification only removes vertices), so every level finds its
+// positions here.
+std::vector<uint32_t> displacement_normals(const BuiltMesh& mesh) {
+    struct PositionHash {
+        size_t operator()(const std::array<uint32_t, 3>& p) const { return (size_t(p[0]) * 73856093u) ^ (size_t(p[1]) * 19349663u) ^ (size_t(p[2]) * 83492791u); }
+    };
+    auto key = [&](uint32_t v) {
+        std::array<uint32_t, 3> k;
+        std::memcpy(k.data(), &mesh.positions[3 * size_t(v)], 12);
+        return k;
+    };
+    std::unordered_map<std::array<uint32_t, 3>, std::vector<uint32_t>, PositionHash> normalsAt;
+    for (const Cluster& c : mesh.clusters) {
+        if (c.level != 0) break;  // clusters come level by level, level 0 first
+        for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) {
+            auto& normals = normalsAt[key(v)];
+            if (std::find(normals.begin(), normals.end(), mesh.normals[v]) == normals.end()) normals.push_back(mesh.normals[v]);
+        }
+    }
+    std::vector<uint32_t> out(mesh.normals.size());
+    for (size_t v = 0; v < out.size(); ++v) {
+        const auto it = normalsAt.find(key(uint32_t(v)));
+        if (it == normalsAt.end() || it->second.size() == 1) {
+            out[v] = it == normalsAt.end() ? mesh.normals[v] : it->second[0];
+            continue;
+        }
+        double sum[3] = {0, 0, 0};
+        for (uint32_t packed : it->second) {
+            const auto n = decode_octahedral(packed);
+            for (int k = 0; k < 3; ++k) sum[k] += n[k];
+        }
+        const double length = std::sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]);
+        out[v] = length > 1e-12 ? encode_octahedral(float(sum[0] / length), float(sum[1] / length), float(sum[2] / length)) : mesh.normals[v];
+    }
+    return out;
+}
+
 template <typename T>
 void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
     const size_t bytes = data.size() * sizeof(T);
@@ -294,12 +337,16 @@ struct Renderer::Impl {
     // Variants with texture code (TS_SPEC_TEXTURES), made when a scene first needs them: resolve for textured
     // materials, both rasterizers for frames with opacity masks.
     VkPipeline resolveTextured = VK_NULL_HANDLE, rasterMasked = VK_NULL_HANDLE, rasterSoftwareMasked = VK_NULL_HANDLE;
+    // Runtime tessellation, made when a scene first displaces: the tessellate pass, the patch raster (and its mask
+    // variant), and resolve's variants that rebuild micro-triangles (TS_SPEC_DISPLACEMENT).
+    VkPipeline tessellate = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE, patchRasterMasked = VK_NULL_HANDLE;
+    VkPipeline resolveDisplaced = VK_NULL_HANDLE, resolveDisplacedTextured = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
-    // start; main pass: cull, software raster, hardware raster; HZB; post pass: cull, software, hardware raster;
-    // the frame's HZB; resolve.
-    static constexpr uint32_t kTimestamps = 10;
+    // start; main pass: cull, software raster, hardware raster, tessellation; HZB; post pass: cull, software, hardware
+    // raster, tessellation; the frame's HZB; resolve.
+    static constexpr uint32_t kTimestamps = 12;
     Buffer hardwareList, softwareList;
     Buffer instances, meshes, levels, clusters, positions, normals, colors, uvs, triangles, materials, materialTables;
     uint32_t instanceCount = 0, clusterCount = 0;
@@ -321,6 +368,12 @@ struct Renderer::Impl {
     std::vector<bool> maskedMaterials;  // per material: a textured opacity under an opacityThreshold (TS_INSTANCE_MASKED)
     std::vector<bool> texturedMaterials;  // per material: resolve samples textures (its bin uses resolveTextured)
     bool anyMasked = false;  // an instance is flagged TS_INSTANCE_MASKED: the rasterizers' mask variants draw the frame
+    // Displacement: per material, whether it displaces; per mesh, whether a displaced instance draws it (those get
+    // displacement normals); the lists of runtime tessellation, made only for scenes that displace.
+    std::vector<bool> displacedMaterials, displacedMeshes;
+    bool anyDisplaced = false;
+    Buffer displacementNormals, tessellationList, patches, patchDraws;
+    uint32_t patchCapacity = 1u << 16;
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbPrevious, hzbCurrent;
@@ -347,25 +400,30 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, resolveTextured, nullptr);
         vkDestroyPipeline(vk, rasterMasked, nullptr);
         vkDestroyPipeline(vk, rasterSoftwareMasked, nullptr);
+        vkDestroyPipeline(vk, tessellate, nullptr);
+        vkDestroyPipeline(vk, patchRaster, nullptr);
+        vkDestroyPipeline(vk, patchRasterMasked, nullptr);
+        vkDestroyPipeline(vk, resolveDisplaced, nullptr);
+        vkDestroyPipeline(vk, resolveDisplacedTextured, nullptr);
         vkDestroyPipelineLayout(vk, layout, nullptr);
         vkDestroyQueryPool(vk, timestamps, nullptr);
     }
 
-    // TS_SPEC_TEXTURES on: the variant with texture code.
-    struct TexturesOn {
-        VkBool32 value = VK_TRUE;
-        VkSpecializationMapEntry entry{TS_SPEC_TEXTURES, 0, sizeof(VkBool32)};
-        VkSpecializationInfo info{1, &entry, sizeof(VkBool32), &value};
-        TexturesOn() = default;
-        TexturesOn(const TexturesOn&) = delete;
+    // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES and TS_SPEC_DISPLACEMENT.
+    struct Variant {
+        VkBool32 values[2];
+        VkSpecializationMapEntry entries[2] = {{TS_SPEC_TEXTURES, 0, sizeof(VkBool32)}, {TS_SPEC_DISPLACEMENT, sizeof(VkBool32), sizeof(VkBool32)}};
+        VkSpecializationInfo info{2, entries, sizeof(values), values};
+        Variant(bool textures, bool displacement) : values{textures ? VK_TRUE : VK_FALSE, displacement ? VK_TRUE : VK_FALSE} {}
+        Variant(const Variant&) = delete;
     };
 
-    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false) {
+    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, bool displacement = false) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const TexturesOn on;
+        const Variant variant(textures, displacement);
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
-                      textures ? &on.info : nullptr};
+                      textures || displacement ? &variant.info : nullptr};
         info.layout = layout;
         VkPipeline pipeline;
         const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
@@ -387,7 +445,7 @@ struct Renderer::Impl {
         bins = compute_pipeline(bins_comp, sizeof(bins_comp));
         background = compute_pipeline(background_comp, sizeof(background_comp));
         rasterSoftware = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp));
-        raster = graphics_pipeline(false);
+        raster = graphics_pipeline(raster_vert, sizeof(raster_vert), false);
 
         VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
         queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
@@ -399,20 +457,31 @@ struct Renderer::Impl {
     void ensure_texture_pipelines(bool textured, bool masks) {
         if (textured && !resolveTextured) resolveTextured = compute_pipeline(resolve_comp, sizeof(resolve_comp), true);
         if (masks && !rasterMasked) {
-            rasterMasked = graphics_pipeline(true);
+            rasterMasked = graphics_pipeline(raster_vert, sizeof(raster_vert), true);
             rasterSoftwareMasked = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), true);
         }
     }
 
+    void ensure_tessellation_pipelines(bool textured, bool masks) {
+        if (!tessellate) {
+            tessellate = compute_pipeline(tessellate_comp, sizeof(tessellate_comp));
+            patchRaster = graphics_pipeline(patch_vert, sizeof(patch_vert), false);
+            resolveDisplaced = compute_pipeline(resolve_comp, sizeof(resolve_comp), false, true);
+        }
+        if (textured && !resolveDisplacedTextured) resolveDisplacedTextured = compute_pipeline(resolve_comp, sizeof(resolve_comp), true, true);
+        if (masks && !patchRasterMasked) patchRasterMasked = graphics_pipeline(patch_vert, sizeof(patch_vert), true);
+    }
+
     // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
-    VkPipeline graphics_pipeline(bool masks) {
-        VkShaderModule vert = create_module(device.handle(), raster_vert, sizeof(raster_vert));
+    // `vertexCode`: clusters (raster.vert.glsl) or patches (patch.vert.glsl).
+    VkPipeline graphics_pipeline(const uint32_t* vertexCode, size_t vertexBytes, bool masks) {
+        VkShaderModule vert = create_module(device.handle(), vertexCode, vertexBytes);
         VkShaderModule frag = create_module(device.handle(), raster_frag, sizeof(raster_frag));
         VkPipelineShaderStageCreateInfo stages[2] = {
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
-        const TexturesOn on;
-        if (masks) stages[1].pSpecializationInfo = &on.info;
+        const Variant variant(true, false);
+        if (masks) stages[1].pSpecializationInfo = &variant.info;
         VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
         VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
         assembly.topology = VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST;
@@ -458,13 +527,18 @@ struct Renderer::Impl {
         std::vector<gpu::GpuCluster> gpuClusters;
         std::vector<gpu::GpuLevel> gpuLevels;
         std::vector<float> gpuPositions, gpuUvs;
-        std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles;
+        std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles, gpuDisplacementNormals;
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
             const BuiltMesh* mesh = scene.meshes_[m].get();
             gpu::GpuMesh& g = gpuMeshes[m];
             g = {};
-            g.colorOffset = g.uvOffset = TS_NO_STREAM;
+            g.colorOffset = g.uvOffset = g.displacementNormalOffset = TS_NO_STREAM;
             if (!mesh) continue;
+            if (m < displacedMeshes.size() && displacedMeshes[m]) {  // drawn displaced: it needs displacement normals
+                g.displacementNormalOffset = uint32_t(gpuDisplacementNormals.size());
+                const auto normals = displacement_normals(*mesh);
+                gpuDisplacementNormals.insert(gpuDisplacementNormals.end(), normals.begin(), normals.end());
+            }
             const uint32_t vertexBase = uint32_t(gpuPositions.size() / 3), triangleBase = uint32_t(gpuTriangles.size());
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
             g.clusterOffset = uint32_t(gpuClusters.size());
@@ -517,6 +591,31 @@ struct Renderer::Impl {
         upload_vector(device, colors, gpuColors);
         upload_vector(device, uvs, gpuUvs);
         upload_vector(device, triangles, gpuTriangles);
+        if (gpuDisplacementNormals.empty()) displacementNormals = Buffer{};
+        else upload_vector(device, displacementNormals, gpuDisplacementNormals);
+    }
+
+    bool material_displaced(uint32_t material) const { return material < displacedMaterials.size() && displacedMaterials[material]; }
+
+    // The largest displacement of a material table's materials (0: none displaces), by its first entry.
+    std::unordered_map<uint32_t, float> tableDisplacement;
+
+    bool instance_displaced(const GpuScene& scene, const InstanceDesc& desc) const {
+        if (!desc.materialTable) return material_displaced(desc.material);
+        const auto it = tableDisplacement.find(desc.material);
+        return it != tableDisplacement.end() && it->second > 0;
+    }
+
+    // Which meshes displaced instances draw (their material, or a material of their table, displaces). True when
+    // that changed: the geometry must go up again with (or without) their displacement normals.
+    bool update_displaced_meshes(const GpuScene& scene) {
+        std::vector<bool> displaced(scene.meshes_.size(), false);
+        for (const InstanceDesc& desc : scene.instances_)
+            if (desc.mesh < displaced.size() && !displaced[desc.mesh]) displaced[desc.mesh] = instance_displaced(scene, desc);
+        anyDisplaced = std::find(displaced.begin(), displaced.end(), true) != displaced.end();
+        if (displaced == displacedMeshes) return false;
+        displacedMeshes = std::move(displaced);
+        return true;
     }
 
     // `moved`: the instances may have moved (else only their material flags changed, and the last frame's depths hold).
@@ -554,9 +653,11 @@ struct Renderer::Impl {
                     masked |= material < maskedMaterials.size() && maskedMaterials[material];
                 }
             anyMasked |= masked;
+            const auto tableBound = table ? tableDisplacement.find(g.materialIndex) : tableDisplacement.end();
+            const bool displaced = table ? tableBound != tableDisplacement.end() && tableBound->second > 0 : material_displaced(g.materialIndex);
             g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u) |
                       (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u) | (table ? TS_INSTANCE_MATERIAL_SLOTS : 0u) |
-                      (masked ? TS_INSTANCE_MASKED : 0u);
+                      (masked ? TS_INSTANCE_MASKED : 0u) | (displaced ? TS_INSTANCE_DISPLACED : 0u);
             gpuInstances.push_back(g);
             clusterCount += mesh->leafClusters;
             sourceTriangles += mesh->sourceTriangles;
@@ -609,6 +710,7 @@ struct Renderer::Impl {
                 case MaterialInput::Opacity: m.opacity = rgb[0]; break;
                 case MaterialInput::Occlusion: m.occlusion = rgb[0]; break;
                 case MaterialInput::Normal: break;  // no normal map
+                case MaterialInput::Displacement: m.displacement = rgb[0]; break;
             }
         }
         gpu::GpuMaterial g{};
@@ -623,6 +725,21 @@ struct Renderer::Impl {
         g.flags = (m.useDisplayColor && !texturedDiffuse ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u) | (m.useSpecularWorkflow ? 0u : TS_MATERIAL_METALLIC) |
                   (!texturedOpacity && m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
         if (texturedOpacity) g.diffuseColor.w = m.opacityThreshold;  // masked per pixel: the threshold takes opacity's place
+        // Displacement: offset = (value - center) * magnitude; its bound from the value's range (the texture's level 0
+        // through scale, bias and the output channel, or the constant).
+        float low = m.displacement, high = m.displacement;
+        if (const TextureSlot* slot = textured[TS_INPUT_DISPLACEMENT]) {
+            const size_t c = slot->channel == TextureChannel::Rgb ? 0 : size_t(slot->channel);
+            const float a = slot->image->minValue[c] * slot->scale[c] + slot->bias[c], b = slot->image->maxValue[c] * slot->scale[c] + slot->bias[c];
+            low = std::min(a, b);
+            high = std::max(a, b);
+        }
+        const float bound = std::max(std::abs(low - m.displacementCenter), std::abs(high - m.displacementCenter)) * std::abs(m.displacementMagnitude);
+        const bool displaced = std::isfinite(bound) && bound > 0;
+        g.displacement = {m.displacement, m.displacementMagnitude, m.displacementCenter, displaced ? bound : 0.0f};
+        g.displacementFade = {m.displacementFadeStart, m.displacementFadeEnd, 0, 0};
+        if (displaced) g.flags |= TS_MATERIAL_DISPLACED;
+        else textured[TS_INPUT_DISPLACEMENT] = nullptr;  // a displacement that moves nothing reads no texture
         g.firstTextureSlot = uint32_t(slots.size());
         for (uint32_t input = 0; input < TS_INPUT_COUNT; ++input) {
             const TextureSlot* slot = textured[input];
@@ -650,16 +767,36 @@ struct Renderer::Impl {
         std::vector<std::shared_ptr<const TextureImage>> images;
         maskedMaterials.clear();
         texturedMaterials.clear();
+        displacedMaterials.clear();
         for (const MaterialDesc& m : scene.materials_) {
             gpuMaterials.push_back(gpu_material(m, slots, images));
-            maskedMaterials.push_back((gpuMaterials.back().textureInputs & (1u << TS_INPUT_OPACITY)) != 0);
-            texturedMaterials.push_back((gpuMaterials.back().textureInputs & ~(1u << TS_INPUT_OPACITY)) != 0);
+            const gpu::GpuMaterial& g = gpuMaterials.back();
+            maskedMaterials.push_back((g.textureInputs & (1u << TS_INPUT_OPACITY)) != 0);
+            texturedMaterials.push_back((g.textureInputs & ~(1u << TS_INPUT_OPACITY | 1u << TS_INPUT_DISPLACEMENT)) != 0);
+            displacedMaterials.push_back((g.flags & TS_MATERIAL_DISPLACED) != 0);
         }
-        if (gpuMaterials.empty()) gpuMaterials.push_back({{0.18f, 0.18f, 0.18f, 1}, {0, 0, 0, 1}, {0, 0, 0, 0.5f}, 0, TS_MATERIAL_USE_DISPLAY_COLOR, 0, 0});
+        if (gpuMaterials.empty()) {
+            gpu::GpuMaterial fallback{};
+            fallback.diffuseColor = {0.18f, 0.18f, 0.18f, 1};
+            fallback.emissiveColor = {0, 0, 0, 1};
+            fallback.specular = {0, 0, 0, 0.5f};
+            fallback.flags = TS_MATERIAL_USE_DISPLAY_COLOR;
+            gpuMaterials.push_back(fallback);
+        }
         upload_vector(device, materials, gpuMaterials);
         materialCount = uint32_t(gpuMaterials.size());
+        // Tables: entries clamped to the materials there are; each header holds the table's largest displacement.
         std::vector<uint32_t> tables = scene.materialTables_;
-        for (uint32_t& m : tables) m = std::min(m, materialCount - 1);
+        tableDisplacement.clear();
+        for (const auto& [first, size] : scene.materialTableRanges_) {
+            float largest = 0;
+            for (uint32_t k = first; k < first + size; ++k) {
+                tables[k] = std::min(tables[k], materialCount - 1);
+                largest = std::max(largest, gpuMaterials[tables[k]].displacement.w);
+            }
+            std::memcpy(&tables[first - 1], &largest, 4);
+            tableDisplacement[first] = largest;
+        }
         upload_vector(device, materialTables, tables);
         if (shadingBins.size < uint64_t(materialCount) * sizeof(gpu::GpuBin))
             shadingBins = device.create_buffer(uint64_t(materialCount) * sizeof(gpu::GpuBin), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
@@ -712,6 +849,16 @@ struct Renderer::Impl {
         if (readback.size < readbackBytes) readback = device.create_buffer(readbackBytes, MemoryUse::Readback);
     }
 
+    // Runtime tessellation's lists, allocated only for scenes that displace: the clusters to dice (one slot per
+    // visible cluster at most) and the patches with their draws.
+    void ensure_tessellation_buffers() {
+        if (tessellationList.size < uint64_t(capacity) * 4) tessellationList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
+        if (patches.size < uint64_t(patchCapacity) * sizeof(gpu::GpuPatch)) {
+            patches = device.create_buffer(uint64_t(patchCapacity) * sizeof(gpu::GpuPatch), MemoryUse::Device);
+            patchDraws = device.create_buffer(uint64_t(patchCapacity) * sizeof(VkDrawIndirectCommand), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
+        }
+    }
+
     // Occlusion culling's buffers, allocated only when a frame uses it.
     void ensure_occlusion_buffers() {
         if (!hzbPrevious.handle) {
@@ -747,18 +894,24 @@ void Renderer::set_visible_cluster_capacity(uint32_t capacity) {
     impl_->capacityPinned = true;
 }
 
+void Renderer::set_patch_capacity(uint32_t capacity) {
+    impl_->patchCapacity = std::clamp<uint32_t>(capacity, 1u, TS_VIS_MAX_PATCHES);
+}
+
 std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs, FrameStats* stats) {
     Impl& s = *impl_;
     if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
         throw std::invalid_argument("resolution must be between 1x1 and 16384x16384");
     bool instancesMoved = s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_, materialsChanged = false;
-    if (s.uploadedScene != &scene || s.geometryVersion != scene.geometryVersion_) {
-        s.upload_geometry(scene);
-        instancesMoved = true;  // instance counts depend on the meshes
-    }
     if (s.uploadedScene != &scene || s.materialsVersion != scene.materialsVersion_) {
         s.upload_materials(scene);
-        materialsChanged = true;  // instance flags say which materials mask pixels and which have slots
+        materialsChanged = true;  // instance flags say which materials mask pixels, displace and have slots
+    }
+    // Meshes drawn displaced carry displacement normals: which they are follows the instances and their materials.
+    const bool displacedMeshesChanged = (instancesMoved || materialsChanged) && s.update_displaced_meshes(scene);
+    if (s.uploadedScene != &scene || s.geometryVersion != scene.geometryVersion_ || displacedMeshesChanged) {
+        s.upload_geometry(scene);
+        instancesMoved = true;  // instance counts depend on the meshes
     }
     if (instancesMoved || materialsChanged) s.upload_instances(scene, instancesMoved);
     s.uploadedScene = &scene;
@@ -766,7 +919,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     s.instancesVersion = scene.instancesVersion_;
     s.materialsVersion = scene.materialsVersion_;
 
-    s.ensure_texture_pipelines(std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(), s.anyMasked);
+    const bool anyTextured = std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end();
+    s.ensure_texture_pipelines(anyTextured, s.anyMasked);
+    if (s.anyDisplaced) s.ensure_tessellation_pipelines(anyTextured, s.anyMasked);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
@@ -779,6 +934,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
     for (;;) {
         s.ensure_frame_buffers(settings.width, settings.height, aovs.size());
+        if (s.anyDisplaced) s.ensure_tessellation_buffers();
 
         gpu::GpuFrame f{};
         f.viewProjection = to_gpu(cam.viewProjection);
@@ -816,6 +972,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const double pixelsPerUnit = cam.projectionScaleY * 0.5 * settings.height;
         f.lod = {float(pixelsPerUnit), std::max(settings.pixelError, 0.0f), camera.orthographic ? 1.0f : 0.0f, float(camera.nearClip)};
         f.raster = {settings.softwareRasterArea, float(1u << device_.sub_pixel_bits()), 0, 0};
+        f.tessellation = {std::max(settings.dicingRate, 1e-3f), float(s.patchCapacity), 0, 0};
         // With the DAG off and no rasterizer forced, draw the classic way: every source triangle through hardware raster.
         const bool hardwareOnly = settings.raster == RasterMode::Hardware || (settings.raster == RasterMode::Auto && !settings.lod);
         const uint32_t rasterFlags = hardwareOnly ? TS_FRAME_HARDWARE_ONLY : settings.raster == RasterMode::Software ? TS_FRAME_SOFTWARE_FIRST : 0u;
@@ -859,6 +1016,10 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.binPixels = s.binPixels.address;
         f.textureSlots = s.textureSlots.address;
         f.textures = s.texturePool.address;
+        f.displacementNormals = s.anyDisplaced ? s.displacementNormals.address : 0;
+        f.tessellationList = s.anyDisplaced ? s.tessellationList.address : 0;
+        f.patches = s.anyDisplaced ? s.patches.address : 0;
+        f.patchDraws = s.anyDisplaced ? s.patchDraws.address : 0;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
@@ -871,6 +1032,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             gpu::GpuDrawState initial{};
             initial.vertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
             initial.swGroupsZ = 1;
+            initial.tessGroupsZ = 1;
             initial.postGroupsY = initial.postGroupsZ = 1;
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
@@ -906,6 +1068,22 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdDrawIndirect(cmd, s.drawState.handle, 0, 1, sizeof(VkDrawIndirectCommand));
                 vkCmdEndRendering(cmd);
                 mark();
+                // Displaced clusters: patches (one workgroup per cluster, indirect), then one indirect draw per patch.
+                if (s.anyDisplaced) {
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.tessellate);
+                    vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessGroupsX));
+                    barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                            VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
+                            VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                    vkCmdBeginRendering(cmd, &rendering);
+                    vkCmdSetViewport(cmd, 0, 1, &viewport);
+                    vkCmdSetScissor(cmd, 0, 1, &scissor);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.anyMasked ? s.patchRasterMasked : s.patchRaster);
+                    vkCmdDrawIndirectCount(cmd, s.patchDraws.handle, 0, s.drawState.handle, offsetof(gpu::GpuDrawState, patchDraws), s.patchCapacity,
+                                           sizeof(VkDrawIndirectCommand));
+                    vkCmdEndRendering(cmd);
+                }
+                mark();
                 barrier(cmd, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT,
                         VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_TRANSFER_BIT,
@@ -929,6 +1107,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, instanceCount), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swClusters), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessGroupsX), 8, 0);  // X and Y
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessClusters), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, patchDraws), 4, 0);
                 s.build_hzb(cmd, s.hzbCurrent);
                 barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
@@ -942,7 +1123,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 mark();
                 rasterize();
             } else {
-                for (int i = 0; i < 4; ++i) mark();
+                for (int i = 0; i < 5; ++i) mark();
             }
             // The whole frame's HZB, for the next frame's main pass.
             if (occlusion) s.build_hzb(cmd, s.hzbPrevious);
@@ -981,7 +1162,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 for (uint32_t m = 0; m < s.materialCount; ++m) {
                     // Materials with textures through the variant that samples them; only the colour AOV shades.
                     const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
-                    const VkPipeline pipeline = textured ? s.resolveTextured : s.resolve;
+                    // Displaced materials' pixels may show micro-triangles: the variant that rebuilds them.
+                    const bool displaced = !aov_is_id(aovs[i]) && s.material_displaced(m);
+                    const VkPipeline pipeline = displaced ? (textured ? s.resolveDisplacedTextured : s.resolveDisplaced) : textured ? s.resolveTextured : s.resolve;
                     if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                     PushConstants shade{s.frame.address, uint32_t(aovs[i]), m, 0};
                     vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
@@ -1007,11 +1190,17 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         gpu::GpuDrawState state;
         std::memcpy(&state, s.readback.mapped, sizeof(state));
         const uint32_t needed = std::max(state.visibleClusters, state.deferredClusters);
-        if (needed > s.capacity) {
+        const bool patchesOverflowed = s.anyDisplaced && state.patches > s.patchCapacity;
+        if (needed > s.capacity || patchesOverflowed) {
             if (needed > TS_VIS_MAX_VISIBLE_CLUSTERS)
-                throw std::runtime_error("more than 2^25 visible clusters in one frame: the visibility buffer cannot address them");
+                throw std::runtime_error("more than 2^24 visible clusters in one frame: the visibility buffer cannot address them");
+            if (state.patches > TS_VIS_MAX_PATCHES)
+                throw std::runtime_error("more than 2^23 tessellation patches in one frame: the visibility buffer cannot address them "
+                                         "(a larger dicing rate makes fewer)");
             ++frameStats.overflowRedraws;
-            s.capacity = std::min<uint32_t>(TS_VIS_MAX_VISIBLE_CLUSTERS, std::max(s.capacity * 2, needed + needed / 4));
+            if (needed > s.capacity) s.capacity = std::min<uint32_t>(TS_VIS_MAX_VISIBLE_CLUSTERS, std::max(s.capacity * 2, needed + needed / 4));
+            if (patchesOverflowed)
+                s.patchCapacity = std::min<uint32_t>(TS_VIS_MAX_PATCHES, std::max(s.patchCapacity * 2, state.patches + state.patches / 4));
             continue;
         }
         frameStats.visibleInstances = state.visibleInstances;
@@ -1028,15 +1217,21 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.postPassClusters = state.postClusters;
         frameStats.backfaceClusters = state.backfaceClusters;
         frameStats.shadingBins = state.shadingBins;
+        frameStats.tessellatedClusters = state.tessClustersDrawn;
+        frameStats.tessellatedTriangles = state.tessTriangles;
+        frameStats.patches = state.patches;
+        frameStats.microTriangles = state.microTriangles;
+        frameStats.tessellationBytes = s.anyDisplaced ? s.displacementNormals.size + s.tessellationList.size + s.patches.size + s.patchDraws.size : 0;
         uint64_t ticks[Impl::kTimestamps] = {};
         if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, Impl::kTimestamps, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
             const double ms = device_.timestamp_period_ns() * 1e-6;
             auto span = [&](int from, int to) { return double(ticks[to] - ticks[from]) * ms; };
-            frameStats.cullMs = span(0, 1) + span(4, 5);
-            frameStats.softwareRasterMs = span(1, 2) + span(5, 6);
-            frameStats.rasterMs = span(2, 3) + span(6, 7);
-            frameStats.hzbMs = span(3, 4) + span(7, 8);
-            frameStats.resolveMs = span(8, 9);
+            frameStats.cullMs = span(0, 1) + span(5, 6);
+            frameStats.softwareRasterMs = span(1, 2) + span(6, 7);
+            frameStats.rasterMs = span(2, 3) + span(7, 8);
+            frameStats.tessellationMs = span(3, 4) + span(8, 9);
+            frameStats.hzbMs = span(4, 5) + span(9, 10);
+            frameStats.resolveMs = span(10, 11);
         }
         break;
     }

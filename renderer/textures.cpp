@@ -17,7 +17,8 @@ namespace tessera {
 static_assert(int(MaterialInput::DiffuseColor) == TS_INPUT_DIFFUSE_COLOR && int(MaterialInput::EmissiveColor) == TS_INPUT_EMISSIVE_COLOR &&
                   int(MaterialInput::SpecularColor) == TS_INPUT_SPECULAR_COLOR && int(MaterialInput::Metallic) == TS_INPUT_METALLIC &&
                   int(MaterialInput::Roughness) == TS_INPUT_ROUGHNESS && int(MaterialInput::Opacity) == TS_INPUT_OPACITY &&
-                  int(MaterialInput::Occlusion) == TS_INPUT_OCCLUSION && int(MaterialInput::Normal) == TS_INPUT_NORMAL,
+                  int(MaterialInput::Occlusion) == TS_INPUT_OCCLUSION && int(MaterialInput::Normal) == TS_INPUT_NORMAL &&
+                  int(MaterialInput::Displacement) == TS_INPUT_DISPLACEMENT,
               "MaterialInput must follow the TS_INPUT_* bits");
 static_assert(int(TextureWrap::Repeat) == TS_WRAP_REPEAT && int(TextureWrap::Mirror) == TS_WRAP_MIRROR &&
                   int(TextureWrap::Clamp) == TS_WRAP_CLAMP && int(TextureWrap::Black) == TS_WRAP_BLACK,
@@ -35,6 +36,7 @@ const char* material_input_name(MaterialInput input) {
         case MaterialInput::Opacity: return "opacity";
         case MaterialInput::Occlusion: return "occlusion";
         case MaterialInput::Normal: return "normal";
+        case MaterialInput::Displacement: return "displacement";
     }
     return "?";
 }
@@ -247,6 +249,21 @@ TextureImage make_texture(uint32_t width, uint32_t height, uint32_t channels, co
         for (uint32_t y = 0; y < height; ++y) {
             level0_row(y, row.data());
             encode_level(t, uint32_t(2 * size_t(y) * width), row);  // RGBA16F: two words per texel
+        }
+    }
+
+    // Level 0's range per channel, as the shader reads it (linear): bounds what a displacement texture can move.
+    t.minValue = {INFINITY, INFINITY, INFINITY, INFINITY};
+    t.maxValue = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
+    {
+        std::vector<float> row(size_t(width) * 4);
+        for (uint32_t y = 0; y < height; ++y) {
+            decode_row(t, offsets[0], width, y, row.data());
+            for (uint32_t x = 0; x < width; ++x)
+                for (int c = 0; c < 4; ++c) {
+                    t.minValue[c] = std::min(t.minValue[c], row[4 * x + c]);
+                    t.maxValue[c] = std::max(t.maxValue[c], row[4 * x + c]);
+                }
         }
     }
 

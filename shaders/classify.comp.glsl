@@ -13,9 +13,10 @@ void main() {
     uint index = pixel.y * frame.viewport.x + pixel.x;
     uint64_t value = VisibilityRef(frame.visibility).data[index];
     if (value == 0ul) return;
-    uvec2 visible = visible_cluster(frame, value);
+    Payload payload = decode_payload(frame, uint(value));
+    uvec2 visible = visible_cluster(frame, payload.slot);
     GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
-    uint material = pixel_material(frame, instance, visible.y, uint(value) & ((1u << TS_VIS_TRIANGLE_BITS) - 1u));
+    uint material = pixel_material(frame, instance, visible.y, payload.triangle);
     BinRef bins = BinRef(frame.bins);
     if (push.step == TS_CLASSIFY_COUNT) {
         atomicAdd(bins.data[material].count, 1u);

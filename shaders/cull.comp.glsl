@@ -89,7 +89,7 @@ bool hidden(GpuFrame frame, uint step, vec3 center, float radius) {
 // meshoptimizer cone test, widened by the bounding sphere so that it holds for a viewer anywhere near the cluster.
 bool facing_away(GpuFrame frame, GpuInstance instance, GpuCluster cluster, vec3 center, float radius) {
     if ((frame.counts.z & TS_FRAME_OCCLUSION) == 0u || (frame.counts.z & TS_FRAME_NO_LOD) != 0u) return false;
-    if ((instance.flags & (TS_INSTANCE_DOUBLE_SIDED | TS_INSTANCE_CONFORMAL)) != TS_INSTANCE_CONFORMAL) return false;
+    if ((instance.flags & (TS_INSTANCE_DOUBLE_SIDED | TS_INSTANCE_CONFORMAL | TS_INSTANCE_DISPLACED)) != TS_INSTANCE_CONFORMAL) return false;
     vec4 cone = unpackSnorm4x8(cluster.normalCone);
     if (cone.w >= 1.0) return false;  // the normals spread too wide
     vec3 axis = normalize(vec3(dot(instance.rows[0].xyz, cone.xyz), dot(instance.rows[1].xyz, cone.xyz), dot(instance.rows[2].xyz, cone.xyz)));
@@ -97,12 +97,39 @@ bool facing_away(GpuFrame frame, GpuInstance instance, GpuCluster cluster, vec3 
     return dot(center, axis) >= cone.w * length(center) + radius;
 }
 
-// Appends a cluster to the visible list and to its rasterizer's list. Every visible cluster is counted and those
-// that fit are stored: the CPU sees an overflow, grows the list and redraws.
+// True when a displaced instance's cluster is diced: unless the displacement, seen from the cluster's nearest point,
+// projects to no more than its material's fade-end size, where it has faded out entirely (tessellation.h). Clusters of
+// instances with material tables are always diced (each triangle fades by its own material).
+bool tessellated(GpuFrame frame, GpuInstance instance, vec3 center, float radius, float scale) {
+    if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return false;
+    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return true;
+    GpuMaterial material = MaterialRef(frame.materials).data[instance.materialIndex];
+    float size = material.displacement.w * scale * frame.lod.x;
+    if (frame.lod.z == 0.0) {
+        float nearest = depth_range(frame, center, radius).x;
+        if (nearest <= frame.lod.w) return true;
+        size /= nearest;
+    }
+    return size > material.displacementFade.y * 0.999;  // the margin covers rounding against the per-point fade
+}
+
+// Appends a cluster to the visible list and to its rasterizer's list (or, diced, to the tessellation list). Every
+// visible cluster is counted and those that fit are stored: the CPU sees an overflow, grows the list and redraws.
 void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterIndex, GpuCluster cluster, vec3 center, float radius, float scale) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint slot = atomicAdd(draw.state.visibleClusters, 1u);
     if (step == TS_CULL_POST) atomicAdd(draw.state.postClusters, 1u);
+    GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
+    if (tessellated(frame, instance, center, radius, scale)) {
+        atomicAdd(draw.state.tessClustersDrawn, 1u);
+        if (slot >= frame.counts.y) return;
+        VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex, clusterIndex);
+        uint k = atomicAdd(draw.state.tessClusters, 1u);
+        SlotListRef(frame.tessellationList).data[k] = slot;
+        atomicMax(draw.state.tessGroupsX, min(k + 1u, 65535u));
+        atomicMax(draw.state.tessGroupsY, k / 65535u + 1u);
+        return;
+    }
     bool software = software_raster(frame, center, radius, scale, cluster.meanTriangleArea);
     if (software) atomicAdd(draw.state.swTriangles, cluster.triangleCount);
     else atomicAdd(draw.state.hwTriangles, cluster.triangleCount);
@@ -135,6 +162,7 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
+    float displacement = instance_displacement(frame, instance) * scale;  // bounds widen by it
     vec3 meshCenter = to_camera_relative(instance, translation, mesh.sphere.xyz);
 
     DrawStateRef draw = DrawStateRef(frame.drawState);
@@ -163,7 +191,7 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
                 if (projected_error(frame, instance, translation, scale, cluster.parentSphere, cluster.parentError) <= threshold) continue;
             }
             vec3 center = to_camera_relative(instance, translation, cluster.sphere.xyz);
-            float radius = cluster.sphere.w * scale;
+            float radius = cluster.sphere.w * scale + displacement;
             if (!sphere_in_frustum(frame, center, radius)) continue;
             if (facing_away(frame, instance, cluster, center, radius)) {
                 atomicAdd(draw.state.backfaceClusters, 1u);
@@ -181,7 +209,9 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
 
 vec4 instance_sphere(GpuFrame frame, GpuInstance instance) {
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
-    return vec4(to_camera_relative(instance, camera_relative_translation(instance), mesh.sphere.xyz), mesh.sphere.w * instance_scale(instance));
+    float scale = instance_scale(instance);
+    return vec4(to_camera_relative(instance, camera_relative_translation(instance), mesh.sphere.xyz),
+                mesh.sphere.w * scale + instance_displacement(frame, instance) * scale);
 }
 
 void main_pass(GpuFrame frame) {
@@ -224,7 +254,7 @@ void post_pass(GpuFrame frame) {
         GpuCluster cluster = ClusterRef(frame.clusters).data[entry.y];
         float scale = instance_scale(instance);
         vec3 center = to_camera_relative(instance, camera_relative_translation(instance), cluster.sphere.xyz);
-        float radius = cluster.sphere.w * scale;
+        float radius = cluster.sphere.w * scale + instance_displacement(frame, instance) * scale;
         if (hidden(frame, TS_CULL_POST, center, radius)) atomicAdd(draw.state.occludedClusters, 1u);
         else draw_cluster(frame, TS_CULL_POST, entry.x, entry.y, cluster, center, radius, scale);
     }

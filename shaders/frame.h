@@ -22,6 +22,8 @@ layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer O
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputIdRef { uvec4 data[]; };
 
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer HzbRef { float data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchRef { GpuPatch data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchDrawRef { uvec4 data[]; };  // VkDrawIndirectCommand
 
 // layout: renderer.cpp PushConstants. `step`: the cull step (TS_CULL_*) or the HZB level being built; `hzb`: the
 // HZB that step tests against or builds.
@@ -86,9 +88,46 @@ void count_fragment(GpuFrame frame, uint pixel) {
     if (frame.counts.w == TS_VIS_OVERDRAW) atomicAdd(CounterRef(frame.overdraw).data[pixel], 1u);
 }
 
-// The instance and cluster behind a non-zero visibility buffer value (TS_VISIBLE_SOFTWARE left in visible.x).
-uvec2 visible_cluster(GpuFrame frame, uint64_t value) {
-    return VisibleClusterRef(frame.visibleClusters).data[uint(value & 0xfffffffful) >> TS_VIS_TRIANGLE_BITS];
+vec3 decode_octahedral(uint packed) {
+    vec2 e = unpackSnorm2x16(packed);
+    vec3 n = vec3(e, 1.0 - abs(e.x) - abs(e.y));
+    if (n.z < 0.0) n.xy = (1.0 - abs(n.yx)) * vec2(n.x >= 0.0 ? 1.0 : -1.0, n.y >= 0.0 ? 1.0 : -1.0);
+    return normalize(n);
+}
+
+// What a visibility payload names: its visible-cluster slot and the triangle in that cluster, and for a micro-triangle
+// (TS_VIS_TESSELLATED) its patch and its index in the patch (patchIndex 0xffffffff otherwise).
+struct Payload {
+    uint slot, triangle, patchIndex, micro;
+};
+
+Payload decode_payload(GpuFrame frame, uint payload) {
+    Payload p;
+    uint clusterTriangle = payload;
+    p.patchIndex = 0xffffffffu;
+    p.micro = 0u;
+    if ((payload & TS_VIS_TESSELLATED) != 0u) {
+        p.patchIndex = (payload & ~TS_VIS_TESSELLATED) >> TS_VIS_MICRO_BITS;
+        p.micro = payload & ((1u << TS_VIS_MICRO_BITS) - 1u);
+        clusterTriangle = PatchRef(frame.patches).data[p.patchIndex].triangle;
+    }
+    p.slot = clusterTriangle >> TS_VIS_TRIANGLE_BITS;
+    p.triangle = clusterTriangle & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
+    return p;
+}
+
+// The instance and cluster behind a visible-cluster slot (TS_VISIBLE_SOFTWARE left in x).
+uvec2 visible_cluster(GpuFrame frame, uint slot) {
+    return VisibleClusterRef(frame.visibleClusters).data[slot];
+}
+
+// How far a displaced instance's surface may move from its mesh (mesh units: times instance_scale in the world); 0
+// when nothing displaces it. An instance with a material table keeps the largest of its materials' in the word before
+// its table.
+float instance_displacement(GpuFrame frame, GpuInstance instance) {
+    if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
+    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return uintBitsToFloat(UintRef(frame.materialTables).data[instance.materialIndex - 1u]);
+    return MaterialRef(frame.materials).data[instance.materialIndex].displacement.w;
 }
 
 // The material of a visible triangle: the instance's own, or, for meshes whose triangles carry material slots

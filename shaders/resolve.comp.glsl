@@ -6,20 +6,15 @@
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
 #include "surface.h"
+#include "tessellation.h"
 
 layout(local_size_x = TS_SHADE_GROUP_SIZE) in;
 
-// The pipeline variant for materials with textures (the renderer picks it per bin).
+// The pipeline variants for materials with textures and for displaced ones (the renderer picks them per bin).
 layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
+layout(constant_id = TS_SPEC_DISPLACEMENT) const bool DISPLACED = false;
 
 const float PI = 3.14159265358979;
-
-vec3 decode_octahedral(uint packed) {
-    vec2 e = unpackSnorm2x16(packed);
-    vec3 n = vec3(e, 1.0 - abs(e.x) - abs(e.y));
-    if (n.z < 0.0) n.xy = (1.0 - abs(n.yx)) * vec2(n.x >= 0.0 ? 1.0 : -1.0, n.y >= 0.0 ? 1.0 : -1.0);
-    return normalize(n);
-}
 
 vec3 vertex_color(GpuFrame frame, GpuMesh mesh, uint vertex) {
     uint i = vertex - mesh.vertexOffset + mesh.colorOffset;
@@ -39,9 +34,17 @@ vec3 level_color(uint level) {
     return clamp(vec3(2.0 * t - 0.5, 2.0 - abs(4.0 * t - 2.0), 1.5 - 2.0 * t), 0.0, 1.0);
 }
 
-vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software, uint material) {
-    if (mode == TS_VIS_RASTER_BINS) return software ? vec3(0.15, 0.45, 1.0) : vec3(1.0, 0.55, 0.1);
-    if (mode == TS_VIS_TRIANGLES) return id_color(cluster.triangleOffset + triangle);
+// `patchIndex`: the micro-triangle's patch (0xffffffff for a cluster's own triangle); `largestFactor`: its triangle's.
+vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software, uint material,
+               uint patchIndex, uint micro, uint largestFactor) {
+    bool diced = patchIndex != 0xffffffffu;
+    if (mode == TS_VIS_RASTER_BINS) return diced ? vec3(0.25, 0.85, 0.3) : software ? vec3(0.15, 0.45, 1.0) : vec3(1.0, 0.55, 0.1);
+    if (mode == TS_VIS_TESSELLATION) {
+        if (!diced) return vec3(0.45);
+        float shade = 0.8 + 0.2 * id_color(patchIndex * 256u + micro).x;  // neighbouring micro-triangles apart
+        return level_color(uint(round(log2(float(largestFactor))))) * shade;  // 1 blue ... 256 red
+    }
+    if (mode == TS_VIS_TRIANGLES) return diced ? id_color(patchIndex * 256u + micro) : id_color(cluster.triangleOffset + triangle);
     if (mode == TS_VIS_CLUSTERS) return id_color(visible.y);
     if (mode == TS_VIS_GROUPS) return id_color(cluster.group == 0xffffffffu ? visible.y : cluster.group * 7919u + cluster.meshIndex);
     if (mode == TS_VIS_LOD) return level_color(cluster.levelVertices >> 16);
@@ -87,8 +90,9 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
         return;
     }
 
-    uint triangle = uint(value) & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
-    uvec2 visible = visible_cluster(frame, value);
+    Payload payload = decode_payload(frame, uint(value));
+    uint triangle = payload.triangle;
+    uvec2 visible = visible_cluster(frame, payload.slot);
     bool software = (visible.x & TS_VISIBLE_SOFTWARE) != 0u;
     visible.x &= ~TS_VISIBLE_SOFTWARE;
     GpuInstance instance = InstanceRef(frame.instances).data[visible.x];
@@ -103,8 +107,36 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     }
 
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
-    // The pixel's ray and where it meets the triangle's plane (the rasterizers' masks use the same code).
-    PixelTriangle hitTriangle = pixel_triangle(frame, instance, cluster, triangle, pixel);
+    // The pixel's ray and where it meets the triangle's plane (the rasterizers' masks use the same code); for a
+    // micro-triangle of a displaced surface, the micro-triangle rebuilt as the patch raster made it.
+    PixelTriangle hitTriangle;
+    vec3 sourceBary;     // barycentrics on the cluster's triangle: colours and normals are interpolated with them
+    vec2 cornerUv[3];    // texture coordinates at the corners of the triangle hit (micro or not)
+    bool diced = DISPLACED && payload.patchIndex != 0xffffffffu;
+    uint largestFactor = 1u;
+    if (diced) {
+        DicedPatch d = load_patch(frame, payload.patchIndex);
+        largestFactor = max(d.factors.x, max(d.factors.y, d.factors.z));
+        vec3 w[3], corner[3];
+        for (uint k = 0u; k < 3u; ++k) {
+            w[k] = micro_corner(d, payload.micro, k);
+            corner[k] = displaced_point(frame, d, w[k], cornerUv[k]);
+        }
+        hitTriangle.v0 = d.triangle.v[0];
+        hitTriangle.v1 = d.triangle.v[1];
+        hitTriangle.v2 = d.triangle.v[2];
+        hitTriangle.p0 = corner[0];
+        hitTriangle.e1 = corner[1] - corner[0];
+        hitTriangle.e2 = corner[2] - corner[0];
+        pixel_ray(frame, vec2(pixel) + 0.5, hitTriangle.origin, hitTriangle.direction);
+        hitTriangle.bary = plane_barycentrics(hitTriangle.origin, hitTriangle.direction, hitTriangle.p0, hitTriangle.e1, hitTriangle.e2);
+        sourceBary = hitTriangle.bary.x * w[0] + hitTriangle.bary.y * w[1] + hitTriangle.bary.z * w[2];
+    } else {
+        hitTriangle = pixel_triangle(frame, instance, cluster, triangle, pixel);
+        sourceBary = hitTriangle.bary;
+        if (mesh.uvOffset != TS_NO_STREAM)
+            cornerUv = vec2[3](vertex_uv(frame, mesh, hitTriangle.v0), vertex_uv(frame, mesh, hitTriangle.v1), vertex_uv(frame, mesh, hitTriangle.v2));
+    }
     uint v0 = hitTriangle.v0, v1 = hitTriangle.v1, v2 = hitTriangle.v2;
     vec3 p0 = hitTriangle.p0, e1 = hitTriangle.e1, e2 = hitTriangle.e2;
     vec3 origin = hitTriangle.origin, direction = hitTriangle.direction, bary = hitTriangle.bary;
@@ -117,13 +149,16 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
         return;
     }
 
-    mat3 toWorld = transpose(mat3(instance.rows[0].xyz, instance.rows[1].xyz, instance.rows[2].xyz));
-    mat3 normalMatrix = transpose(inverse(toWorld));
-    UintRef normals = UintRef(frame.normals);
-    vec3 objectNormal = bary.x * decode_octahedral(normals.data[v0]) + bary.y * decode_octahedral(normals.data[v1]) +
-                        bary.z * decode_octahedral(normals.data[v2]);
-    vec3 n = normalize(normalMatrix * objectNormal);
     vec3 geometric = normalize(cross(e1, e2));
+    vec3 n = geometric;  // a micro-triangle's own normal is the displaced surface's
+    if (!diced) {
+        mat3 toWorld = transpose(mat3(instance.rows[0].xyz, instance.rows[1].xyz, instance.rows[2].xyz));
+        mat3 normalMatrix = transpose(inverse(toWorld));
+        UintRef normals = UintRef(frame.normals);
+        vec3 objectNormal = bary.x * decode_octahedral(normals.data[v0]) + bary.y * decode_octahedral(normals.data[v1]) +
+                            bary.z * decode_octahedral(normals.data[v2]);
+        n = normalize(normalMatrix * objectNormal);
+    }
     if (dot(geometric, direction) > 0.0) {  // the back of a double-sided surface: shade its other side
         geometric = -geometric;
         n = -n;
@@ -138,13 +173,13 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
         if (frame.counts.w == TS_VIS_UV) {  // data, not a picture: unlit
             vec3 uvColor = vec3(1.0, 0.0, 1.0);
             if (mesh.uvOffset != TS_NO_STREAM) {
-                PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), bary, p0, e1, e2, v0, v1, v2);
+                PixelUv uv = pixel_uv(frame, vec2(pixel), bary, p0, e1, e2, cornerUv[0], cornerUv[1], cornerUv[2]);
                 uvColor = vec3(fract(uv.uv), 0.0);
             }
             OutputRef(frame.aovOutput).data[index] = vec4(uvColor, 1.0);
             return;
         }
-        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle, software, push.step);
+        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle, software, push.step, payload.patchIndex, payload.micro, largestFactor);
         OutputRef(frame.aovOutput).data[index] = vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0);
         return;
     }
@@ -152,14 +187,15 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     GpuMaterial material = MaterialRef(frame.materials).data[push.step];  // this dispatch's bin is one material
     vec3 albedo = material.diffuseColor.rgb;
     if ((material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
-        albedo = bary.x * vertex_color(frame, mesh, v0) + bary.y * vertex_color(frame, mesh, v1) + bary.z * vertex_color(frame, mesh, v2);
+        albedo = sourceBary.x * vertex_color(frame, mesh, v0) + sourceBary.y * vertex_color(frame, mesh, v1) + sourceBary.z * vertex_color(frame, mesh, v2);
     vec3 emission = material.emissiveColor.rgb, f0 = material.specular.rgb;
     float occlusion = material.emissiveColor.a, roughness = material.specular.a, metallic = material.metallic;
 
     // Textured inputs replace their constants (only in the textured variant: no texture code at all for the others).
     // Opacity is not among them here: masks are cut by the rasterizers.
     if (TEXTURED && material.textureInputs != 0u) {
-        PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), bary, p0, e1, e2, v0, v1, v2);
+        PixelUv uv = mesh.uvOffset == TS_NO_STREAM ? PixelUv(vec2(0.0), vec2(0.0), vec2(0.0))
+                                                    : pixel_uv(frame, vec2(pixel), bary, p0, e1, e2, cornerUv[0], cornerUv[1], cornerUv[2]);
         // One sample per textured input, in a loop: the trip count is the bin's (uniform), where a branch per input
         // would run every input's sampling masked on lavapipe, textured or not.
         TextureSlotRef slots = TextureSlotRef(frame.textureSlots);
@@ -167,7 +203,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
         vec3 tangentNormal = vec3(0.0);
         for (uint inputs = material.textureInputs; inputs != 0u; inputs &= inputs - 1u, ++slot) {
             uint textured = uint(findLSB(inputs));
-            if (textured == TS_INPUT_OPACITY) continue;  // masks are cut by the rasterizers
+            if (textured == TS_INPUT_OPACITY || textured == TS_INPUT_DISPLACEMENT) continue;  // cut by the rasterizers, diced
             vec4 v = texture_slot_value(frame.textures, slots.data[slot], uv.uv, uv.dx, uv.dy);
             if (textured == TS_INPUT_DIFFUSE_COLOR) albedo = v.rgb;
             else if (textured == TS_INPUT_EMISSIVE_COLOR) emission = v.rgb;
@@ -178,7 +214,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
             else tangentNormal = v.xyz;  // TS_INPUT_NORMAL
         }
         if ((material.textureInputs & (1u << TS_INPUT_NORMAL)) != 0u && mesh.uvOffset != TS_NO_STREAM) {
-            n = apply_normal_map(n, tangentNormal, e1, e2, vertex_uv(frame, mesh, v0), vertex_uv(frame, mesh, v1), vertex_uv(frame, mesh, v2));
+            n = apply_normal_map(n, tangentNormal, e1, e2, cornerUv[0], cornerUv[1], cornerUv[2]);
             if (dot(n, geometric) < 0.0) n = geometric;
         }
     }

@@ -22,11 +22,24 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_CLUSTER_MAX_TRIANGLES 128
 #define TS_CLUSTER_MAX_VERTICES 256
 
-// Visibility buffer texel (64 bits): depth (32, reversed-Z float bits) | visible cluster (25) | triangle (7).
-// Larger depth is nearer, so an atomic max keeps the nearest triangle; 0 means background.
+// Visibility buffer texel (64 bits): depth (32, reversed-Z float bits) | payload (32). Larger depth is nearer, so an
+// atomic max keeps the nearest triangle; 0 means background. The payload is a cluster's triangle, visible cluster (24)
+// | triangle (7), or, with its top bit set (TS_VIS_TESSELLATED), a micro-triangle of a displaced triangle's patch:
+// patch (23) | micro-triangle (8).
 #define TS_VIS_TRIANGLE_BITS 7
-#define TS_VIS_CLUSTER_BITS 25
+#define TS_VIS_CLUSTER_BITS 24
 #define TS_VIS_MAX_VISIBLE_CLUSTERS (1u << TS_VIS_CLUSTER_BITS)
+#define TS_VIS_TESSELLATED 0x80000000u
+#define TS_VIS_MICRO_BITS 8
+#define TS_VIS_MAX_PATCHES (1u << 23)
+
+// Runtime tessellation (tessellation.h): a displaced triangle's edges are cut into segments of about `dicing rate`
+// pixels, at most TS_TESS_MAX_FACTOR each; the triangle is split into split x split patches (split <= 16) so that no
+// patch edge has more than TS_TESS_PATCH_FACTOR segments, and a patch into at most 16^2 = 256 micro-triangles.
+#define TS_TESS_PATCH_FACTOR 16
+#define TS_TESS_MAX_SPLIT 16
+#define TS_TESS_MAX_FACTOR 256
+#define TS_TESS_FACTOR_BITS 9   // a triangle's three edge factors in GpuPatch.factors, 1 to 256 each
 
 // Instance flags.
 #define TS_INSTANCE_DOUBLE_SIDED 1u
@@ -34,11 +47,13 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_INSTANCE_CONFORMAL 4u     // the transform keeps angles (rotation, uniform scale, mirror): normal cones stay valid
 #define TS_INSTANCE_MATERIAL_SLOTS 8u  // the mesh's triangles carry material slots: materialIndex starts its material table
 #define TS_INSTANCE_MASKED 16u       // its material cuts pixels by a textured opacity (both rasterizers test each pixel)
+#define TS_INSTANCE_DISPLACED 32u    // a material of it displaces: bounds widen, clusters near enough are tessellated
 
 // Material flags.
 #define TS_MATERIAL_USE_DISPLAY_COLOR 1u  // diffuse comes from the mesh's displayColor primvar
 #define TS_MATERIAL_METALLIC 2u           // metallic workflow: reflectance blends towards the albedo with `metallic`
 #define TS_MATERIAL_CUT_OUT 4u            // masked and below its opacity threshold everywhere: never drawn
+#define TS_MATERIAL_DISPLACED 8u          // its displacement moves the surface (GpuMaterial.displacement.w > 0)
 
 // Textures live in one storage buffer, the texture pool (GpuFrame.textures), and are sampled by hand in texture.h:
 // lavapipe has no descriptor indexing, and the renderer reaches all data by buffer device address. Rows are stored
@@ -72,7 +87,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_INPUT_OPACITY 5u
 #define TS_INPUT_OCCLUSION 6u
 #define TS_INPUT_NORMAL 7u
-#define TS_INPUT_COUNT 8u
+#define TS_INPUT_DISPLACEMENT 8u  // read where the surface is diced (tessellation.h), not by resolve
+#define TS_INPUT_COUNT 9u
 
 // Mesh vertex streams.
 #define TS_NO_STREAM 0xffffffffu
@@ -98,6 +114,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIS_RASTER_BINS 8u   // software (compute) raster blue, hardware raster orange
 #define TS_VIS_OVERDRAW 9u      // fragments rasterized per pixel, both rasterizers: 1 blue through 9 or more red
 #define TS_VIS_UV 10u           // texture coordinates: fract(u) red, fract(v) green; magenta where the mesh has none
+#define TS_VIS_TESSELLATION 11u // dicing rate: a tessellated triangle's largest edge factor, 1 blue through 256 red, each
+                                // micro-triangle shaded a little apart; grey where nothing is tessellated
 
 // Frame flags (GpuFrame.counts.z).
 #define TS_FRAME_NO_LOD 1u      // draw every source triangle (level 0), the DAG off: the full-detail reference
@@ -132,12 +150,16 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // materials with textures, the rasterizers' for frames with opacity masks. On lavapipe the texture code merely present
 // in a shader, its branch never taken, made every pixel of every material 5x slower to resolve (docs/benchmarks.md).
 #define TS_SPEC_TEXTURES 0
+// The same for displacement: resolve's variant for displaced materials rebuilds micro-triangles; the patch raster's
+// variant samples displacement textures.
+#define TS_SPEC_DISPLACEMENT 1
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
 #define TS_PIXEL_TILE 8         // classify: 8x8 pixels per workgroup
 #define TS_SHADE_GROUP_SIZE 64  // resolve: a material bin's pixels per workgroup
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
+#define TS_TESS_GROUP_SIZE 128       // tessellate: one workgroup per cluster, one thread per triangle
 #define TS_HZB_TILE 8
 
 // One cluster of a built mesh's DAG: at most 128 triangles over at most 256 cluster-local vertices. The cut
@@ -184,7 +206,8 @@ struct GpuMesh {
     uint leafClusterCount;  // level 0: the source triangles
     float lodRadius;     // about `sphere`'s centre, encloses every LOD and parent sphere of the mesh
     uint uvOffset;       // first entry of the texture coordinate stream (indexed like colours), or TS_NO_STREAM
-    uint pad0, pad1, pad2;
+    uint displacementNormalOffset;  // first entry of the displacement normal stream (indexed like colours), or TS_NO_STREAM
+    uint pad1, pad2;
 };
 TS_CHECK_SIZE(GpuMesh, 64);
 
@@ -211,8 +234,13 @@ struct GpuMaterial {
     uint flags;            // TS_MATERIAL_*
     uint firstTextureSlot; // GpuTextureSlot of the lowest set bit of textureInputs
     uint textureInputs;    // bit TS_INPUT_*: that input comes from a texture
+    // Displacement along the vertex normal: offset = (value - center) * magnitude, value the displacement input (x, or
+    // its texture), faded out as the bound projects to fewer pixels.
+    vec4 displacement;     // x: constant value; y: magnitude; z: center; w: bound, the largest |offset| (mesh units)
+    vec4 displacementFade; // x: full displacement while the bound projects to at least this many pixels; y: none
+                           // below this many; z: the displacement texture's level-0 size in texels (for its footprint)
 };
-TS_CHECK_SIZE(GpuMaterial, 64);
+TS_CHECK_SIZE(GpuMaterial, 96);
 
 // One image in the texture pool: its mip levels follow one another from `offset`, each starting on a word.
 struct GpuTexture {
@@ -267,8 +295,27 @@ struct GpuDrawState {
     uint postClusters;     // clusters drawn by the post pass (hidden last frame, visible now)
     uint backfaceClusters; // clusters all of whose triangles face away from the camera
     uint shadingBins;      // materials with at least one visible pixel
+    uint tessGroupsX;      // VkDispatchIndirectCommand of the tessellate pass: one workgroup per tessellated cluster
+    uint tessGroupsY;
+    uint tessGroupsZ;
+    uint tessClusters;     // clusters of displaced instances listed for tessellation (this pass)
+    uint patches;          // patches made (both passes), may exceed capacity (overflow is detected on the CPU)
+    uint tessTriangles;    // triangles tessellated
+    uint microTriangles;   // micro-triangles of the patches stored (32-bit: saturates past 4 G)
+    uint patchDraws;       // patches stored this pass: the count of the patch raster's indirect draws
+    uint tessClustersDrawn; // clusters tessellated, both passes
 };
-TS_CHECK_SIZE(GpuDrawState, 96);
+TS_CHECK_SIZE(GpuDrawState, 132);
+
+// One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
+// 3 vertices per micro-triangle, its index as the first instance), written per pass.
+struct GpuPatch {
+    uint triangle;         // visible cluster << 7 | triangle
+    uint cell;             // split | cell << 8: which cell of the triangle's split x split lattice
+    uint factors;          // the triangle's edge factors (corner 0-1, 1-2, 2-0), TS_TESS_FACTOR_BITS each
+    uint patchFactors;     // this patch's edge factors (its corners 0-1, 1-2, 2-0), 5 bits each (0 to 16)
+};
+TS_CHECK_SIZE(GpuPatch, 16);
 
 // One material's bin: its covered pixels' range in the bin pixel list, and the indirect dispatch that shades them.
 struct GpuBin {
@@ -296,6 +343,7 @@ struct GpuFrame {
     uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels)
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
+    vec4 tessellation;       // x: dicing rate (pixels per micro-edge); y: patch capacity (exact: at most 2^23)
     GpuLight lights[TS_MAX_LIGHTS];
     address instances;       // GpuInstance[]
     address meshes;          // GpuMesh[]
@@ -321,8 +369,13 @@ struct GpuFrame {
     address binPixels;       // uint[width * height]: covered pixels, grouped by material
     address textureSlots;    // GpuTextureSlot[], 0 when no material has a texture
     address textures;        // the texture pool: GpuTexture[] then texel words (uint); 0 when there are no textures
+    // Displacement, 0 when no material displaces:
+    address displacementNormals; // uint[]: octahedral snorm16x2, the mean normal at each vertex position (GpuMesh)
+    address tessellationList;  // uint[capacity]: visible-cluster slots to tessellate
+    address patches;         // GpuPatch[patch capacity]
+    address patchDraws;      // VkDrawIndirectCommand[patch capacity]: this pass's patches
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 24);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 32 * TS_MAX_LIGHTS + 8 * 28);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

@@ -92,9 +92,10 @@ PixelTriangle pixel_triangle(GpuFrame frame, GpuInstance instance, GpuCluster cl
 // UsdPreviewSurface opacityThreshold over a textured opacity (instances flagged TS_INSTANCE_MASKED): true where the
 // opacity at this pixel is below the threshold, so that the rasterizer leaves the pixel to what lies behind. Both
 // rasterizers call this same code for a pixel with the payload they write (visible cluster << 7 | triangle), so they
-// cut the same pixels.
+// cut the same pixels. Micro-triangles of displaced surfaces are not masked yet.
 bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
-    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[payload >> TS_VIS_TRIANGLE_BITS];
+    if ((payload & TS_VIS_TESSELLATED) != 0u) return false;  // micro-triangles of displaced surfaces are not masked yet
+    uvec2 visible = visible_cluster(frame, payload >> TS_VIS_TRIANGLE_BITS);
     GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);

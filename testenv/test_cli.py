@@ -43,7 +43,8 @@ def test_stats_and_camera_options(tmp_path):
     stats = json.loads(stats_file.read_text())
     assert stats["camera"] == "/World/Camera" and stats["resolution"] == [80, 60]
     assert stats["instances"] == 1 and stats["visible_clusters"] == 1 and stats["errors"] == []
-    assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "hzb", "resolve"}
+    assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "tessellation", "hzb", "resolve"}
+    assert stats["micro_triangles"] == 0 and stats["tessellation_bytes"] == 0, "nothing displaces: no tessellation work or memory"
     assert stats["occlusion_tested"] is False, "a first frame has no previous HZB"
     assert {"occluded_instances", "occluded_clusters", "backface_clusters", "post_pass_clusters"} <= set(stats)
     assert stats["sw_triangles"] + stats["hw_triangles"] == stats["visible_triangles"]

@@ -22,6 +22,16 @@ _TEXTURE_INPUTS = {
     "opacity": _tessera.MaterialInput.opacity,
     "occlusion": _tessera.MaterialInput.occlusion,
     "normal": _tessera.MaterialInput.normal,
+    "displacement": _tessera.MaterialInput.displacement,
+}
+# Tessera's displacement settings, authored on the Material prim (defaults: MaterialDesc's). Offset along the normal =
+# (displacement - center) * magnitude, mesh units; it fades out while its largest offset projects to between fadeStart
+# and fadeEnd pixels.
+_DISPLACEMENT_SETTINGS = {
+    "tessera:displacement:magnitude": "displacement_magnitude",
+    "tessera:displacement:center": "displacement_center",
+    "tessera:displacement:fadeStart": "displacement_fade_start",
+    "tessera:displacement:fadeEnd": "displacement_fade_end",
 }
 _WRAPS = {"repeat": _tessera.TextureWrap.repeat, "mirror": _tessera.TextureWrap.mirror,
           "clamp": _tessera.TextureWrap.clamp, "black": _tessera.TextureWrap.black,
@@ -151,8 +161,8 @@ def material_desc(material_prim, time, warnings: list[str]):
     reader = _Reader(path, time, warnings)
     slots, primvars = [], []
 
-    def value(name, default):
-        producer = _producer(shader.GetInput(name))
+    def value(name, default, source=shader):
+        producer = _producer(source.GetInput(name))
         if producer is None:
             return default
         if not _is_output(producer):
@@ -184,6 +194,7 @@ def material_desc(material_prim, time, warnings: list[str]):
     desc.ior = float(value("ior", 1.5))
     desc.occlusion = float(value("occlusion", 1.0))
     value("normal", (0.0, 0.0, 1.0))
+    _read_displacement(material, desc, value, path, time, warnings)
     desc.textures = slots
     if primvars:
         desc.uv_primvar = primvars[0]
@@ -192,3 +203,32 @@ def material_desc(material_prim, time, warnings: list[str]):
             warnings.append(f"{path}: its textures read several UV sets ({', '.join([primvars[0]] + others)}); "
                             f"only {primvars[0]} is read, for all of them")
     return desc
+
+
+def _read_displacement(material, desc, value, path: str, time, warnings: list[str]) -> None:
+    """UsdPreviewSurface displacement, as Storm reads it: the `displacement` input of the preview surface the material's
+    displacement output is connected to (nothing displaces without that connection), constant or from a UsdUVTexture;
+    then the material's tessera:displacement:* settings."""
+    source = material.ComputeDisplacementSource()[0]
+    if not source:
+        return
+    if source.GetShaderId() != "UsdPreviewSurface":
+        warnings.append(f"{path}: its displacement output comes from {source.GetPath()} ({source.GetShaderId() or 'no info:id'}), "
+                        "not a UsdPreviewSurface; nothing is displaced")
+        return
+    desc.displacement = float(value("displacement", 0.0, source))
+    prim = material.GetPrim()
+    for attribute, field in _DISPLACEMENT_SETTINGS.items():
+        attr = prim.GetAttribute(attribute)
+        v = attr.Get(time) if attr else None
+        if v is None:
+            continue
+        try:
+            number = float(v)
+        except (TypeError, ValueError):
+            warnings.append(f"{path}: {attribute} must be a number, not {v!r}; the default is used")
+            continue
+        if number != number or number in (float("inf"), float("-inf")):
+            warnings.append(f"{path}: {attribute} is {number}; the default is used")
+            continue
+        setattr(desc, field, number)

@@ -12,7 +12,7 @@ from . import _tessera
 
 AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triangleId")
 # Debug views the color AOV can show instead of shading (renderer.h: Visualize).
-VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw", "uv")
+VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw", "uv", "tessellation")
 RASTER_MODES = ("auto", "hardware", "software")
 
 
@@ -111,12 +111,13 @@ class Session:
 
     def render(self, *, camera: str | None = None, resolution: tuple[int, int] = (960, 540),
                aovs=("color",), background=(0.0, 0.0, 0.0, 0.0), pixel_error: float = 1.0, lod: bool = True,
-               vis: str | None = None, raster: str = "auto", occlusion: bool = True) -> RenderResult:
+               vis: str | None = None, raster: str = "auto", occlusion: bool = True, dicing_rate: float = 1.0) -> RenderResult:
         """Renders the stage at the session's time. `pixel_error` is the DAG cut's screen-space error bound in
         pixels; `lod=False` draws every source triangle (the full-detail reference); `vis` replaces shading in
         the color AOV by a debug view (VISUALIZATIONS); `raster` forces one rasterizer (RASTER_MODES); `occlusion`
         culls what the previous render of this session hid (two-pass HZB occlusion: counts change, the image does
-        not; a session's first render, or one after instances moved, has nothing to test against)."""
+        not; a session's first render, or one after instances moved, has nothing to test against); `dicing_rate`:
+        displaced surfaces are diced into micro-triangles whose edges project to about this many pixels."""
         from .usd import framing_camera
 
         width, height = resolution
@@ -130,6 +131,8 @@ class Session:
             raise StageError(f"unknown raster mode '{raster}' (choose from {', '.join(RASTER_MODES)})")
         if not (pixel_error >= 0.0):
             raise StageError(f"pixel error must be a number >= 0, not {pixel_error}")
+        if not (dicing_rate > 0.0):
+            raise StageError(f"dicing rate must be a number of pixels > 0, not {dicing_rate}")
         self._apply_edits()
         syncs_before = dict(self.index.sync_counts)
         self.index.sync_all(self.scene)
@@ -142,7 +145,7 @@ class Session:
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
         fallback = framing_camera(self.stage, self.time, width, height) if not camera_id else _tessera.CameraDesc()
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
-                                           vis or "none", raster, bool(occlusion))
+                                           vis or "none", raster, bool(occlusion), float(dicing_rate))
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)

@@ -32,6 +32,13 @@ struct MaterialDesc {
     float ior = 1.5f;
     float occlusion = 1.0f;          // scales what the dome light contributes
     bool useDisplayColor = false;  // diffuse from the mesh's displayColor instead of diffuseColor
+    // Displacement along the (smoothed) vertex normal: offset = (displacement - center) * magnitude in mesh units, the
+    // value from `displacement` or a texture slot for MaterialInput::Displacement. UsdPreviewSurface's displacement
+    // input, with Tessera's tessera:displacement:* attributes for the rest. It fades out while its largest offset
+    // projects to between fadeStart and fadeEnd pixels (none below fadeEnd): detail too small to see is not diced.
+    float displacement = 0.0f;
+    float displacementMagnitude = 1.0f, displacementCenter = 0.0f;
+    float displacementFadeStart = 4.0f, displacementFadeEnd = 1.0f;
     std::vector<TextureSlot> textures;  // at most one per input; a slot without an image uses its fallback
     std::string uvPrimvar;  // the primvar the texture readers read as st ("" without textures)
 };
@@ -79,7 +86,7 @@ struct Image {
 };
 
 // What the color AOV shows instead of shading (debug views in the manner of Nanite's visualization modes).
-enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins, RasterBins, Overdraw, Uv };
+enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primitives, ShadingBins, RasterBins, Overdraw, Uv, Tessellation };
 
 // Which rasterizer draws a cluster. Auto: the compute rasterizer for clusters of small triangles, hardware raster
 // for the rest. The forced modes exist for tests and measurements (Software still sends clusters that touch the
@@ -106,6 +113,8 @@ struct RenderSettings {
     // depth pyramid (HZB) of what this frame drew first; the first frame of a view (or after instances move) has no
     // previous frame to ask. Off with lod=false, which draws every source triangle.
     bool occlusion = true;
+    // Displaced surfaces are diced into micro-triangles whose edges project to about this many pixels.
+    float dicingRate = 1.0f;
 };
 
 struct FrameStats {
@@ -125,8 +134,13 @@ struct FrameStats {
     uint32_t shadingBins = 0;           // materials with visible pixels (each shaded by a dispatch of its own)
     uint32_t textures = 0;              // images in the texture pool
     uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
+    // Runtime tessellation (0 without displaced materials): clusters and triangles diced, patches, micro-triangles,
+    // and the GPU memory of the patch lists and displacement normals.
+    uint32_t tessellatedClusters = 0, patches = 0;
+    uint64_t tessellatedTriangles = 0, microTriangles = 0;
+    uint64_t tessellationBytes = 0;
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.
-    double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, hzbMs = 0, resolveMs = 0;
+    double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, tessellationMs = 0, hzbMs = 0, resolveMs = 0;
 };
 
 // The GPU scene: meshes shared by any number of instances. Changes are uploaded by the next render.
@@ -155,7 +169,8 @@ private:
     std::vector<std::shared_ptr<const BuiltMesh>> meshes_;  // null where removed
     std::vector<uint32_t> freeMeshes_;
     std::vector<MaterialDesc> materials_;
-    std::vector<uint32_t> materialTables_;
+    std::vector<uint32_t> materialTables_;  // each table: a header word (shaders/frame.h instance_displacement), then its entries
+    std::vector<std::array<uint32_t, 2>> materialTableRanges_;  // first entry and size of each table
     std::vector<InstanceDesc> instances_;
     std::vector<LightDesc> lights_;
     TextureStore textures_;
@@ -177,6 +192,8 @@ public:
     // Pins the visible-cluster list's starting size (by default it follows the scene's cluster count, up to 4 M);
     // tests use tiny values to force the overflow path.
     void set_visible_cluster_capacity(uint32_t capacity);
+    // The same for the patch list of runtime tessellation (by default 64 K patches to start).
+    void set_patch_capacity(uint32_t capacity);
 
     Device& device() { return device_; }
 

@@ -22,7 +22,7 @@ enum class TextureWrap { Repeat, Mirror, Clamp, Black };
 // The UsdUVTexture output a material input is connected to.
 enum class TextureChannel { R, G, B, A, Rgb };
 // UsdPreviewSurface inputs a texture can drive (the order of shared.h's TS_INPUT_*).
-enum class MaterialInput { DiffuseColor, EmissiveColor, SpecularColor, Metallic, Roughness, Opacity, Occlusion, Normal };
+enum class MaterialInput { DiffuseColor, EmissiveColor, SpecularColor, Metallic, Roughness, Opacity, Occlusion, Normal, Displacement };
 const char* material_input_name(MaterialInput input);
 
 struct TextureError : std::runtime_error {
@@ -38,6 +38,7 @@ struct TextureImage {
     uint32_t format = 0;           // TS_TEXTURE_* | TS_TEXTURE_SRGB
     uint32_t channels = 0;         // in the file
     std::vector<uint32_t> words;   // every level, level 0 first
+    std::array<float, 4> minValue{}, maxValue{};  // level 0's range per channel, linear (bounds a displacement)
     int64_t fileTime = 0;          // the file's modification time and size when read: a changed file is read again
     uint64_t fileSize = 0;
     uint64_t bytes() const { return words.size() * 4; }

@@ -1,0 +1,100 @@
+// Tessellate: one workgroup per cluster of the tessellation list (clusters of displaced instances near enough for
+// their displacement to show), one thread per triangle. Each triangle gets its edge factors and is split into patches
+// (tessellation.h); each patch is stored with an indirect draw of its own, 3 vertices per micro-triangle, that the
+// patch raster (patch.vert.glsl) draws. Patches are counted past capacity: the CPU grows the list and redraws.
+#version 460
+#extension GL_GOOGLE_include_directive : require
+#include "frame.h"
+#include "surface.h"
+#include "tessellation.h"
+
+layout(local_size_x = TS_TESS_GROUP_SIZE) in;
+
+// Segments for an edge between camera-relative points a and b: its length on screen (in pixels; where an end lies at
+// or before the near plane, its length at the near plane's distance) over the dicing rate; 1 where displacement has
+// faded out at both ends. Symmetric in a and b: both triangles of an edge agree.
+uint edge_factor(GpuFrame frame, vec3 a, vec3 b, float fadeA, float fadeB, uint most) {
+    if (!(fadeA > 0.0) && !(fadeB > 0.0)) return 1u;
+    float pixels;
+    vec4 ca = frame.viewProjection * vec4(a, 1.0), cb = frame.viewProjection * vec4(b, 1.0);
+    if (frame.lod.z == 0.0 && min(ca.w, cb.w) <= frame.lod.w) {
+        pixels = length(a - b) * frame.lod.x / frame.lod.w;
+    } else {
+        vec2 halfSize = 0.5 * vec2(frame.viewport.xy);
+        pixels = length((ca.xy / ca.w - cb.xy / cb.w) * halfSize);
+    }
+    return uint(clamp(ceil(pixels / frame.tessellation.x), 1.0, float(most)));
+}
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    if (k >= draw.state.tessClusters) return;
+    uint slot = SlotListRef(frame.tessellationList).data[k];
+    uvec2 visible = visible_cluster(frame, slot);
+    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    uint triangle = gl_LocalInvocationIndex;
+    if (triangle >= cluster.triangleCount) return;
+    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
+    vec3 translation = camera_relative_translation(instance);
+    float scale = instance_scale(instance);
+    DisplacedTriangle t = displaced_triangle(frame, instance, cluster, triangle);
+
+    vec3 c[3];
+    float fade[3];
+    for (uint i = 0u; i < 3u; ++i) {
+        c[i] = to_camera_relative(instance, translation, t.p[i]);
+        fade[i] = displacement_fade(frame, material, scale, c[i]);
+    }
+    // The triangle's bounds, widened by all its displacement can move it, against the frustum.
+    vec3 center = (c[0] + c[1] + c[2]) / 3.0;
+    float radius = max(max(distance(center, c[0]), distance(center, c[1])), distance(center, c[2])) + material.displacement.w * scale;
+    if (!sphere_in_frustum(frame, center, radius)) return;
+
+    uvec3 factors = uvec3(edge_factor(frame, c[0], c[1], fade[0], fade[1], TS_TESS_MAX_FACTOR),
+                          edge_factor(frame, c[1], c[2], fade[1], fade[2], TS_TESS_MAX_FACTOR),
+                          edge_factor(frame, c[2], c[0], fade[2], fade[0], TS_TESS_MAX_FACTOR));
+    uint largest = max(factors.x, max(factors.y, factors.z));
+    uint split = min((largest + TS_TESS_PATCH_FACTOR - 1u) / TS_TESS_PATCH_FACTOR, TS_TESS_MAX_SPLIT);
+    uint cells = split * split;
+    uint first = atomicAdd(draw.state.patches, cells);
+    atomicAdd(draw.state.tessTriangles, 1u);
+    uint capacity = uint(frame.tessellation.y);
+    uint packedFactors = factors.x | factors.y << TS_TESS_FACTOR_BITS | factors.z << (2u * TS_TESS_FACTOR_BITS);
+    uint microTriangles = 0u;
+    for (uint cell = 0u; cell < cells && first + cell < capacity; ++cell) {
+        uvec2 q[3];
+        lattice_cell(cell, split, q[0], q[1], q[2]);
+        vec3 w[3];
+        vec3 p[3];
+        float f[3];
+        for (uint i = 0u; i < 3u; ++i) {
+            w[i] = split_point(q[i], split, factors);
+            precise vec3 meshPoint = w[i].x * t.p[0] + w[i].y * t.p[1] + w[i].z * t.p[2];
+            p[i] = to_camera_relative(instance, translation, meshPoint);
+            f[i] = displacement_fade(frame, material, scale, p[i]);
+        }
+        // A patch edge on the triangle's edge has that edge's points between its ends; one inside gets its own factor.
+        uint g[3];
+        for (uint e = 0u; e < 3u; ++e) {
+            uint e1 = (e + 1u) % 3u;
+            uint edge = split_edge(q[e], q[e1], split);
+            if (edge < 3u) {
+                uint a = split_edge_index(q[e], edge, split, factors), b = split_edge_index(q[e1], edge, split, factors);
+                g[e] = a > b ? a - b : b - a;
+            } else {
+                g[e] = edge_factor(frame, p[e], p[e1], f[e], f[e1], TS_TESS_PATCH_FACTOR);
+            }
+        }
+        uint n = max(max(g[0], g[1]), max(g[2], 1u));
+        uint index = first + cell;
+        PatchRef(frame.patches).data[index] = GpuPatch(slot << TS_VIS_TRIANGLE_BITS | triangle, split | cell << 8u, packedFactors,
+                                                       g[0] | g[1] << 5u | g[2] << 10u);
+        uint d = atomicAdd(draw.state.patchDraws, 1u);
+        PatchDrawRef(frame.patchDraws).data[d] = uvec4(3u * n * n, 1u, 0u, index);
+        microTriangles += n * n;
+    }
+    atomicAdd(draw.state.microTriangles, microTriangles);
+}

@@ -1,0 +1,233 @@
+// Runtime tessellation of displaced triangles, shared by the tessellate pass (which makes patches), the patch raster
+// (which dices and displaces them) and resolve (which rebuilds the micro-triangle a pixel shows). Include after
+// surface.h.
+//
+// Dicing. Each edge of a displaced triangle gets a factor, the number of segments it is cut into, from its own two
+// endpoints alone (its projected length over the dicing rate), so the two triangles of an edge always agree. A
+// triangle whose largest factor exceeds TS_TESS_PATCH_FACTOR is split into split x split patches, the cells of a
+// uniform lattice over its corners; lattice points on the triangle's edges move to the nearest of that edge's own
+// points (k / factor), so an edge's points are the same whichever triangle, and whichever split, made them. A patch is
+// diced on a lattice of n = its largest edge factor, and the points on each patch edge move to that edge's own factor
+// in the same way: a patch edge on the triangle's edge takes the edge's points between its ends, one inside the triangle
+// gets a factor from its own projected length. What this makes is a zipper along each edge: it may hold zero-area
+// micro-triangles (the rasterizers skip them) but no holes and no folds.
+//
+// Crack-freeness is exact, not approximate. Every point is a weighted sum of the triangle's three corners; a point on
+// the triangle's edge has the weights (factor - k) / factor and k / factor, the third exactly 0, whichever end it is
+// counted from; positions, displacement normals and texture coordinates are summed with `precise` (no fused
+// multiply-add, whose rounding would depend on the order of the corners), so both triangles of an edge get the same
+// bits. Displacement normals are one per position (the mean of every normal there: GpuMesh.displacementNormalOffset),
+// so a hard edge, whose vertices are split, does not tear. UV seams still do where the displacement texture differs
+// across the seam (left for later: it needs both sides' coordinates on each side).
+#ifndef TESSERA_TESSELLATION_H
+#define TESSERA_TESSELLATION_H
+
+// A displaced triangle as tessellation reads it: its corners in the order the rasterizers see them (flipped instances
+// reversed), mesh space.
+struct DisplacedTriangle {
+    uint v[3];     // vertices in the scene's streams
+    vec3 p[3];     // positions
+    vec3 n[3];     // displacement normals (unit)
+    vec2 uv[3];    // texture coordinates; (0, 0) without a UV set
+};
+
+DisplacedTriangle displaced_triangle(GpuFrame frame, GpuInstance instance, GpuCluster cluster, uint triangle) {
+    DisplacedTriangle t;
+    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
+    for (uint k = 0u; k < 3u; ++k) {
+        uint v = corner_vertex(frame, cluster, triangle, k, flip);
+        t.v[k] = v;
+        t.p[k] = vertex_position(frame, v);
+        t.n[k] = decode_octahedral(mesh.displacementNormalOffset != TS_NO_STREAM
+                                       ? UintRef(frame.displacementNormals).data[v - mesh.vertexOffset + mesh.displacementNormalOffset]
+                                       : UintRef(frame.normals).data[v]);
+        t.uv[k] = mesh.uvOffset != TS_NO_STREAM ? vertex_uv(frame, mesh, v) : vec2(0.0);
+    }
+    return t;
+}
+
+// How much of a material's displacement applies at a camera-relative point: all of it while its bound projects to at
+// least fade-start pixels, none below fade-end, linearly between. A function of the point alone (crack-free).
+float displacement_fade(GpuFrame frame, GpuMaterial material, float scale, vec3 point) {
+    float size = material.displacement.w * scale * frame.lod.x;
+    if (frame.lod.z == 0.0) {  // perspective
+        float depth = dot(point, frame.cameraForward.xyz);
+        if (depth <= frame.lod.w) return material.displacement.w > 0.0 ? 1.0 : 0.0;  // at the near plane: never too small
+        size /= depth;
+    }
+    float start = material.displacementFade.x, end = material.displacementFade.y;
+    if (!(start > end)) return size > end ? 1.0 : 0.0;
+    return clamp((size - end) / (start - end), 0.0, 1.0);
+}
+
+// The displacement input at texture coordinates st: the material's constant, or its texture's first output channel,
+// read bilinearly from level 0 (a mip level would have to be chosen alike on both sides of every edge).
+float displacement_value(GpuFrame frame, GpuMaterial material, vec2 st) {
+    if ((material.textureInputs & (1u << TS_INPUT_DISPLACEMENT)) == 0u) return material.displacement.x;
+    uint slot = material.firstTextureSlot + uint(bitCount(material.textureInputs & ((1u << TS_INPUT_DISPLACEMENT) - 1u)));
+    return texture_slot_value(frame.textures, TextureSlotRef(frame.textureSlots).data[slot], st, vec2(0.0), vec2(0.0)).x;
+}
+
+// round(a / b) for unsigned integers.
+uint round_ratio(uint a, uint b) { return (2u * a + b) / (2u * b); }
+
+// The point k / factor of the way along the triangle's edge from corner `from` to corner `to`, as corner weights. The
+// triangle on the other side counts from the other end and gets the same two weights, bit for bit.
+vec3 edge_point(uint from, uint to, uint k, uint factor) {
+    vec3 w = vec3(0.0);
+    if (k == 0u) {
+        w[from] = 1.0;
+    } else if (k >= factor) {
+        w[to] = 1.0;
+    } else {
+        w[from] = float(factor - k) / float(factor);
+        w[to] = float(k) / float(factor);
+    }
+    return w;
+}
+
+// Cell `cell` of a triangular lattice of n segments a side (n^2 cells; row j holds n - j upward cells and n - j - 1
+// downward ones, interleaved), as its three lattice points (i toward corner 1, j toward corner 2), counter-clockwise
+// like the triangle's corners.
+void lattice_cell(uint cell, uint n, out uvec2 a, out uvec2 b, out uvec2 c) {
+    uint j = 0u, first = 0u;
+    while (first + 2u * (n - j) - 1u <= cell) {
+        first += 2u * (n - j) - 1u;
+        ++j;
+    }
+    uint k = cell - first, i = k >> 1;
+    if ((k & 1u) == 0u) {
+        a = uvec2(i, j);
+        b = uvec2(i + 1u, j);
+        c = uvec2(i, j + 1u);
+    } else {
+        a = uvec2(i + 1u, j);
+        b = uvec2(i + 1u, j + 1u);
+        c = uvec2(i, j + 1u);
+    }
+}
+
+// The triangle edge (0: corners 0-1, 1: 1-2, 2: 2-0) that the split lattice's points q and r both lie on, else 3.
+uint split_edge(uvec2 q, uvec2 r, uint split) {
+    if (q.y == 0u && r.y == 0u) return 0u;
+    if (q.x + q.y == split && r.x + r.y == split) return 1u;
+    if (q.x == 0u && r.x == 0u) return 2u;
+    return 3u;
+}
+
+// Where a split lattice point on triangle edge `edge` moves: k of that edge's points (counted from corner 0, 1 and 0).
+uint split_edge_index(uvec2 q, uint edge, uint split, uvec3 factors) {
+    if (edge == 0u) return round_ratio(q.x * factors.x, split);
+    if (edge == 1u) return round_ratio(q.y * factors.y, split);
+    return round_ratio(q.y * factors.z, split);
+}
+
+vec3 triangle_edge_point(uint edge, uint k, uvec3 factors) {
+    if (edge == 0u) return edge_point(0u, 1u, k, factors.x);
+    if (edge == 1u) return edge_point(1u, 2u, k, factors.y);
+    return edge_point(0u, 2u, k, factors.z);
+}
+
+// A point of the triangle's split x split lattice as corner weights; points on the triangle's edges move to the
+// nearest of the edge's own points (the corners stay exact).
+vec3 split_point(uvec2 q, uint split, uvec3 factors) {
+    if (q.y == 0u) return triangle_edge_point(0u, split_edge_index(q, 0u, split, factors), factors);
+    if (q.x == 0u) return triangle_edge_point(2u, split_edge_index(q, 2u, split, factors), factors);
+    if (q.x + q.y == split) return triangle_edge_point(1u, split_edge_index(q, 1u, split, factors), factors);
+    return vec3(float(split - q.x - q.y), float(q.x), float(q.y)) / float(split);
+}
+
+// The point m / g of the way along a patch edge from split point q (weights wq) to r (weights wr). On the triangle's
+// edge it is that edge's own point; inside, a blend of the ends taken from the lower end, so that the patch on the
+// other side (which sees the edge the other way round) computes the same bits.
+vec3 patch_edge_point(uvec2 q, uvec2 r, vec3 wq, vec3 wr, uint m, uint g, uint split, uvec3 factors) {
+    if (m == 0u || g == 0u) return wq;
+    if (m >= g) return wr;
+    uint edge = split_edge(q, r, split);
+    if (edge < 3u) {
+        uint kq = split_edge_index(q, edge, split, factors), kr = split_edge_index(r, edge, split, factors);
+        return triangle_edge_point(edge, kr > kq ? kq + m : kq - m, factors);
+    }
+    if (q.y > r.y || (q.y == r.y && q.x > r.x)) {
+        vec3 w = wq;
+        wq = wr;
+        wr = w;
+        m = g - m;
+    }
+    precise vec3 blend = (float(g - m) * wq + float(m) * wr) / float(g);
+    return blend;
+}
+
+// A patch ready to dice: its triangle, instance and material, where it lies in the triangle's split lattice, and its
+// edge factors (corners 0-1, 1-2, 2-0).
+struct DicedPatch {
+    GpuInstance instance;
+    GpuMaterial material;
+    DisplacedTriangle triangle;
+    vec3 translation;
+    float scale;
+    uint split, n;
+    uvec3 factors;
+    uvec3 patchFactors;
+    uvec2 q[3];
+    vec3 w[3];
+    uint slot, triangleIndex, clusterIndex;
+};
+
+DicedPatch load_patch(GpuFrame frame, uint index) {
+    DicedPatch d;
+    GpuPatch record = PatchRef(frame.patches).data[index];
+    d.slot = record.triangle >> TS_VIS_TRIANGLE_BITS;
+    d.triangleIndex = record.triangle & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
+    uvec2 visible = visible_cluster(frame, d.slot);
+    d.clusterIndex = visible.y;
+    d.instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    d.material = MaterialRef(frame.materials).data[pixel_material(frame, d.instance, visible.y, d.triangleIndex)];
+    d.triangle = displaced_triangle(frame, d.instance, cluster, d.triangleIndex);
+    d.translation = camera_relative_translation(d.instance);
+    d.scale = instance_scale(d.instance);
+    d.split = record.cell & 0xffu;
+    uint mask = (1u << TS_TESS_FACTOR_BITS) - 1u;
+    d.factors = uvec3(record.factors & mask, (record.factors >> TS_TESS_FACTOR_BITS) & mask, (record.factors >> (2u * TS_TESS_FACTOR_BITS)) & mask);
+    d.patchFactors = uvec3(record.patchFactors & 31u, (record.patchFactors >> 5u) & 31u, (record.patchFactors >> 10u) & 31u);
+    d.n = max(max(d.patchFactors.x, d.patchFactors.y), max(d.patchFactors.z, 1u));
+    lattice_cell(record.cell >> 8u, d.split, d.q[0], d.q[1], d.q[2]);
+    for (uint k = 0u; k < 3u; ++k) d.w[k] = split_point(d.q[k], d.split, d.factors);
+    return d;
+}
+
+// Corner weights of the micro-lattice point (a toward the patch's corner 1, b toward its corner 2).
+vec3 micro_point(DicedPatch d, uvec2 ab) {
+    uint a = ab.x, b = ab.y, n = d.n;
+    if (b == 0u) return patch_edge_point(d.q[0], d.q[1], d.w[0], d.w[1], round_ratio(a * d.patchFactors.x, n), d.patchFactors.x, d.split, d.factors);
+    if (a == 0u) return patch_edge_point(d.q[0], d.q[2], d.w[0], d.w[2], round_ratio(b * d.patchFactors.z, n), d.patchFactors.z, d.split, d.factors);
+    if (a + b == n) return patch_edge_point(d.q[1], d.q[2], d.w[1], d.w[2], round_ratio(b * d.patchFactors.y, n), d.patchFactors.y, d.split, d.factors);
+    precise vec3 inside = (float(n - a - b) * d.w[0] + float(a) * d.w[1] + float(b) * d.w[2]) / float(n);
+    return inside;
+}
+
+// Corner weights of corner `corner` of micro-triangle `micro` of the patch.
+vec3 micro_corner(DicedPatch d, uint micro, uint corner) {
+    uvec2 a, b, c;
+    lattice_cell(micro, d.n, a, b, c);
+    return micro_point(d, corner == 0u ? a : corner == 1u ? b : c);
+}
+
+// The camera-relative displaced point with corner weights w, and its texture coordinates.
+vec3 displaced_point(GpuFrame frame, DicedPatch d, vec3 w, out vec2 st) {
+    DisplacedTriangle t = d.triangle;
+    precise vec3 p = w.x * t.p[0] + w.y * t.p[1] + w.z * t.p[2];
+    precise vec3 n = w.x * t.n[0] + w.y * t.n[1] + w.z * t.n[2];
+    precise vec2 uv = w.x * t.uv[0] + w.y * t.uv[1] + w.z * t.uv[2];
+    st = uv;
+    vec3 base = to_camera_relative(d.instance, d.translation, p);
+    float fade = displacement_fade(frame, d.material, d.scale, base);
+    float length2 = dot(n, n);
+    if (!(fade > 0.0) || !(length2 > 0.0)) return base;
+    float offset = (displacement_value(frame, d.material, uv) - d.material.displacement.z) * d.material.displacement.y * fade;
+    return to_camera_relative(d.instance, d.translation, p + n * (offset * inversesqrt(length2)));
+}
+
+#endif

@@ -1,0 +1,347 @@
+"""Runtime tessellation with displacement: UsdPreviewSurface's displacement (constant or textured) read with Tessera's
+tessera:displacement:* settings, diced on the GPU into micro-triangles without cracks (hard edges, a UV wrap seam,
+poles), bounds widened by the displacement, faded out where it is too small to see, and matching the same surface
+pre-tessellated on the CPU and drawn at full detail."""
+
+import math
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+
+import tessera
+from conftest import TESTENV, shared_asset
+from imagecompare import assert_matches_baseline
+from tessera.bench import psnr
+from test_textures import write_png
+
+NO_HIT = 0xFFFFFFFF
+
+
+def enclosed_background(covered: np.ndarray) -> int:
+    """Pixels nothing covers that the image border cannot reach through other such pixels: holes in a silhouette."""
+    outside = np.zeros_like(covered)
+    outside[0, :], outside[-1, :], outside[:, 0], outside[:, -1] = ~covered[0, :], ~covered[-1, :], ~covered[:, 0], ~covered[:, -1]
+    while True:
+        grown = outside.copy()
+        grown[1:] |= outside[:-1]
+        grown[:-1] |= outside[1:]
+        grown[:, 1:] |= outside[:, :-1]
+        grown[:, :-1] |= outside[:, 1:]
+        grown &= ~covered
+        if (grown == outside).all():
+            return int((~covered & ~outside).sum())
+        outside = grown
+
+
+def displaced_material(stage, path, *, constant=None, texture=None, magnitude=None, center=None, fade=(0.0, 0.0)):
+    """A grey preview surface displaced by a constant or by the r channel of an 8-bit texture (read with st)."""
+    material = UsdShade.Material.Define(stage, path)
+    surface = UsdShade.Shader.Define(stage, f"{path}/Surface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.6, 0.6, 0.6))
+    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    material.CreateDisplacementOutput().ConnectToSource(surface.ConnectableAPI(), "displacement")
+    displacement = surface.CreateInput("displacement", Sdf.ValueTypeNames.Float)
+    if constant is not None:
+        displacement.Set(constant)
+    if texture is not None:
+        reader = UsdShade.Shader.Define(stage, f"{path}/St")
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
+        tex = UsdShade.Shader.Define(stage, f"{path}/Height")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(str(texture))
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")  # heights, not colours
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        displacement.ConnectToSource(tex.ConnectableAPI(), "r")
+    prim = material.GetPrim()
+    for name, value in (("magnitude", magnitude), ("center", center), ("fadeStart", fade[0]), ("fadeEnd", fade[1])):
+        if value is not None:
+            prim.CreateAttribute(f"tessera:displacement:{name}", Sdf.ValueTypeNames.Float).Set(value)
+    return material
+
+
+def bind(prim, material):
+    UsdShade.MaterialBindingAPI.Apply(prim.GetPrim()).Bind(material)
+
+
+def camera_at(stage, eye, target=(0, 0, 0), focal=35.0):
+    camera = UsdGeom.Camera.Define(stage, "/Camera")
+    camera.GetFocalLengthAttr().Set(focal)
+    camera.GetClippingRangeAttr().Set(Gf.Vec2f(0.05, 100))
+    view = Gf.Matrix4d().SetLookAt(Gf.Vec3d(*eye), Gf.Vec3d(*target), Gf.Vec3d(0, 1, 0))
+    camera.AddTransformOp().Set(view.GetInverse())
+
+
+def hard_cube(stage, path, half=0.5):
+    """A cube with a normal per face (hard edges: every corner is three split vertices) and a UV island per face."""
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    h = half
+    points = [(-h, -h, -h), (h, -h, -h), (h, h, -h), (-h, h, -h), (-h, -h, h), (h, -h, h), (h, h, h), (-h, h, h)]
+    faces = [(4, 5, 6, 7), (1, 0, 3, 2), (5, 1, 2, 6), (0, 4, 7, 3), (7, 6, 2, 3), (0, 1, 5, 4)]
+    normals = [(0, 0, 1), (0, 0, -1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0)]
+    mesh.GetPointsAttr().Set(points)
+    mesh.GetFaceVertexCountsAttr().Set([4] * 6)
+    mesh.GetFaceVertexIndicesAttr().Set([i for f in faces for i in f])
+    mesh.GetSubdivisionSchemeAttr().Set("none")
+    mesh.GetNormalsAttr().Set([n for n in normals for _ in range(4)])
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.faceVarying)
+    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+    st.Set([(0, 0), (1, 0), (1, 1), (0, 1)] * 6)
+    return mesh
+
+
+def uv_sphere(segments=24, rings=12, radius=1.0):
+    """A UV sphere as triangles: a wrap seam (the u = 0 and u = 1 columns are split vertices, same positions, different
+    texture coordinates) and one vertex at each pole; normals are the exact sphere normals. Returns (points, normals,
+    uvs, triangles)."""
+    points, normals, uvs = [], [], []
+    row = segments + 1
+    for r in range(1, rings):
+        v = r / rings
+        theta = math.pi * (1.0 - v)  # v = 0 at the south pole
+        for s in range(row):
+            phi = 2.0 * math.pi * s / segments
+            n = (math.sin(theta) * math.cos(phi), math.cos(theta), -math.sin(theta) * math.sin(phi))
+            points.append(tuple(radius * c for c in n))
+            normals.append(n)
+            uvs.append((s / segments, v))
+    south, north = len(points), len(points) + 1
+    points += [(0.0, -radius, 0.0), (0.0, radius, 0.0)]
+    normals += [(0.0, -1.0, 0.0), (0.0, 1.0, 0.0)]
+    uvs += [(0.5, 0.0), (0.5, 1.0)]
+    triangles = []
+    for s in range(segments):
+        triangles.append((south, s + 1, s))  # the fans around the poles
+        top = (rings - 2) * row
+        triangles.append((top + s, top + s + 1, north))
+    for r in range(rings - 2):
+        for s in range(segments):
+            a, b, c, d = r * row + s, r * row + s + 1, (r + 1) * row + s + 1, (r + 1) * row + s
+            triangles += [(a, b, c), (a, c, d)]
+    return np.array(points), np.array(normals), np.array(uvs), np.array(triangles)
+
+
+def height_map(width=64, height=32) -> np.ndarray:
+    """8-bit heights, smooth bumps periodic in u (the wrap seam reads the same values from both sides), constant in the
+    first and last rows (the poles)."""
+    u = (np.arange(width) + 0.5) / width
+    v = (np.arange(height) + 0.5) / height
+    bumps = 0.5 + 0.5 * np.sin(2 * np.pi * 4 * u)[None, :] * np.sin(np.pi * v)[:, None] ** 2
+    bumps[0, :] = bumps[-1, :] = 0.5
+    return np.round(bumps * 255).astype(np.uint8)
+
+
+def write_height_png(path, heights: np.ndarray) -> None:
+    rgba = np.repeat(heights[::-1, :, None], 4, axis=2).astype(np.uint8)  # rows top first; r = g = b = height
+    rgba[..., 3] = 255
+    write_png(path, rgba)
+
+
+def sample_bilinear(heights: np.ndarray, st: np.ndarray) -> np.ndarray:
+    """What the GPU reads at st (texture.h: repeat wrap, texel centres at (i + 0.5) / size, rows bottom first)."""
+    h, w = heights.shape
+    values = heights.astype(np.float64) / 255.0
+    x = (st[:, 0] % 1.0) * w - 0.5
+    y = (st[:, 1] % 1.0) * h - 0.5
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    x1, y1 = (x0 + 1) % w, (y0 + 1) % h
+    x0, y0 = x0 % w, y0 % h
+    top = values[y0, x0] * (1 - fx) + values[y0, x1] * fx
+    bottom = values[y1, x0] * (1 - fx) + values[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def sphere_stage(path, heights_file, *, magnitude=0.15, center=0.5, segments=24, rings=12):
+    stage = Usd.Stage.CreateNew(str(path))
+    points, normals, uvs, triangles = uv_sphere(segments, rings)
+    mesh = UsdGeom.Mesh.Define(stage, "/Sphere")
+    mesh.GetPointsAttr().Set([Gf.Vec3f(*p) for p in points])
+    mesh.GetNormalsAttr().Set([Gf.Vec3f(*n) for n in normals])
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    mesh.GetFaceVertexCountsAttr().Set([3] * len(triangles))
+    mesh.GetFaceVertexIndicesAttr().Set([int(i) for t in triangles for i in t])
+    mesh.GetSubdivisionSchemeAttr().Set("none")
+    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set([Gf.Vec2f(*uv) for uv in uvs])
+    bind(mesh, displaced_material(stage, "/Looks/Bumps", texture=heights_file, magnitude=magnitude, center=center))
+    camera_at(stage, (0.6, 1.1, 3.2))
+    stage.GetRootLayer().Save()
+    return stage
+
+
+def session_render(stage_path, *, resolution=(256, 256), aovs=("color", "primId"), **kwargs):
+    session = tessera.Session(str(stage_path), validation=True)
+    result = session.render(camera="/Camera", resolution=resolution, aovs=aovs, **kwargs)
+    assert not result.errors, "\n".join(result.errors)
+    result.session = session
+    return result
+
+
+def covered(result) -> np.ndarray:
+    return result["primId"].ids() != NO_HIT
+
+
+def test_material_reads_displacement_and_settings(tmp_path):
+    from tessera.usd.materials import material_desc
+
+    stage = Usd.Stage.CreateInMemory()
+    constant = displaced_material(stage, "/Constant", constant=0.25, magnitude=2.0, center=0.1, fade=(8.0, 2.0))
+    textured = displaced_material(stage, "/Textured", texture=tmp_path / "h.png")
+    undisplaced = UsdShade.Material.Define(stage, "/Flat")  # displacement authored, but the material's output is not connected
+    surface = UsdShade.Shader.Define(stage, "/Flat/Surface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    surface.CreateInput("displacement", Sdf.ValueTypeNames.Float).Set(0.5)
+    undisplaced.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    warnings = []
+    desc = material_desc(constant.GetPrim(), Usd.TimeCode.Default(), warnings)
+    assert (desc.displacement, desc.displacement_magnitude, desc.displacement_center) == pytest.approx((0.25, 2.0, 0.1))
+    assert (desc.displacement_fade_start, desc.displacement_fade_end) == (8.0, 2.0)
+    desc = material_desc(textured.GetPrim(), Usd.TimeCode.Default(), warnings)
+    slots = [s for s in desc.textures if s.input == tessera._tessera.MaterialInput.displacement]
+    assert len(slots) == 1 and slots[0].channel == tessera._tessera.TextureChannel.r and desc.uv_primvar == "st"
+    assert (desc.displacement_magnitude, desc.displacement_center) == (1.0, 0.0), "USD's own meaning without tessera attributes"
+    assert material_desc(undisplaced.GetPrim(), Usd.TimeCode.Default(), warnings).displacement == 0.0, "Storm displaces only through the output"
+    assert warnings == []
+
+
+def test_hard_edged_cube_does_not_tear(tmp_path):
+    """Faces with their own normals meet at hard edges: displaced along those normals they would part and show the
+    background through the gaps; displaced along the mean normal of each position they stay closed."""
+    path = tmp_path / "cube.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    cube = hard_cube(stage, "/Cube")
+    bind(cube, displaced_material(stage, "/Looks/Puffy", constant=0.2))
+    camera_at(stage, (1.6, 1.3, 2.0))
+    stage.GetRootLayer().Save()
+    result = session_render(path, dicing_rate=4.0)
+    assert result.stats["tessellated_triangles"] == 12 and result.stats["micro_triangles"] > 12 * 4, "the cube is diced"
+    assert enclosed_background(covered(result)) == 0, "no background shows inside the displaced cube"
+    # The displacement moved the surface: more pixels are covered than by the cube as modelled.
+    stage.GetPrimAtPath("/Looks/Puffy/Surface").GetAttribute("inputs:displacement").Set(0.0)
+    stage.GetRootLayer().Save()
+    flat = session_render(path, dicing_rate=4.0)
+    assert flat.stats["micro_triangles"] == 0, "a displacement of 0 moves nothing: nothing is diced"
+    assert covered(result).sum() > 1.3 * covered(flat).sum()
+
+
+def test_textured_sphere_does_not_tear_at_its_wrap_seam_or_poles(tmp_path):
+    """The wrap seam's split vertices read u = 0 and u = 1, the same texels of a repeating texture. (Seams between
+    UV islands that read different texels still tear: not handled yet.)"""
+    heights = height_map()
+    write_height_png(tmp_path / "bumps.png", heights)
+    sphere_stage(tmp_path / "sphere.usda", tmp_path / "bumps.png")
+    result = session_render(tmp_path / "sphere.usda", dicing_rate=2.0)
+    assert result.stats["micro_triangles"] > 10 * result.stats["tessellated_triangles"] > 0
+    assert enclosed_background(covered(result)) == 0
+
+
+def test_runtime_tessellation_matches_the_surface_pre_tessellated_on_the_cpu(tmp_path):
+    """The reference: every triangle of the sphere cut into 24 x 24 on the CPU, displaced by the same bilinear samples
+    along the same normals, drawn at full detail (--no-lod)."""
+    heights = height_map()
+    write_height_png(tmp_path / "bumps.png", heights)
+    magnitude, center = 0.15, 0.5
+    sphere_stage(tmp_path / "runtime.usda", tmp_path / "bumps.png", magnitude=magnitude, center=center)
+
+    points, normals, uvs, triangles = uv_sphere()
+    n = 24
+    lattice = [(i, j) for j in range(n + 1) for i in range(n + 1 - j)]
+    index = {ij: k for k, ij in enumerate(lattice)}
+    weights = np.array([((n - i - j) / n, i / n, j / n) for i, j in lattice])
+    cells = []
+    for j in range(n):
+        for i in range(n - j):
+            cells.append((index[(i, j)], index[(i + 1, j)], index[(i, j + 1)]))
+            if i + j < n - 1:
+                cells.append((index[(i + 1, j)], index[(i + 1, j + 1)], index[(i, j + 1)]))
+    cells = np.array(cells)
+    dense_points, dense_faces = [], []
+    for t, tri in enumerate(triangles):
+        p = weights @ points[tri]
+        normal = weights @ normals[tri]
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        offset = (sample_bilinear(heights, weights @ uvs[tri]) - center) * magnitude
+        dense_points.append(p + normal * offset[:, None])
+        dense_faces.append(cells + t * len(lattice))
+    stage = Usd.Stage.CreateNew(str(tmp_path / "reference.usda"))
+    mesh = UsdGeom.Mesh.Define(stage, "/Sphere")
+    mesh.GetPointsAttr().Set(np.concatenate(dense_points).astype(np.float32))
+    faces = np.concatenate(dense_faces)
+    mesh.GetFaceVertexCountsAttr().Set([3] * len(faces))
+    mesh.GetFaceVertexIndicesAttr().Set(faces.reshape(-1).astype(np.int32))
+    mesh.GetSubdivisionSchemeAttr().Set("none")
+    grey = UsdShade.Material.Define(stage, "/Looks/Grey")
+    surface = UsdShade.Shader.Define(stage, "/Looks/Grey/Surface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.6, 0.6, 0.6))
+    grey.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    bind(mesh, grey)
+    camera_at(stage, (0.6, 1.1, 3.2))
+    stage.GetRootLayer().Save()
+
+    runtime = session_render(tmp_path / "runtime.usda", dicing_rate=1.0)
+    reference = session_render(tmp_path / "reference.usda", lod=False)
+    same_coverage = (covered(runtime) == covered(reference)).mean()
+    assert same_coverage >= 0.995, f"silhouettes agree on {same_coverage:.2%} of pixels"
+    quality = psnr(runtime["color"].pixels[..., :3], reference["color"].pixels[..., :3])
+    assert quality >= 35.0, f"PSNR {quality:.1f} dB against the pre-tessellated reference"
+
+
+def test_bounds_widen_by_the_displacement(tmp_path):
+    """A plane modelled below the view, displaced up into it: culling by its undisplaced bounds would drop it."""
+    path = tmp_path / "plane.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    mesh = UsdGeom.Mesh.Define(stage, "/Plane")
+    mesh.GetPointsAttr().Set([(-1, -3, -1), (1, -3, -1), (1, -3, 1), (-1, -3, 1)])
+    mesh.GetFaceVertexCountsAttr().Set([4])
+    mesh.GetFaceVertexIndicesAttr().Set([0, 3, 2, 1])  # facing +y
+    mesh.GetSubdivisionSchemeAttr().Set("none")
+    bind(mesh, displaced_material(stage, "/Looks/Lift", constant=3.0))
+    camera_at(stage, (0, 1.5, 3), target=(0, 0, 0))
+    stage.GetRootLayer().Save()
+    result = session_render(path, dicing_rate=8.0)
+    assert covered(result).mean() > 0.05, "the displaced plane is drawn where it ends up"
+
+
+def test_displacement_fades_out_where_it_is_too_small_to_see(tmp_path):
+    path = tmp_path / "faded.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    cube = hard_cube(stage, "/Cube")
+    bind(cube, displaced_material(stage, "/Looks/Puffy", constant=0.2, fade=(1e6, 1e5)))  # never large enough to show
+    camera_at(stage, (1.6, 1.3, 2.0))
+    stage.GetRootLayer().Save()
+    faded = session_render(path)
+    assert faded.stats["tessellated_clusters"] == 0 and faded.stats["micro_triangles"] == 0
+    stage.GetPrimAtPath("/Looks/Puffy").GetAttribute("tessera:displacement:fadeStart").Set(0.0)
+    stage.GetPrimAtPath("/Looks/Puffy").GetAttribute("tessera:displacement:fadeEnd").Set(0.0)
+    stage.GetRootLayer().Save()
+    shown = session_render(path)
+    assert shown.stats["tessellated_clusters"] > 0 and covered(shown).sum() > covered(faded).sum()
+
+
+def test_a_patch_list_overflow_redraws_the_same_image(tmp_path):
+    heights = height_map()
+    write_height_png(tmp_path / "bumps.png", heights)
+    sphere_stage(tmp_path / "sphere.usda", tmp_path / "bumps.png")
+    roomy = session_render(tmp_path / "sphere.usda", resolution=(128, 128), dicing_rate=2.0)
+    session = tessera.Session(str(tmp_path / "sphere.usda"), validation=True)
+    session.delegate.set_patch_capacity(8)
+    tight = session.render(camera="/Camera", resolution=(128, 128), aovs=("color", "primId"), dicing_rate=2.0)
+    assert not tight.errors
+    assert tight.stats["overflow_redraws"] >= 1 and tight.stats["patches"] > 8
+    assert np.array_equal(tight["primId"].ids(), roomy["primId"].ids())
+    assert np.array_equal(tight["color"].pixels, roomy["color"].pixels)
+
+
+@pytest.mark.parametrize("vis", [None, "tessellation"])
+def test_openusd_displacement_scene(tmp_path, vis):
+    """OpenUSD's testUsdImagingGLDisplacement: subdivided quad and triangle meshes displaced by a height map."""
+    stage = shared_asset("openusd-testenv/testUsdImagingGLDisplacement/testUsdImagingGLDisplacement.usda")
+    result = session_render(stage, resolution=(320, 240), aovs=("color",), vis=vis, dicing_rate=2.0)
+    assert result.stats["micro_triangles"] > 0
+    name = "displacement" if vis is None else f"displacement_vis_{vis}"
+    result.write(tmp_path / f"{name}.png")
+    assert_matches_baseline(tmp_path / f"{name}.png", TESTENV / "testDisplacement" / "baseline" / f"{name}.png")
