@@ -3,8 +3,6 @@ tessera:displacement:* settings, diced on the GPU into micro-triangles without c
 poles), bounds widened by the displacement, faded out where it is too small to see, and matching the same surface
 pre-tessellated on the CPU and drawn at full detail."""
 
-import math
-
 import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
@@ -13,7 +11,7 @@ import tessera
 from conftest import TESTENV, shared_asset
 from imagecompare import assert_matches_baseline
 from tessera.bench import psnr
-from test_textures import write_png
+from tessera.bench_displacement import sample_bilinear, write_stages
 
 NO_HIT = 0xFFFFFFFF
 
@@ -92,86 +90,6 @@ def hard_cube(stage, path, half=0.5):
     return mesh
 
 
-def uv_sphere(segments=24, rings=12, radius=1.0):
-    """A UV sphere as triangles: a wrap seam (the u = 0 and u = 1 columns are split vertices, same positions, different
-    texture coordinates) and one vertex at each pole; normals are the exact sphere normals. Returns (points, normals,
-    uvs, triangles)."""
-    points, normals, uvs = [], [], []
-    row = segments + 1
-    for r in range(1, rings):
-        v = r / rings
-        theta = math.pi * (1.0 - v)  # v = 0 at the south pole
-        for s in range(row):
-            phi = 2.0 * math.pi * s / segments
-            n = (math.sin(theta) * math.cos(phi), math.cos(theta), -math.sin(theta) * math.sin(phi))
-            points.append(tuple(radius * c for c in n))
-            normals.append(n)
-            uvs.append((s / segments, v))
-    south, north = len(points), len(points) + 1
-    points += [(0.0, -radius, 0.0), (0.0, radius, 0.0)]
-    normals += [(0.0, -1.0, 0.0), (0.0, 1.0, 0.0)]
-    uvs += [(0.5, 0.0), (0.5, 1.0)]
-    triangles = []
-    for s in range(segments):
-        triangles.append((south, s + 1, s))  # the fans around the poles
-        top = (rings - 2) * row
-        triangles.append((top + s, top + s + 1, north))
-    for r in range(rings - 2):
-        for s in range(segments):
-            a, b, c, d = r * row + s, r * row + s + 1, (r + 1) * row + s + 1, (r + 1) * row + s
-            triangles += [(a, b, c), (a, c, d)]
-    return np.array(points), np.array(normals), np.array(uvs), np.array(triangles)
-
-
-def height_map(width=64, height=32) -> np.ndarray:
-    """8-bit heights, smooth bumps periodic in u (the wrap seam reads the same values from both sides), constant in the
-    first and last rows (the poles)."""
-    u = (np.arange(width) + 0.5) / width
-    v = (np.arange(height) + 0.5) / height
-    bumps = 0.5 + 0.5 * np.sin(2 * np.pi * 4 * u)[None, :] * np.sin(np.pi * v)[:, None] ** 2
-    bumps[0, :] = bumps[-1, :] = 0.5
-    return np.round(bumps * 255).astype(np.uint8)
-
-
-def write_height_png(path, heights: np.ndarray) -> None:
-    rgba = np.repeat(heights[::-1, :, None], 4, axis=2).astype(np.uint8)  # rows top first; r = g = b = height
-    rgba[..., 3] = 255
-    write_png(path, rgba)
-
-
-def sample_bilinear(heights: np.ndarray, st: np.ndarray) -> np.ndarray:
-    """What the GPU reads at st (texture.h: repeat wrap, texel centres at (i + 0.5) / size, rows bottom first)."""
-    h, w = heights.shape
-    values = heights.astype(np.float64) / 255.0
-    x = (st[:, 0] % 1.0) * w - 0.5
-    y = (st[:, 1] % 1.0) * h - 0.5
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy = x - x0, y - y0
-    x1, y1 = (x0 + 1) % w, (y0 + 1) % h
-    x0, y0 = x0 % w, y0 % h
-    top = values[y0, x0] * (1 - fx) + values[y0, x1] * fx
-    bottom = values[y1, x0] * (1 - fx) + values[y1, x1] * fx
-    return top * (1 - fy) + bottom * fy
-
-
-def sphere_stage(path, heights_file, *, magnitude=0.15, center=0.5, segments=24, rings=12):
-    stage = Usd.Stage.CreateNew(str(path))
-    points, normals, uvs, triangles = uv_sphere(segments, rings)
-    mesh = UsdGeom.Mesh.Define(stage, "/Sphere")
-    mesh.GetPointsAttr().Set([Gf.Vec3f(*p) for p in points])
-    mesh.GetNormalsAttr().Set([Gf.Vec3f(*n) for n in normals])
-    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-    mesh.GetFaceVertexCountsAttr().Set([3] * len(triangles))
-    mesh.GetFaceVertexIndicesAttr().Set([int(i) for t in triangles for i in t])
-    mesh.GetSubdivisionSchemeAttr().Set("none")
-    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-    st.Set([Gf.Vec2f(*uv) for uv in uvs])
-    bind(mesh, displaced_material(stage, "/Looks/Bumps", texture=heights_file, magnitude=magnitude, center=center))
-    camera_at(stage, (0.6, 1.1, 3.2))
-    stage.GetRootLayer().Save()
-    return stage
-
-
 def session_render(stage_path, *, resolution=(256, 256), aovs=("color", "primId"), **kwargs):
     session = tessera.Session(str(stage_path), validation=True)
     result = session.render(camera="/Camera", resolution=resolution, aovs=aovs, **kwargs)
@@ -230,10 +148,8 @@ def test_hard_edged_cube_does_not_tear(tmp_path):
 def test_textured_sphere_does_not_tear_at_its_wrap_seam_or_poles(tmp_path):
     """The wrap seam's split vertices read u = 0 and u = 1, the same texels of a repeating texture. (Seams between
     UV islands that read different texels still tear: not handled yet.)"""
-    heights = height_map()
-    write_height_png(tmp_path / "bumps.png", heights)
-    sphere_stage(tmp_path / "sphere.usda", tmp_path / "bumps.png")
-    result = session_render(tmp_path / "sphere.usda", dicing_rate=2.0)
+    runtime_stage, _ = write_stages(tmp_path, n=1)
+    result = session_render(runtime_stage, dicing_rate=2.0)
     assert result.stats["micro_triangles"] > 10 * result.stats["tessellated_triangles"] > 0
     assert enclosed_background(covered(result)) == 0
 
@@ -241,53 +157,20 @@ def test_textured_sphere_does_not_tear_at_its_wrap_seam_or_poles(tmp_path):
 def test_runtime_tessellation_matches_the_surface_pre_tessellated_on_the_cpu(tmp_path):
     """The reference: every triangle of the sphere cut into 24 x 24 on the CPU, displaced by the same bilinear samples
     along the same normals, drawn at full detail (--no-lod)."""
-    heights = height_map()
-    write_height_png(tmp_path / "bumps.png", heights)
-    magnitude, center = 0.15, 0.5
-    sphere_stage(tmp_path / "runtime.usda", tmp_path / "bumps.png", magnitude=magnitude, center=center)
-
-    points, normals, uvs, triangles = uv_sphere()
-    n = 24
-    lattice = [(i, j) for j in range(n + 1) for i in range(n + 1 - j)]
-    index = {ij: k for k, ij in enumerate(lattice)}
-    weights = np.array([((n - i - j) / n, i / n, j / n) for i, j in lattice])
-    cells = []
-    for j in range(n):
-        for i in range(n - j):
-            cells.append((index[(i, j)], index[(i + 1, j)], index[(i, j + 1)]))
-            if i + j < n - 1:
-                cells.append((index[(i + 1, j)], index[(i + 1, j + 1)], index[(i, j + 1)]))
-    cells = np.array(cells)
-    dense_points, dense_faces = [], []
-    for t, tri in enumerate(triangles):
-        p = weights @ points[tri]
-        normal = weights @ normals[tri]
-        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-        offset = (sample_bilinear(heights, weights @ uvs[tri]) - center) * magnitude
-        dense_points.append(p + normal * offset[:, None])
-        dense_faces.append(cells + t * len(lattice))
-    stage = Usd.Stage.CreateNew(str(tmp_path / "reference.usda"))
-    mesh = UsdGeom.Mesh.Define(stage, "/Sphere")
-    mesh.GetPointsAttr().Set(np.concatenate(dense_points).astype(np.float32))
-    faces = np.concatenate(dense_faces)
-    mesh.GetFaceVertexCountsAttr().Set([3] * len(faces))
-    mesh.GetFaceVertexIndicesAttr().Set(faces.reshape(-1).astype(np.int32))
-    mesh.GetSubdivisionSchemeAttr().Set("none")
-    grey = UsdShade.Material.Define(stage, "/Looks/Grey")
-    surface = UsdShade.Shader.Define(stage, "/Looks/Grey/Surface")
-    surface.CreateIdAttr("UsdPreviewSurface")
-    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.6, 0.6, 0.6))
-    grey.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
-    bind(mesh, grey)
-    camera_at(stage, (0.6, 1.1, 3.2))
-    stage.GetRootLayer().Save()
-
-    runtime = session_render(tmp_path / "runtime.usda", dicing_rate=1.0)
-    reference = session_render(tmp_path / "reference.usda", lod=False)
+    runtime_stage, reference_stage = write_stages(tmp_path, n=24)
+    runtime = session_render(runtime_stage, dicing_rate=1.0)
+    reference = session_render(reference_stage, lod=False)
     same_coverage = (covered(runtime) == covered(reference)).mean()
     assert same_coverage >= 0.995, f"silhouettes agree on {same_coverage:.2%} of pixels"
     quality = psnr(runtime["color"].pixels[..., :3], reference["color"].pixels[..., :3])
     assert quality >= 35.0, f"PSNR {quality:.1f} dB against the pre-tessellated reference"
+
+
+def test_cpu_reference_samples_like_the_gpu():
+    """The reference's own sampler: texel centres, repeat wrap across u = 1, rows bottom first."""
+    heights = np.array([[0, 255], [255, 255]], np.uint8)  # bottom row first: only the bottom-left texel is 0
+    st = np.array([(0.25, 0.25), (0.5, 0.25), (1.25, 0.25), (0.0, 0.25)])
+    assert sample_bilinear(heights, st) == pytest.approx([0.0, 0.5, 0.0, 0.5])
 
 
 def test_bounds_widen_by_the_displacement(tmp_path):
@@ -323,11 +206,9 @@ def test_displacement_fades_out_where_it_is_too_small_to_see(tmp_path):
 
 
 def test_a_patch_list_overflow_redraws_the_same_image(tmp_path):
-    heights = height_map()
-    write_height_png(tmp_path / "bumps.png", heights)
-    sphere_stage(tmp_path / "sphere.usda", tmp_path / "bumps.png")
-    roomy = session_render(tmp_path / "sphere.usda", resolution=(128, 128), dicing_rate=2.0)
-    session = tessera.Session(str(tmp_path / "sphere.usda"), validation=True)
+    runtime_stage, _ = write_stages(tmp_path, n=1)
+    roomy = session_render(runtime_stage, resolution=(128, 128), dicing_rate=2.0)
+    session = tessera.Session(str(runtime_stage), validation=True)
     session.delegate.set_patch_capacity(8)
     tight = session.render(camera="/Camera", resolution=(128, 128), aovs=("color", "primId"), dicing_rate=2.0)
     assert not tight.errors

@@ -206,17 +206,17 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return 99.0 if mse == 0 else round(10 * np.log10(1.0 / mse), 2)
 
 
-def _frames(session, frames: int, **settings):
+def _frames(session, frames: int, camera="/World/Camera", **settings):
     """One warm-up frame, then the median of `frames` color frames (wall ms of the whole render call including the
     readback, GPU ms of the passes); then one frame with color and primId for the error measures."""
-    session.render(camera="/World/Camera", **settings)
+    session.render(camera=camera, **settings)
     walls, passes = [], []
     for _ in range(frames):
         start = time.perf_counter()
-        result = session.render(camera="/World/Camera", **settings)
+        result = session.render(camera=camera, **settings)
         walls.append((time.perf_counter() - start) * 1000)
         passes.append(result.stats["gpu_ms"])
-    result = session.render(camera="/World/Camera", **{**settings, "aovs": ("color", "primId")})
+    result = session.render(camera=camera, **{**settings, "aovs": ("color", "primId")})
     if result.errors:
         raise RuntimeError("; ".join(result.errors))
     gpu = {name: float(np.median([p[name] for p in passes])) for name in passes[0]}
@@ -249,11 +249,15 @@ def _render_case(queue, case, stage, resolution, frames, device):
         from tessera import Session
 
         started = time.perf_counter()
-        session = Session(stage, device=device)
+        session = Session(stage[0] if case == "displacement" else stage, device=device)
         settings = {"resolution": resolution, "aovs": ("color",)}
         load_s = time.perf_counter() - started
         rows = []
-        if case == "density":
+        if case == "displacement":  # the runtime-displaced sphere against the same surface pre-tessellated
+            from .bench_displacement import measure
+
+            rows = measure(_frames, session, Session(stage[1], device=device), frames, resolution, _row)
+        elif case == "density":
             # With two-pass occlusion (the default; each measured frame tests against the one before), then without.
             for occlusion in (True, False):
                 result, wall, gpu = _frames(session, frames, occlusion=occlusion, **settings)
@@ -284,7 +288,8 @@ RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("visib
                   ("hw_raster_ms", "HW raster"), ("hzb_ms", "HZB"), ("resolve_ms", "resolve"),
                   ("occluded_instances", "occluded inst"), ("occluded_clusters", "occluded clusters"),
                   ("peak_memory_mib", "peak MiB"), ("psnr_db", "PSNR dB"), ("pixels_off_percent", "px off %"),
-                  ("same_prim_percent", "same prim %"), ("speedup_vs_no_lod", "speedup")]
+                  ("same_prim_percent", "same prim %"), ("speedup_vs_no_lod", "speedup"), ("micro_triangles", "micro tris"),
+                  ("tessellation_ms", "tess ms")]
 
 
 def _write_plot(rows, path):
@@ -316,9 +321,23 @@ def render(args) -> int:
     width, height = args.resolution
     # Density scaling: the same field of FIELD_SIDE^2 instances, with prototypes of ~1e3, ~1e5 and ~1e7 triangles.
     sides = [int(round(np.sqrt(total / FIELD_SIDE**2 / 4))) for total in (1e6, 1e8, 1e10)]
-    cases = [("density", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
-    single = _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)  # the densest prototype alone, filling the frame
-    cases += [("brute", single), ("error", single)]
+    cases = []
+    if "density" in args.cases:
+        cases += [("density", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
+    if "brute" in args.cases or "error" in args.cases:
+        single = _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)  # the densest prototype alone, filling the frame
+        cases += [(case, single) for case in ("brute", "error") if case in args.cases]
+    if "displacement" in args.cases:
+        from pathlib import Path
+
+        from .bench_displacement import height_map, write_stages
+
+        # A 48 x 24 sphere (2 304 triangles) displaced by a 512 x 256 height map; the reference cuts each triangle 32 x 32
+        # (2.4 M triangles: edges of about 1.5 px at 1080p).
+        directory = Path(args.stages_dir) / "displacement"
+        if not (directory / "reference.usda").exists():
+            write_stages(directory, segments=48, rings=24, heights=height_map(512, 256, bumps=8), n=32, magnitude=0.08, eye=(0.5, 0.9, 2.4))
+        cases.append(("displacement", (str(directory / "runtime.usda"), str(directory / "reference.usda"))))
     rows = []
     print(" | ".join(title for _, title in RENDER_COLUMNS))
     context = multiprocessing.get_context("fork")

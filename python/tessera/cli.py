@@ -77,6 +77,8 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--pixel-error", type=float, default=1.0, metavar="PX",
                         help="screen-space error bound of the level-of-detail cut, in pixels (default 1)")
     render.add_argument("--no-lod", action="store_true", help="draw every source triangle: the DAG off, the full-detail reference")
+    render.add_argument("--dicing-rate", type=float, default=1.0, metavar="PX",
+                        help="displaced surfaces are diced into micro-triangles whose edges project to about this many pixels (default 1)")
     render.add_argument("--vis", choices=VISUALIZATIONS, help="show a debug view in the color AOV instead of shading")
     render.add_argument("--raster", choices=RASTER_MODES, default="auto",
                         help="auto: small triangles through the compute rasterizer, large ones through hardware raster (default)")
@@ -117,6 +119,8 @@ def _parser() -> argparse.ArgumentParser:
     bench_render.add_argument("--stages-dir", default="out/bench", help="where the generated stages are kept (default out/bench)")
     bench_render.add_argument("--device", help="Vulkan device, as for render")
     bench_render.add_argument("--plot", help="write the speed-against-error plot (PNG) here")
+    bench_render.add_argument("--cases", type=lambda text: text.split(","), default=["density", "brute", "error", "displacement"],
+                              help="which tables, comma-separated (default density,brute,error,displacement)")
     bench_render.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
     bench_usd = benches.add_parser("usd", help="translating a stage into the render index: time, memory, one edit re-synced")
     bench_usd.add_argument("--prims", type=int, default=100_000,
@@ -147,7 +151,8 @@ def _render(args) -> int:
         if frames is not None:
             session.set_time(frames[number])
         result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov], pixel_error=args.pixel_error,
-                                lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion)
+                                lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion,
+                                dicing_rate=args.dicing_rate)
         rendered = time.perf_counter()
         where = f"frame {frames[number]:g}: " if frames is not None else ""
         for message in result.warnings:
