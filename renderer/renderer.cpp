@@ -320,6 +320,107 @@ std::vector<uint32_t> displacement_normals(const BuiltMesh& mesh) {
     return out;
 }
 
+// The UV seams of a mesh drawn displaced, appended to `words` in the layout of shaders/shared.h (TS_SEAM_COUNT_SHIFT):
+// per vertex, the texture coordinates the source has at its position when there are several; per triangle with a seam
+// edge, the other side's coordinates along each edge (found among the triangles of every level, keyed by the edge's two
+// positions: every level's vertices are source vertices). Returns {first vertex word, first triangle word}, or
+// {TS_NO_STREAM, TS_NO_STREAM} for a mesh without seams (no UVs, or one UV per position).
+std::array<uint32_t, 2> append_uv_seams(const BuiltMesh& mesh, std::vector<uint32_t>& words) {
+    if (mesh.uvs.empty()) return {TS_NO_STREAM, TS_NO_STREAM};
+    using Key = std::array<uint32_t, 3>;
+    using Uv = std::array<uint32_t, 2>;  // float bits
+    struct KeyHash {
+        size_t operator()(const Key& p) const { return (size_t(p[0]) * 73856093u) ^ (size_t(p[1]) * 19349663u) ^ (size_t(p[2]) * 83492791u); }
+    };
+    auto key = [&](uint32_t v) {
+        Key k;
+        std::memcpy(k.data(), &mesh.positions[3 * size_t(v)], 12);
+        return k;
+    };
+    auto uv = [&](uint32_t v) {
+        Uv u;
+        std::memcpy(u.data(), &mesh.uvs[2 * size_t(v)], 8);
+        return u;
+    };
+    std::unordered_map<Key, std::vector<Uv>, KeyHash> uvsAt;  // distinct, sorted
+    for (const Cluster& c : mesh.clusters) {
+        if (c.level != 0) break;
+        for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) {
+            auto& list = uvsAt[key(v)];
+            const Uv u = uv(v);
+            if (std::find(list.begin(), list.end(), u) == list.end()) list.insert(std::upper_bound(list.begin(), list.end(), u), u);
+        }
+    }
+    // Edges by their two positions (lower first), with the distinct (uv at lower, uv at upper) pairs of their triangles.
+    struct EdgeHash {
+        size_t operator()(const std::array<Key, 2>& e) const { return KeyHash{}(e[0]) * 31 + KeyHash{}(e[1]); }
+    };
+    std::unordered_map<std::array<Key, 2>, std::vector<std::array<Uv, 2>>, EdgeHash> edges;
+    auto corners = [&](const Cluster& c, uint32_t t) {
+        const uint32_t packed = mesh.triangles[c.triangleOffset + t];
+        return std::array<uint32_t, 3>{c.vertexOffset + (packed & 0xffu), c.vertexOffset + ((packed >> 8) & 0xffu), c.vertexOffset + ((packed >> 16) & 0xffu)};
+    };
+    auto oriented = [&](uint32_t a, uint32_t b, std::array<Key, 2>& edge, std::array<Uv, 2>& pair) {
+        const Key ka = key(a), kb = key(b);
+        const bool swap = kb < ka;
+        edge = swap ? std::array<Key, 2>{kb, ka} : std::array<Key, 2>{ka, kb};
+        pair = swap ? std::array<Uv, 2>{uv(b), uv(a)} : std::array<Uv, 2>{uv(a), uv(b)};
+        return swap;
+    };
+    for (const Cluster& c : mesh.clusters)
+        for (uint32_t t = 0; t < c.triangleCount; ++t) {
+            const auto v = corners(c, t);
+            for (int k = 0; k < 3; ++k) {
+                std::array<Key, 2> edge;
+                std::array<Uv, 2> pair;
+                oriented(v[k], v[(k + 1) % 3], edge, pair);
+                auto& pairs = edges[edge];
+                if (std::find(pairs.begin(), pairs.end(), pair) == pairs.end()) pairs.push_back(pair);
+            }
+        }
+    bool any = false;
+    for (const auto& [k, list] : uvsAt) any |= list.size() > 1;
+    if (!any) return {TS_NO_STREAM, TS_NO_STREAM};
+
+    const uint32_t vertexWords = uint32_t(words.size());
+    words.resize(words.size() + mesh.normals.size(), TS_NO_STREAM);
+    std::unordered_map<Key, uint32_t, KeyHash> listAt;  // each position's list stored once
+    for (uint32_t v = 0; v < mesh.normals.size(); ++v) {
+        const auto it = uvsAt.find(key(v));
+        if (it == uvsAt.end() || it->second.size() < 2) continue;
+        auto [stored, fresh] = listAt.try_emplace(it->first, uint32_t(words.size()));
+        if (fresh)
+            for (const Uv& u : it->second) words.insert(words.end(), u.begin(), u.end());
+        words[vertexWords + v] = stored->second | std::min<uint32_t>(uint32_t(it->second.size()), 15u) << TS_SEAM_COUNT_SHIFT;
+    }
+    const uint32_t triangleWords = uint32_t(words.size());
+    words.resize(words.size() + mesh.triangles.size(), TS_NO_STREAM);
+    const uint32_t nan = 0x7fc00000u;
+    for (const Cluster& c : mesh.clusters)
+        for (uint32_t t = 0; t < c.triangleCount; ++t) {
+            const auto v = corners(c, t);
+            std::array<uint32_t, 12> record;
+            record.fill(nan);
+            bool seam = false;
+            for (int k = 0; k < 3; ++k) {
+                std::array<Key, 2> edge;
+                std::array<Uv, 2> pair;
+                const bool swapped = oriented(v[k], v[(k + 1) % 3], edge, pair);
+                const auto& pairs = edges[edge];
+                if (pairs.size() != 2) continue;  // inside a UV island (or a non-manifold edge: no single other side)
+                const auto& other = pairs[0] == pair ? pairs[1] : pairs[0];
+                const Uv& atK = swapped ? other[1] : other[0];
+                const Uv& atNext = swapped ? other[0] : other[1];
+                record[4 * k] = atK[0], record[4 * k + 1] = atK[1], record[4 * k + 2] = atNext[0], record[4 * k + 3] = atNext[1];
+                seam = true;
+            }
+            if (!seam) continue;
+            words[triangleWords + c.triangleOffset + t] = uint32_t(words.size());
+            words.insert(words.end(), record.begin(), record.end());
+        }
+    return {vertexWords, triangleWords};
+}
+
 template <typename T>
 void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
     const size_t bytes = data.size() * sizeof(T);
@@ -372,7 +473,7 @@ struct Renderer::Impl {
     // displacement normals); the lists of runtime tessellation, made only for scenes that displace.
     std::vector<bool> displacedMaterials, displacedMeshes;
     bool anyDisplaced = false;
-    Buffer displacementNormals, tessellationList, patches, patchDraws;
+    Buffer displacementNormals, seams, tessellationList, patches, patchDraws;
     uint32_t patchCapacity = 1u << 16;
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
@@ -527,22 +628,27 @@ struct Renderer::Impl {
         std::vector<gpu::GpuCluster> gpuClusters;
         std::vector<gpu::GpuLevel> gpuLevels;
         std::vector<float> gpuPositions, gpuUvs;
-        std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles, gpuDisplacementNormals;
+        std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles, gpuDisplacementNormals, gpuSeams;
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
             const BuiltMesh* mesh = scene.meshes_[m].get();
             gpu::GpuMesh& g = gpuMeshes[m];
             g = {};
-            g.colorOffset = g.uvOffset = g.displacementNormalOffset = TS_NO_STREAM;
+            g.colorOffset = g.uvOffset = g.displacementNormalOffset = g.seamVertexOffset = g.seamTriangleOffset = TS_NO_STREAM;
             if (!mesh) continue;
-            if (m < displacedMeshes.size() && displacedMeshes[m]) {  // drawn displaced: it needs displacement normals
-                g.displacementNormalOffset = uint32_t(gpuDisplacementNormals.size());
-                const auto normals = displacement_normals(*mesh);
-                gpuDisplacementNormals.insert(gpuDisplacementNormals.end(), normals.begin(), normals.end());
-            }
             const uint32_t vertexBase = uint32_t(gpuPositions.size() / 3), triangleBase = uint32_t(gpuTriangles.size());
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
             g.clusterOffset = uint32_t(gpuClusters.size());
             g.vertexOffset = vertexBase;
+            if (m < displacedMeshes.size() && displacedMeshes[m]) {  // drawn displaced: it needs displacement normals
+                g.displacementNormalOffset = uint32_t(gpuDisplacementNormals.size());
+                const auto normals = displacement_normals(*mesh);
+                gpuDisplacementNormals.insert(gpuDisplacementNormals.end(), normals.begin(), normals.end());
+                const auto seams = append_uv_seams(*mesh, gpuSeams);
+                if (seams[0] != TS_NO_STREAM) {
+                    g.seamVertexOffset = seams[0];
+                    g.seamTriangleOffset = seams[1] - triangleBase;  // indexed by scene triangle: the base folded in (mod 2^32)
+                }
+            }
             if (!mesh->colors.empty()) g.colorOffset = uint32_t(gpuColors.size() / 2);
             if (!mesh->uvs.empty()) g.uvOffset = uint32_t(gpuUvs.size() / 2);
             // The whole DAG goes up; the cull pass picks the cut. Clusters come level by level, level 0 first.
@@ -593,6 +699,8 @@ struct Renderer::Impl {
         upload_vector(device, triangles, gpuTriangles);
         if (gpuDisplacementNormals.empty()) displacementNormals = Buffer{};
         else upload_vector(device, displacementNormals, gpuDisplacementNormals);
+        if (gpuSeams.empty()) seams = Buffer{};
+        else upload_vector(device, seams, gpuSeams);
     }
 
     bool material_displaced(uint32_t material) const { return material < displacedMaterials.size() && displacedMaterials[material]; }
@@ -1020,6 +1128,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.tessellationList = s.anyDisplaced ? s.tessellationList.address : 0;
         f.patches = s.anyDisplaced ? s.patches.address : 0;
         f.patchDraws = s.anyDisplaced ? s.patchDraws.address : 0;
+        f.seams = s.anyDisplaced ? s.seams.address : 0;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
@@ -1221,7 +1330,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.tessellatedTriangles = state.tessTriangles;
         frameStats.patches = state.patches;
         frameStats.microTriangles = state.microTriangles;
-        frameStats.tessellationBytes = s.anyDisplaced ? s.displacementNormals.size + s.tessellationList.size + s.patches.size + s.patchDraws.size : 0;
+        frameStats.tessellationBytes =
+            s.anyDisplaced ? s.displacementNormals.size + s.seams.size + s.tessellationList.size + s.patches.size + s.patchDraws.size : 0;
         uint64_t ticks[Impl::kTimestamps] = {};
         if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, Impl::kTimestamps, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
             const double ms = device_.timestamp_period_ns() * 1e-6;

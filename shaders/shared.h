@@ -40,6 +40,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_TESS_MAX_SPLIT 16
 #define TS_TESS_MAX_FACTOR 256
 #define TS_TESS_FACTOR_BITS 9   // a triangle's three edge factors in GpuPatch.factors, 1 to 256 each
+// UV seams for displacement (frame.seams): a vertex's word is TS_NO_STREAM or the first word of the texture coordinates
+// its position has (float bits, u then v, sorted) | their count << TS_SEAM_COUNT_SHIFT; a triangle's word is
+// TS_NO_STREAM or the first of 12 words: per edge (corners 0-1, 1-2, 2-0 as stored), the other side's texture
+// coordinates at its two corners, NaN where the edge is no seam.
+#define TS_SEAM_COUNT_SHIFT 28
 
 // Instance flags.
 #define TS_INSTANCE_DOUBLE_SIDED 1u
@@ -207,7 +212,11 @@ struct GpuMesh {
     float lodRadius;     // about `sphere`'s centre, encloses every LOD and parent sphere of the mesh
     uint uvOffset;       // first entry of the texture coordinate stream (indexed like colours), or TS_NO_STREAM
     uint displacementNormalOffset;  // first entry of the displacement normal stream (indexed like colours), or TS_NO_STREAM
-    uint pad1, pad2;
+    // UV seams of a mesh drawn displaced (frame.seams, tessellation.h): seamVertexOffset is TS_NO_STREAM without seams,
+    // else a vertex's word is seamVertexOffset + (vertex - vertexOffset), and a triangle's word seamTriangleOffset + its
+    // scene triangle index (the offset already minus the mesh's first triangle, modulo 2^32).
+    uint seamVertexOffset;
+    uint seamTriangleOffset;
 };
 TS_CHECK_SIZE(GpuMesh, 64);
 
@@ -374,8 +383,9 @@ struct GpuFrame {
     address tessellationList;  // uint[capacity]: visible-cluster slots to tessellate
     address patches;         // GpuPatch[patch capacity]
     address patchDraws;      // VkDrawIndirectCommand[patch capacity]: this pass's patches
+    address seams;           // uint[]: UV seams of meshes drawn displaced (GpuMesh.seamVertexOffset, tessellation.h)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 32 * TS_MAX_LIGHTS + 8 * 28);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 32 * TS_MAX_LIGHTS + 8 * 29);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

@@ -17,8 +17,10 @@
 // counted from; positions, displacement normals and texture coordinates are summed with `precise` (no fused
 // multiply-add, whose rounding would depend on the order of the corners), so both triangles of an edge get the same
 // bits. Displacement normals are one per position (the mean of every normal there: GpuMesh.displacementNormalOffset),
-// so a hard edge, whose vertices are split, does not tear. UV seams still do where the displacement texture differs
-// across the seam (left for later: it needs both sides' coordinates on each side).
+// so a hard edge, whose vertices are split, does not tear. At a UV seam the two sides read the texture at different
+// coordinates, so a textured displacement is read seam-aware (frame.seams): a point on a seam edge takes the mean of
+// its own sample and the one at the other side's coordinates, and a vertex where several UVs meet the mean over all of
+// them (in one stored order): the same bits from every side.
 #ifndef TESSERA_TESSELLATION_H
 #define TESSERA_TESSELLATION_H
 
@@ -29,6 +31,8 @@ struct DisplacedTriangle {
     vec3 p[3];     // positions
     vec3 n[3];     // displacement normals (unit)
     vec2 uv[3];    // texture coordinates; (0, 0) without a UV set
+    uint seamVertex[3];  // the vertex's seam word (TS_SEAM_COUNT_SHIFT), TS_NO_STREAM where one UV meets its position
+    vec4 twin[3];  // edge e (corners e, e + 1): the other side's texture coordinates at those corners; NaN: no seam
 };
 
 DisplacedTriangle displaced_triangle(GpuFrame frame, GpuInstance instance, GpuCluster cluster, uint triangle) {
@@ -43,6 +47,22 @@ DisplacedTriangle displaced_triangle(GpuFrame frame, GpuInstance instance, GpuCl
                                        ? UintRef(frame.displacementNormals).data[v - mesh.vertexOffset + mesh.displacementNormalOffset]
                                        : UintRef(frame.normals).data[v]);
         t.uv[k] = mesh.uvOffset != TS_NO_STREAM ? vertex_uv(frame, mesh, v) : vec2(0.0);
+        t.seamVertex[k] = mesh.seamVertexOffset != TS_NO_STREAM ? UintRef(frame.seams).data[mesh.seamVertexOffset + v - mesh.vertexOffset] : TS_NO_STREAM;
+        t.twin[k] = vec4(uintBitsToFloat(0x7fc00000u));
+    }
+    uint record = mesh.seamVertexOffset != TS_NO_STREAM ? UintRef(frame.seams).data[mesh.seamTriangleOffset + cluster.triangleOffset + triangle]
+                                                          : TS_NO_STREAM;
+    if (record != TS_NO_STREAM) {
+        UintRef seams = UintRef(frame.seams);
+        for (uint e = 0u; e < 3u; ++e) {
+            // Rasterizer corners e and e + 1 as stored corners (flipped instances swap 1 and 2), and the stored edge
+            // (k, k + 1) they make.
+            uint a = flip && e != 0u ? 3u - e : e, b = flip && e != 2u ? 3u - (e + 1u) % 3u : (e + 1u) % 3u;
+            uint k = (a + 1u) % 3u == b ? a : b;
+            vec4 stored = uintBitsToFloat(uvec4(seams.data[record + 4u * k], seams.data[record + 4u * k + 1u],
+                                                seams.data[record + 4u * k + 2u], seams.data[record + 4u * k + 3u]));
+            t.twin[e] = a == k ? stored : stored.zwxy;
+        }
     }
     return t;
 }
@@ -61,12 +81,39 @@ float displacement_fade(GpuFrame frame, GpuMaterial material, float scale, vec3 
     return clamp((size - end) / (start - end), 0.0, 1.0);
 }
 
-// The displacement input at texture coordinates st: the material's constant, or its texture's first output channel,
-// read bilinearly from level 0 (a mip level would have to be chosen alike on both sides of every edge).
-float displacement_value(GpuFrame frame, GpuMaterial material, vec2 st) {
-    if ((material.textureInputs & (1u << TS_INPUT_DISPLACEMENT)) == 0u) return material.displacement.x;
+// The displacement texture's value at texture coordinates st: its first output channel, read bilinearly from level 0
+// (a mip level would have to be chosen alike on both sides of every edge).
+float displacement_texel(GpuFrame frame, GpuMaterial material, vec2 st) {
     uint slot = material.firstTextureSlot + uint(bitCount(material.textureInputs & ((1u << TS_INPUT_DISPLACEMENT) - 1u)));
     return texture_slot_value(frame.textures, TextureSlotRef(frame.textureSlots).data[slot], st, vec2(0.0), vec2(0.0)).x;
+}
+
+// The displacement input at a point of the triangle with corner weights w and texture coordinates st: the material's
+// constant, or its texture read seam-aware. A point on an edge (one weight exactly 0) that is a UV seam takes the mean
+// of its own sample and the other side's; a corner (two weights 0) where several UVs meet, the mean over all of them.
+float displacement_value(GpuFrame frame, GpuMaterial material, DisplacedTriangle t, vec3 w, vec2 st) {
+    if ((material.textureInputs & (1u << TS_INPUT_DISPLACEMENT)) == 0u) return material.displacement.x;
+    uint zeros = uint(w.x == 0.0) + uint(w.y == 0.0) + uint(w.z == 0.0);
+    if (zeros == 2u) {
+        uint corner = w.x != 0.0 ? 0u : w.y != 0.0 ? 1u : 2u;
+        uint word = t.seamVertex[corner];
+        if (word == TS_NO_STREAM) return displacement_texel(frame, material, st);
+        uint first = word & ((1u << TS_SEAM_COUNT_SHIFT) - 1u), count = word >> TS_SEAM_COUNT_SHIFT;
+        float sum = 0.0;
+        for (uint i = 0u; i < count; ++i)
+            sum += displacement_texel(frame, material, uintBitsToFloat(uvec2(UintRef(frame.seams).data[first + 2u * i], UintRef(frame.seams).data[first + 2u * i + 1u])));
+        return sum / float(count);
+    }
+    if (zeros == 1u) {
+        uint e = (w.x == 0.0 ? 1u : w.y == 0.0 ? 2u : 0u);  // the edge opposite the corner whose weight is 0
+        vec4 twin = t.twin[e];
+        if (!isnan(twin.x)) {
+            uint e1 = (e + 1u) % 3u;
+            precise vec2 other = w[e] * twin.xy + w[e1] * twin.zw;
+            return 0.5 * (displacement_texel(frame, material, st) + displacement_texel(frame, material, other));
+        }
+    }
+    return displacement_texel(frame, material, st);
 }
 
 // round(a / b) for unsigned integers.
@@ -226,7 +273,7 @@ vec3 displaced_point(GpuFrame frame, DicedPatch d, vec3 w, out vec2 st) {
     float fade = displacement_fade(frame, d.material, d.scale, base);
     float length2 = dot(n, n);
     if (!(fade > 0.0) || !(length2 > 0.0)) return base;
-    float offset = (displacement_value(frame, d.material, uv) - d.material.displacement.z) * d.material.displacement.y * fade;
+    float offset = (displacement_value(frame, d.material, t, w, uv) - d.material.displacement.z) * d.material.displacement.y * fade;
     return to_camera_relative(d.instance, d.translation, p + n * (offset * inversesqrt(length2)));
 }
 
