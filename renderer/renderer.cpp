@@ -294,6 +294,7 @@ struct Renderer::Impl {
     // Variants with texture code (TS_SPEC_TEXTURES), made when a scene first needs them: resolve for textured
     // materials, both rasterizers for frames with opacity masks.
     VkPipeline resolveTextured = VK_NULL_HANDLE, rasterMasked = VK_NULL_HANDLE, rasterSoftwareMasked = VK_NULL_HANDLE;
+    VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
@@ -317,7 +318,8 @@ struct Renderer::Impl {
     uint32_t materialCount = 1;
     // Textures: the slots of textured materials, and the pool of the images they read (both empty without textures).
     Buffer textureSlots, texturePool;
-    std::vector<std::shared_ptr<const TextureImage>> poolImages;
+    std::vector<std::shared_ptr<const TextureImage>> poolImages;  // the materials' images, then the dome lights'
+    std::vector<std::shared_ptr<const TextureImage>> materialImages;
     std::vector<bool> maskedMaterials;  // per material: a textured opacity under an opacityThreshold (TS_INSTANCE_MASKED)
     std::vector<bool> texturedMaterials;  // per material: resolve samples textures (its bin uses resolveTextured)
     bool anyMasked = false;  // an instance is flagged TS_INSTANCE_MASKED: the rasterizers' mask variants draw the frame
@@ -347,6 +349,7 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, resolveTextured, nullptr);
         vkDestroyPipeline(vk, rasterMasked, nullptr);
         vkDestroyPipeline(vk, rasterSoftwareMasked, nullptr);
+        vkDestroyPipeline(vk, backgroundTextured, nullptr);
         vkDestroyPipelineLayout(vk, layout, nullptr);
         vkDestroyQueryPool(vk, timestamps, nullptr);
     }
@@ -396,8 +399,9 @@ struct Renderer::Impl {
     }
 
     // The variants a scene's materials need, made once (a few tens of ms each on lavapipe, cold).
-    void ensure_texture_pipelines(bool textured, bool masks) {
+    void ensure_texture_pipelines(bool textured, bool masks, bool texturedDome) {
         if (textured && !resolveTextured) resolveTextured = compute_pipeline(resolve_comp, sizeof(resolve_comp), true);
+        if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
         if (masks && !rasterMasked) {
             rasterMasked = graphics_pipeline(true);
             rasterSoftwareMasked = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), true);
@@ -666,7 +670,7 @@ struct Renderer::Impl {
         // No textures, no texture memory.
         if (slots.empty()) textureSlots = Buffer{};
         else upload_vector(device, textureSlots, slots);
-        if (images != poolImages) upload_texture_pool(images);
+        materialImages = std::move(images);  // the pool follows at the next frame, with the dome lights' images
     }
 
     // The texture pool: a GpuTexture record per image, then every image's words. Rebuilt when the set of images changes.
@@ -766,7 +770,17 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     s.instancesVersion = scene.instancesVersion_;
     s.materialsVersion = scene.materialsVersion_;
 
-    s.ensure_texture_pipelines(std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(), s.anyMasked);
+    // The pool: the materials' images, then the textured dome lights' (re-uploaded only when that set changes).
+    std::vector<std::shared_ptr<const TextureImage>> poolImages = s.materialImages;
+    bool texturedDome = false;
+    for (const LightDesc& light : scene.lights_)
+        if (light.type == LightType::Dome && light.texture) {
+            texturedDome = true;
+            if (std::find(poolImages.begin(), poolImages.end(), light.texture) == poolImages.end()) poolImages.push_back(light.texture);
+        }
+    if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages));
+    s.ensure_texture_pipelines(std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(), s.anyMasked,
+                               texturedDome);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
@@ -803,13 +817,31 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const auto& lights = scene.lights_;
         const uint32_t lightCount = uint32_t(std::min<size_t>(lights.size(), TS_MAX_LIGHTS));
         f.viewport = {settings.width, settings.height, s.materialCount, lightCount};
+        bool environmentSet = false;
         for (uint32_t i = 0; i < lightCount; ++i) {
             const LightDesc& l = lights[i];
             double d[3] = {l.direction[0], l.direction[1], l.direction[2]};
             const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
             for (double& x : d) x /= (len > 0 ? len : 1);
-            f.lights[i].directionType = {float(d[0]), float(d[1]), float(d[2]), float(l.type == LightType::Distant ? TS_LIGHT_DISTANT : TS_LIGHT_DOME)};
-            f.lights[i].radiance = {l.radiance[0], l.radiance[1], l.radiance[2], 0};
+            const uint32_t type = l.type == LightType::Distant ? TS_LIGHT_DISTANT
+                                : l.type == LightType::Dome    ? TS_LIGHT_DOME
+                                : l.type == LightType::Rect    ? TS_LIGHT_RECT
+                                                               : TS_LIGHT_SPHERE;
+            gpu::GpuLight& g = f.lights[i];
+            g.directionType = {float(d[0]), float(d[1]), float(d[2]), float(type)};
+            g.radiance = {l.radiance[0], l.radiance[1], l.radiance[2], 0};
+            // Places relative to the camera, in double (as instances are).
+            g.position = {float(l.position[0] - cam.position[0]), float(l.position[1] - cam.position[1]), float(l.position[2] - cam.position[2]),
+                          float(l.radius)};
+            g.axisX = {float(l.axisX[0]), float(l.axisX[1]), float(l.axisX[2]), 0};
+            g.axisY = {float(l.axisY[0]), float(l.axisY[1]), float(l.axisY[2]), 0};
+            g.texture = TS_NO_TEXTURE;
+            // One textured dome lights by its image (the first; the others by their colour).
+            if (l.type == LightType::Dome && l.texture && !environmentSet) {
+                g.texture = uint32_t(std::find(s.poolImages.begin(), s.poolImages.end(), l.texture) - s.poolImages.begin());
+                for (int k = 0; k < 9; ++k) f.environment[k] = {l.environment[3 * k], l.environment[3 * k + 1], l.environment[3 * k + 2], 0};
+                environmentSet = true;
+            }
         }
         // LOD: an error of e units at view depth d covers e * lod.x / d pixels (|P11| maps unit height to NDC,
         // and NDC spans height / 2 pixels per unit).
@@ -975,7 +1007,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                             VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 PushConstants background{s.frame.address, uint32_t(aovs[i]), 0, 0};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.background);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, texturedDome && aovs[i] == Aov::Color ? s.backgroundTextured : s.background);
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 VkPipeline bound = VK_NULL_HANDLE;
                 for (uint32_t m = 0; m < s.materialCount; ++m) {

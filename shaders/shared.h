@@ -127,6 +127,9 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_MAX_LIGHTS 8u
 #define TS_LIGHT_DISTANT 0u
 #define TS_LIGHT_DOME 1u
+#define TS_LIGHT_RECT 2u
+#define TS_LIGHT_SPHERE 3u
+#define TS_NO_TEXTURE 0xffffffffu  // GpuLight::texture of a dome without a texture
 
 // Specialization constant (constant_id) that compiles texture work into a pipeline variant: resolve's variant for
 // materials with textures, the rasterizers' for frames with opacity masks. On lavapipe the texture code merely present
@@ -234,11 +237,19 @@ struct GpuTextureSlot {
 };
 TS_CHECK_SIZE(GpuTextureSlot, 64);
 
+// A light (lights.h shades with it). Distant: `radiance` is the irradiance it delivers at normal incidence. Rect and
+// sphere: `radiance` is what their surface emits, `position` their centre (camera-relative). Dome: uniform radiance, or
+// with a texture that radiance times the lat-long image's, the image oriented by `axisX` and `axisY`.
 struct GpuLight {
-    vec4 directionType;    // xyz: direction the light travels (world); w: TS_LIGHT_* as float
-    vec4 radiance;         // rgb: colour * intensity * 2^exposure
+    vec4 directionType;    // xyz: the direction a distant light travels, or a rect's front normal (world); w: TS_LIGHT_* as float
+    vec4 radiance;         // rgb: colour * intensity * 2^exposure (normalized by area where asked)
+    vec4 position;         // xyz: rect and sphere centre, camera-relative; w: sphere radius
+    vec4 axisX;            // rect: centre to the middle of its +X edge (world); dome: its local +X axis (world, unit)
+    vec4 axisY;            // rect: centre to the middle of its +Y edge; dome: its local +Y axis (the lat-long's pole)
+    uint texture;          // dome: its lat-long image in the texture pool, else TS_NO_TEXTURE
+    uint pad0, pad1, pad2;
 };
-TS_CHECK_SIZE(GpuLight, 32);
+TS_CHECK_SIZE(GpuLight, 96);
 
 // Indirect arguments of both rasterizers and of the post cull pass, plus the culling counters, written by the
 // cull passes. The rasterizers' arguments are reset between the main and the post pass; the counters add up.
@@ -297,6 +308,9 @@ struct GpuFrame {
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     GpuLight lights[TS_MAX_LIGHTS];
+    // The textured dome's irradiance (times 1/pi: an outgoing diffuse radiance per unit albedo) as 9 spherical
+    // harmonics coefficients (rgb), in the dome's own frame; only read for a dome with a texture.
+    vec4 environment[9];
     address instances;       // GpuInstance[]
     address meshes;          // GpuMesh[]
     address levels;          // GpuLevel[]
@@ -322,7 +336,7 @@ struct GpuFrame {
     address textureSlots;    // GpuTextureSlot[], 0 when no material has a texture
     address textures;        // the texture pool: GpuTexture[] then texel words (uint); 0 when there are no textures
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 24);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 24);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

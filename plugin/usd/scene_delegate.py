@@ -23,11 +23,11 @@ import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import change_tracker, implicit, materials, mesh_settings
+from . import change_tracker, implicit, lights, materials, mesh_settings
 from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
-_LIGHT_TYPES = {"distantLight", "domeLight"}
+_LIGHT_TYPES = lights.SPRIM_TYPES
 
 
 def to_column_major(gf_matrix) -> list[float]:
@@ -149,7 +149,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _kind(self, prim: Usd.Prim) -> tuple[bool, str | None]:
         """(imageable, role) of a prim's type, found once per type name (IsA depends on the type alone). Roles:
-        pointInstancer, camera, distantLight, domeLight, mesh (drawn), unsupported (a gprim not drawn), None."""
+        pointInstancer, camera, the light sprim types, mesh (drawn), unsupported (a gprim or light not drawn), None."""
         type_name = prim.GetTypeName()
         kind = self._kinds.get(type_name)
         if kind is None:
@@ -158,10 +158,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 role = "pointInstancer"
             elif prim.IsA(UsdGeom.Camera):
                 role = "camera"
-            elif prim.IsA(UsdLux.DistantLight):
-                role = "distantLight"
-            elif prim.IsA(UsdLux.DomeLight):
-                role = "domeLight"
+            elif lights.sprim_type(prim):
+                role = lights.sprim_type(prim)
+            elif prim.HasAPI(UsdLux.LightAPI):
+                role = "unsupported"  # disk, cylinder, portal and geometry lights
             elif prim.IsA(UsdGeom.Gprim):
                 role = "mesh" if prim.IsA(UsdGeom.Mesh) or implicit.supported(prim) else "unsupported"
             kind = self._kinds[type_name] = (prim.IsA(UsdGeom.Imageable), role)
@@ -648,27 +648,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def get_light(self, id: str):
         prim = self.stage.GetPrimAtPath(id)
-        light = UsdLux.LightAPI(prim)
-        t = self.time
-        intensity = light.GetIntensityAttr().Get(t) or 0.0
-        exposure = light.GetExposureAttr().Get(t) or 0.0
-        color = np.asarray(light.GetColorAttr().Get(t) or (1, 1, 1), dtype=np.float64)
-        desc = _tessera.LightDesc()
-        radiance = color * intensity * 2.0 ** exposure
-        if prim.IsA(UsdLux.DistantLight):
-            # UsdLux: a distant light's intensity is the radiance of a disk `angle` degrees across; the irradiance
-            # it delivers is that times the disk's solid angle, unless inputs:normalize says it already is one.
-            if not light.GetNormalizeAttr().Get(t):
-                half_angle = np.radians(UsdLux.DistantLight(prim).GetAngleAttr().Get(t) or 0.53) / 2.0
-                radiance = radiance * 2.0 * np.pi * (1.0 - np.cos(half_angle))
-            desc.radiance = tuple(float(c) for c in radiance)
-            desc.type = _tessera.LightType.distant
-            world = self.xform_cache.GetLocalToWorldTransform(prim)
-            desc.direction = tuple(world.TransformDir(Gf.Vec3d(0, 0, -1)))  # lights emit along their -Z
-        else:
-            desc.radiance = tuple(float(c) for c in radiance)
-            desc.type = _tessera.LightType.dome
-        return desc
+        return lights.light_desc(prim, self.time, self.xform_cache.GetLocalToWorldTransform(prim), self.warnings)
 
     def get_camera(self, id: str):
         return camera_desc(UsdGeom.Camera(self.stage.GetPrimAtPath(id)).GetCamera(self.time))
