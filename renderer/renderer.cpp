@@ -295,6 +295,9 @@ struct Renderer::Impl {
     // materials, both rasterizers for frames with opacity masks.
     VkPipeline resolveTextured = VK_NULL_HANDLE, rasterMasked = VK_NULL_HANDLE, rasterSoftwareMasked = VK_NULL_HANDLE;
     VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
+    // Resolve with area lights (TS_SPEC_AREA_LIGHTS: rect and sphere lights, a textured dome), without and with
+    // textures: on lavapipe their shading code, present but not run, cost every pixel of frames without them.
+    VkPipeline resolveAreaLights = VK_NULL_HANDLE, resolveTexturedAreaLights = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
@@ -350,25 +353,27 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, rasterMasked, nullptr);
         vkDestroyPipeline(vk, rasterSoftwareMasked, nullptr);
         vkDestroyPipeline(vk, backgroundTextured, nullptr);
+        vkDestroyPipeline(vk, resolveAreaLights, nullptr);
+        vkDestroyPipeline(vk, resolveTexturedAreaLights, nullptr);
         vkDestroyPipelineLayout(vk, layout, nullptr);
         vkDestroyQueryPool(vk, timestamps, nullptr);
     }
 
-    // TS_SPEC_TEXTURES on: the variant with texture code.
+    // Specialization constants: TS_SPEC_TEXTURES (the variant with texture code) and TS_SPEC_AREA_LIGHTS.
     struct TexturesOn {
-        VkBool32 value = VK_TRUE;
-        VkSpecializationMapEntry entry{TS_SPEC_TEXTURES, 0, sizeof(VkBool32)};
-        VkSpecializationInfo info{1, &entry, sizeof(VkBool32), &value};
-        TexturesOn() = default;
+        VkBool32 values[2] = {VK_TRUE, VK_FALSE};
+        VkSpecializationMapEntry entries[2] = {{TS_SPEC_TEXTURES, 0, sizeof(VkBool32)}, {TS_SPEC_AREA_LIGHTS, sizeof(VkBool32), sizeof(VkBool32)}};
+        VkSpecializationInfo info{2, entries, sizeof(values), values};
+        explicit TexturesOn(bool textures = true, bool areaLights = false) : values{VkBool32(textures), VkBool32(areaLights)} {}
         TexturesOn(const TexturesOn&) = delete;
     };
 
-    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false) {
+    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, bool areaLights = false) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const TexturesOn on;
+        const TexturesOn on(textures, areaLights);
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
-                      textures ? &on.info : nullptr};
+                      textures || areaLights ? &on.info : nullptr};
         info.layout = layout;
         VkPipeline pipeline;
         const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
@@ -399,8 +404,11 @@ struct Renderer::Impl {
     }
 
     // The variants a scene's materials need, made once (a few tens of ms each on lavapipe, cold).
-    void ensure_texture_pipelines(bool textured, bool masks, bool texturedDome) {
+    void ensure_texture_pipelines(bool textured, bool masks, bool texturedDome, bool areaLights) {
         if (textured && !resolveTextured) resolveTextured = compute_pipeline(resolve_comp, sizeof(resolve_comp), true);
+        if (areaLights && !resolveAreaLights) resolveAreaLights = compute_pipeline(resolve_comp, sizeof(resolve_comp), false, true);
+        if (areaLights && textured && !resolveTexturedAreaLights)
+            resolveTexturedAreaLights = compute_pipeline(resolve_comp, sizeof(resolve_comp), true, true);
         if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
         if (masks && !rasterMasked) {
             rasterMasked = graphics_pipeline(true);
@@ -772,15 +780,18 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
     // The pool: the materials' images, then the textured dome lights' (re-uploaded only when that set changes).
     std::vector<std::shared_ptr<const TextureImage>> poolImages = s.materialImages;
-    bool texturedDome = false;
-    for (const LightDesc& light : scene.lights_)
+    bool texturedDome = false, areaLights = false;
+    for (const LightDesc& light : scene.lights_) {
+        areaLights = areaLights || light.type == LightType::Rect || light.type == LightType::Sphere;
         if (light.type == LightType::Dome && light.texture) {
             texturedDome = true;
             if (std::find(poolImages.begin(), poolImages.end(), light.texture) == poolImages.end()) poolImages.push_back(light.texture);
         }
+    }
+    areaLights = areaLights || texturedDome;
     if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages));
     s.ensure_texture_pipelines(std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(), s.anyMasked,
-                               texturedDome);
+                               texturedDome, areaLights);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
@@ -1013,7 +1024,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 for (uint32_t m = 0; m < s.materialCount; ++m) {
                     // Materials with textures through the variant that samples them; only the colour AOV shades.
                     const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
-                    const VkPipeline pipeline = textured ? s.resolveTextured : s.resolve;
+                    const VkPipeline pipeline = areaLights ? (textured ? s.resolveTexturedAreaLights : s.resolveAreaLights)
+                                                           : (textured ? s.resolveTextured : s.resolve);
                     if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                     PushConstants shade{s.frame.address, uint32_t(aovs[i]), m, 0};
                     vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);

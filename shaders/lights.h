@@ -99,14 +99,18 @@ vec3 dome_direction(GpuLight light, vec3 world) {
     return vec3(dot(world, light.axisX.xyz), dot(world, light.axisY.xyz), dot(world, z));
 }
 
-// Light one light sends towards the eye from the surface point `p` (camera-relative), normal n.
-vec3 light_contribution(GpuFrame frame, GpuLight light, vec3 p, vec3 n, vec3 toEye, vec3 albedo, vec3 f0, float roughness, float occlusion) {
+// Light one light sends towards the eye from the surface point `p` (camera-relative), normal n. `areaLights` (a
+// specialization constant in resolve) false: the frame has only distant lights and untextured domes, and none of
+// the other code is compiled in.
+vec3 light_contribution(GpuFrame frame, GpuLight light, vec3 p, vec3 n, vec3 toEye, vec3 albedo, vec3 f0, float roughness, float occlusion,
+                        bool areaLights) {
     uint type = uint(light.directionType.w);
     vec3 radiance = light.radiance.rgb;
     if (type == TS_LIGHT_DISTANT) return radiance * direct_light(n, toEye, -light.directionType.xyz, albedo, f0, roughness);
     float nv = max(dot(n, toEye), 0.0);
-    if (type == TS_LIGHT_DOME) {  // the occlusion input scales it
-        if (light.texture == TS_NO_TEXTURE) return radiance * occlusion * (albedo + environment_reflectance(f0, roughness, nv));
+    if (!areaLights || (type == TS_LIGHT_DOME && light.texture == TS_NO_TEXTURE))  // a uniform dome; occlusion scales it
+        return radiance * occlusion * (albedo + environment_reflectance(f0, roughness, nv));
+    if (type == TS_LIGHT_DOME) {
         vec3 reflected = reflect(-toEye, n);
         return radiance * occlusion * (albedo * environment_irradiance(frame, dome_direction(light, n)) +
                                        environment_reflectance(f0, roughness, nv) * environment_irradiance(frame, dome_direction(light, reflected)));

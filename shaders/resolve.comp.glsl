@@ -12,6 +12,8 @@ layout(local_size_x = TS_SHADE_GROUP_SIZE) in;
 
 // The pipeline variant for materials with textures (the renderer picks it per bin).
 layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
+// The variant for frames with area lights or a textured dome (lights.h).
+layout(constant_id = TS_SPEC_AREA_LIGHTS) const bool AREA_LIGHTS = false;
 
 vec3 decode_octahedral(uint packed) {
     vec2 e = unpackSnorm2x16(packed);
@@ -163,7 +165,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     vec3 toEye = -direction;
     vec3 color = emission;
     for (uint i = 0u; i < frame.viewport.w; ++i)  // no shadowing yet
-        color += light_contribution(frame, frame.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion);
+        color += light_contribution(frame, frame.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }
 

@@ -135,6 +135,9 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // materials with textures, the rasterizers' for frames with opacity masks. On lavapipe the texture code merely present
 // in a shader, its branch never taken, made every pixel of every material 5x slower to resolve (docs/benchmarks.md).
 #define TS_SPEC_TEXTURES 0
+// Specialization constant of resolve's variant for frames with area lights (rect, sphere) or a textured dome: their
+// shading code, present but not run, made the frames without them 3x slower to resolve on lavapipe.
+#define TS_SPEC_AREA_LIGHTS 1
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
