@@ -59,6 +59,34 @@ class _Group:
     order: list[str] = field(default_factory=list)
 
 
+class _Purposes:
+    """Computed purposes along a depth-first walk, by UsdGeom's rule: a prim's authored purpose, else its nearest
+    ancestor's (`inherited` above the walk's root)."""
+
+    def __init__(self, inherited: str = UsdGeom.Tokens.default_):
+        self.inherited = inherited
+        self._authored: list[tuple] = []  # (path, purpose) of the ancestors that author one, outermost first
+
+    def of(self, prim: Usd.Prim, path) -> str:
+        while self._authored and not path.HasPrefix(self._authored[-1][0]):
+            self._authored.pop()
+        attribute = UsdGeom.Imageable(prim).GetPurposeAttr()
+        if attribute.HasAuthoredValue():
+            self._authored.append((path, attribute.Get()))
+            return self._authored[-1][1]
+        return self._authored[-1][1] if self._authored else self.inherited
+
+
+def inherited_purpose(prim: Usd.Prim) -> str:
+    """The purpose a prim's children inherit from it and its ancestors."""
+    while prim and not prim.IsPseudoRoot():
+        imageable = UsdGeom.Imageable(prim)
+        if imageable:
+            return imageable.ComputePurpose()
+        prim = prim.GetParent()
+    return UsdGeom.Tokens.default_
+
+
 @dataclass
 class _Found:
     """What a walk of part of the stage found outside instancing contexts."""
@@ -70,8 +98,10 @@ class _Found:
 
 class UsdSceneDelegate(_tessera.SceneDelegate):
     def __init__(self, stage: Usd.Stage, render_index, time: Usd.TimeCode = Usd.TimeCode.Default(), refine_level: int = 2,
-                 build_settings: _tessera.BuildSettings | None = None):
+                 build_settings: _tessera.BuildSettings | None = None, purposes=(UsdGeom.Tokens.render,)):
         super().__init__()
+        # Geometry of these purposes is drawn, besides `default` (Hydra's render tags); the others' is not read.
+        self.purposes = {UsdGeom.Tokens.default_, *purposes}
         self.refine_level = refine_level  # uniform refinements of subdivision surfaces (catmullClark, loop, bilinear)
         # The render-wide build settings; a mesh's authored TesseraMeshAPI attributes override them (mesh_settings.py).
         self.build_settings = build_settings or _tessera.BuildSettings()
@@ -109,8 +139,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _walk(self, root: Usd.Prim, hidden: bool, found: _Found) -> None:
         """Walks `root`'s subtree outside instancing. `hidden`: an ancestor of `root` is invisible. Gprims under an
-        invisible prim are still found (they sync their visibility alone); lights and instancing there are not."""
+        invisible prim are still found (they sync their visibility alone); lights and instancing there are not.
+        Geometry and instancing of a purpose not rendered is not read (its descendants may author another purpose);
+        cameras and lights are used whatever their purpose, as Hydra's render tags apply to geometry."""
         hidden_under = root.GetPath() if hidden else None
+        purposes = _Purposes(inherited_purpose(root.GetParent()) if not root.IsPseudoRoot() else UsdGeom.Tokens.default_)
         it = iter(Usd.PrimRange(root))
         for prim in it:
             if prim.IsPseudoRoot():
@@ -119,22 +152,20 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             if hidden_under is not None and not path.HasPrefix(hidden_under):
                 hidden_under = None
             imageable, role = self._kind(prim)
+            drawn = True
             if imageable:
-                geom = UsdGeom.Imageable(prim)
-                if geom.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
-                    it.PruneChildren()
-                    continue
-                if hidden_under is None and geom.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
+                drawn = purposes.of(prim, path) in self.purposes
+                if hidden_under is None and UsdGeom.Imageable(prim).GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
             if prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
-                if hidden_under is None:
+                if hidden_under is None and drawn:
                     found.natives.setdefault(str(prim.GetPrototype().GetPath()), []).append(str(path))
                 it.PruneChildren()
                 continue
             if role is None:
                 continue
             if role == "pointInstancer":
-                if hidden_under is None:
+                if hidden_under is None and drawn:
                     found.instancers.append(str(path))
                 it.PruneChildren()
             elif role == "camera":  # visibility does not apply to looking through a camera
@@ -142,6 +173,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             elif role in _LIGHT_TYPES:
                 if hidden_under is None:
                     found.sprims[str(path)] = role
+            elif not drawn:
+                continue  # geometry of a purpose not rendered: not read
             elif role == "mesh":
                 found.rprims[str(path)] = prim
             else:
@@ -175,15 +208,17 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if frame is None:
             frame = root
         it = iter(Usd.PrimRange(root))
+        purposes = _Purposes(inherited_purpose(root.GetParent()) if root.GetParent() else UsdGeom.Tokens.default_)
         for prim in it:
             imageable = UsdGeom.Imageable(prim)
             if imageable:
                 if imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                     it.PruneChildren()
                     continue
-                if imageable.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
-                    it.PruneChildren()
-                    continue
+                if purposes.of(prim, prim.GetPath()) not in self.purposes:
+                    if prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer):
+                        it.PruneChildren()
+                    continue  # not read; its descendants may author a purpose that is drawn
             if prim.IsInstance():  # a nested native instance: its own context, one per encounter
                 prototype = prim.GetPrototype()
                 watched.add(str(prototype.GetPath()))
@@ -301,7 +336,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _outside_state(self, prim: Usd.Prim) -> bool | None:
         """For a walk from `prim`: whether an ancestor hides it (True), or None when it is not walked from the top
-        (inside a prototype, an instance or a PointInstancer, where its group re-makes it; or a guide or proxy)."""
+        (inside a prototype, an instance or a PointInstancer, where its group re-makes it)."""
         if prim.IsPseudoRoot():
             return False
         if prim.IsInPrototype() or prim.IsInstanceProxy():
@@ -313,8 +348,6 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 return None
             imageable = UsdGeom.Imageable(parent)
             if imageable:
-                if imageable.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
-                    return None
                 hidden = hidden or imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible
             parent = parent.GetParent()
         return hidden
@@ -678,10 +711,11 @@ def camera_desc(camera: Gf.Camera):
     return desc
 
 
-def framing_camera(stage: Usd.Stage, time: Usd.TimeCode, width: int, height: int):
+def framing_camera(stage: Usd.Stage, time: Usd.TimeCode, width: int, height: int, purposes=(UsdGeom.Tokens.render,)):
     """The camera OpenUSD's image tests call -frameAll (testUsdImagingGLBasicDrawing): looking down the
-    stage's horizontal depth axis from one bounds-diagonal away, 60 degrees vertical field of view."""
-    cache = UsdGeom.BBoxCache(time, [UsdGeom.Tokens.default_, UsdGeom.Tokens.render], useExtentsHint=True)
+    stage's horizontal depth axis from one bounds-diagonal away, 60 degrees vertical field of view. The bounds are
+    those of the purposes drawn."""
+    cache = UsdGeom.BBoxCache(time, [UsdGeom.Tokens.default_, *purposes], useExtentsHint=True)
     box = cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
     if box.IsEmpty():
         center, size = Gf.Vec3d(0, 0, 0), 1.0

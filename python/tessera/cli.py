@@ -9,7 +9,16 @@ import re
 import sys
 import time
 
-from .session import AOVS, RASTER_MODES, VISUALIZATIONS
+from .session import AOVS, PURPOSES, RASTER_MODES, VISUALIZATIONS
+
+
+def _purposes(text: str) -> tuple[str, ...]:
+    names = tuple(p.strip() for p in text.split(",") if p.strip())
+    unknown = [p for p in names if p not in PURPOSES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"'{text}': purposes are a comma-separated list of {', '.join(PURPOSES)} "
+                                         "(default is always drawn)")
+    return names
 
 
 def _resolution(text: str) -> tuple[int, int]:
@@ -85,11 +94,14 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--stats", help="write frame statistics to this JSON file (with --frames: {\"frames\": [one per frame]})")
     render.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N",
                         help="uniform refinements of subdivision surfaces before the DAG (default 2; 0 draws the cage)")
+    render.add_argument("--purposes", type=_purposes, default=("render",), metavar="render,proxy,guide",
+                        help="UsdGeom purposes drawn besides default (default: render); the others are not read")
     render.add_argument("--device", help="Vulkan device: gpu, cpu, an index or part of its name (default: $TESSERA_DEVICE, else the best)")
     build_cmd = commands.add_parser("build", help="build every mesh of a stage into the mesh cache ($TESSERA_CACHE)")
     build_cmd.add_argument("stage", help="USD stage")
     build_cmd.add_argument("--frame", type=float, help="time code (default: the stage's default time)")
     build_cmd.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N", help="as for render (default 2)")
+    build_cmd.add_argument("--purposes", type=_purposes, default=("render",), metavar="render,proxy,guide", help="as for render (default render)")
     bench = commands.add_parser("bench", help="benchmarks: tables of speed, memory and error")
     benches = bench.add_subparsers(dest="bench", required=True)
     build = benches.add_parser("build", help="cluster DAG build: speed, memory, depth, error per level")
@@ -138,7 +150,8 @@ def _render(args) -> int:
     else:
         outputs = [args.output]
     started = time.perf_counter()
-    session = Session(args.stage, frame=frames[0] if frames else args.frame, device=args.device, refine_level=args.refine_level)
+    session = Session(args.stage, frame=frames[0] if frames else args.frame, device=args.device, refine_level=args.refine_level,
+                      purposes=args.purposes)
     loaded = time.perf_counter()
     camera = args.camera or (session.camera_paths()[0] if session.camera_paths() else None)
     all_stats, validation_errors = [], []
@@ -202,7 +215,7 @@ def _build(args) -> int:
     stage = _open_stage(args.stage)
     collector = _Collector()
     scene = UsdSceneDelegate(stage, collector, Usd.TimeCode(args.frame) if args.frame is not None else Usd.TimeCode.Default(),
-                             args.refine_level)
+                             args.refine_level, purposes=args.purposes)
     scene.populate()
     total, done, cached, triangles, failed = len(collector.meshes), 0, 0, 0, 0
     started = time.perf_counter()

@@ -14,6 +14,8 @@ AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triang
 # Debug views the color AOV can show instead of shading (renderer.h: Visualize).
 VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw", "uv")
 RASTER_MODES = ("auto", "hardware", "software")
+# UsdGeom purposes a render may draw besides `default` (which is always drawn).
+PURPOSES = ("render", "proxy", "guide")
 
 
 class StageError(RuntimeError):
@@ -70,8 +72,11 @@ class Session:
     """
 
     def __init__(self, stage, *, frame: float | None = None, device: str | None = None, validation: bool | None = None,
-                 refine_level: int = 2, build_settings: _tessera.BuildSettings | dict | None = None):
-        """`build_settings` (a BuildSettings or a dict of tessera.build_mesh's keywords) applies to every mesh."""
+                 refine_level: int = 2, build_settings: _tessera.BuildSettings | dict | None = None,
+                 purposes=("render",)):
+        """`build_settings` (a BuildSettings or a dict of tessera.build_mesh's keywords) applies to every mesh.
+        `purposes`: the UsdGeom purposes drawn besides `default` (PURPOSES; `render` by default, as usdview's
+        render mode and husk); geometry of the others is not read."""
         from pxr import Usd
 
         from .usd import ChangeTracker, UsdSceneDelegate
@@ -82,7 +87,11 @@ class Session:
         self.index = _tessera.RenderIndex(self.delegate)
         if isinstance(build_settings, dict):
             build_settings = _tessera.BuildSettings(**build_settings)
-        self.scene = UsdSceneDelegate(self.stage, self.index, self.time, refine_level, build_settings)
+        self.purposes = tuple(purposes)
+        unknown = [p for p in self.purposes if p not in PURPOSES]
+        if unknown:
+            raise StageError(f"unknown purpose {', '.join(map(repr, unknown))} (choose from {', '.join(PURPOSES)}; default is always drawn)")
+        self.scene = UsdSceneDelegate(self.stage, self.index, self.time, refine_level, build_settings, self.purposes)
         self.scene.populate()
         self._changes = ChangeTracker(self.stage)  # edits from here on re-sync what they touch
 
@@ -140,7 +149,7 @@ class Session:
                 raise StageError(f"{camera}: not a camera on this stage (cameras: {', '.join(self.scene.cameras) or 'none'})")
             camera_id = camera
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
-        fallback = framing_camera(self.stage, self.time, width, height) if not camera_id else _tessera.CameraDesc()
+        fallback = framing_camera(self.stage, self.time, width, height, self.purposes) if not camera_id else _tessera.CameraDesc()
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
                                            vis or "none", raster, bool(occlusion))
         diagnostics = self.index.take_diagnostics()
