@@ -1,6 +1,7 @@
 """Stage-level options and problems: purposes drawn, render settings, instancer cycles, missing payloads, --strict."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -88,3 +89,54 @@ def test_cli_purposes(tmp_path):
     assert counts == {None: 3, "render,proxy": 5, "guide": 2}
     with pytest.raises(SystemExit):
         cli.main(["render", str(stage_file), "-o", str(tmp_path / "x.exr"), "--purposes", "render,bogus"])
+
+
+# -- bad input -------------------------------------------------------------------------------------------------------
+
+BAD = Path(__file__).parent / "testBadInput"
+
+
+def test_instancer_cycle_is_an_error_naming_the_prims_and_the_rest_renders():
+    session = tessera.Session(BAD / "instancer_cycle.usda", validation=True)
+    result = session.render(resolution=(64, 64), aovs=["primId"])  # the framing camera's bounds leave the cycle out
+    assert result.errors == ["/World/A: PointInstancer cycle (/World/A -> /World/A/Protos/B -> /World/A); "
+                             "the copies inside the cycle are skipped"]
+    assert _drawn(result) == {"/World/Good"}
+
+
+def test_missing_payload_is_a_warning_naming_the_asset():
+    result = tessera.Session(BAD / "missing_payload.usda", validation=True).render(resolution=(64, 64), aovs=["primId"])
+    assert not result.errors
+    [warning] = result.warnings
+    assert warning.startswith("/World/Loaded: could not open asset @") and "missing_asset.usd@ for payload" in warning
+    assert _drawn(result) == {"/World/Good"}
+
+
+def test_a_variant_switched_to_a_missing_payload_is_reported_at_the_next_render():
+    stage = Usd.Stage.CreateInMemory()
+    _camera(stage)
+    _quad(stage, "/Good", 0.0)
+    holder = UsdGeom.Xform.Define(stage, "/Holder").GetPrim()
+    variants = holder.GetVariantSets().AddVariantSet("load")
+    for name in ("none", "missing"):
+        variants.AddVariant(name)
+    variants.SetVariantSelection("missing")
+    with variants.GetVariantEditContext():
+        holder.GetPayloads().AddPayload("./not_there.usd")
+    variants.SetVariantSelection("none")
+    session = tessera.Session(stage, validation=True)
+    assert not session.render(camera="/Camera", resolution=(64, 16)).warnings
+    variants.SetVariantSelection("missing")
+    result = session.render(camera="/Camera", resolution=(64, 16), aovs=["primId"])
+    assert len(result.warnings) == 1 and "not_there.usd" in result.warnings[0] and result.warnings[0].startswith("/Holder: ")
+    assert _drawn(result) == {"/Good"}
+    assert not session.render(camera="/Camera", resolution=(64, 16)).warnings, "reported once"
+
+
+@pytest.mark.parametrize("stage_file, problems", [("missing_payload.usda", True), ("instancer_cycle.usda", True),
+                                                   ("../testCube/cube.usda", False)])
+def test_strict_exit_status(tmp_path, stage_file, problems):
+    argv = ["render", str(BAD / stage_file), "-o", str(tmp_path / "out.exr"), "--resolution", "32x32"]
+    assert cli.main(argv) == 0, "problems with the stage are reported, and the image written"
+    assert cli.main(argv + ["--strict"]) == (1 if problems else 0)
+    assert (tmp_path / "out.exr").exists()

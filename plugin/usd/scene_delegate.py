@@ -116,6 +116,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         self.cameras: list[str] = []  # in stage order; the first is the default camera
         self.lights: list[str] = []
         self.warnings: list[str] = []
+        self.errors: list[str] = []  # prims left out for what is wrong with the stage (an instancer cycle)
+        self._instancer_chain: list[str] = []  # the PointInstancers being visited, outermost first (cycles)
+        self.instancer_cycles: set[str] = set()  # PointInstancers found in a cycle (bounds must not follow them)
+        self._composition_errors: set[str] = set()  # reported already
         self._paths = PathIndex()  # prim path -> ids of the rprims and sprims read from that prim
         self._watch = PathIndex()  # prim path -> keys of the instancing groups that read its subtree
         self._material_users: dict[str, set[str]] = {}  # material path -> ids of the rprims bound to it
@@ -129,7 +133,20 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     # -- populate ---------------------------------------------------------------------------------
 
     def populate(self) -> None:
+        self._report_composition_errors()
         self._repopulate("/", _dirty.ALL)
+
+    def _report_composition_errors(self) -> None:
+        """USD's composition errors (a payload, reference or sublayer whose asset cannot be opened, ...) as warnings
+        naming the asset and the prim that introduced it, each once; the prim composes without it."""
+        for error in self.stage.GetCompositionErrors():
+            text = str(error).strip()
+            if text in self._composition_errors:
+                continue
+            self._composition_errors.add(text)
+            site = getattr(error, "rootSite", None)
+            where = str(site.path) if site is not None and hasattr(site, "path") else "stage"
+            self.warnings.append(f"{where}: {text[:1].lower()}{text[1:].rstrip('.')}; the prim is read without it")
 
     def _relative(self, prim: Usd.Prim, frame: Usd.Prim | None) -> np.ndarray:
         if frame is None:
@@ -241,6 +258,23 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _visit_point_instancer(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
                                context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
+        prim = instancer.GetPrim()
+        path = prim.GetPath()
+        if str(path) in self._instancer_chain:  # a prototype instances an instancer that instances it: no end
+            chain = self._instancer_chain[self._instancer_chain.index(str(path)):] + [str(path)]
+            self.instancer_cycles.update(chain)
+            message = f"{path}: PointInstancer cycle ({' -> '.join(chain)}); the copies inside the cycle are skipped"
+            if message not in self.errors:
+                self.errors.append(message)
+            return
+        self._instancer_chain.append(str(path))
+        try:
+            self._visit_point_instancer_body(instancer, copies, frame, context, records, watched)
+        finally:
+            self._instancer_chain.pop()
+
+    def _visit_point_instancer_body(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
+                                    context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
         prim = instancer.GetPrim()
         path = prim.GetPath()
         watched.add(str(path))
@@ -507,6 +541,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         roots = _outermost(resynced)
         if roots:
             self._time_varying = None  # recomposed: what varies in time is looked up again when next needed
+            self._report_composition_errors()  # a variant or reference switched to an asset that cannot be opened
         for root in roots:
             self._repopulate(root, _dirty.ALL)
         for path, names in changed.items():
@@ -711,12 +746,30 @@ def camera_desc(camera: Gf.Camera):
     return desc
 
 
-def framing_camera(stage: Usd.Stage, time: Usd.TimeCode, width: int, height: int, purposes=(UsdGeom.Tokens.render,)):
+def _world_bounds(stage: Usd.Stage, cache: UsdGeom.BBoxCache, avoid: set[str]) -> Gf.Range3d:
+    """The stage's bounds, leaving out the subtrees of the prims in `avoid` (PointInstancers in a cycle, which
+    USD's bounds computation would follow forever)."""
+    if not avoid:
+        return cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
+    box = Gf.Range3d()
+    it = iter(Usd.PrimRange(stage.GetPseudoRoot()))
+    for prim in it:
+        path = str(prim.GetPath())
+        if path in avoid:
+            it.PruneChildren()
+        elif not any(is_at_or_under(a, path) for a in avoid):  # holds none of them: its bound as a whole
+            box.UnionWith(cache.ComputeWorldBound(prim).ComputeAlignedRange())
+            it.PruneChildren()
+    return box
+
+
+def framing_camera(stage: Usd.Stage, time: Usd.TimeCode, width: int, height: int, purposes=(UsdGeom.Tokens.render,),
+                   avoid: set[str] = frozenset()):
     """The camera OpenUSD's image tests call -frameAll (testUsdImagingGLBasicDrawing): looking down the
     stage's horizontal depth axis from one bounds-diagonal away, 60 degrees vertical field of view. The bounds are
-    those of the purposes drawn."""
+    those of the purposes drawn, without the subtrees of the prims in `avoid`."""
     cache = UsdGeom.BBoxCache(time, [UsdGeom.Tokens.default_, *purposes], useExtentsHint=True)
-    box = cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
+    box = _world_bounds(stage, cache, set(avoid))
     if box.IsEmpty():
         center, size = Gf.Vec3d(0, 0, 0), 1.0
     else:

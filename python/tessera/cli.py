@@ -97,6 +97,8 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--purposes", type=_purposes, default=("render",), metavar="render,proxy,guide",
                         help="UsdGeom purposes drawn besides default (default: render); the others are not read")
     render.add_argument("--device", help="Vulkan device: gpu, cpu, an index or part of its name (default: $TESSERA_DEVICE, else the best)")
+    render.add_argument("--strict", action="store_true",
+                        help="exit with status 1 when the stage gave any error or warning (the image is still written)")
     build_cmd = commands.add_parser("build", help="build every mesh of a stage into the mesh cache ($TESSERA_CACHE)")
     build_cmd.add_argument("stage", help="USD stage")
     build_cmd.add_argument("--frame", type=float, help="time code (default: the stage's default time)")
@@ -154,7 +156,7 @@ def _render(args) -> int:
                       purposes=args.purposes)
     loaded = time.perf_counter()
     camera = args.camera or (session.camera_paths()[0] if session.camera_paths() else None)
-    all_stats, validation_errors = [], []
+    all_stats, validation_errors, stage_problems = [], [], 0
     for number, output in enumerate(outputs):
         frame_started = time.perf_counter()
         if frames is not None:
@@ -182,10 +184,14 @@ def _render(args) -> int:
             stats.update(seconds={"load": loaded - started, "render": rendered - loaded, "total": time.perf_counter() - started})
         all_stats.append(stats)
         validation_errors += [e for e in result.errors if e.startswith("validation error")]
+        stage_problems += len(result.warnings) + len(result.errors)
     if args.stats:
         with open(args.stats, "w") as f:
             json.dump(all_stats[0] if frames is None else
                       {"frames": all_stats, "seconds": {"load": loaded - started, "total": time.perf_counter() - started}}, f, indent=2)
+    if args.strict and stage_problems:
+        print(f"tessera: --strict: {stage_problems} error(s) and warning(s) about the stage", file=sys.stderr)
+        return 1
     return 1 if validation_errors else 0
 
 

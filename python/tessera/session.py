@@ -149,13 +149,16 @@ class Session:
                 raise StageError(f"{camera}: not a camera on this stage (cameras: {', '.join(self.scene.cameras) or 'none'})")
             camera_id = camera
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
-        fallback = framing_camera(self.stage, self.time, width, height, self.purposes) if not camera_id else _tessera.CameraDesc()
+        fallback = (framing_camera(self.stage, self.time, width, height, self.purposes, self.scene.instancer_cycles)
+                    if not camera_id else _tessera.CameraDesc())
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
                                            vis or "none", raster, bool(occlusion))
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)
+        errors = list(self.scene.errors) + list(errors)
         self.scene.warnings.clear()
+        self.scene.errors.clear()
         messages = self.delegate.take_validation_messages()
         if messages:
             errors = list(errors) + messages
