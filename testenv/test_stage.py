@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender
 
 import tessera
 from tessera import cli
@@ -140,3 +140,77 @@ def test_strict_exit_status(tmp_path, stage_file, problems):
     assert cli.main(argv) == 0, "problems with the stage are reported, and the image written"
     assert cli.main(argv + ["--strict"]) == (1 if problems else 0)
     assert (tmp_path / "out.exr").exists()
+
+
+# -- render settings -------------------------------------------------------------------------------------------------
+
+SETTINGS = Path(__file__).parent / "testRenderSettings" / "render_settings.usda"
+
+
+def test_render_settings_are_read_from_the_prim_the_stage_names():
+    from tessera.usd import render_settings
+
+    warnings = []
+    settings = render_settings.read(Usd.Stage.Open(str(SETTINGS)), None, warnings)
+    assert (settings.path, settings.camera, settings.resolution, settings.purposes) == ("/Render/Settings", "/World/Side", (200, 100), ("proxy",))
+    beauty, depth = settings.products
+    assert (beauty.name, beauty.camera, beauty.resolution, beauty.aovs) == ("beauty.exr", "/World/Side", (200, 100), ["color", "primId"])
+    assert (depth.name, depth.camera, depth.resolution, depth.aovs) == ("passes/depth.exr", "/World/Top", (64, 48), ["depth"])
+    assert warnings == ["/Render/Vars/Diffuse: lpe 'diffuse' is not an AOV Tessera writes (color, depth, normal, primId, "
+                        "instanceId, clusterId, triangleId); it is skipped"]
+    preview = render_settings.read(Usd.Stage.Open(str(SETTINGS)), "/Render/Preview", [])
+    assert (preview.camera, preview.resolution, preview.purposes) == ("/World/Top", (40, 30), ("render",)), "includedPurposes' fallback"
+    with pytest.raises(ValueError, match="/World/Box: not a RenderSettings prim"):
+        render_settings.read(Usd.Stage.Open(str(SETTINGS)), "/World/Box", [])
+
+
+def test_several_settings_without_a_choice_are_a_warning_and_the_only_one_is_used():
+    from tessera.usd import render_settings
+
+    stage = Usd.Stage.CreateInMemory()
+    first = UsdRender.Settings.Define(stage, "/Render/First")
+    first.GetResolutionAttr().Set(Gf.Vec2i(10, 20))
+    warnings = []
+    settings = render_settings.read(stage, None, warnings)
+    assert settings.path == "/Render/First" and settings.resolution == (10, 20) and not warnings
+    UsdRender.Settings.Define(stage, "/Render/Second")
+    assert render_settings.read(stage, None, warnings) is None
+    assert warnings == ["several RenderSettings prims (/Render/First, /Render/Second) and no renderSettingsPrimPath to "
+                        "choose one; none is used"]
+    stage.SetMetadata("renderSettingsPrimPath", "/Render/Second")
+    assert render_settings.read(stage, None, []).resolution == (2048, 1080), "the schema's fallback resolution"
+
+
+def test_cli_writes_every_render_product(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # product names are relative to the working directory, as for husk
+    stats = tmp_path / "stats.json"
+    assert cli.main(["render", str(SETTINGS), "--stats", str(stats)]) == 0
+    color, ids, depth = (tessera.read_image(str(tmp_path / name)) for name in ("beauty.exr", "beauty.primId.exr", "passes/depth.exr"))
+    assert color.shape[:2] == ids.shape[:2] == (100, 200) and depth.shape[:2] == (48, 64)
+    products = json.loads(stats.read_text())["products"]
+    assert [(p["product"], p["camera"], p["aovs"], p["rprims"]) for p in products] == [
+        ("/Render/Products/Beauty", "/World/Side", ["color", "primId"], 2), ("/Render/Products/Depth", "/World/Top", ["depth"], 2)]
+    assert np.isfinite(depth[24, 32, 0]) and not np.isfinite(depth[0, 0, 0]), "the box seen from the top, background around it"
+    assert cli.main(["render", str(SETTINGS), "--strict"]) == 1, "the unusable RenderVar is a warning"
+
+
+def test_cli_flags_win_over_render_settings(tmp_path):
+    stats = tmp_path / "stats.json"
+    out = tmp_path / "out.exr"
+    assert cli.main(["render", str(SETTINGS), "-o", str(out), "--resolution", "32x16", "--camera", "/World/Top",
+                     "--purposes", "render", "--stats", str(stats)]) == 0
+    saved = json.loads(stats.read_text())
+    assert (saved["camera"], saved["resolution"], saved["aovs"], saved["rprims"]) == ("/World/Top", [32, 16], ["color", "primId"], 1)
+    assert tessera.read_image(str(tmp_path / "out.primId.exr")).shape[:2] == (16, 32)
+    assert cli.main(["render", str(SETTINGS), "-o", str(out), "--aov", "depth", "--settings", "/Render/Preview", "--stats", str(stats)]) == 0
+    saved = json.loads(stats.read_text())
+    assert (saved["camera"], saved["resolution"], saved["aovs"], saved["render_settings"]) == ("/World/Top", [40, 30], ["depth"], "/Render/Preview")
+
+
+def test_session_reads_render_settings():
+    session = tessera.Session(SETTINGS, validation=True)
+    settings = session.render_settings()
+    product = settings.products[1]
+    result = session.render(camera=product.camera, resolution=product.resolution, aovs=product.aovs)
+    assert result["depth"].pixels.shape[:2] == (48, 64)
+    assert tessera.Session(Usd.Stage.CreateInMemory()).render_settings() is None

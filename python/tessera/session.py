@@ -111,6 +111,15 @@ class Session:
     def _apply_edits(self) -> None:
         self.scene.apply_changes(*self._changes.take())
 
+    def render_settings(self, path: str | None = None):
+        """The stage's UsdRenderSettings as `tessera.usd.render_settings.RenderSettings` (resolution, camera, purposes,
+        products with their AOVs), or None without any: `path`, else the stage's renderSettingsPrimPath, else the only
+        RenderSettings prim under /Render. What cannot be used is a warning of the next render. The session does not
+        apply them by itself: pass them to render() (the `tessera render` command does)."""
+        from .usd import render_settings
+
+        return render_settings.read(self.stage, path, self.scene.warnings)
+
     @property
     def device_name(self) -> str:
         return self.delegate.device_name
