@@ -282,6 +282,16 @@ def test_missing_dome_texture_is_a_warning_and_the_dome_lights_by_its_colour():
     assert result.stats["texture_bytes"] == 0
 
 
+def test_editing_the_dome_texture_re_syncs_the_dome_alone(tmp_path):
+    stage, dome = _dome_stage("no_such_sky.exr")
+    session = tessera.Session(stage, validation=True)
+    session.render(camera="/ToNegZ", resolution=(64, 48))
+    dome.GetTextureFileAttr().Set(Sdf.AssetPath(str(_marker_image(tmp_path / "markers.png"))))
+    result = session.render(camera="/ToPosX", resolution=(64, 48))
+    assert result.stats["synced"] == {"domeLight": 1} and not result.warnings
+    assert result["color"].pixels[24, 4, :3] == pytest.approx([1, 0, 0], abs=1e-3), "the red band at +X"
+
+
 def test_dome_texture_image(tmp_path):
     session = tessera.Session(LIGHTS / "dome_texture.usda", validation=True)
     result = session.render(camera="/World/Camera", resolution=(320, 200))
