@@ -70,8 +70,23 @@ void Material::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits
     desc_ = std::move(desc);
 }
 
-void Light::sync(SceneDelegate& scene, RenderParam&, uint32_t dirtyBits) {
-    if (dirtyBits & (DirtyParams | DirtyTransform)) desc_ = scene.get_light(id());
+bool Light::is_light_type(const std::string& type) {
+    return type == "distantLight" || type == "domeLight" || type == "rectLight" || type == "sphereLight";
+}
+
+void Light::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
+    if (!(dirtyBits & (DirtyParams | DirtyTransform))) return;
+    LightDesc desc = scene.get_light(id());
+    if (!desc.textureFile.empty()) {
+        try {
+            desc.texture = textures_.load(desc.textureFile, ColorSpace::Auto);  // while desc_ holds the old image: shared
+            desc.environment = desc.texture == desc_.texture ? desc_.environment : latlong_irradiance(*desc.texture);
+        } catch (const TextureError& e) {
+            param.warnings.push_back(id() + ": dome texture '" + desc.textureFile + "' cannot be read (" + e.what() +
+                                     "); the dome lights by its colour alone");
+        }
+    }
+    desc_ = std::move(desc);
 }
 
 void Camera::sync(SceneDelegate& scene, RenderParam&, uint32_t dirtyBits) {

@@ -16,7 +16,7 @@ const std::vector<std::string>& RenderDelegate::supported_rprim_types() {
     return types;
 }
 const std::vector<std::string>& RenderDelegate::supported_sprim_types() {
-    static const std::vector<std::string> types{"material", "camera", "distantLight", "domeLight"};
+    static const std::vector<std::string> types{"material", "camera", "distantLight", "domeLight", "rectLight", "sphereLight"};
     return types;
 }
 const std::vector<std::string>& RenderDelegate::supported_bprim_types() {
@@ -32,7 +32,7 @@ std::unique_ptr<Mesh> RenderDelegate::create_rprim(const std::string& type, cons
 std::unique_ptr<Prim> RenderDelegate::create_sprim(const std::string& type, const PrimId& id) {
     if (type == "material") return std::make_unique<Material>(id, scene_.textures());
     if (type == "camera") return std::make_unique<Camera>(id);
-    if (type == "distantLight" || type == "domeLight") return std::make_unique<Light>(id);
+    if (Light::is_light_type(type)) return std::make_unique<Light>(id, scene_.textures());
     return nullptr;
 }
 
@@ -236,7 +236,7 @@ std::vector<Image> RenderIndex::execute(const RenderPassSettings& settings, Fram
     }
     std::vector<LightDesc> lights;
     for (auto& [id, entry] : sprims_)
-        if (entry.type == "distantLight" || entry.type == "domeLight") lights.push_back(static_cast<Light&>(*entry.prim).desc());
+        if (Light::is_light_type(entry.type)) lights.push_back(static_cast<Light&>(*entry.prim).desc());
     if (lights.empty()) {
         // The default rig when a stage has no lights: a key light over the camera's shoulder and a dim dome.
         const Matrix4d& c = camera.cameraToWorld;

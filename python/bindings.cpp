@@ -111,6 +111,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["tessellated_clusters"] = s.tessellatedClusters;
     d["tessellated_triangles"] = s.tessellatedTriangles;
     d["patches"] = s.patches;
+    d["compute_patches"] = s.computePatches;
     d["micro_triangles"] = s.microTriangles;
     d["tessellation_bytes"] = s.tessellationBytes;
     nb::dict gpuMs;
@@ -316,6 +317,14 @@ NB_MODULE(_tessera, m) {
         },
         "path"_a, "color_space"_a = ColorSpace::Auto,
         "Reads an image file as the texture pool stores it (every mip level): its size, levels, format and bytes.");
+    m.def(
+        "latlong_irradiance",
+        [](const std::string& path) {
+            const auto c = latlong_irradiance(read_texture(path, ColorSpace::Auto));
+            return std::vector<float>(c.begin(), c.end());
+        },
+        "path"_a,
+        "A lat-long image's irradiance divided by pi as 9 spherical harmonics coefficients (rgb each), as a dome light uses it.");
     m.def("transform2d", &transform2d, "rotation"_a, "scale"_a, "translation"_a,
           "UsdTransform2d's 2x3 matrix (row-major): scale, then rotate counter-clockwise (degrees), then translate.");
 
@@ -341,12 +350,21 @@ NB_MODULE(_tessera, m) {
         .def_rw("textures", &MaterialDesc::textures)
         .def_rw("uv_primvar", &MaterialDesc::uvPrimvar);
 
-    nb::enum_<LightType>(m, "LightType").value("distant", LightType::Distant).value("dome", LightType::Dome);
+    nb::enum_<LightType>(m, "LightType")
+        .value("distant", LightType::Distant)
+        .value("dome", LightType::Dome)
+        .value("rect", LightType::Rect)
+        .value("sphere", LightType::Sphere);
     nb::class_<LightDesc>(m, "LightDesc")
         .def(nb::init<>())
         .def_rw("type", &LightDesc::type)
         .def_rw("direction", &LightDesc::direction)
-        .def_rw("radiance", &LightDesc::radiance);
+        .def_rw("radiance", &LightDesc::radiance)
+        .def_rw("position", &LightDesc::position)
+        .def_rw("radius", &LightDesc::radius)
+        .def_rw("axis_x", &LightDesc::axisX)
+        .def_rw("axis_y", &LightDesc::axisY)
+        .def_rw("texture_file", &LightDesc::textureFile);
 
     nb::class_<CameraDesc>(m, "CameraDesc")
         .def(nb::init<>())

@@ -10,6 +10,7 @@
 #include "spirv/background_comp.h"
 #include "spirv/bins_comp.h"
 #include "spirv/classify_comp.h"
+#include "spirv/dice_comp.h"
 #include "spirv/cull_comp.h"
 #include "spirv/hzb_comp.h"
 #include "spirv/patch_vert.h"
@@ -434,14 +435,18 @@ struct Renderer::Impl {
     Device& device;
     VkPipelineLayout layout = VK_NULL_HANDLE;
     VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, rasterSoftware = VK_NULL_HANDLE;
-    VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE, resolve = VK_NULL_HANDLE;
-    // Variants with texture code (TS_SPEC_TEXTURES), made when a scene first needs them: resolve for textured
-    // materials, both rasterizers for frames with opacity masks.
-    VkPipeline resolveTextured = VK_NULL_HANDLE, rasterMasked = VK_NULL_HANDLE, rasterSoftwareMasked = VK_NULL_HANDLE;
-    // Runtime tessellation, made when a scene first displaces: the tessellate pass, the patch raster (and its mask
-    // variant), and resolve's variants that rebuild micro-triangles (TS_SPEC_DISPLACEMENT).
-    VkPipeline tessellate = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE, patchRasterMasked = VK_NULL_HANDLE;
-    VkPipeline resolveDisplaced = VK_NULL_HANDLE, resolveDisplacedTextured = VK_NULL_HANDLE;
+    VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
+    // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
+    // first needs them.
+    VkPipeline rasterMasked = VK_NULL_HANDLE, rasterSoftwareMasked = VK_NULL_HANDLE;
+    VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
+    // Resolve's variants, made when a frame first needs them, by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 |
+    // TS_SPEC_AREA_LIGHTS << 2 (textured materials, displaced materials, frames with area lights or a textured dome): on
+    // lavapipe each one's code, present but not run, cost every pixel of the frames that do not need it.
+    std::array<VkPipeline, 8> resolveVariants{};
+    // Runtime tessellation, made when a scene first displaces: the tessellate pass and the patch raster (and its mask
+    // variant).
+    VkPipeline tessellate = VK_NULL_HANDLE, dice = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE, patchRasterMasked = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
@@ -465,15 +470,16 @@ struct Renderer::Impl {
     uint32_t materialCount = 1;
     // Textures: the slots of textured materials, and the pool of the images they read (both empty without textures).
     Buffer textureSlots, texturePool;
-    std::vector<std::shared_ptr<const TextureImage>> poolImages;
+    std::vector<std::shared_ptr<const TextureImage>> poolImages;  // the materials' images, then the dome lights'
+    std::vector<std::shared_ptr<const TextureImage>> materialImages;
     std::vector<bool> maskedMaterials;  // per material: a textured opacity under an opacityThreshold (TS_INSTANCE_MASKED)
-    std::vector<bool> texturedMaterials;  // per material: resolve samples textures (its bin uses resolveTextured)
+    std::vector<bool> texturedMaterials;  // per material: resolve samples textures (its bin uses a textured variant)
     bool anyMasked = false;  // an instance is flagged TS_INSTANCE_MASKED: the rasterizers' mask variants draw the frame
     // Displacement: per material, whether it displaces; per mesh, whether a displaced instance draws it (those get
     // displacement normals); the lists of runtime tessellation, made only for scenes that displace.
     std::vector<bool> displacedMaterials, displacedMeshes;
     bool anyDisplaced = false;
-    Buffer displacementNormals, seams, tessellationList, patches, patchDraws;
+    Buffer displacementNormals, seams, tessellationList, patches, patchDraws, dicePatches;
     uint32_t patchCapacity = 1u << 16;
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
@@ -497,34 +503,35 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, background, nullptr);
         vkDestroyPipeline(vk, raster, nullptr);
         vkDestroyPipeline(vk, rasterSoftware, nullptr);
-        vkDestroyPipeline(vk, resolve, nullptr);
-        vkDestroyPipeline(vk, resolveTextured, nullptr);
         vkDestroyPipeline(vk, rasterMasked, nullptr);
         vkDestroyPipeline(vk, rasterSoftwareMasked, nullptr);
         vkDestroyPipeline(vk, tessellate, nullptr);
+        vkDestroyPipeline(vk, dice, nullptr);
         vkDestroyPipeline(vk, patchRaster, nullptr);
         vkDestroyPipeline(vk, patchRasterMasked, nullptr);
-        vkDestroyPipeline(vk, resolveDisplaced, nullptr);
-        vkDestroyPipeline(vk, resolveDisplacedTextured, nullptr);
+        vkDestroyPipeline(vk, backgroundTextured, nullptr);
+        for (VkPipeline variant : resolveVariants) vkDestroyPipeline(vk, variant, nullptr);
         vkDestroyPipelineLayout(vk, layout, nullptr);
         vkDestroyQueryPool(vk, timestamps, nullptr);
     }
 
-    // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES and TS_SPEC_DISPLACEMENT.
+    // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES, TS_SPEC_DISPLACEMENT, TS_SPEC_AREA_LIGHTS.
     struct Variant {
-        VkBool32 values[2];
-        VkSpecializationMapEntry entries[2] = {{TS_SPEC_TEXTURES, 0, sizeof(VkBool32)}, {TS_SPEC_DISPLACEMENT, sizeof(VkBool32), sizeof(VkBool32)}};
-        VkSpecializationInfo info{2, entries, sizeof(values), values};
-        Variant(bool textures, bool displacement) : values{textures ? VK_TRUE : VK_FALSE, displacement ? VK_TRUE : VK_FALSE} {}
+        VkBool32 values[3];
+        VkSpecializationMapEntry entries[3] = {{TS_SPEC_TEXTURES, 0, sizeof(VkBool32)},
+                                               {TS_SPEC_DISPLACEMENT, sizeof(VkBool32), sizeof(VkBool32)},
+                                               {TS_SPEC_AREA_LIGHTS, 2 * sizeof(VkBool32), sizeof(VkBool32)}};
+        VkSpecializationInfo info{3, entries, sizeof(values), values};
+        Variant(bool textures, bool displacement, bool areaLights) : values{VkBool32(textures), VkBool32(displacement), VkBool32(areaLights)} {}
         Variant(const Variant&) = delete;
     };
 
-    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, bool displacement = false) {
+    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, bool displacement = false, bool areaLights = false) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, displacement);
+        const Variant variant(textures, displacement, areaLights);
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
-                      textures || displacement ? &variant.info : nullptr};
+                      textures || displacement || areaLights ? &variant.info : nullptr};
         info.layout = layout;
         VkPipeline pipeline;
         const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
@@ -540,7 +547,7 @@ struct Renderer::Impl {
         layoutInfo.pPushConstantRanges = &range;
         check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
         cull = compute_pipeline(cull_comp, sizeof(cull_comp));
-        resolve = compute_pipeline(resolve_comp, sizeof(resolve_comp));
+        resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp));
         hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
         classify = compute_pipeline(classify_comp, sizeof(classify_comp));
         bins = compute_pipeline(bins_comp, sizeof(bins_comp));
@@ -555,21 +562,30 @@ struct Renderer::Impl {
     }
 
     // The variants a scene's materials need, made once (a few tens of ms each on lavapipe, cold).
-    void ensure_texture_pipelines(bool textured, bool masks) {
-        if (textured && !resolveTextured) resolveTextured = compute_pipeline(resolve_comp, sizeof(resolve_comp), true);
+    void ensure_texture_pipelines(bool textured, bool masks, bool texturedDome, bool areaLights) {
+        for (bool displaced : {false, anyDisplaced})  // every resolve variant this scene's bins can ask for
+            for (bool light : {false, areaLights})
+                resolve_variant(textured, displaced, light);
+        if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
         if (masks && !rasterMasked) {
             rasterMasked = graphics_pipeline(raster_vert, sizeof(raster_vert), true);
             rasterSoftwareMasked = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), true);
         }
     }
 
-    void ensure_tessellation_pipelines(bool textured, bool masks) {
+    // Resolve's variant for a bin, made on first use.
+    VkPipeline resolve_variant(bool textured, bool displaced, bool areaLights) {
+        VkPipeline& variant = resolveVariants[size_t(textured) | size_t(displaced) << 1 | size_t(areaLights) << 2];
+        if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, displaced, areaLights);
+        return variant;
+    }
+
+    void ensure_tessellation_pipelines(bool masks) {
         if (!tessellate) {
             tessellate = compute_pipeline(tessellate_comp, sizeof(tessellate_comp));
+            dice = compute_pipeline(dice_comp, sizeof(dice_comp));
             patchRaster = graphics_pipeline(patch_vert, sizeof(patch_vert), false);
-            resolveDisplaced = compute_pipeline(resolve_comp, sizeof(resolve_comp), false, true);
         }
-        if (textured && !resolveDisplacedTextured) resolveDisplacedTextured = compute_pipeline(resolve_comp, sizeof(resolve_comp), true, true);
         if (masks && !patchRasterMasked) patchRasterMasked = graphics_pipeline(patch_vert, sizeof(patch_vert), true);
     }
 
@@ -581,7 +597,7 @@ struct Renderer::Impl {
         VkPipelineShaderStageCreateInfo stages[2] = {
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
-        const Variant variant(true, false);
+        const Variant variant(true, false, false);
         if (masks) stages[1].pSpecializationInfo = &variant.info;
         VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
         VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
@@ -911,7 +927,7 @@ struct Renderer::Impl {
         // No textures, no texture memory.
         if (slots.empty()) textureSlots = Buffer{};
         else upload_vector(device, textureSlots, slots);
-        if (images != poolImages) upload_texture_pool(images);
+        materialImages = std::move(images);  // the pool follows at the next frame, with the dome lights' images
     }
 
     // The texture pool: a GpuTexture record per image, then every image's words. Rebuilt when the set of images changes.
@@ -964,6 +980,7 @@ struct Renderer::Impl {
         if (patches.size < uint64_t(patchCapacity) * sizeof(gpu::GpuPatch)) {
             patches = device.create_buffer(uint64_t(patchCapacity) * sizeof(gpu::GpuPatch), MemoryUse::Device);
             patchDraws = device.create_buffer(uint64_t(patchCapacity) * sizeof(VkDrawIndirectCommand), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
+            dicePatches = device.create_buffer(uint64_t(patchCapacity) * 4, MemoryUse::Device);
         }
     }
 
@@ -1027,9 +1044,21 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     s.instancesVersion = scene.instancesVersion_;
     s.materialsVersion = scene.materialsVersion_;
 
-    const bool anyTextured = std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end();
-    s.ensure_texture_pipelines(anyTextured, s.anyMasked);
-    if (s.anyDisplaced) s.ensure_tessellation_pipelines(anyTextured, s.anyMasked);
+    // The pool: the materials' images, then the textured dome lights' (re-uploaded only when that set changes).
+    std::vector<std::shared_ptr<const TextureImage>> poolImages = s.materialImages;
+    bool texturedDome = false, areaLights = false;
+    for (const LightDesc& light : scene.lights_) {
+        areaLights = areaLights || light.type == LightType::Rect || light.type == LightType::Sphere;
+        if (light.type == LightType::Dome && light.texture) {
+            texturedDome = true;
+            if (std::find(poolImages.begin(), poolImages.end(), light.texture) == poolImages.end()) poolImages.push_back(light.texture);
+        }
+    }
+    areaLights = areaLights || texturedDome;
+    if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages));
+    s.ensure_texture_pipelines(std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(), s.anyMasked,
+                               texturedDome, areaLights);
+    if (s.anyDisplaced) s.ensure_tessellation_pipelines(s.anyMasked);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
@@ -1067,13 +1096,31 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const auto& lights = scene.lights_;
         const uint32_t lightCount = uint32_t(std::min<size_t>(lights.size(), TS_MAX_LIGHTS));
         f.viewport = {settings.width, settings.height, s.materialCount, lightCount};
+        bool environmentSet = false;
         for (uint32_t i = 0; i < lightCount; ++i) {
             const LightDesc& l = lights[i];
             double d[3] = {l.direction[0], l.direction[1], l.direction[2]};
             const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
             for (double& x : d) x /= (len > 0 ? len : 1);
-            f.lights[i].directionType = {float(d[0]), float(d[1]), float(d[2]), float(l.type == LightType::Distant ? TS_LIGHT_DISTANT : TS_LIGHT_DOME)};
-            f.lights[i].radiance = {l.radiance[0], l.radiance[1], l.radiance[2], 0};
+            const uint32_t type = l.type == LightType::Distant ? TS_LIGHT_DISTANT
+                                : l.type == LightType::Dome    ? TS_LIGHT_DOME
+                                : l.type == LightType::Rect    ? TS_LIGHT_RECT
+                                                               : TS_LIGHT_SPHERE;
+            gpu::GpuLight& g = f.lights[i];
+            g.directionType = {float(d[0]), float(d[1]), float(d[2]), float(type)};
+            g.radiance = {l.radiance[0], l.radiance[1], l.radiance[2], 0};
+            // Places relative to the camera, in double (as instances are).
+            g.position = {float(l.position[0] - cam.position[0]), float(l.position[1] - cam.position[1]), float(l.position[2] - cam.position[2]),
+                          float(l.radius)};
+            g.axisX = {float(l.axisX[0]), float(l.axisX[1]), float(l.axisX[2]), 0};
+            g.axisY = {float(l.axisY[0]), float(l.axisY[1]), float(l.axisY[2]), 0};
+            g.texture = TS_NO_TEXTURE;
+            // One textured dome lights by its image (the first; the others by their colour).
+            if (l.type == LightType::Dome && l.texture && !environmentSet) {
+                g.texture = uint32_t(std::find(s.poolImages.begin(), s.poolImages.end(), l.texture) - s.poolImages.begin());
+                for (int k = 0; k < 9; ++k) f.environment[k] = {l.environment[3 * k], l.environment[3 * k + 1], l.environment[3 * k + 2], 0};
+                environmentSet = true;
+            }
         }
         // LOD: an error of e units at view depth d covers e * lod.x / d pixels (|P11| maps unit height to NDC,
         // and NDC spans height / 2 pixels per unit).
@@ -1129,6 +1176,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.patches = s.anyDisplaced ? s.patches.address : 0;
         f.patchDraws = s.anyDisplaced ? s.patchDraws.address : 0;
         f.seams = s.anyDisplaced ? s.seams.address : 0;
+        f.dicePatches = s.anyDisplaced ? s.dicePatches.address : 0;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
@@ -1142,6 +1190,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             initial.vertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
             initial.swGroupsZ = 1;
             initial.tessGroupsZ = 1;
+            initial.dicePatchGroupsZ = 1;
             initial.postGroupsY = initial.postGroupsZ = 1;
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
@@ -1177,13 +1226,19 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdDrawIndirect(cmd, s.drawState.handle, 0, 1, sizeof(VkDrawIndirectCommand));
                 vkCmdEndRendering(cmd);
                 mark();
-                // Displaced clusters: patches (one workgroup per cluster, indirect), then one indirect draw per patch.
+                // Displaced clusters: patches (one workgroup per cluster, indirect); the small ones diced and scanned in
+                // compute (one workgroup per patch, indirect), the rest by one indirect draw per patch.
                 if (s.anyDisplaced) {
                     vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.tessellate);
                     vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessGroupsX));
                     barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
-                            VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
+                            VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
+                                VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.dice);
+                    vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatchGroupsX));
+                    barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
+                            VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                     vkCmdBeginRendering(cmd, &rendering);
                     vkCmdSetViewport(cmd, 0, 1, &viewport);
                     vkCmdSetScissor(cmd, 0, 1, &scissor);
@@ -1219,6 +1274,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessClusters), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, patchDraws), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatchGroupsX), 8, 0);  // X and Y
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatches), 4, 0);
                 s.build_hzb(cmd, s.hzbCurrent);
                 barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
@@ -1265,7 +1322,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                             VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 PushConstants background{s.frame.address, uint32_t(aovs[i]), 0, 0};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.background);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, texturedDome && aovs[i] == Aov::Color ? s.backgroundTextured : s.background);
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 VkPipeline bound = VK_NULL_HANDLE;
                 for (uint32_t m = 0; m < s.materialCount; ++m) {
@@ -1273,7 +1330,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                     const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
                     // Displaced materials' pixels may show micro-triangles: the variant that rebuilds them.
                     const bool displaced = !aov_is_id(aovs[i]) && s.material_displaced(m);
-                    const VkPipeline pipeline = displaced ? (textured ? s.resolveDisplacedTextured : s.resolveDisplaced) : textured ? s.resolveTextured : s.resolve;
+                    const VkPipeline pipeline = s.resolve_variant(textured, displaced, areaLights);
                     if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                     PushConstants shade{s.frame.address, uint32_t(aovs[i]), m, 0};
                     vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
@@ -1330,8 +1387,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.tessellatedTriangles = state.tessTriangles;
         frameStats.patches = state.patches;
         frameStats.microTriangles = state.microTriangles;
+        frameStats.computePatches = state.dicePatchesDrawn;
         frameStats.tessellationBytes =
-            s.anyDisplaced ? s.displacementNormals.size + s.seams.size + s.tessellationList.size + s.patches.size + s.patchDraws.size : 0;
+            s.anyDisplaced ? s.displacementNormals.size + s.seams.size + s.tessellationList.size + s.patches.size + s.patchDraws.size + s.dicePatches.size : 0;
         uint64_t ticks[Impl::kTimestamps] = {};
         if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, Impl::kTimestamps, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
             const double ms = device_.timestamp_period_ns() * 1e-6;

@@ -307,6 +307,40 @@ TextureImage read_texture(const std::string& path, ColorSpace colorSpace) {
     return t;
 }
 
+std::array<float, 27> latlong_irradiance(const TextureImage& image) {
+    // The first level at most 128 texels wide: the irradiance is smooth (three bands), so its texels are plenty.
+    const uint32_t format = image.format & TS_TEXTURE_FORMAT_MASK;
+    uint32_t level = 0, offset = 0;
+    while (level + 1 < image.levels && std::max(1u, image.width >> level) > 128) {
+        offset += level_words(format, std::max(1u, image.width >> level), std::max(1u, image.height >> level));
+        ++level;
+    }
+    const uint32_t w = std::max(1u, image.width >> level), h = std::max(1u, image.height >> level);
+    constexpr double pi = 3.14159265358979323846;
+    // Radiance projected on the real spherical harmonics of bands 0-2 (the usual constant factors), each texel
+    // weighted by its solid angle.
+    std::array<double, 27> sum{};
+    std::vector<float> row(size_t(w) * 4);
+    for (uint32_t y = 0; y < h; ++y) {
+        decode_row(image, offset, w, y, row.data());  // rows bottom first: y = 0 is the lowest latitude
+        const double latitude = ((y + 0.5) / h - 0.5) * pi;
+        const double solidAngle = (2.0 * pi / w) * (pi / h) * std::cos(latitude);
+        for (uint32_t x = 0; x < w; ++x) {
+            const double longitude = (0.5 - (x + 0.5) / w) * 2.0 * pi;
+            const double dx = std::cos(latitude) * std::sin(longitude), dy = std::sin(latitude), dz = std::cos(latitude) * std::cos(longitude);
+            const double basis[9] = {0.282095, 0.488603 * dy, 0.488603 * dz, 0.488603 * dx, 1.092548 * dx * dy, 1.092548 * dy * dz,
+                                     0.315392 * (3.0 * dz * dz - 1.0), 1.092548 * dx * dz, 0.546274 * (dx * dx - dy * dy)};
+            for (int i = 0; i < 9; ++i)
+                for (int c = 0; c < 3; ++c) sum[3 * i + c] += row[4 * x + c] * basis[i] * solidAngle;
+        }
+    }
+    // Irradiance convolution per band (pi, 2 pi / 3, pi / 4), then / pi.
+    const double band[9] = {1.0, 2.0 / 3.0, 2.0 / 3.0, 2.0 / 3.0, 0.25, 0.25, 0.25, 0.25, 0.25};
+    std::array<float, 27> coefficients{};
+    for (int i = 0; i < 27; ++i) coefficients[i] = float(sum[i] * band[i / 3]);
+    return coefficients;
+}
+
 std::shared_ptr<const TextureImage> TextureStore::load(const std::string& path, ColorSpace colorSpace) {
     std::error_code error;
     const auto time = std::filesystem::last_write_time(path, error);

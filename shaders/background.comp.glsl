@@ -1,10 +1,36 @@
 // The pixels nothing covers, for the AOV being resolved (push.aov); resolve.comp.glsl shades the others, bin by bin.
 // A shader of its own: on a CPU device (lavapipe) the shading code beside it would cost every pixel, covered or not.
+// Its textured variant (a stage with a textured dome light) shows the dome's image there.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
+#include "surface.h"
+#include "lights.h"
 
 layout(local_size_x = TS_PIXEL_TILE, local_size_y = TS_PIXEL_TILE) in;
+
+// The pipeline variant for a textured dome (the renderer binds it for the colour AOV of such frames).
+layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
+
+// Lat-long coordinates (st, t up) of a direction in the dome's frame, in OpenEXR's convention: longitude
+// atan2(x, z), +pi at the left edge; latitude asin(y), +pi/2 at the top.
+vec2 latlong_st(vec3 d) {
+    return vec2(0.5 - atan(d.x, d.z) / (2.0 * PI), 0.5 + asin(clamp(d.y, -1.0, 1.0)) / PI);
+}
+
+// What the camera sees of the textured dome through the pixel: its image times the light's radiance, filtered over
+// the pixel's footprint (the coordinates' change to the next pixel right and down, across the seam the short way).
+vec3 dome_background(GpuFrame frame, GpuLight light, vec2 pixel) {
+    vec3 origin, direction, right, down;
+    pixel_ray(frame, pixel + 0.5, origin, direction);
+    pixel_ray(frame, pixel + vec2(1.5, 0.5), origin, right);
+    pixel_ray(frame, pixel + vec2(0.5, 1.5), origin, down);
+    vec2 st = latlong_st(normalize(dome_direction(light, direction)));
+    vec2 dx = latlong_st(normalize(dome_direction(light, right))) - st, dy = latlong_st(normalize(dome_direction(light, down))) - st;
+    dx.x -= round(dx.x);
+    dy.x -= round(dy.x);
+    return light.radiance.rgb * sample_texture(frame.textures, light.texture, TS_WRAP_REPEAT | TS_WRAP_CLAMP << 2, st, dx, dy).rgb;
+}
 
 void main() {
     GpuFrame frame = push.frame.f;
@@ -14,7 +40,16 @@ void main() {
     if (VisibilityRef(frame.visibility).data[index] != 0ul) return;
     uint aov = push.aov;
     if (aov >= TS_AOV_PRIM_ID) OutputIdRef(frame.aovOutput).data[index] = uvec4(0xffffffffu);
-    else if (aov == TS_AOV_COLOR) OutputRef(frame.aovOutput).data[index] = frame.background;
+    else if (aov == TS_AOV_COLOR) {
+        vec4 color = frame.background;
+        if (TEXTURED)
+            for (uint i = 0u; i < frame.viewport.w; ++i)
+                if (uint(frame.lights[i].directionType.w) == TS_LIGHT_DOME && frame.lights[i].texture != TS_NO_TEXTURE) {
+                    color = vec4(dome_background(frame, frame.lights[i], vec2(pixel)), 1.0);
+                    break;
+                }
+        OutputRef(frame.aovOutput).data[index] = color;
+    }
     else if (aov == TS_AOV_DEPTH) OutputRef(frame.aovOutput).data[index] = vec4(uintBitsToFloat(0x7f800000u));
     else OutputRef(frame.aovOutput).data[index] = vec4(0.0);
 }

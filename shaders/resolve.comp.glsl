@@ -7,14 +7,15 @@
 #include "frame.h"
 #include "surface.h"
 #include "tessellation.h"
+#include "lights.h"
 
 layout(local_size_x = TS_SHADE_GROUP_SIZE) in;
 
 // The pipeline variants for materials with textures and for displaced ones (the renderer picks them per bin).
 layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
 layout(constant_id = TS_SPEC_DISPLACEMENT) const bool DISPLACED = false;
-
-const float PI = 3.14159265358979;
+// The variant for frames with area lights or a textured dome (lights.h).
+layout(constant_id = TS_SPEC_AREA_LIGHTS) const bool AREA_LIGHTS = false;
 
 vec3 vertex_color(GpuFrame frame, GpuMesh mesh, uint vertex) {
     uint i = vertex - mesh.vertexOffset + mesh.colorOffset;
@@ -51,33 +52,6 @@ vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluste
     if (mode == TS_VIS_INSTANCES) return id_color(visible.x);
     if (mode == TS_VIS_PRIMITIVES) return id_color(instance.primId);
     return id_color(material);  // TS_VIS_SHADING_BINS
-}
-
-// Light reflected towards `toEye` from a distant light arriving from `toLight` with unit radiance: Lambert diffuse
-// plus a GGX microfacet lobe (alpha = roughness^2, Smith-Schlick shadowing, Schlick Fresnel), times the cosine.
-vec3 direct_light(vec3 n, vec3 toEye, vec3 toLight, vec3 albedo, vec3 f0, float roughness) {
-    float nl = dot(n, toLight);
-    if (nl <= 0.0) return vec3(0.0);
-    if (max(f0.r, max(f0.g, f0.b)) <= 0.0) return albedo / PI * nl;  // diffuse only (the same for a whole bin)
-    float nv = max(dot(n, toEye), 1e-4);
-    vec3 h = normalize(toLight + toEye);
-    float nh = max(dot(n, h), 0.0), vh = max(dot(toEye, h), 0.0);
-    float alpha = max(roughness * roughness, 1e-3);
-    float a2 = alpha * alpha;
-    float d = a2 / (PI * (nh * nh * (a2 - 1.0) + 1.0) * (nh * nh * (a2 - 1.0) + 1.0));
-    float k = alpha / 2.0;
-    float g = (nl / (nl * (1.0 - k) + k)) * (nv / (nv * (1.0 - k) + k));
-    vec3 f = f0 + (1.0 - f0) * pow(1.0 - vh, 5.0);
-    return (albedo / PI + d * g * f / (4.0 * nl * nv)) * nl;
-}
-
-// What fraction of a uniform environment the specular lobe reflects (directional albedo), by the analytic fit of
-// the split-sum integral that Karis published for mobile (Unreal Engine 4, 2014).
-vec3 environment_reflectance(vec3 f0, float roughness, float nv) {
-    vec4 r = roughness * vec4(-1.0, -0.0275, -0.572, 0.022) + vec4(1.0, 0.0425, 1.04, -0.04);
-    float a004 = min(r.x * r.x, exp2(-9.28 * nv)) * r.x + r.y;
-    vec2 ab = vec2(-1.04, 1.04) * a004 + r.zw;
-    return max(f0.r, max(f0.g, f0.b)) <= 0.0 ? vec3(0.0) : f0 * ab.x + ab.y;  // no reflectance, no lobe (diffuse only)
 }
 
 // One covered pixel (visibility buffer value `value`, non-zero).
@@ -226,13 +200,8 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     }
     vec3 toEye = -direction;
     vec3 color = emission;
-    for (uint i = 0u; i < frame.viewport.w; ++i) {
-        GpuLight light = frame.lights[i];
-        if (uint(light.directionType.w) == TS_LIGHT_DISTANT)
-            color += light.radiance.rgb * direct_light(n, toEye, -light.directionType.xyz, albedo, f0, roughness);
-        else  // a uniform dome, its light scaled by the occlusion input; no shadowing yet
-            color += light.radiance.rgb * occlusion * (albedo + environment_reflectance(f0, roughness, max(dot(n, toEye), 0.0)));
-    }
+    for (uint i = 0u; i < frame.viewport.w; ++i)  // no shadowing yet
+        color += light_contribution(frame, frame.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }
 

@@ -150,14 +150,19 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_MAX_LIGHTS 8u
 #define TS_LIGHT_DISTANT 0u
 #define TS_LIGHT_DOME 1u
+#define TS_LIGHT_RECT 2u
+#define TS_LIGHT_SPHERE 3u
+#define TS_NO_TEXTURE 0xffffffffu  // GpuLight::texture of a dome without a texture
 
 // Specialization constant (constant_id) that compiles texture work into a pipeline variant: resolve's variant for
 // materials with textures, the rasterizers' for frames with opacity masks. On lavapipe the texture code merely present
 // in a shader, its branch never taken, made every pixel of every material 5x slower to resolve (docs/benchmarks.md).
 #define TS_SPEC_TEXTURES 0
-// The same for displacement: resolve's variant for displaced materials rebuilds micro-triangles; the patch raster's
-// variant samples displacement textures.
+// The same for displacement: resolve's variant for displaced materials rebuilds micro-triangles.
 #define TS_SPEC_DISPLACEMENT 1
+// Specialization constant of resolve's variant for frames with area lights (rect, sphere) or a textured dome: their
+// shading code, present but not run, made the frames without them 3x slower to resolve on lavapipe.
+#define TS_SPEC_AREA_LIGHTS 2
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
@@ -165,6 +170,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_SHADE_GROUP_SIZE 64  // resolve: a material bin's pixels per workgroup
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
 #define TS_TESS_GROUP_SIZE 128       // tessellate: one workgroup per cluster, one thread per triangle
+#define TS_DICE_GROUP_SIZE 256       // dice: one workgroup per patch, a thread per lattice point (<= 153), then per micro-triangle (<= 256)
+#define TS_DICE_MAX_POINTS 153       // (16 + 1)(16 + 2) / 2
 #define TS_HZB_TILE 8
 
 // One cluster of a built mesh's DAG: at most 128 triangles over at most 256 cluster-local vertices. The cut
@@ -271,11 +278,19 @@ struct GpuTextureSlot {
 };
 TS_CHECK_SIZE(GpuTextureSlot, 64);
 
+// A light (lights.h shades with it). Distant: `radiance` is the irradiance it delivers at normal incidence. Rect and
+// sphere: `radiance` is what their surface emits, `position` their centre (camera-relative). Dome: uniform radiance, or
+// with a texture that radiance times the lat-long image's, the image oriented by `axisX` and `axisY`.
 struct GpuLight {
-    vec4 directionType;    // xyz: direction the light travels (world); w: TS_LIGHT_* as float
-    vec4 radiance;         // rgb: colour * intensity * 2^exposure
+    vec4 directionType;    // xyz: the direction a distant light travels, or a rect's front normal (world); w: TS_LIGHT_* as float
+    vec4 radiance;         // rgb: colour * intensity * 2^exposure (normalized by area where asked)
+    vec4 position;         // xyz: rect and sphere centre, camera-relative; w: sphere radius
+    vec4 axisX;            // rect: centre to the middle of its +X edge (world); dome: its local +X axis (world, unit)
+    vec4 axisY;            // rect: centre to the middle of its +Y edge; dome: its local +Y axis (the lat-long's pole)
+    uint texture;          // dome: its lat-long image in the texture pool, else TS_NO_TEXTURE
+    uint pad0, pad1, pad2;
 };
-TS_CHECK_SIZE(GpuLight, 32);
+TS_CHECK_SIZE(GpuLight, 96);
 
 // Indirect arguments of both rasterizers and of the post cull pass, plus the culling counters, written by the
 // cull passes. The rasterizers' arguments are reset between the main and the post pass; the counters add up.
@@ -313,8 +328,13 @@ struct GpuDrawState {
     uint microTriangles;   // micro-triangles of the patches stored (32-bit: saturates past 4 G)
     uint patchDraws;       // patches stored this pass: the count of the patch raster's indirect draws
     uint tessClustersDrawn; // clusters tessellated, both passes
+    uint dicePatchGroupsX; // VkDispatchIndirectCommand of the patch rasterizer: one workgroup per patch of the compute list
+    uint dicePatchGroupsY;
+    uint dicePatchGroupsZ;
+    uint dicePatches;      // patches listed for the compute patch rasterizer (this pass)
+    uint dicePatchesDrawn; // patches the compute rasterizer drew, both passes (the rest went to hardware raster)
 };
-TS_CHECK_SIZE(GpuDrawState, 132);
+TS_CHECK_SIZE(GpuDrawState, 152);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.
@@ -354,6 +374,9 @@ struct GpuFrame {
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     vec4 tessellation;       // x: dicing rate (pixels per micro-edge); y: patch capacity (exact: at most 2^23)
     GpuLight lights[TS_MAX_LIGHTS];
+    // The textured dome's irradiance (times 1/pi: an outgoing diffuse radiance per unit albedo) as 9 spherical
+    // harmonics coefficients (rgb), in the dome's own frame; only read for a dome with a texture.
+    vec4 environment[9];
     address instances;       // GpuInstance[]
     address meshes;          // GpuMesh[]
     address levels;          // GpuLevel[]
@@ -384,8 +407,9 @@ struct GpuFrame {
     address patches;         // GpuPatch[patch capacity]
     address patchDraws;      // VkDrawIndirectCommand[patch capacity]: this pass's patches
     address seams;           // uint[]: UV seams of meshes drawn displaced (GpuMesh.seamVertexOffset, tessellation.h)
+    address dicePatches;     // uint[patch capacity]: this pass's patches for the compute patch rasterizer (dice.comp.glsl)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 32 * TS_MAX_LIGHTS + 8 * 29);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 30);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

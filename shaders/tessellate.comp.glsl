@@ -1,7 +1,8 @@
 // Tessellate: one workgroup per cluster of the tessellation list (clusters of displaced instances near enough for
 // their displacement to show), one thread per triangle. Each triangle gets its edge factors and is split into patches
-// (tessellation.h); each patch is stored with an indirect draw of its own, 3 vertices per micro-triangle, that the
-// patch raster (patch.vert.glsl) draws. Patches are counted past capacity: the CPU grows the list and redraws.
+// (tessellation.h); each patch is stored and listed for the compute patch rasterizer (dice.comp.glsl) when it lies
+// beyond the near plane and is small on screen, else given an indirect draw of its own, 3 vertices per micro-triangle,
+// for the patch raster's hardware path (patch.vert.glsl). Patches are counted past capacity: the CPU grows the list and redraws.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
@@ -24,6 +25,18 @@ uint edge_factor(GpuFrame frame, vec3 a, vec3 b, float fadeA, float fadeB, uint 
         pixels = length((ca.xy / ca.w - cb.xy / cb.w) * halfSize);
     }
     return uint(clamp(ceil(pixels / frame.tessellation.x), 1.0, float(most)));
+}
+
+// Whether the compute patch rasterizer takes a patch (camera-relative corners p, its displacement reaching `reach`
+// further): only beyond the near plane (it does not clip) and within TS_SW_MAX_RADIUS_PIXELS on screen (its edge
+// functions stay small), as for clusters; the rest go to hardware raster.
+bool dice_in_compute(GpuFrame frame, vec3 p[3], float reach) {
+    if ((frame.counts.z & TS_FRAME_HARDWARE_ONLY) != 0u) return false;
+    vec3 center = (p[0] + p[1] + p[2]) / 3.0;
+    float radius = max(max(distance(center, p[0]), distance(center, p[1])), distance(center, p[2])) + reach;
+    float nearest = depth_range(frame, center, radius).x;
+    if (nearest <= frame.lod.w * 1.001) return false;
+    return radius * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest) <= TS_SW_MAX_RADIUS_PIXELS;
 }
 
 void main() {
@@ -92,8 +105,16 @@ void main() {
         uint index = first + cell;
         PatchRef(frame.patches).data[index] = GpuPatch(slot << TS_VIS_TRIANGLE_BITS | triangle, split | cell << 8u, packedFactors,
                                                        g[0] | g[1] << 5u | g[2] << 10u);
-        uint d = atomicAdd(draw.state.patchDraws, 1u);
-        PatchDrawRef(frame.patchDraws).data[d] = uvec4(3u * n * n, 1u, 0u, index);
+        if (dice_in_compute(frame, p, material.displacement.w * scale)) {
+            uint k = atomicAdd(draw.state.dicePatches, 1u);
+            atomicAdd(draw.state.dicePatchesDrawn, 1u);
+            SlotListRef(frame.dicePatches).data[k] = index;
+            atomicMax(draw.state.dicePatchGroupsX, min(k + 1u, 65535u));
+            atomicMax(draw.state.dicePatchGroupsY, k / 65535u + 1u);
+        } else {
+            uint d = atomicAdd(draw.state.patchDraws, 1u);
+            PatchDrawRef(frame.patchDraws).data[d] = uvec4(3u * n * n, 1u, 0u, index);
+        }
         microTriangles += n * n;
     }
     atomicAdd(draw.state.microTriangles, microTriangles);

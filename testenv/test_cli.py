@@ -127,7 +127,7 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
     assert done.returncode == 0, done.stderr + done.stdout
     assert "frame ms" in done.stdout and "PSNR dB" in done.stdout
     rows = json.loads(rows_file.read_text())
-    assert {r["table"] for r in rows} == {"density scaling", "against brute force", "speed against error"}
+    assert {r["table"] for r in rows} == {"density scaling", "against brute force", "speed against error", "displacement"}
     field, no_occlusion = [r for r in rows if r["table"] == "density scaling"]
     assert field["source_triangles"] == 32 * 32 * 4 * 16 * 16 and field["frame_ms"] > 0
     assert field["occlusion"] is True and no_occlusion["occlusion"] is False, "measured frames test against the frame before"
@@ -135,6 +135,11 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
     assert [r["pixel_error"] for r in sweep] == [0.25, 0.5, 1.0, 2.0, 4.0, 8.0]
     assert all(0 < r["same_prim_percent"] <= 100 and r["psnr_db"] > 0 for r in sweep)
     assert tessera.read_image(str(plot)).shape == (270, 480, 4)
+    displaced = {r["case"]: r for r in rows if r["table"] == "displacement"}
+    assert displaced["pre-tessellated, --no-lod"]["psnr_db"] == 99.0, "the reference against itself"
+    runtime = [r for case, r in displaced.items() if case.startswith("runtime")]
+    assert len(runtime) == 5 and all(r["micro_triangles"] > 0 and r["psnr_db"] > 20 for r in runtime)
+    assert runtime[0]["micro_triangles"] > runtime[-1]["micro_triangles"], "a finer dicing rate makes more micro-triangles"
 
 
 def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):

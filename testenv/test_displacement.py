@@ -244,3 +244,46 @@ def test_openusd_displacement_scene(tmp_path, vis):
     name = "displacement" if vis is None else f"displacement_vis_{vis}"
     result.write(tmp_path / f"{name}.png")
     assert_matches_baseline(tmp_path / f"{name}.png", TESTENV / "testDisplacement" / "baseline" / f"{name}.png")
+
+
+def bricks_height_map(width=256, height=128, rows=8, columns=4, mortar=0.06) -> np.ndarray:
+    """A brick wall's heights: bricks at 1 with bevelled edges, mortar at 0, every other row offset by half a brick."""
+    t = (np.arange(height) + 0.5) / height * rows
+    s = (np.arange(width) + 0.5) / width * columns
+    row = np.floor(t)[:, None]
+    u = (s[None, :] + 0.5 * (row % 2)) % 1.0
+    v = (t % 1.0)[:, None]
+    edge = np.minimum(np.minimum(u, 1 - u) * 2.0, np.minimum(v, 1 - v))  # distance to the nearest joint (brick units)
+    heights = np.clip((edge - mortar) / 0.08, 0.0, 1.0)
+    return np.round(heights * 255).astype(np.uint8)
+
+
+def test_bricks_height_map(tmp_path):
+    """A flat, 2-triangle wall displaced by a bricks height map, seen at a grazing angle: the bricks stand out of the
+    mortar towards the camera, and the image matches its baseline."""
+    from tessera.bench_textures import write_png
+
+    write_png(tmp_path / "bricks.png", bricks_height_map()[::-1])
+    path = tmp_path / "wall.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    wall = UsdGeom.Mesh.Define(stage, "/Wall")
+    wall.GetPointsAttr().Set([(-2, -1, 0), (2, -1, 0), (2, 1, 0), (-2, 1, 0)])
+    wall.GetFaceVertexCountsAttr().Set([4])
+    wall.GetFaceVertexIndicesAttr().Set([0, 1, 2, 3])
+    wall.GetSubdivisionSchemeAttr().Set("none")
+    st = UsdGeom.PrimvarsAPI(wall).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set([(0, 0), (1, 0), (1, 1), (0, 1)])
+    bind(wall, displaced_material(stage, "/Looks/Bricks", texture=tmp_path / "bricks.png", magnitude=0.08))
+    camera_at(stage, (-2.6, 0.4, 2.2), target=(0.3, 0, 0))
+    stage.GetRootLayer().Save()
+    result = session_render(path, resolution=(320, 200), aovs=("color", "depth", "primId"), dicing_rate=1.0)
+    assert result.stats["tessellated_triangles"] == 2 and result.stats["micro_triangles"] > 10_000
+    stage.GetPrimAtPath("/Looks/Bricks").GetAttribute("tessera:displacement:magnitude").Set(0.0)
+    stage.GetRootLayer().Save()
+    flat = session_render(path, resolution=(320, 200), aovs=("depth", "primId"))
+    both = covered(result) & covered(flat)
+    raised = flat["depth"].pixels[..., 0][both] - result["depth"].pixels[..., 0][both]
+    assert 0.5 < (raised > 0.04).mean() < 0.97, "most of the wall is brick, standing out towards the camera"
+    assert (np.abs(raised) < 0.01).mean() > 0.02, "the mortar stays where the wall was"
+    result.write(tmp_path / "wall.png")
+    assert_matches_baseline(tmp_path / "wall.png", TESTENV / "testDisplacement" / "baseline" / "bricks.png")

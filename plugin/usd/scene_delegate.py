@@ -23,11 +23,11 @@ import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import change_tracker, implicit, materials, mesh_settings
+from . import change_tracker, implicit, lights, materials, mesh_settings
 from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
-_LIGHT_TYPES = {"distantLight", "domeLight"}
+_LIGHT_TYPES = lights.SPRIM_TYPES
 
 
 def to_column_major(gf_matrix) -> list[float]:
@@ -59,6 +59,34 @@ class _Group:
     order: list[str] = field(default_factory=list)
 
 
+class _Purposes:
+    """Computed purposes along a depth-first walk, by UsdGeom's rule: a prim's authored purpose, else its nearest
+    ancestor's (`inherited` above the walk's root)."""
+
+    def __init__(self, inherited: str = UsdGeom.Tokens.default_):
+        self.inherited = inherited
+        self._authored: list[tuple] = []  # (path, purpose) of the ancestors that author one, outermost first
+
+    def of(self, prim: Usd.Prim, path) -> str:
+        while self._authored and not path.HasPrefix(self._authored[-1][0]):
+            self._authored.pop()
+        attribute = UsdGeom.Imageable(prim).GetPurposeAttr()
+        if attribute.HasAuthoredValue():
+            self._authored.append((path, attribute.Get()))
+            return self._authored[-1][1]
+        return self._authored[-1][1] if self._authored else self.inherited
+
+
+def inherited_purpose(prim: Usd.Prim) -> str:
+    """The purpose a prim's children inherit from it and its ancestors."""
+    while prim and not prim.IsPseudoRoot():
+        imageable = UsdGeom.Imageable(prim)
+        if imageable:
+            return imageable.ComputePurpose()
+        prim = prim.GetParent()
+    return UsdGeom.Tokens.default_
+
+
 @dataclass
 class _Found:
     """What a walk of part of the stage found outside instancing contexts."""
@@ -70,8 +98,10 @@ class _Found:
 
 class UsdSceneDelegate(_tessera.SceneDelegate):
     def __init__(self, stage: Usd.Stage, render_index, time: Usd.TimeCode = Usd.TimeCode.Default(), refine_level: int = 2,
-                 build_settings: _tessera.BuildSettings | None = None):
+                 build_settings: _tessera.BuildSettings | None = None, purposes=(UsdGeom.Tokens.render,)):
         super().__init__()
+        # Geometry of these purposes is drawn, besides `default` (Hydra's render tags); the others' is not read.
+        self.purposes = {UsdGeom.Tokens.default_, *purposes}
         self.refine_level = refine_level  # uniform refinements of subdivision surfaces (catmullClark, loop, bilinear)
         # The render-wide build settings; a mesh's authored TesseraMeshAPI attributes override them (mesh_settings.py).
         self.build_settings = build_settings or _tessera.BuildSettings()
@@ -86,6 +116,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         self.cameras: list[str] = []  # in stage order; the first is the default camera
         self.lights: list[str] = []
         self.warnings: list[str] = []
+        self.errors: list[str] = []  # prims left out for what is wrong with the stage (an instancer cycle)
+        self._instancer_chain: list[str] = []  # the PointInstancers being visited, outermost first (cycles)
+        self.instancer_cycles: set[str] = set()  # PointInstancers found in a cycle (bounds must not follow them)
+        self._composition_errors: set[str] = set()  # reported already
         self._paths = PathIndex()  # prim path -> ids of the rprims and sprims read from that prim
         self._watch = PathIndex()  # prim path -> keys of the instancing groups that read its subtree
         self._material_users: dict[str, set[str]] = {}  # material path -> ids of the rprims bound to it
@@ -99,7 +133,20 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     # -- populate ---------------------------------------------------------------------------------
 
     def populate(self) -> None:
+        self._report_composition_errors()
         self._repopulate("/", _dirty.ALL)
+
+    def _report_composition_errors(self) -> None:
+        """USD's composition errors (a payload, reference or sublayer whose asset cannot be opened, ...) as warnings
+        naming the asset and the prim that introduced it, each once; the prim composes without it."""
+        for error in self.stage.GetCompositionErrors():
+            text = str(error).strip()
+            if text in self._composition_errors:
+                continue
+            self._composition_errors.add(text)
+            site = getattr(error, "rootSite", None)
+            where = str(site.path) if site is not None and hasattr(site, "path") else "stage"
+            self.warnings.append(f"{where}: {text[:1].lower()}{text[1:].rstrip('.')}; the prim is read without it")
 
     def _relative(self, prim: Usd.Prim, frame: Usd.Prim | None) -> np.ndarray:
         if frame is None:
@@ -109,8 +156,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _walk(self, root: Usd.Prim, hidden: bool, found: _Found) -> None:
         """Walks `root`'s subtree outside instancing. `hidden`: an ancestor of `root` is invisible. Gprims under an
-        invisible prim are still found (they sync their visibility alone); lights and instancing there are not."""
+        invisible prim are still found (they sync their visibility alone); lights and instancing there are not.
+        Geometry and instancing of a purpose not rendered is not read (its descendants may author another purpose);
+        cameras and lights are used whatever their purpose, as Hydra's render tags apply to geometry."""
         hidden_under = root.GetPath() if hidden else None
+        purposes = _Purposes(inherited_purpose(root.GetParent()) if not root.IsPseudoRoot() else UsdGeom.Tokens.default_)
         it = iter(Usd.PrimRange(root))
         for prim in it:
             if prim.IsPseudoRoot():
@@ -119,22 +169,20 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             if hidden_under is not None and not path.HasPrefix(hidden_under):
                 hidden_under = None
             imageable, role = self._kind(prim)
+            drawn = True
             if imageable:
-                geom = UsdGeom.Imageable(prim)
-                if geom.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
-                    it.PruneChildren()
-                    continue
-                if hidden_under is None and geom.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
+                drawn = purposes.of(prim, path) in self.purposes
+                if hidden_under is None and UsdGeom.Imageable(prim).GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
             if prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
-                if hidden_under is None:
+                if hidden_under is None and drawn:
                     found.natives.setdefault(str(prim.GetPrototype().GetPath()), []).append(str(path))
                 it.PruneChildren()
                 continue
             if role is None:
                 continue
             if role == "pointInstancer":
-                if hidden_under is None:
+                if hidden_under is None and drawn:
                     found.instancers.append(str(path))
                 it.PruneChildren()
             elif role == "camera":  # visibility does not apply to looking through a camera
@@ -142,6 +190,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             elif role in _LIGHT_TYPES:
                 if hidden_under is None:
                     found.sprims[str(path)] = role
+            elif not drawn:
+                continue  # geometry of a purpose not rendered: not read
             elif role == "mesh":
                 found.rprims[str(path)] = prim
             else:
@@ -149,7 +199,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _kind(self, prim: Usd.Prim) -> tuple[bool, str | None]:
         """(imageable, role) of a prim's type, found once per type name (IsA depends on the type alone). Roles:
-        pointInstancer, camera, distantLight, domeLight, mesh (drawn), unsupported (a gprim not drawn), None."""
+        pointInstancer, camera, the light sprim types, mesh (drawn), unsupported (a gprim or light not drawn), None."""
         type_name = prim.GetTypeName()
         kind = self._kinds.get(type_name)
         if kind is None:
@@ -158,10 +208,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 role = "pointInstancer"
             elif prim.IsA(UsdGeom.Camera):
                 role = "camera"
-            elif prim.IsA(UsdLux.DistantLight):
-                role = "distantLight"
-            elif prim.IsA(UsdLux.DomeLight):
-                role = "domeLight"
+            elif lights.sprim_type(prim):
+                role = lights.sprim_type(prim)
+            elif prim.HasAPI(UsdLux.LightAPI):
+                role = "unsupported"  # disk, cylinder, portal and geometry lights
             elif prim.IsA(UsdGeom.Gprim):
                 role = "mesh" if prim.IsA(UsdGeom.Mesh) or implicit.supported(prim) else "unsupported"
             kind = self._kinds[type_name] = (prim.IsA(UsdGeom.Imageable), role)
@@ -175,15 +225,17 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if frame is None:
             frame = root
         it = iter(Usd.PrimRange(root))
+        purposes = _Purposes(inherited_purpose(root.GetParent()) if root.GetParent() else UsdGeom.Tokens.default_)
         for prim in it:
             imageable = UsdGeom.Imageable(prim)
             if imageable:
                 if imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                     it.PruneChildren()
                     continue
-                if imageable.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
-                    it.PruneChildren()
-                    continue
+                if purposes.of(prim, prim.GetPath()) not in self.purposes:
+                    if prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer):
+                        it.PruneChildren()
+                    continue  # not read; its descendants may author a purpose that is drawn
             if prim.IsInstance():  # a nested native instance: its own context, one per encounter
                 prototype = prim.GetPrototype()
                 watched.add(str(prototype.GetPath()))
@@ -206,6 +258,23 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _visit_point_instancer(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
                                context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
+        prim = instancer.GetPrim()
+        path = prim.GetPath()
+        if str(path) in self._instancer_chain:  # a prototype instances an instancer that instances it: no end
+            chain = self._instancer_chain[self._instancer_chain.index(str(path)):] + [str(path)]
+            self.instancer_cycles.update(chain)
+            message = f"{path}: PointInstancer cycle ({' -> '.join(chain)}); the copies inside the cycle are skipped"
+            if message not in self.errors:
+                self.errors.append(message)
+            return
+        self._instancer_chain.append(str(path))
+        try:
+            self._visit_point_instancer_body(instancer, copies, frame, context, records, watched)
+        finally:
+            self._instancer_chain.pop()
+
+    def _visit_point_instancer_body(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
+                                    context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
         prim = instancer.GetPrim()
         path = prim.GetPath()
         watched.add(str(path))
@@ -301,7 +370,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _outside_state(self, prim: Usd.Prim) -> bool | None:
         """For a walk from `prim`: whether an ancestor hides it (True), or None when it is not walked from the top
-        (inside a prototype, an instance or a PointInstancer, where its group re-makes it; or a guide or proxy)."""
+        (inside a prototype, an instance or a PointInstancer, where its group re-makes it)."""
         if prim.IsPseudoRoot():
             return False
         if prim.IsInPrototype() or prim.IsInstanceProxy():
@@ -313,8 +382,6 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 return None
             imageable = UsdGeom.Imageable(parent)
             if imageable:
-                if imageable.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
-                    return None
                 hidden = hidden or imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible
             parent = parent.GetParent()
         return hidden
@@ -474,6 +541,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         roots = _outermost(resynced)
         if roots:
             self._time_varying = None  # recomposed: what varies in time is looked up again when next needed
+            self._report_composition_errors()  # a variant or reference switched to an asset that cannot be opened
         for root in roots:
             self._repopulate(root, _dirty.ALL)
         for path, names in changed.items():
@@ -648,27 +716,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def get_light(self, id: str):
         prim = self.stage.GetPrimAtPath(id)
-        light = UsdLux.LightAPI(prim)
-        t = self.time
-        intensity = light.GetIntensityAttr().Get(t) or 0.0
-        exposure = light.GetExposureAttr().Get(t) or 0.0
-        color = np.asarray(light.GetColorAttr().Get(t) or (1, 1, 1), dtype=np.float64)
-        desc = _tessera.LightDesc()
-        radiance = color * intensity * 2.0 ** exposure
-        if prim.IsA(UsdLux.DistantLight):
-            # UsdLux: a distant light's intensity is the radiance of a disk `angle` degrees across; the irradiance
-            # it delivers is that times the disk's solid angle, unless inputs:normalize says it already is one.
-            if not light.GetNormalizeAttr().Get(t):
-                half_angle = np.radians(UsdLux.DistantLight(prim).GetAngleAttr().Get(t) or 0.53) / 2.0
-                radiance = radiance * 2.0 * np.pi * (1.0 - np.cos(half_angle))
-            desc.radiance = tuple(float(c) for c in radiance)
-            desc.type = _tessera.LightType.distant
-            world = self.xform_cache.GetLocalToWorldTransform(prim)
-            desc.direction = tuple(world.TransformDir(Gf.Vec3d(0, 0, -1)))  # lights emit along their -Z
-        else:
-            desc.radiance = tuple(float(c) for c in radiance)
-            desc.type = _tessera.LightType.dome
-        return desc
+        return lights.light_desc(prim, self.time, self.xform_cache.GetLocalToWorldTransform(prim), self.warnings)
 
     def get_camera(self, id: str):
         return camera_desc(UsdGeom.Camera(self.stage.GetPrimAtPath(id)).GetCamera(self.time))
@@ -698,11 +746,30 @@ def camera_desc(camera: Gf.Camera):
     return desc
 
 
-def framing_camera(stage: Usd.Stage, time: Usd.TimeCode, width: int, height: int):
+def _world_bounds(stage: Usd.Stage, cache: UsdGeom.BBoxCache, avoid: set[str]) -> Gf.Range3d:
+    """The stage's bounds, leaving out the subtrees of the prims in `avoid` (PointInstancers in a cycle, which
+    USD's bounds computation would follow forever)."""
+    if not avoid:
+        return cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
+    box = Gf.Range3d()
+    it = iter(Usd.PrimRange(stage.GetPseudoRoot()))
+    for prim in it:
+        path = str(prim.GetPath())
+        if path in avoid:
+            it.PruneChildren()
+        elif not any(is_at_or_under(a, path) for a in avoid):  # holds none of them: its bound as a whole
+            box.UnionWith(cache.ComputeWorldBound(prim).ComputeAlignedRange())
+            it.PruneChildren()
+    return box
+
+
+def framing_camera(stage: Usd.Stage, time: Usd.TimeCode, width: int, height: int, purposes=(UsdGeom.Tokens.render,),
+                   avoid: set[str] = frozenset()):
     """The camera OpenUSD's image tests call -frameAll (testUsdImagingGLBasicDrawing): looking down the
-    stage's horizontal depth axis from one bounds-diagonal away, 60 degrees vertical field of view."""
-    cache = UsdGeom.BBoxCache(time, [UsdGeom.Tokens.default_, UsdGeom.Tokens.render], useExtentsHint=True)
-    box = cache.ComputeWorldBound(stage.GetPseudoRoot()).ComputeAlignedRange()
+    stage's horizontal depth axis from one bounds-diagonal away, 60 degrees vertical field of view. The bounds are
+    those of the purposes drawn, without the subtrees of the prims in `avoid`."""
+    cache = UsdGeom.BBoxCache(time, [UsdGeom.Tokens.default_, *purposes], useExtentsHint=True)
+    box = _world_bounds(stage, cache, set(avoid))
     if box.IsEmpty():
         center, size = Gf.Vec3d(0, 0, 0), 1.0
     else:

@@ -332,11 +332,12 @@ def render(args) -> int:
 
         from .bench_displacement import height_map, write_stages
 
-        # A 48 x 24 sphere (2 304 triangles) displaced by a 512 x 256 height map; the reference cuts each triangle 32 x 32
-        # (2.4 M triangles: edges of about 1.5 px at 1080p).
-        directory = Path(args.stages_dir) / "displacement"
+        # A 48 x 24 sphere (2 208 triangles) displaced by a 512 x 256 height map, about 860 px across at 1080p; the reference
+        # cuts each triangle 32 x 32 at 1080p (2.26 M triangles, edges of about 2 px), fewer at lower resolutions.
+        cut = max(2, round(32 * height / 1080))
+        directory = Path(args.stages_dir) / f"displacement-{cut}"
         if not (directory / "reference.usda").exists():
-            write_stages(directory, segments=48, rings=24, heights=height_map(512, 256, bumps=8), n=32, magnitude=0.08, eye=(0.5, 0.9, 2.4))
+            write_stages(directory, segments=48, rings=24, heights=height_map(512, 256, bumps=8), n=cut, magnitude=0.08, eye=(1.1, 2.0, 5.3))
         cases.append(("displacement", (str(directory / "runtime.usda"), str(directory / "reference.usda"))))
     rows = []
     print(" | ".join(title for _, title in RENDER_COLUMNS))

@@ -171,15 +171,15 @@ def write_stages(directory, *, segments=24, rings=12, heights=None, n=24, magnit
 
 def measure(frames_of, runtime_session, reference_session, frames: int, resolution, row_of):
     """Rows of the displacement table: the pre-tessellated reference drawn at full detail (--no-lod) and through its DAG
-    at 0.5, 1 and 2 px, and the runtime tessellation at dicing rates 0.5, 1 and 2 px; error against the full-detail
-    reference."""
+    at 0.5, 1 and 2 px, and the runtime tessellation at dicing rates 0.5 to 8 px (the coarser ones to find where its
+    error meets the DAG's); error against the full-detail reference."""
     settings = {"resolution": resolution, "aovs": ("color",), "camera": "/Camera"}
     reference, ref_wall, ref_gpu = frames_of(reference_session, frames, lod=False, **settings)
     rows = [row_of("displacement", "pre-tessellated, --no-lod", reference, ref_wall, ref_gpu, reference)]
     for error in (0.5, 1.0, 2.0):
         result, wall, gpu = frames_of(reference_session, frames, pixel_error=error, **settings)
         rows.append(row_of("displacement", f"pre-tessellated, {error:g} px", result, wall, gpu, reference))
-    for rate in (0.5, 1.0, 2.0):
+    for rate in (0.5, 1.0, 2.0, 4.0, 8.0):
         result, wall, gpu = frames_of(runtime_session, frames, dicing_rate=rate, **settings)
         rows.append(row_of("displacement", f"runtime, dicing {rate:g} px", result, wall, gpu, reference,
                            micro_triangles=result.stats["micro_triangles"], patches=result.stats["patches"],

@@ -9,7 +9,16 @@ import re
 import sys
 import time
 
-from .session import AOVS, RASTER_MODES, VISUALIZATIONS
+from .session import AOVS, PURPOSES, RASTER_MODES, VISUALIZATIONS
+
+
+def _purposes(text: str) -> tuple[str, ...]:
+    names = tuple(p.strip() for p in text.split(",") if p.strip())
+    unknown = [p for p in names if p not in PURPOSES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"'{text}': purposes are a comma-separated list of {', '.join(PURPOSES)} "
+                                         "(default is always drawn)")
+    return names
 
 
 def _resolution(text: str) -> tuple[int, int]:
@@ -65,15 +74,19 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     render = commands.add_parser("render", help="render a stage to an image")
     render.add_argument("stage", help="USD stage (.usd, .usda, .usdc, .usdz)")
-    render.add_argument("-o", "--output", required=True, help="image file: .exr (linear float), .tif, .png, .jpg")
+    render.add_argument("-o", "--output", help="image file: .exr (linear float), .tif, .png, .jpg (default: the render settings' "
+                                               "products, each to its productName); a product's other AOVs go beside it as NAME.AOV.EXT")
     render.add_argument("--camera", help="camera prim path (default: the stage's first camera, else one framing the stage)")
-    render.add_argument("--resolution", type=_resolution, default=(960, 540), help="WIDTHxHEIGHT (default 960x540)")
+    render.add_argument("--resolution", type=_resolution, help="WIDTHxHEIGHT (default: the render settings', else 960x540)")
     when = render.add_mutually_exclusive_group()
     when.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
     when.add_argument("--frames", type=_frames, metavar="FIRST-LAST[xSTEP]",
                       help="render a sequence through one session (only what varies in time re-syncs); the output "
                            "name's run of '#' becomes the zero-padded frame number, for example out.####.exr")
-    render.add_argument("--aov", choices=AOVS, default="color", help="what to write (default color)")
+    render.add_argument("--aov", choices=AOVS, help="what to write (default: the render product's vars, else color)")
+    render.add_argument("--settings", metavar="PRIM_PATH",
+                        help="the UsdRenderSettings prim to use (default: the stage's renderSettingsPrimPath, else the only "
+                             "one under /Render); its resolution, camera, purposes and products apply unless flags say otherwise")
     render.add_argument("--pixel-error", type=float, default=1.0, metavar="PX",
                         help="screen-space error bound of the level-of-detail cut, in pixels (default 1)")
     render.add_argument("--no-lod", action="store_true", help="draw every source triangle: the DAG off, the full-detail reference")
@@ -87,11 +100,17 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--stats", help="write frame statistics to this JSON file (with --frames: {\"frames\": [one per frame]})")
     render.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N",
                         help="uniform refinements of subdivision surfaces before the DAG (default 2; 0 draws the cage)")
+    render.add_argument("--purposes", type=_purposes, metavar="render,proxy,guide",
+                        help="UsdGeom purposes drawn besides default (default: the render settings' includedPurposes, else "
+                             "render); the others are not read")
     render.add_argument("--device", help="Vulkan device: gpu, cpu, an index or part of its name (default: $TESSERA_DEVICE, else the best)")
+    render.add_argument("--strict", action="store_true",
+                        help="exit with status 1 when the stage gave any error or warning (the image is still written)")
     build_cmd = commands.add_parser("build", help="build every mesh of a stage into the mesh cache ($TESSERA_CACHE)")
     build_cmd.add_argument("stage", help="USD stage")
     build_cmd.add_argument("--frame", type=float, help="time code (default: the stage's default time)")
     build_cmd.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N", help="as for render (default 2)")
+    build_cmd.add_argument("--purposes", type=_purposes, default=("render",), metavar="render,proxy,guide", help="as for render (default render)")
     bench = commands.add_parser("bench", help="benchmarks: tables of speed, memory and error")
     benches = bench.add_subparsers(dest="bench", required=True)
     build = benches.add_parser("build", help="cluster DAG build: speed, memory, depth, error per level")
@@ -133,51 +152,102 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def aov_path(output: str, aov: str) -> str:
+    """Where a product's AOV other than its first goes: beside the output, its name before the extension."""
+    stem, extension = os.path.splitext(output)
+    return f"{stem}.{aov}{extension}"
+
+
+def _jobs(args, settings) -> list[dict]:
+    """What to render: one job per output image set, each with its camera (None: the stage's first), resolution and
+    [(aov, output name)]. Flags win over the render settings; without -o every product goes to its productName."""
+    def job(product, output):
+        base = product or settings
+        aovs = [args.aov] if args.aov else (product.aovs if product and product.aovs else ["color"])
+        return {"camera": args.camera or (base.camera if base else None), "product": product.path if product else None,
+                "resolution": args.resolution or (base.resolution if base else (960, 540)),
+                "outputs": [(aov, output if i == 0 else aov_path(output, aov)) for i, aov in enumerate(aovs)]}
+
+    products = settings.products if settings else []
+    if args.output:
+        return [job(products[0] if products else None, args.output)]
+    if not products:
+        raise ValueError("no output: give -o OUT (the stage has no render settings with RenderProducts)")
+    unnamed = [p.path for p in products if not p.name]
+    if unnamed:
+        raise ValueError(f"{', '.join(unnamed)}: no productName to write to; give -o OUT")
+    return [job(product, product.name) for product in products]
+
+
 def _render(args) -> int:
     from . import Session
+    from .session import _open_stage
+    from .usd import render_settings
 
-    frames = args.frames
-    if frames is not None:
-        outputs = [frame_path(args.output, frame) for frame in frames]  # a name without '#' fails before any work
-    else:
-        outputs = [args.output]
     started = time.perf_counter()
-    session = Session(args.stage, frame=frames[0] if frames else args.frame, device=args.device, refine_level=args.refine_level)
+    stage = _open_stage(args.stage)
+    settings_warnings: list[str] = []
+    settings = render_settings.read(stage, args.settings, settings_warnings)
+    jobs = _jobs(args, settings)
+    frames = args.frames
+    for job in jobs:  # a name without '#' fails before any work
+        for _, output in job["outputs"]:
+            if frames is not None:
+                frame_path(output, frames[0])
+    purposes = args.purposes or (settings.purposes if settings else ("render",))
+    session = Session(stage, frame=frames[0] if frames else args.frame, device=args.device, refine_level=args.refine_level,
+                      purposes=purposes)
     loaded = time.perf_counter()
-    camera = args.camera or (session.camera_paths()[0] if session.camera_paths() else None)
-    all_stats, validation_errors = [], []
-    for number, output in enumerate(outputs):
-        frame_started = time.perf_counter()
-        if frames is not None:
-            session.set_time(frames[number])
-        result = session.render(camera=camera, resolution=args.resolution, aovs=[args.aov], pixel_error=args.pixel_error,
-                                lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion,
-                                dicing_rate=args.dicing_rate)
-        rendered = time.perf_counter()
-        where = f"frame {frames[number]:g}: " if frames is not None else ""
-        for message in result.warnings:
-            print(f"tessera: warning: {where}{message}", file=sys.stderr)
-        for message in result.errors:
-            print(f"tessera: error: {where}{message}", file=sys.stderr)
-        os.makedirs(os.path.dirname(os.path.abspath(output)), exist_ok=True)
-        result.write(output, args.aov)
-        if frames is not None:
-            synced = ", ".join(f"{count} {kind}" for kind, count in sorted(result.stats["synced"].items())) or "nothing"
-            print(f"frame {frames[number]:g} -> {output}: {rendered - frame_started:.2f} s, synced {synced}, "
-                  f"{result.stats['meshes_built']} mesh(es) built", file=sys.stderr)
-        stats = dict(result.stats)
-        stats.update(camera=camera or "(framing)", resolution=list(args.resolution), aov=args.aov, output=output,
-                     warnings=result.warnings, errors=result.errors)
-        if frames is not None:
-            stats.update(frame=frames[number], seconds={"render": rendered - frame_started})
-        else:
-            stats.update(seconds={"load": loaded - started, "render": rendered - loaded, "total": time.perf_counter() - started})
-        all_stats.append(stats)
-        validation_errors += [e for e in result.errors if e.startswith("validation error")]
+    first_camera = session.camera_paths()[0] if session.camera_paths() else None
+    all_stats, validation_errors, stage_problems = [], [], len(settings_warnings)
+    for message in settings_warnings:
+        print(f"tessera: warning: {message}", file=sys.stderr)
+    for number, frame in enumerate(frames if frames is not None else [None]):
+        if frame is not None:
+            session.set_time(frame)
+        for job in jobs:
+            render_started = time.perf_counter()
+            camera = job["camera"] or first_camera
+            aovs = [aov for aov, _ in job["outputs"]]
+            result = session.render(camera=camera, resolution=job["resolution"], aovs=aovs, pixel_error=args.pixel_error,
+                                    lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion,
+                                    dicing_rate=args.dicing_rate)
+            rendered = time.perf_counter()
+            where = f"frame {frame:g}: " if frame is not None else ""
+            for message in result.warnings:
+                print(f"tessera: warning: {where}{message}", file=sys.stderr)
+            for message in result.errors:
+                print(f"tessera: error: {where}{message}", file=sys.stderr)
+            outputs = []
+            for aov, pattern in job["outputs"]:
+                output = frame_path(pattern, frame) if frame is not None else pattern
+                os.makedirs(os.path.dirname(os.path.abspath(output)), exist_ok=True)
+                result.write(output, aov)
+                outputs.append(output)
+            if frame is not None:
+                synced = ", ".join(f"{count} {kind}" for kind, count in sorted(result.stats["synced"].items())) or "nothing"
+                print(f"frame {frame:g} -> {', '.join(outputs)}: {rendered - render_started:.2f} s, synced {synced}, "
+                      f"{result.stats['meshes_built']} mesh(es) built", file=sys.stderr)
+            stats = dict(result.stats)
+            stats.update(camera=camera or "(framing)", resolution=list(job["resolution"]), aov=aovs[0], output=outputs[0],
+                         aovs=aovs, outputs=outputs, render_settings=settings.path if settings else None, product=job["product"],
+                         warnings=result.warnings, errors=result.errors)
+            if frame is not None:
+                stats.update(frame=frame, seconds={"render": rendered - render_started})
+            else:
+                stats.update(seconds={"load": loaded - started, "render": rendered - render_started, "total": time.perf_counter() - started})
+            all_stats.append(stats)
+            validation_errors += [e for e in result.errors if e.startswith("validation error")]
+            stage_problems += len(result.warnings) + len(result.errors)
     if args.stats:
         with open(args.stats, "w") as f:
-            json.dump(all_stats[0] if frames is None else
-                      {"frames": all_stats, "seconds": {"load": loaded - started, "total": time.perf_counter() - started}}, f, indent=2)
+            if frames is not None:
+                json.dump({"frames": all_stats, "seconds": {"load": loaded - started, "total": time.perf_counter() - started}}, f, indent=2)
+            else:
+                json.dump(all_stats[0] if len(all_stats) == 1 else {"products": all_stats}, f, indent=2)
+    if args.strict and stage_problems:
+        print(f"tessera: --strict: {stage_problems} error(s) and warning(s) about the stage", file=sys.stderr)
+        return 1
     return 1 if validation_errors else 0
 
 
@@ -207,7 +277,7 @@ def _build(args) -> int:
     stage = _open_stage(args.stage)
     collector = _Collector()
     scene = UsdSceneDelegate(stage, collector, Usd.TimeCode(args.frame) if args.frame is not None else Usd.TimeCode.Default(),
-                             args.refine_level)
+                             args.refine_level, purposes=args.purposes)
     scene.populate()
     total, done, cached, triangles, failed = len(collector.meshes), 0, 0, 0, 0
     started = time.perf_counter()

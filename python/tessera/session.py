@@ -14,6 +14,8 @@ AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triang
 # Debug views the color AOV can show instead of shading (renderer.h: Visualize).
 VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw", "uv", "tessellation")
 RASTER_MODES = ("auto", "hardware", "software")
+# UsdGeom purposes a render may draw besides `default` (which is always drawn).
+PURPOSES = ("render", "proxy", "guide")
 
 
 class StageError(RuntimeError):
@@ -70,8 +72,11 @@ class Session:
     """
 
     def __init__(self, stage, *, frame: float | None = None, device: str | None = None, validation: bool | None = None,
-                 refine_level: int = 2, build_settings: _tessera.BuildSettings | dict | None = None):
-        """`build_settings` (a BuildSettings or a dict of tessera.build_mesh's keywords) applies to every mesh."""
+                 refine_level: int = 2, build_settings: _tessera.BuildSettings | dict | None = None,
+                 purposes=("render",)):
+        """`build_settings` (a BuildSettings or a dict of tessera.build_mesh's keywords) applies to every mesh.
+        `purposes`: the UsdGeom purposes drawn besides `default` (PURPOSES; `render` by default, as usdview's
+        render mode and husk); geometry of the others is not read."""
         from pxr import Usd
 
         from .usd import ChangeTracker, UsdSceneDelegate
@@ -82,7 +87,11 @@ class Session:
         self.index = _tessera.RenderIndex(self.delegate)
         if isinstance(build_settings, dict):
             build_settings = _tessera.BuildSettings(**build_settings)
-        self.scene = UsdSceneDelegate(self.stage, self.index, self.time, refine_level, build_settings)
+        self.purposes = tuple(purposes)
+        unknown = [p for p in self.purposes if p not in PURPOSES]
+        if unknown:
+            raise StageError(f"unknown purpose {', '.join(map(repr, unknown))} (choose from {', '.join(PURPOSES)}; default is always drawn)")
+        self.scene = UsdSceneDelegate(self.stage, self.index, self.time, refine_level, build_settings, self.purposes)
         self.scene.populate()
         self._changes = ChangeTracker(self.stage)  # edits from here on re-sync what they touch
 
@@ -101,6 +110,15 @@ class Session:
 
     def _apply_edits(self) -> None:
         self.scene.apply_changes(*self._changes.take())
+
+    def render_settings(self, path: str | None = None):
+        """The stage's UsdRenderSettings as `tessera.usd.render_settings.RenderSettings` (resolution, camera, purposes,
+        products with their AOVs), or None without any: `path`, else the stage's renderSettingsPrimPath, else the only
+        RenderSettings prim under /Render. What cannot be used is a warning of the next render. The session does not
+        apply them by itself: pass them to render() (the `tessera render` command does)."""
+        from .usd import render_settings
+
+        return render_settings.read(self.stage, path, self.scene.warnings)
 
     @property
     def device_name(self) -> str:
@@ -143,13 +161,16 @@ class Session:
                 raise StageError(f"{camera}: not a camera on this stage (cameras: {', '.join(self.scene.cameras) or 'none'})")
             camera_id = camera
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
-        fallback = framing_camera(self.stage, self.time, width, height) if not camera_id else _tessera.CameraDesc()
+        fallback = (framing_camera(self.stage, self.time, width, height, self.purposes, self.scene.instancer_cycles)
+                    if not camera_id else _tessera.CameraDesc())
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
                                            vis or "none", raster, bool(occlusion), float(dicing_rate))
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)
+        errors = list(self.scene.errors) + list(errors)
         self.scene.warnings.clear()
+        self.scene.errors.clear()
         messages = self.delegate.take_validation_messages()
         if messages:
             errors = list(errors) + messages

@@ -162,13 +162,18 @@ private:
     MaterialDesc desc_;
 };
 
+// distantLight, domeLight, rectLight, sphereLight.
 class Light : public Prim {
 public:
-    using Prim::Prim;
+    Light(PrimId id, TextureStore& textures) : Prim(std::move(id)), textures_(textures) {}
+    // Pulls the light; a dome's texture is loaded (and its irradiance integrated) here. A texture that cannot be read
+    // is a warning naming the file and the light, which then lights by its colour.
     void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
     const LightDesc& desc() const { return desc_; }
+    static bool is_light_type(const std::string& type);
 
 private:
+    TextureStore& textures_;
     LightDesc desc_;
 };
 
@@ -197,7 +202,7 @@ public:
     RenderDelegate(const RenderDelegate&) = delete;
     RenderDelegate& operator=(const RenderDelegate&) = delete;
     static const std::vector<std::string>& supported_rprim_types();  // {"mesh"}
-    static const std::vector<std::string>& supported_sprim_types();  // {"material", "camera", "distantLight", "domeLight"}
+    static const std::vector<std::string>& supported_sprim_types();  // material, camera, distantLight, domeLight, rectLight, sphereLight
     static const std::vector<std::string>& supported_bprim_types();  // {"renderBuffer"}
 
     std::unique_ptr<Mesh> create_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t primId);

@@ -52,13 +52,26 @@ struct InstanceDesc {
     bool doubleSided = false;
 };
 
-enum class LightType { Distant, Dome };
+enum class LightType { Distant, Dome, Rect, Sphere };
+// A light as the renderer shades it (shaders/lights.h says how). World space, double where it is a place.
 struct LightDesc {
     LightType type = LightType::Distant;
-    std::array<double, 3> direction{0, 0, -1};  // world direction the light travels (distant lights)
+    // Distant: the direction the light travels. Rect: the direction its front faces (it emits along its local -Z).
+    std::array<double, 3> direction{0, 0, -1};
     // Distant: irradiance at normal incidence (UsdLux intensity times the sun disk's solid angle, unless
-    // normalized). Dome: uniform radiance of the environment.
+    // normalized). Dome: uniform radiance of the environment (times the texture's, with one). Rect and sphere: the
+    // radiance their surface emits (divided by their area when normalized).
     std::array<float, 3> radiance{1, 1, 1};
+    std::array<double, 3> position{0, 0, 0};  // rect and sphere: centre
+    double radius = 0;                        // sphere
+    // Rect: from its centre to the middle of its +X and +Y edges (width / 2 and height / 2 along its local axes, the
+    // transform's scale included). Dome: its local X and Y axes (unit), which orient its texture (+Y is the pole).
+    std::array<double, 3> axisX{1, 0, 0}, axisY{0, 1, 0};
+    // Dome: a lat-long image (absolute path; "" for none), loaded by the light's sync with its irradiance as 9
+    // spherical harmonics coefficients (rgb, in the dome's frame, divided by pi: see latlong_irradiance).
+    std::string textureFile;
+    std::shared_ptr<const TextureImage> texture;
+    std::array<float, 27> environment{};
 };
 
 // A camera: where it is, and how it projects (USD's UsdGeomCamera model: apertures and focal length in the
@@ -137,6 +150,7 @@ struct FrameStats {
     // Runtime tessellation (0 without displaced materials): clusters and triangles diced, patches, micro-triangles,
     // and the GPU memory of the patch lists and displacement normals.
     uint32_t tessellatedClusters = 0, patches = 0;
+    uint32_t computePatches = 0;  // of the patches, those the compute rasterizer drew (the rest: hardware raster)
     uint64_t tessellatedTriangles = 0, microTriangles = 0;
     uint64_t tessellationBytes = 0;
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.

@@ -55,6 +55,12 @@ TextureImage make_texture(uint32_t width, uint32_t height, uint32_t channels, co
 // Reads an image file (first subimage, level 0) into a texture. Throws TextureError saying why it cannot.
 TextureImage read_texture(const std::string& path, ColorSpace colorSpace);
 
+// A lat-long environment image (UsdLuxDomeLight, OpenEXR's convention: +Y the pole, longitude 0 towards +Z, pi/2
+// towards +X, longitude +pi at the left edge) as the irradiance it delivers, divided by pi: 9 spherical harmonics
+// coefficients (rgb each, band by band) such that sum c_i Y_i(n) is the diffuse radiance a white Lambert surface
+// facing n returns (Ramamoorthi and Hanrahan's convolution). Integrated over a mip level at most 128 texels wide.
+std::array<float, 27> latlong_irradiance(const TextureImage& image);
+
 // A UsdUVTexture driving one UsdPreviewSurface input: its file and how it is read, the UsdTransform2d on its st,
 // and the image once loaded (null until then, and when the file cannot be read: the fallback is used).
 struct TextureSlot {

@@ -1,0 +1,54 @@
+// Patch rasterizer in compute: one workgroup per patch of the compute list (tessellate.comp.glsl sends it the patches
+// beyond the near plane that stay small on screen), one thread per lattice point, then one per micro-triangle. Each
+// point is diced and displaced once (tessellation.h, the same code as the patch raster's vertex stage) and snapped to
+// the hardware's sub-pixel grid in shared memory; the micro-triangles are scanned like the cluster rasterizer's
+// (raster.h) into the visibility buffer with their payload, TS_VIS_TESSELLATED | patch << 8 | micro-triangle.
+#version 460
+#extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_shader_atomic_int64 : require
+#include "frame.h"
+#include "surface.h"
+#include "tessellation.h"
+#include "raster.h"
+
+layout(local_size_x = TS_DICE_GROUP_SIZE) in;
+
+shared ivec2 screen[TS_DICE_MAX_POINTS];  // sub-pixel position
+shared float depth[TS_DICE_MAX_POINTS];   // reversed-Z depth
+
+// A lattice point's index, row by row (row b holds n + 1 - b points).
+uint lattice_index(uvec2 ab, uint n) { return ab.y * (n + 1u) - (ab.y * (ab.y - 1u)) / 2u + ab.x; }
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    // One workgroup per patch over a 2D grid, no loop (as the cluster rasterizer: lavapipe runs a loop around it masked).
+    uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    if (k >= draw.state.dicePatches) return;  // the whole workgroup: no barrier is skipped by some threads only
+    uint index = UintRef(frame.dicePatches).data[k];
+    DicedPatch d = load_patch(frame, index);
+    uint n = d.n;
+
+    uint v = gl_LocalInvocationIndex;
+    if (v < (n + 1u) * (n + 2u) / 2u) {
+        uint b = 0u, first = 0u;
+        while (first + n + 1u - b <= v) {
+            first += n + 1u - b;
+            ++b;
+        }
+        vec2 st;
+        vec3 p = displaced_point(frame, d, micro_point(d, uvec2(v - first, b)), st);
+        snap_vertex(frame, frame.viewProjection * vec4(p, 1.0), screen[v], depth[v]);
+    }
+    barrier();
+
+    uint micro = gl_LocalInvocationIndex;
+    if (micro < n * n) {
+        uvec2 a, b, c;
+        lattice_cell(micro, n, a, b, c);
+        uint ia = lattice_index(a, n), ib = lattice_index(b, n), ic = lattice_index(c, n);
+        uint64_t payload = uint64_t(TS_VIS_TESSELLATED | index << TS_VIS_MICRO_BITS | micro);
+        rasterize_triangle(frame, screen[ia], screen[ib], screen[ic], depth[ia], depth[ib], depth[ic], payload,
+                           (d.instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, false);  // micro-triangles are not masked
+    }
+}

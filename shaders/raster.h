@@ -1,0 +1,97 @@
+// The compute rasterizer's triangle setup and scan, shared by the cluster rasterizer (raster_sw.comp.glsl) and the patch
+// rasterizer (dice.comp.glsl): vertices already snapped to the hardware rasterizer's sub-pixel grid, coverage by its
+// top-left rule, so that both compute paths and hardware raster cover the same pixels for the same triangle. Include
+// after surface.h; needs GL_EXT_shader_atomic_int64.
+#ifndef TESSERA_RASTER_H
+#define TESSERA_RASTER_H
+
+// Top-left rule for counter-clockwise triangles in y-down framebuffer space: left edges run downwards, top
+// edges run exactly horizontally to the left. A sample exactly on an edge belongs to the triangle only then.
+int edge_bias(ivec2 from, ivec2 to) {
+    ivec2 d = to - from;
+    return (d.y > 0 || (d.y == 0 && d.x < 0)) ? 0 : -1;
+}
+
+// Edge functions (the edge opposite each vertex), positive inside, stepped one pixel at a time from the first
+// pixel centre of the box; a pixel is covered when all three pass the top-left rule. Depth is interpolated from the
+// edge functions (z: the vertex depths, w: one over twice the area).
+float depth_at(vec3 edges, vec4 z) { return (edges.x * z.x + edges.y * z.y + edges.z * z.z) * z.w; }
+
+// `masked`: the instance's material cuts pixels by a textured opacity (TS_INSTANCE_MASKED; the same for a workgroup).
+void write_pixel(GpuFrame frame, int x, int y, float depth, uint64_t payload, bool masked) {
+    if (depth < 0.0 || depth > 1.0) return;  // beyond the far plane
+    if (masked && masked_out(frame, uint(payload), uvec2(x, y))) return;
+    uint pixel = uint(y) * frame.viewport.x + uint(x);
+    atomicMax(VisibilityRef(frame.visibility).data[pixel], (uint64_t(floatBitsToUint(depth)) << 32) | payload);
+    count_fragment(frame, pixel);
+}
+
+void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload, bool masked) {
+    ivec2 p = lo * step + center;
+    ivec3 row = ivec3((b.x - c.x) * (p.y - b.y) - (b.y - c.y) * (p.x - b.x),
+                      (c.x - a.x) * (p.y - c.y) - (c.y - a.y) * (p.x - c.x),
+                      (a.x - b.x) * (p.y - a.y) - (a.y - b.y) * (p.x - a.x));
+    ivec3 stepX = -ivec3(b.y - c.y, c.y - a.y, a.y - b.y) * step;
+    ivec3 stepY = ivec3(b.x - c.x, c.x - a.x, a.x - b.x) * step;
+    ivec3 bias = ivec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
+    for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
+        ivec3 w = row;
+        for (int x = lo.x; x <= hi.x; ++x, w += stepX)
+            if (all(greaterThanEqual(w + bias, ivec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload, masked);
+    }
+}
+
+void scan_large(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload, bool masked) {
+    ivec2 p = lo * step + center;
+    i64vec3 row = i64vec3(int64_t(b.x - c.x) * int64_t(p.y - b.y) - int64_t(b.y - c.y) * int64_t(p.x - b.x),
+                          int64_t(c.x - a.x) * int64_t(p.y - c.y) - int64_t(c.y - a.y) * int64_t(p.x - c.x),
+                          int64_t(a.x - b.x) * int64_t(p.y - a.y) - int64_t(a.y - b.y) * int64_t(p.x - a.x));
+    i64vec3 stepX = -i64vec3(b.y - c.y, c.y - a.y, a.y - b.y) * int64_t(step);
+    i64vec3 stepY = i64vec3(b.x - c.x, c.x - a.x, a.x - b.x) * int64_t(step);
+    i64vec3 bias = i64vec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
+    for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
+        i64vec3 w = row;
+        for (int x = lo.x; x <= hi.x; ++x, w += stepX)
+            if (all(greaterThanEqual(w + bias, i64vec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload, masked);
+    }
+}
+
+// One triangle: sub-pixel corners a, b, c with reversed-Z depths; culled when it faces away (unless double-sided) or
+// has no area; `payload` goes into the visibility buffer with the depth. Triangles at most 2^14 sub-pixels across use
+// 32-bit edge functions (exact there; much faster where 64-bit multiplies are emulated, lavapipe), larger ones 64-bit.
+void rasterize_triangle(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, float za, float zb, float zc, uint64_t payload, bool doubleSided, bool masked) {
+    // Edge functions stay within 2 E (E + step) for a triangle E sub-pixels across.
+    ivec2 extent = max(a, max(b, c)) - min(a, min(b, c));
+    bool small = max(extent.x, extent.y) < 16384;
+    // Twice the signed area; negative is counter-clockwise on screen (y down), a front face.
+    int64_t area = small ? int64_t((b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y))
+                         : int64_t(b.x - a.x) * int64_t(c.y - a.y) - int64_t(c.x - a.x) * int64_t(b.y - a.y);
+    bool front = area < 0l;
+    if (area == 0l || !(front || doubleSided)) return;
+    if (!front) {  // the back of a double-sided triangle, turned to the same orientation
+        ivec2 s = b;
+        b = c;
+        c = s;
+        float z = zb;
+        zb = zc;
+        zc = z;
+        area = -area;
+    }
+    int step = int(frame.raster.y), center = step / 2;
+    ivec2 lo = max((min(a, min(b, c)) - center + step - 1) / step, ivec2(0));
+    ivec2 hi = min((max(a, max(b, c)) - center) / step, ivec2(frame.viewport.xy) - 1);
+    vec4 z = vec4(za, zb, zc, 1.0 / float(-area));
+    if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload, masked);
+    else scan_large(frame, a, b, c, lo, hi, step, center, z, payload, masked);
+}
+
+// Clip-space position to the framebuffer's sub-pixel grid (the Vulkan viewport transform, then rounding to the
+// hardware's sub-pixel steps) and reversed-Z depth.
+void snap_vertex(GpuFrame frame, vec4 clip, out ivec2 screen, out float depth) {
+    vec3 ndc = clip.xyz / clip.w;
+    vec2 pixel = (ndc.xy * 0.5 + 0.5) * vec2(frame.viewport.xy);
+    screen = ivec2(round(pixel * frame.raster.y));
+    depth = ndc.z;
+}
+
+#endif
