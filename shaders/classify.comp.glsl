@@ -14,7 +14,7 @@ void main() {
     uint64_t value = VisibilityRef(frame.visibility).data[index];
     if (value == 0ul) return;
     uvec2 visible = visible_cluster(frame, value);
-    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     uint material = pixel_material(frame, instance, visible.y, uint(value) & ((1u << TS_VIS_TRIANGLE_BITS) - 1u));
     BinRef bins = BinRef(frame.bins);
     if (push.step == TS_CLASSIFY_COUNT) {

@@ -17,7 +17,7 @@ const float NEVER_FINE_ENOUGH = 3.4e38;
 // Screen-space size in pixels of an error of `error` mesh units anywhere in `sphere` (mesh space): measured at
 // the sphere's nearest view depth, so the estimate is conservative. Every cluster that shares a sphere and
 // an error gets the same answer, which keeps siblings and parents consistent (a cut without cracks).
-float projected_error(GpuFrame frame, GpuInstance instance, vec3 translation, float scale, vec4 sphere, float error) {
+float projected_error(GpuFrame frame, Instance instance, vec3 translation, float scale, vec4 sphere, float error) {
     if (error >= TS_ROOT_ERROR) return NEVER_FINE_ENOUGH;
     if (error <= 0.0) return 0.0;  // exact (source triangles): fine enough even from inside its sphere
     float size = error * scale * frame.lod.x;
@@ -87,7 +87,7 @@ bool hidden(GpuFrame frame, uint step, vec3 center, float radius) {
 
 // True when every triangle of the cluster faces away from the camera (camera-relative centre and radius): the
 // meshoptimizer cone test, widened by the bounding sphere so that it holds for a viewer anywhere near the cluster.
-bool facing_away(GpuFrame frame, GpuInstance instance, GpuCluster cluster, vec3 center, float radius) {
+bool facing_away(GpuFrame frame, Instance instance, GpuCluster cluster, vec3 center, float radius) {
     if ((frame.counts.z & TS_FRAME_OCCLUSION) == 0u || (frame.counts.z & TS_FRAME_NO_LOD) != 0u) return false;
     if ((instance.flags & (TS_INSTANCE_DOUBLE_SIDED | TS_INSTANCE_CONFORMAL)) != TS_INSTANCE_CONFORMAL) return false;
     vec4 cone = unpackSnorm4x8(cluster.normalCone);
@@ -131,7 +131,7 @@ void defer_cluster(GpuFrame frame, uint instanceIndex, uint clusterIndex) {
 
 // The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup.
 void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
-    GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
+    Instance instance = load_instance(frame, instanceIndex);
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
@@ -179,7 +179,7 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     }
 }
 
-vec4 instance_sphere(GpuFrame frame, GpuInstance instance) {
+vec4 instance_sphere(GpuFrame frame, Instance instance) {
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     return vec4(to_camera_relative(instance, camera_relative_translation(instance), mesh.sphere.xyz), mesh.sphere.w * instance_scale(instance));
 }
@@ -187,7 +187,7 @@ vec4 instance_sphere(GpuFrame frame, GpuInstance instance) {
 void main_pass(GpuFrame frame) {
     uint instanceIndex = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (instanceIndex >= frame.counts.x) return;
-    GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
+    Instance instance = load_instance(frame, instanceIndex);
     if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u &&
         (MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
     vec4 sphere = instance_sphere(frame, instance);
@@ -210,7 +210,7 @@ void post_pass(GpuFrame frame) {
     uint instances = draw.state.deferredInstances;
     for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) {
         uint instanceIndex = UintRef(frame.deferredInstances).data[i];
-        vec4 sphere = instance_sphere(frame, InstanceRef(frame.instances).data[instanceIndex]);
+        vec4 sphere = instance_sphere(frame, load_instance(frame, instanceIndex));
         if (hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {
             if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.occludedInstances, 1u);
             continue;
@@ -220,7 +220,7 @@ void post_pass(GpuFrame frame) {
     uint clusters = min(draw.state.deferredClusters, frame.counts.y);
     for (uint i = gl_GlobalInvocationID.x; i < clusters; i += gl_NumWorkGroups.x * TS_CULL_GROUP_SIZE) {
         uvec2 entry = VisibleClusterRef(frame.deferredClusters).data[i];
-        GpuInstance instance = InstanceRef(frame.instances).data[entry.x];
+        Instance instance = load_instance(frame, entry.x);
         GpuCluster cluster = ClusterRef(frame.clusters).data[entry.y];
         float scale = instance_scale(instance);
         vec3 center = to_camera_relative(instance, camera_relative_translation(instance), cluster.sphere.xyz);

@@ -39,7 +39,7 @@ vec3 level_color(uint level) {
     return clamp(vec3(2.0 * t - 0.5, 2.0 - abs(4.0 * t - 2.0), 1.5 - 2.0 * t), 0.0, 1.0);
 }
 
-vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software, uint material) {
+vec3 visualize(uint mode, Instance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software, uint material) {
     if (mode == TS_VIS_RASTER_BINS) return software ? vec3(0.15, 0.45, 1.0) : vec3(1.0, 0.55, 0.1);
     if (mode == TS_VIS_TRIANGLES) return id_color(cluster.triangleOffset + triangle);
     if (mode == TS_VIS_CLUSTERS) return id_color(visible.y);
@@ -91,7 +91,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     uvec2 visible = visible_cluster(frame, value);
     bool software = (visible.x & TS_VISIBLE_SOFTWARE) != 0u;
     visible.x &= ~TS_VISIBLE_SOFTWARE;
-    GpuInstance instance = InstanceRef(frame.instances).data[visible.x];
+    Instance instance = load_instance(frame, visible.x);
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     if (idAov) {
         uint id = aov == TS_AOV_PRIM_ID ? instance.primId

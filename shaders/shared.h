@@ -188,18 +188,31 @@ struct GpuMesh {
 };
 TS_CHECK_SIZE(GpuMesh, 64);
 
-// A drawn copy of a mesh. The transform maps mesh space to camera-relative world space: the CPU subtracts
-// the camera position from the translation in double and stores the result as a high and a low float, so
-// geometry far from the origin renders like geometry at the origin.
-struct GpuInstance {
-    vec4 rows[3];          // rows of the 3x4 mesh->world matrix; w holds the high part of the translation
-    vec4 translationLow;   // xyz: low part of the translation; w: largest stretch of the matrix (for bounds)
+// Instances come in batches: the copies of one mesh that share its prim, material and flags and one origin (a plain
+// mesh or a native instance: a batch of one; a PointInstancer prototype: a batch of all its instances). The batch
+// origin is re-expressed relative to the camera in double on the CPU (a high and a low float) whenever the camera
+// moves; each instance stores its transform relative to that origin in float, so geometry far from the origin renders
+// like geometry at the origin and an instance costs 52 bytes: its GpuInstance and its word of frame.instanceBatches.
+struct GpuInstanceBatch {
+    vec4 originHigh;       // xyz: the batch origin relative to the camera, high float part; w: unused
+    vec4 originLow;        // xyz: low part
     uint meshIndex;
     uint primId;
     uint materialIndex;    // its material; with TS_INSTANCE_MATERIAL_SLOTS the first entry of its table (frame.materialTables)
-    uint flags;            // TS_INSTANCE_*
+    uint flags;            // TS_INSTANCE_DOUBLE_SIDED, TS_INSTANCE_MATERIAL_SLOTS, TS_INSTANCE_MASKED
 };
-TS_CHECK_SIZE(GpuInstance, 80);
+TS_CHECK_SIZE(GpuInstanceBatch, 48);
+
+// A drawn copy of a mesh: rows of its 3x4 mesh->world matrix; w holds the translation relative to its batch's origin.
+struct GpuInstance {
+    vec4 rows[3];
+};
+TS_CHECK_SIZE(GpuInstance, 48);
+
+// frame.instanceBatches[i]: the batch of instance i, with these flags of its transform in the top bits.
+#define TS_INSTANCE_BATCH_MASK 0x3fffffffu
+#define TS_INSTANCE_BATCH_FLIP (1u << 30)       // TS_INSTANCE_FLIP_WINDING
+#define TS_INSTANCE_BATCH_CONFORMAL (1u << 31)  // TS_INSTANCE_CONFORMAL
 
 // UsdPreviewSurface: a Lambert diffuse lobe and a GGX specular lobe with Schlick's Fresnel. The constants hold the
 // inputs no texture drives; a material without textures (textureInputs 0) does no texture work at all.
@@ -298,6 +311,8 @@ struct GpuFrame {
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     GpuLight lights[TS_MAX_LIGHTS];
     address instances;       // GpuInstance[]
+    address instanceBatches; // uint[instances]: batch index | TS_INSTANCE_BATCH_* flags
+    address batches;         // GpuInstanceBatch[]
     address meshes;          // GpuMesh[]
     address levels;          // GpuLevel[]
     address clusters;        // GpuCluster[]
@@ -322,7 +337,7 @@ struct GpuFrame {
     address textureSlots;    // GpuTextureSlot[], 0 when no material has a texture
     address textures;        // the texture pool: GpuTexture[] then texel words (uint); 0 when there are no textures
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 24);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 26);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

@@ -23,7 +23,7 @@ import numpy as np
 from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import change_tracker, implicit, materials, mesh_settings
+from . import change_tracker, implicit, materials, mesh_settings, point_instancer
 from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
@@ -38,8 +38,13 @@ def to_column_major(gf_matrix) -> list[float]:
 @dataclass
 class _Rprim:
     prim: Usd.Prim
-    # For instanced rprims: world transforms of every copy (N, 4, 4), in the C++ convention.
-    instance_transforms: np.ndarray | None = None
+    # For instanced rprims: the frames of its copies (C, 4, 4), in the C++ convention: each copy's world transform,
+    # or, with `points`, the world transform of a PointInstancer whose instances of prototype `prototype` are drawn
+    # in it (the arrays stay USD's; `local` places the mesh within the prototype, C++ convention).
+    frames: np.ndarray | None = None
+    points: point_instancer.PointArrays | None = None
+    prototype: int = 0
+    local: np.ndarray | None = None
     group: str | None = None  # key of the instancing group that made it; None for a gprim drawn once (id = path)
     instancer_id: str = ""
     material: str = ""  # the bound material's path, "" for none
@@ -168,10 +173,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return kind
 
     def _visit(self, root: Usd.Prim, copies: np.ndarray, frame: Usd.Prim | None, context: str,
-               records: dict[str, _Rprim], watched: set[str]) -> None:
+               records: dict[str, _Rprim], watched: set[str], points: tuple | None = None) -> None:
         """Walks an instanced subtree. `copies` (N, 4, 4) are the world transforms of `frame` (row vectors);
         transforms inside are taken relative to `frame` (`root` itself when None). `context` names this copy set
-        uniquely (it becomes the instancer id); the rprims made go into `records`, the prims read into `watched`."""
+        uniquely (it becomes the instancer id); the rprims made go into `records`, the prims read into `watched`.
+        `points`: (PointArrays, prototype index) when `root` is a PointInstancer prototype: `copies` are then the
+        instancer's world transforms and its arrays place the prototype's instances in them, kept as arrays."""
         if frame is None:
             frame = root
         it = iter(Usd.PrimRange(root))
@@ -184,6 +191,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if imageable.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
                     it.PruneChildren()
                     continue
+            if points is not None and (prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer)):
+                # Nesting under a PointInstancer's instances composes as matrices: expand its arrays here.
+                arrays, index = points
+                copies = (arrays.matrices(index)[:, None] @ copies[None]).reshape(-1, 4, 4)
+                points = None
             if prim.IsInstance():  # a nested native instance: its own context, one per encounter
                 prototype = prim.GetPrototype()
                 watched.add(str(prototype.GetPath()))
@@ -201,8 +213,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                     self.warnings.append(f"{prim.GetPath()}: {prim.GetTypeName()} is not drawn (not supported yet)")
                     continue
                 local = self._relative(prim, frame)
-                transforms = np.ascontiguousarray(np.swapaxes(local[None] @ copies, 1, 2))
-                records[f"{prim.GetPath()}{{{context}}}"] = _Rprim(prim, transforms, instancer_id=context)
+                id = f"{prim.GetPath()}{{{context}}}"
+                if points is None:
+                    records[id] = _Rprim(prim, np.ascontiguousarray(np.swapaxes(local[None] @ copies, 1, 2)), instancer_id=context)
+                else:
+                    records[id] = _Rprim(prim, np.ascontiguousarray(np.swapaxes(copies, 1, 2)), points=points[0], prototype=points[1],
+                                         local=np.ascontiguousarray(local.T), instancer_id=context)
 
     def _visit_point_instancer(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
                                context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
@@ -211,35 +227,21 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         watched.add(str(path))
         prototypes = instancer.GetPrototypesRel().GetTargets()
         watched.update(str(target) for target in prototypes)
-        proto_indices = instancer.GetProtoIndicesAttr().Get(self.time)
-        if proto_indices is None or len(proto_indices) == 0:
+        arrays = point_instancer.read(instancer, len(prototypes), self.time, self.warnings)
+        if arrays is None:
             return
-        proto_indices = np.asarray(proto_indices)
-        bad = (proto_indices < 0) | (proto_indices >= len(prototypes))
-        if bad.any():
-            self.warnings.append(f"{path}: {int(bad.sum())} protoIndices out of range (0..{len(prototypes) - 1}); those instances are skipped")
-        # Per-instance transforms relative to the instancer (row vectors). The prototype root's own transform
-        # is applied by visiting the prototype relative to its parent; the mask (invisibleIds) below.
-        transforms = instancer.ComputeInstanceTransformsAtTime(
-            self.time, self.time, UsdGeom.PointInstancer.ExcludeProtoXform, UsdGeom.PointInstancer.IgnoreMask)
-        if transforms is None or len(transforms) != len(proto_indices):
-            self.warnings.append(f"{path}: positions and protoIndices disagree in length; the instancer is skipped")
-            return
-        transforms = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4)
-        mask = np.asarray(instancer.ComputeMaskAtTime(self.time) or [True] * len(proto_indices), dtype=bool) & ~bad
         instancer_world = self._relative(prim, frame)
         world = instancer_world[None] if copies is None else instancer_world[None] @ copies  # (C, 4, 4)
         for index, target in enumerate(prototypes):
-            selected = transforms[(proto_indices == index) & mask]
-            if len(selected) == 0:
+            selection = arrays.selections[index]
+            if selection is not None and len(selection) == 0:
                 continue
             proto = self.stage.GetPrimAtPath(target)
             if not proto:
                 self.warnings.append(f"{path}: prototype {target} does not exist")
                 continue
-            # Every instance transform times every copy of the instancer.
-            proto_copies = (selected[:, None] @ world[None]).reshape(-1, 4, 4)
-            self._visit(proto, proto_copies, proto.GetParent(), f"{context}[{index}]", records, watched)
+            # The prototype's root transform counts (ExcludeProtoXform with the prototype visited from its parent).
+            self._visit(proto, world, proto.GetParent(), f"{context}[{index}]", records, watched, points=(arrays, index))
 
     # -- the index made to match the stage ----------------------------------------------------------
 
@@ -351,9 +353,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             bits = 0
             if resynced is not None and is_at_or_under(str(record.prim.GetPath()), resynced):
                 bits = _dirty.ALL
-            if not np.array_equal(old.instance_transforms, record.instance_transforms):
+            if not _same_copies(old, record):
                 bits |= _dirty.INSTANCER
-            old.prim, old.instance_transforms = record.prim, record.instance_transforms
+            old.prim, old.frames, old.points, old.prototype, old.local = record.prim, record.frames, record.points, record.prototype, record.local
             if self._rebind(id, old):
                 bits |= _dirty.MATERIAL_ID
             if bits:
@@ -633,15 +635,17 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def get_visible(self, id: str) -> bool:
         record = self.rprims[id]
-        if record.instance_transforms is not None:
+        if record.frames is not None:
             return True  # visibility inside prototypes was resolved while populating
         return UsdGeom.Imageable(record.prim).ComputeVisibility(self.time) != UsdGeom.Tokens.invisible
 
     def get_material_id(self, id: str) -> str:
         return self.rprims[id].material
 
-    def get_instance_transforms(self, instancer_id: str, prototype_id: str):
-        return _tessera.matrix_array(self.rprims[prototype_id].instance_transforms)
+    def get_instances(self, instancer_id: str, prototype_id: str):
+        record = self.rprims[prototype_id]
+        arrays = record.points.instance_arrays(record.prototype, record.local) if record.points is not None else None
+        return _tessera.instance_set(record.frames, arrays)
 
     def get_material(self, id: str):
         return materials.material_desc(self.stage.GetPrimAtPath(id), self.time, self.warnings)
@@ -672,6 +676,15 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def get_camera(self, id: str):
         return camera_desc(UsdGeom.Camera(self.stage.GetPrimAtPath(id)).GetCamera(self.time))
+
+
+def _same_copies(a: _Rprim, b: _Rprim) -> bool:
+    """Whether two records of an instanced rprim draw the same copies (so no DirtyInstancer)."""
+    if not np.array_equal(a.frames, b.frames) or (a.points is None) != (b.points is None):
+        return False
+    if a.points is None:
+        return True
+    return a.prototype == b.prototype and np.array_equal(a.local, b.local) and b.points.same_as(a.points, b.prototype)
 
 
 def _outermost(paths: set[str]) -> list[str]:
