@@ -117,6 +117,7 @@ nb::dict stats_dict(const FrameStats& s) {
     gpuMs["hzb"] = s.hzbMs;
     gpuMs["resolve"] = s.resolveMs;
     d["gpu_ms"] = gpuMs;
+    d["upload_ms"] = s.uploadMs;
     return d;
 }
 

@@ -21,6 +21,7 @@
 #include <cmath>
 #include <cstddef>
 #include <atomic>
+#include <chrono>
 #include <cstring>
 #include <string>
 #include <thread>
@@ -318,6 +319,8 @@ struct Renderer::Impl {
     // Frame resources.
     Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
     Buffer deferredInstances, deferredClusters;
+    Buffer cutList;  // instances the cut step walks (those the instance step did not cull); grows on overflow
+    uint32_t cutCapacity = 1u << 12;
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
     uint32_t materialCount = 1;
@@ -757,6 +760,7 @@ struct Renderer::Impl {
             softwareList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
             deferredClusters = Buffer{};  // sized with the visible list, made on first use
         }
+        if (cutList.size < uint64_t(cutCapacity) * 4) cutList = device.create_buffer(uint64_t(cutCapacity) * 4, MemoryUse::Device);
         const uint64_t pixels = uint64_t(w) * h;
         if (w != width || h != height || !visibility.handle) {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
@@ -811,6 +815,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     Impl& s = *impl_;
     if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
         throw std::invalid_argument("resolution must be between 1x1 and 16384x16384");
+    const auto uploadStarted = std::chrono::steady_clock::now();
     bool instancesMoved = s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_, materialsChanged = false;
     if (s.uploadedScene != &scene || s.geometryVersion != scene.geometryVersion_) {
         s.upload_geometry(scene);
@@ -830,6 +835,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
+    frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
     frameStats.instances = s.instanceCount;
     frameStats.instanceBatches = uint32_t(s.gpuBatches.size());
     frameStats.clusters = s.clusterCount;
@@ -893,7 +899,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                                                       cam.position[2] - s.previousCamera[2]);
             f.previousViewProjection = to_gpu(multiply(s.previousViewProjection, shift));
         }
-        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, 0, 0, 0};
+        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, s.cutCapacity, 0, 0};
+        f.cutList = s.cutList.address;
         f.instances = s.instances.address;
         f.instanceBatches = s.instanceBatches.address;
         f.batches = s.batches.address;
@@ -935,6 +942,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             initial.vertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
             initial.swGroupsZ = 1;
             initial.postGroupsY = initial.postGroupsZ = 1;
+            initial.cutGroupsY = initial.cutGroupsZ = 1;
+            initial.postInstanceGroupsY = initial.postInstanceGroupsZ = 1;
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
             if (countOverdraw) vkCmdFillBuffer(cmd, s.overdraw.handle, 0, pixels * 4, 0);
@@ -975,14 +984,26 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_TRANSFER_WRITE_BIT);
             };
 
-            // Main pass.
-            PushConstants push{s.frame.address, 0, TS_CULL_MAIN, s.hzbPrevious.address};
-            vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+            // Main pass: instances one per thread, then a workgroup per instance they listed.
+            auto cull_step = [&](uint32_t step, const Buffer& hzb) {
+                PushConstants push{s.frame.address, 0, step, hzb.address};
+                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+            };
+            auto compute_to_indirect = [&]() {
+                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                        VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                        VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+            };
             vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
+            cull_step(TS_CULL_MAIN_INSTANCES, s.hzbPrevious);
             if (s.instanceCount) {
-                const uint32_t groupsX = std::min(s.instanceCount, 65535u);
-                vkCmdDispatch(cmd, groupsX, (s.instanceCount + groupsX - 1) / groupsX, 1);
+                const uint32_t groups = (s.instanceCount + TS_CULL_GROUP_SIZE - 1) / TS_CULL_GROUP_SIZE;
+                const uint32_t groupsX = std::min(groups, 65535u);
+                vkCmdDispatch(cmd, groupsX, (groups + groupsX - 1) / groupsX, 1);
             }
+            compute_to_indirect();
+            cull_step(TS_CULL_MAIN, s.hzbPrevious);
+            vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, cutGroupsX));
             mark();
             rasterize();
 
@@ -992,15 +1013,17 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, instanceCount), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swClusters), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, cutInstances), 4, 0);
                 s.build_hzb(cmd, s.hzbCurrent);
                 barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 mark();
-                PushConstants post{s.frame.address, 0, TS_CULL_POST, s.hzbCurrent.address};
-                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(post), &post);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
-                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
-                        VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+                compute_to_indirect();
+                cull_step(TS_CULL_POST_INSTANCES, s.hzbCurrent);
+                vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postInstanceGroupsX));
+                compute_to_indirect();
+                cull_step(TS_CULL_POST, s.hzbCurrent);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postGroupsX));
                 mark();
                 rasterize();
@@ -1069,6 +1092,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
         gpu::GpuDrawState state;
         std::memcpy(&state, s.readback.mapped, sizeof(state));
+        if (state.cutInstancesNeeded > s.cutCapacity) {  // more instances survived the instance step than the list holds
+            ++frameStats.overflowRedraws;
+            s.cutCapacity = std::max(s.cutCapacity * 2, state.cutInstancesNeeded + state.cutInstancesNeeded / 4);
+            continue;
+        }
         const uint32_t needed = std::max(state.visibleClusters, state.deferredClusters);
         if (needed > s.capacity) {
             if (needed > TS_VIS_MAX_VISIBLE_CLUSTERS)
@@ -1104,7 +1132,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         break;
     }
 
-    frameStats.instanceBytes = s.instances.size + s.instanceBatches.size + s.batches.size + s.deferredInstances.size;
+    frameStats.instanceBytes = s.instances.size + s.instanceBatches.size + s.batches.size + s.deferredInstances.size + s.cutList.size;
 
     std::vector<Image> images;
     for (size_t i = 0; i < aovs.size(); ++i) {

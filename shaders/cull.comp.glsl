@@ -1,7 +1,7 @@
 // Instance culling and the DAG cut, in two passes (push.step).
-// Main pass, one workgroup per instance: a visible instance tests the clusters of the DAG levels its distance
-// allows; a cluster is drawn iff its own error, projected to the screen, is within the threshold while its
-// parent's is not, and its bounds touch the frustum. With two-pass occlusion, instances and clusters that the
+// Main pass: instances are tested one per thread (frustum, previous HZB), then one workgroup per listed instance
+// tests the clusters of the DAG levels its distance allows; a cluster is drawn iff its own error, projected to the
+// screen, is within the threshold while its parent's is not, and its bounds touch the frustum. With two-pass occlusion, instances and clusters that the
 // previous frame's HZB hides are deferred instead of drawn. Survivors are appended to the visible-cluster list.
 // Post pass: the deferred instances and clusters are tested against an HZB of what the main pass drew; those it
 // does not hide are drawn. Nothing is lost: whatever the main pass leaves out, the post pass tests against
@@ -184,39 +184,65 @@ vec4 instance_sphere(GpuFrame frame, Instance instance) {
     return vec4(to_camera_relative(instance, camera_relative_translation(instance), mesh.sphere.xyz), mesh.sphere.w * instance_scale(instance));
 }
 
-void main_pass(GpuFrame frame) {
-    uint instanceIndex = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
-    if (instanceIndex >= frame.counts.x) return;
-    Instance instance = load_instance(frame, instanceIndex);
-    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u &&
-        (MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
-    vec4 sphere = instance_sphere(frame, instance);
-    if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
-    if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {
-        if (gl_LocalInvocationIndex == 0) {
-            DrawStateRef draw = DrawStateRef(frame.drawState);
-            uint k = atomicAdd(draw.state.deferredInstances, 1u);
-            UintRef(frame.deferredInstances).data[k] = instanceIndex;  // one slot per instance: never overflows
-            atomicMax(draw.state.postGroupsX, min(k + 1u, 65535u));
-        }
-        return;
+// Steps *_INSTANCES: one thread per instance (main) or per deferred instance (post). An instance that a material
+// cuts out entirely, outside the frustum, or hidden, goes no further; the main pass defers those the previous
+// frame's HZB hides; the rest are listed for the cut step.
+void list_for_cut(GpuFrame frame, uint step, uint instanceIndex) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint k = atomicAdd(draw.state.cutInstances, 1u);
+    atomicMax(draw.state.cutInstancesNeeded, k + 1u);
+    if (k >= frame.hzb.y) return;  // overflow: the CPU grows the list and redraws
+    SlotListRef(frame.cutList).data[k] = instanceIndex;
+    if (step == TS_CULL_MAIN_INSTANCES) {
+        atomicMax(draw.state.cutGroupsX, min(k + 1u, 65535u));
+        atomicMax(draw.state.cutGroupsY, k / 65535u + 1u);
+    } else {
+        atomicMax(draw.state.postGroupsX, min(k + 1u, 65535u));  // the post cut step also strides over deferred clusters
     }
-    cut_instance(frame, TS_CULL_MAIN, instanceIndex);
 }
 
-// Workgroups take the deferred instances in turn; every thread takes deferred clusters in turn.
-void post_pass(GpuFrame frame) {
+void test_instances(GpuFrame frame, uint step) {
+    uint thread = (gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x) * TS_CULL_GROUP_SIZE + gl_LocalInvocationIndex;
     DrawStateRef draw = DrawStateRef(frame.drawState);
-    uint instances = draw.state.deferredInstances;
-    for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) {
-        uint instanceIndex = UintRef(frame.deferredInstances).data[i];
+    if (step == TS_CULL_MAIN_INSTANCES) {
+        if (thread >= frame.counts.x) return;
+        Instance instance = load_instance(frame, thread);
+        if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u &&
+            (MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
+        vec4 sphere = instance_sphere(frame, instance);
+        if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
+        if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {
+            uint k = atomicAdd(draw.state.deferredInstances, 1u);
+            SlotListRef(frame.deferredInstances).data[k] = thread;  // one slot per instance: never overflows
+            atomicMax(draw.state.postInstanceGroupsX, min(k / TS_CULL_GROUP_SIZE + 1u, 65535u));
+            atomicMax(draw.state.postInstanceGroupsY, k / TS_CULL_GROUP_SIZE / 65535u + 1u);
+            return;
+        }
+        list_for_cut(frame, step, thread);
+    } else {
+        if (thread >= draw.state.deferredInstances) return;
+        uint instanceIndex = UintRef(frame.deferredInstances).data[thread];
         vec4 sphere = instance_sphere(frame, load_instance(frame, instanceIndex));
         if (hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {
-            if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.occludedInstances, 1u);
-            continue;
+            atomicAdd(draw.state.occludedInstances, 1u);
+            return;
         }
-        cut_instance(frame, TS_CULL_POST, instanceIndex);
+        list_for_cut(frame, step, instanceIndex);
     }
+}
+
+// Main pass: one workgroup per listed instance.
+void main_pass(GpuFrame frame) {
+    uint entry = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    if (entry >= min(DrawStateRef(frame.drawState).state.cutInstances, frame.hzb.y)) return;
+    cut_instance(frame, TS_CULL_MAIN, UintRef(frame.cutList).data[entry]);
+}
+
+// Post pass: workgroups take the listed instances in turn; every thread takes deferred clusters in turn.
+void post_pass(GpuFrame frame) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint instances = min(draw.state.cutInstances, frame.hzb.y);
+    for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) cut_instance(frame, TS_CULL_POST, UintRef(frame.cutList).data[i]);
     uint clusters = min(draw.state.deferredClusters, frame.counts.y);
     for (uint i = gl_GlobalInvocationID.x; i < clusters; i += gl_NumWorkGroups.x * TS_CULL_GROUP_SIZE) {
         uvec2 entry = VisibleClusterRef(frame.deferredClusters).data[i];
@@ -233,5 +259,6 @@ void post_pass(GpuFrame frame) {
 void main() {
     GpuFrame frame = push.frame.f;
     if (push.step == TS_CULL_MAIN) main_pass(frame);
-    else post_pass(frame);
+    else if (push.step == TS_CULL_POST) post_pass(frame);
+    else test_instances(frame, push.step);
 }

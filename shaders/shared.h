@@ -109,8 +109,13 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Cull steps (push constant `step`). Two-pass occlusion culling: the main pass draws what the previous frame's HZB
 // does not hide and defers the rest; the post pass tests the deferred instances and clusters against an HZB of
 // what the main pass drew, and draws those it does not hide.
+// Each pass first tests instances one per thread (steps *_INSTANCES: frustum and HZB) and lists the survivors; the
+// cut steps then walk each listed instance's DAG, one workgroup each (a workgroup per instance of a 10 M-instance
+// scene cost lavapipe about 40 us each, culled or not).
 #define TS_CULL_MAIN 0u
 #define TS_CULL_POST 1u
+#define TS_CULL_MAIN_INSTANCES 2u
+#define TS_CULL_POST_INSTANCES 3u
 
 // Material bins: covered pixels are counted per material, given each material a range, and scattered into it, so
 // that each material's pixels are shaded by one indirect dispatch of their own (push constant `step`: the material);
@@ -280,8 +285,16 @@ struct GpuDrawState {
     uint postClusters;     // clusters drawn by the post pass (hidden last frame, visible now)
     uint backfaceClusters; // clusters all of whose triangles face away from the camera
     uint shadingBins;      // materials with at least one visible pixel
+    uint cutGroupsX;       // VkDispatchIndirectCommand of the cut step: one workgroup per listed instance, as X (at most
+    uint cutGroupsY;       // 65535) times Y
+    uint cutGroupsZ;
+    uint cutInstances;     // instances listed for the cut step (this pass), may exceed the list's capacity
+    uint postInstanceGroupsX; // VkDispatchIndirectCommand of the post pass's instance step: a thread per deferred instance
+    uint postInstanceGroupsY;
+    uint postInstanceGroupsZ;
+    uint cutInstancesNeeded; // the most instances either pass listed (overflow is detected on the CPU)
 };
-TS_CHECK_SIZE(GpuDrawState, 96);
+TS_CHECK_SIZE(GpuDrawState, 128);
 
 // One material's bin: its covered pixels' range in the bin pixel list, and the indirect dispatch that shades them.
 struct GpuBin {
@@ -306,7 +319,8 @@ struct GpuFrame {
                              // y: error threshold in pixels; z: 1 when orthographic; w: near-plane distance
     vec4 raster;             // x: software raster below this estimated area per triangle (pixels); y: sub-pixel steps
     mat4 previousViewProjection; // the previous frame's camera, mapping this frame's camera-relative world to its clip
-    uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels)
+    uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels);
+                             // y: capacity of the cut list
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     GpuLight lights[TS_MAX_LIGHTS];
@@ -330,14 +344,16 @@ struct GpuFrame {
     address visibility;      // uint64[width * height]
     address aovOutput;       // vec4[width * height]
     address deferredInstances; // uint[instances]: instances the main pass left to the post pass
+    address cutList;         // uint[hzb.y]: instances the cut step of this pass walks
     address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
     address overdraw;        // uint[width * height]: fragments per pixel, only with TS_VIS_OVERDRAW (else 0)
     address bins;            // GpuBin[materials]
     address binPixels;       // uint[width * height]: covered pixels, grouped by material
     address textureSlots;    // GpuTextureSlot[], 0 when no material has a texture
     address textures;        // the texture pool: GpuTexture[] then texel words (uint); 0 when there are no textures
+    address padding;         // the size a multiple of 16, as std430 rounds it
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 26);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 6 + 32 * TS_MAX_LIGHTS + 8 * 28);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

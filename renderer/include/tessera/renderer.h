@@ -155,6 +155,7 @@ struct FrameStats {
     uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.
     double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, hzbMs = 0, resolveMs = 0;
+    double uploadMs = 0;  // CPU time spent uploading what changed in the scene (instances, geometry, materials) this frame
 };
 
 // The GPU scene: meshes shared by any number of instances. Changes are uploaded by the next render.
