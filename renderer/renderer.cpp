@@ -997,7 +997,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
             cull_step(TS_CULL_MAIN_INSTANCES, s.hzbPrevious);
             if (s.instanceCount) {
-                const uint32_t groups = (s.instanceCount + TS_CULL_GROUP_SIZE - 1) / TS_CULL_GROUP_SIZE;
+                const uint32_t groups = (s.instanceCount + TS_CULL_INSTANCES_PER_GROUP - 1) / TS_CULL_INSTANCES_PER_GROUP;
                 const uint32_t groupsX = std::min(groups, 65535u);
                 vkCmdDispatch(cmd, groupsX, (groups + groupsX - 1) / groupsX, 1);
             }

@@ -201,8 +201,7 @@ void list_for_cut(GpuFrame frame, uint step, uint instanceIndex) {
     }
 }
 
-void test_instances(GpuFrame frame, uint step) {
-    uint thread = (gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x) * TS_CULL_GROUP_SIZE + gl_LocalInvocationIndex;
+void test_instance(GpuFrame frame, uint step, uint thread) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     if (step == TS_CULL_MAIN_INSTANCES) {
         if (thread >= frame.counts.x) return;
@@ -214,8 +213,8 @@ void test_instances(GpuFrame frame, uint step) {
         if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {
             uint k = atomicAdd(draw.state.deferredInstances, 1u);
             SlotListRef(frame.deferredInstances).data[k] = thread;  // one slot per instance: never overflows
-            atomicMax(draw.state.postInstanceGroupsX, min(k / TS_CULL_GROUP_SIZE + 1u, 65535u));
-            atomicMax(draw.state.postInstanceGroupsY, k / TS_CULL_GROUP_SIZE / 65535u + 1u);
+            atomicMax(draw.state.postInstanceGroupsX, min(k / TS_CULL_INSTANCES_PER_GROUP + 1u, 65535u));
+            atomicMax(draw.state.postInstanceGroupsY, k / TS_CULL_INSTANCES_PER_GROUP / 65535u + 1u);
             return;
         }
         list_for_cut(frame, step, thread);
@@ -229,6 +228,13 @@ void test_instances(GpuFrame frame, uint step) {
         }
         list_for_cut(frame, step, instanceIndex);
     }
+}
+
+// A workgroup tests TS_CULL_INSTANCES_PER_GROUP consecutive instances, each thread every TS_CULL_GROUP_SIZE-th: on
+// lavapipe a workgroup of this shader costs about 30 us before it does anything, so each must do much.
+void test_instances(GpuFrame frame, uint step) {
+    uint first = (gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x) * TS_CULL_INSTANCES_PER_GROUP;
+    for (uint i = gl_LocalInvocationIndex; i < TS_CULL_INSTANCES_PER_GROUP; i += TS_CULL_GROUP_SIZE) test_instance(frame, step, first + i);
 }
 
 // Main pass: one workgroup per listed instance.

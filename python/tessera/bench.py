@@ -725,6 +725,8 @@ def usd(args) -> int:
     rows = []
     print(" | ".join(title for _, title in USD_COLUMNS))
     for case, count in (("prims", args.prims), ("distinct", args.prims), ("instances", args.instances)):
+        if count <= 0:
+            continue
         stage = directory / f"usd_{case}_{count}.usdc"
         if not stage.exists():
             _write_usd_stage(stage, case, count)
