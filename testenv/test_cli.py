@@ -169,10 +169,14 @@ def test_bench_textures_measures_loads_and_shading(tmp_path):
 
 def test_bench_usd_translates_and_resyncs_one_edit(tmp_path):
     rows_file = tmp_path / "rows.json"
-    done = run("bench", "usd", "--prims", "50", "--instances", "40", "--edits", "2", "--stages-dir", tmp_path, "--json", rows_file)
+    done = run("bench", "usd", "--prims", "50", "--instances", "40", "--point-instances", "3000", "--prototype-triangles", "400",
+               "--edits", "2", "--stages-dir", tmp_path, "--json", rows_file)
     assert done.returncode == 0, done.stderr + done.stdout
-    assert "edit re-sync ms" in done.stdout
-    one_shape, distinct, instances = json.loads(rows_file.read_text())
+    assert "edit re-sync ms" in done.stdout and "GPU B/inst" in done.stdout
+    one_shape, distinct, instances, points = json.loads(rows_file.read_text())
+    assert points["instances"] == 3000 and points["batches"] == 1, "one PointInstancer prototype: one batch"
+    assert points["gpu_bytes_per_instance"] <= 64 and points["load_seconds"] > 0
+    assert points["visible_instances"][0] > 0, "the frame drew some of the field"
     assert one_shape["rprims"] == distinct["rprims"] == 50 and instances["rprims"] == 1
     assert one_shape["meshes_shared"] == 49, "one shape: built or loaded once, shared by the other 49"
     assert distinct["meshes_built"] + distinct["meshes_cached"] == 50 and distinct["meshes_shared"] == 0
