@@ -32,7 +32,7 @@ _LIGHT_TYPES = {"distantLight", "domeLight"}
 
 def to_column_major(gf_matrix) -> list[float]:
     """Gf (row vectors) -> the C++ convention (row-major, column vectors)."""
-    return list(np.asarray(gf_matrix, dtype=np.float64).T.reshape(16))
+    return np.asarray(gf_matrix, dtype=np.float64).T.ravel().tolist()
 
 
 @dataclass
@@ -49,6 +49,8 @@ class _Rprim:
     instancer_id: str = ""
     material: str = ""  # the bound material's path, "" for none
     subset_materials: tuple = ()  # the materials of its materialBind GeomSubsets (slots 1, 2, ...), "" for the mesh's own
+    # The visibility the last walk found (None once read): the first sync after a walk need not compute it again.
+    walked_visible: bool | None = None
 
 
 @dataclass
@@ -68,6 +70,7 @@ class _Group:
 class _Found:
     """What a walk of part of the stage found outside instancing contexts."""
     rprims: dict[str, Usd.Prim] = field(default_factory=dict)
+    hidden: set[str] = field(default_factory=set)  # rprims found under (or at) an invisible prim
     sprims: dict[str, str] = field(default_factory=dict)  # cameras and lights: path -> type
     natives: dict[str, list[str]] = field(default_factory=dict)  # prototype path -> instance prim paths
     instancers: list[str] = field(default_factory=list)
@@ -149,6 +152,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                     found.sprims[str(path)] = role
             elif role == "mesh":
                 found.rprims[str(path)] = prim
+                if hidden_under is not None:
+                    found.hidden.add(str(path))
             else:
                 self.warnings.append(f"{path}: {prim.GetTypeName()} is not drawn (not supported yet)")
 
@@ -183,6 +188,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             frame = root
         it = iter(Usd.PrimRange(root))
         for prim in it:
+            self._kind(prim)  # notes its type (_stage_has)
             imageable = UsdGeom.Imageable(prim)
             if imageable:
                 if imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
@@ -249,6 +255,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         """Walks `path`'s subtree again and makes the index match it: prims gone are removed, new ones inserted,
         and those still there dirtied with `survivor_bits`. Instancing groups that read anything there are re-made."""
         found = _Found()
+        had_materials = self._stage_has("Material")
         prim = self.stage.GetPrimAtPath(path)
         hidden = self._outside_state(prim) if prim else None
         if hidden is not None:
@@ -265,8 +272,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         for id, found_prim in found.rprims.items():
             record = self.rprims.get(id)
             if record is None:
-                self._insert_rprim(id, _Rprim(found_prim))
-            elif resync:
+                self._insert_rprim(id, _Rprim(found_prim, walked_visible=id not in found.hidden))
+                continue
+            record.walked_visible = id not in found.hidden
+            if resync:
                 record.prim = found_prim  # the old handle may have expired
                 self._rebind(id, record)
                 self.index.mark_dirty(id, survivor_bits)
@@ -300,6 +309,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             touched.add(instancer)
         for key in sorted(touched):
             self._remake_group(key, path if resync else None, moved=path)
+        if self._stage_has("Material") and not had_materials:  # the first material: bindings were not resolved before
+            for id, record in self.rprims.items():
+                self._rebind(id, record, mark=True)
 
     def _outside_state(self, prim: Usd.Prim) -> bool | None:
         """For a walk from `prim`: whether an ancestor hides it (True), or None when it is not walked from the top
@@ -419,10 +431,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     # -- materials ------------------------------------------------------------------------------------
 
-    @staticmethod
-    def _material_subsets(prim: Usd.Prim) -> list:
+    def _material_subsets(self, prim: Usd.Prim) -> list:
         """A mesh's GeomSubsets of family materialBind over faces, in order: subset i is material slot i + 1 (at most 255)."""
-        if not prim.IsA(UsdGeom.Mesh):
+        if not self._stage_has("GeomSubset") or not prim.IsA(UsdGeom.Mesh):
             return []
         subsets = UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets()
         return [s for s in subsets if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face][:255]
@@ -431,7 +442,13 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         """The material of each GeomSubset (slot 1, 2, ...): its own binding, else its mesh's (UsdShade's resolution)."""
         return list(self.rprims[id].subset_materials)
 
+    def _stage_has(self, type_name: str) -> bool:
+        """Whether a walk or a visit has met a prim of this type (the walks see every prim's type once)."""
+        return type_name in self._kinds
+
     def _bound_material(self, prim: Usd.Prim) -> str:
+        if not self._stage_has("Material"):
+            return ""  # nothing to bind to: the binding need not be resolved
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
         return str(material.GetPath()) if material else ""
 
@@ -555,36 +572,49 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     # -- SceneDelegate ----------------------------------------------------------------------------------
 
     def get_mesh(self, id: str):
-        prim = self.rprims[id].prim
-        source = self._mesh_source(prim)
-        source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
+        record = self.rprims[id]
+        prim = record.prim
+        # One call says which properties carry opinions: the reads below skip the others (a mesh authors a few of the
+        # dozen attributes a mesh may have; each read is a round trip through usd-core).
+        authored = set(prim.GetAuthoredPropertyNames())
+        source = self._mesh_source(prim, authored, record.material)
+        if any(name.startswith("tessera:") for name in authored):
+            source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
+        else:  # nothing of TesseraMeshAPI authored: the render's defaults, applied or not
+            source.settings = self.build_settings
         return source
 
-    def _mesh_source(self, prim: Usd.Prim):
+    def _mesh_source(self, prim: Usd.Prim, authored: set[str], material: str):
         if not prim.IsA(UsdGeom.Mesh):
             return implicit.mesh_source(prim, self.time)
-        mesh = UsdGeom.Mesh(prim)
         t = self.time
         name = str(prim.GetPath())
 
-        def array(attr, dtype, width=None):
-            value = attr.Get(t) if attr else None
+        def array(attribute_name, dtype, width=None):
+            value = prim.GetAttribute(attribute_name).Get(t) if attribute_name in authored else None
             if value is None:
                 return None
             a = np.asarray(value, dtype=dtype)
             return np.ascontiguousarray(a.reshape(-1)) if width else np.ascontiguousarray(a)
 
-        points = array(mesh.GetPointsAttr(), np.float32, 3)
-        counts = array(mesh.GetFaceVertexCountsAttr(), np.int32)
-        indices = array(mesh.GetFaceVertexIndicesAttr(), np.int32)
+        def value(attribute_name, default):
+            if attribute_name not in authored:
+                return default
+            v = prim.GetAttribute(attribute_name).Get(t)
+            return default if v is None else v
+
+        points = array("points", np.float32, 3)
+        counts = array("faceVertexCounts", np.int32)
+        indices = array("faceVertexIndices", np.int32)
         if points is None or counts is None or indices is None:
             raise _tessera.MeshError(f"{name}: points, faceVertexCounts or faceVertexIndices is not authored")
-        holes = array(mesh.GetHoleIndicesAttr(), np.int32)
-        primvars = UsdGeom.PrimvarsAPI(prim)
+        holes = array("holeIndices", np.int32)
 
         def primvar(primvar_name, default_interpolation, width=3):
             """(values, interpolation, indices) of an authored primvar of `width` components, else (None, default, None)."""
-            pv = primvars.GetPrimvar(primvar_name)
+            if f"primvars:{primvar_name}" not in authored:
+                return None, default_interpolation, None
+            pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(primvar_name)
             if not (pv and pv.HasAuthoredValue()):
                 return None, default_interpolation, None
             values = pv.Get(t)
@@ -598,10 +628,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
         # primvars:normals wins over the normals attribute, as in UsdImaging.
         normals, normals_interp, normals_idx = primvar("normals", "vertex")
-        if normals is None and mesh.GetNormalsAttr().HasAuthoredValue():
-            normals, normals_interp = array(mesh.GetNormalsAttr(), np.float32, 3), mesh.GetNormalsInterpolation()
+        if normals is None and "normals" in authored and prim.GetAttribute("normals").HasAuthoredValue():
+            normals, normals_interp = array("normals", np.float32, 3), UsdGeom.Mesh(prim).GetNormalsInterpolation()
         color, color_interp, color_idx = primvar("displayColor", "constant")
-        uvs, uvs_interp, uvs_idx = primvar(self.uv_primvar(prim), "faceVarying", width=2)
+        uv_name = self._material_uv_primvar(material) if material else "st"
+        uvs, uvs_interp, uvs_idx = primvar(uv_name, "faceVarying", width=2)
         face_materials = None
         subsets = self._material_subsets(prim)
         if subsets:  # faces in no subset keep slot 0 (the mesh's own material); a face in several takes the last
@@ -615,20 +646,22 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return _tessera.mesh_source(
             name, points, counts, indices,
             hole_indices=holes,
-            left_handed=mesh.GetOrientationAttr().Get(t) == UsdGeom.Tokens.leftHanded,
-            double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
+            left_handed=value("orientation", UsdGeom.Tokens.rightHanded) == UsdGeom.Tokens.leftHanded,
+            double_sided=bool(value("doubleSided", False)),
             normals=normals, normals_interpolation=normals_interp, normals_indices=normals_idx,
             display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx,
             uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx, face_materials=face_materials,
-            subdivision_scheme=mesh.GetSubdivisionSchemeAttr().Get(t) or "catmullClark", refine_level=self.refine_level)
+            subdivision_scheme=value("subdivisionScheme", "") or "catmullClark", refine_level=self.refine_level)
+
+    def _material_uv_primvar(self, material: str) -> str:
+        """The primvar the bound material's texture readers read (its UsdPrimvarReader_float2's varname), else "st"."""
+        return materials.material_desc(self.stage.GetPrimAtPath(material), self.time, []).uv_primvar or "st"
 
     def uv_primvar(self, prim: Usd.Prim) -> str:
         """The texture coordinate set a mesh is built with: the primvar its bound material's texture readers read
         (a UsdPrimvarReader_float2's varname), else "st", the convention of UsdPreviewSurface materials."""
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
-        if not material:
-            return "st"
-        return materials.material_desc(material.GetPrim(), self.time, []).uv_primvar or "st"
+        return self._material_uv_primvar(str(material.GetPath())) if material else "st"
 
     def get_transform(self, id: str):
         return to_column_major(self.xform_cache.GetLocalToWorldTransform(self.rprims[id].prim))
@@ -637,6 +670,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         record = self.rprims[id]
         if record.frames is not None:
             return True  # visibility inside prototypes was resolved while populating
+        if record.walked_visible is not None:  # the walk that just found it saw its visibility
+            visible, record.walked_visible = record.walked_visible, None
+            return visible
         return UsdGeom.Imageable(record.prim).ComputeVisibility(self.time) != UsdGeom.Tokens.invisible
 
     def get_material_id(self, id: str) -> str:
