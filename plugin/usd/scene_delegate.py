@@ -17,6 +17,7 @@ Matrices handed to C++ are row-major and act on column vectors: the transpose of
 
 from __future__ import annotations
 
+import gc
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,8 +50,9 @@ class _Rprim:
     instancer_id: str = ""
     material: str = ""  # the bound material's path, "" for none
     subset_materials: tuple = ()  # the materials of its materialBind GeomSubsets (slots 1, 2, ...), "" for the mesh's own
-    # The visibility the last walk found (None once read): the first sync after a walk need not compute it again.
+    # What the last walk found (None once read): the first sync after a walk need not ask USD again.
     walked_visible: bool | None = None
+    walked_authored: list | None = None  # its authored property names
 
 
 @dataclass
@@ -71,6 +73,7 @@ class _Found:
     """What a walk of part of the stage found outside instancing contexts."""
     rprims: dict[str, Usd.Prim] = field(default_factory=dict)
     hidden: set[str] = field(default_factory=set)  # rprims found under (or at) an invisible prim
+    authored: dict[str, list] = field(default_factory=dict)  # rprim -> its authored property names
     sprims: dict[str, str] = field(default_factory=dict)  # cameras and lights: path -> type
     natives: dict[str, list[str]] = field(default_factory=dict)  # prototype path -> instance prim paths
     instancers: list[str] = field(default_factory=list)
@@ -107,7 +110,15 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     # -- populate ---------------------------------------------------------------------------------
 
     def populate(self) -> None:
-        self._repopulate("/", _dirty.ALL)
+        # The walk makes a few objects per prim, all kept: the cyclic garbage collector would scan them again and again
+        # as they accumulate (a measured 6 % of translating 100 k prims). It runs again afterwards.
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            self._repopulate("/", _dirty.ALL)
+        finally:
+            if collecting:
+                gc.enable()
 
     def _relative(self, prim: Usd.Prim, frame: Usd.Prim | None) -> np.ndarray:
         if frame is None:
@@ -127,12 +138,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             if hidden_under is not None and not path.HasPrefix(hidden_under):
                 hidden_under = None
             imageable, role = self._kind(prim)
+            authored = None
             if imageable:
-                geom = UsdGeom.Imageable(prim)
-                if geom.GetPurposeAttr().Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
+                # One call lists what the prim authors; purpose and visibility are read only where authored (their
+                # fallbacks are default and inherited): three times faster than reading both on every prim.
+                authored = prim.GetAuthoredPropertyNames()
+                if "purpose" in authored and prim.GetAttribute("purpose").Get() in (UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide):
                     it.PruneChildren()
                     continue
-                if hidden_under is None and geom.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
+                if hidden_under is None and "visibility" in authored and \
+                        prim.GetAttribute("visibility").Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
             if prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
                 if hidden_under is None:
@@ -152,6 +167,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                     found.sprims[str(path)] = role
             elif role == "mesh":
                 found.rprims[str(path)] = prim
+                found.authored[str(path)] = authored
                 if hidden_under is not None:
                     found.hidden.add(str(path))
             else:
@@ -272,9 +288,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         for id, found_prim in found.rprims.items():
             record = self.rprims.get(id)
             if record is None:
-                self._insert_rprim(id, _Rprim(found_prim, walked_visible=id not in found.hidden))
+                self._insert_rprim(id, _Rprim(found_prim, walked_visible=id not in found.hidden, walked_authored=found.authored[id]))
                 continue
-            record.walked_visible = id not in found.hidden
+            record.walked_visible, record.walked_authored = id not in found.hidden, found.authored[id]
             if resync:
                 record.prim = found_prim  # the old handle may have expired
                 self._rebind(id, record)
@@ -490,6 +506,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if not resynced and not changed:
             return
         self.xform_cache.Clear()
+        for path in changed:  # what a walk saw of an edited prim no longer holds (a walk below may see it again)
+            for id in self._paths.at(path):
+                record = self.rprims.get(id)
+                if record is not None:
+                    record.walked_visible = record.walked_authored = None
         roots = _outermost(resynced)
         if roots:
             self._time_varying = None  # recomposed: what varies in time is looked up again when next needed
@@ -576,7 +597,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         prim = record.prim
         # One call says which properties carry opinions: the reads below skip the others (a mesh authors a few of the
         # dozen attributes a mesh may have; each read is a round trip through usd-core).
-        authored = set(prim.GetAuthoredPropertyNames())
+        authored, record.walked_authored = record.walked_authored, None
+        authored = set(authored if authored is not None else prim.GetAuthoredPropertyNames())
         source = self._mesh_source(prim, authored, record.material)
         if any(name.startswith("tessera:") for name in authored):
             source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
