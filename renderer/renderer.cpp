@@ -584,6 +584,9 @@ struct Renderer::Impl {
         // Every cluster of every instance is an upper bound on the visible ones: start there (8 bytes each, within
         // reason) so that a frame rarely pays for an overflow redraw.
         if (!capacityPinned) capacity = uint32_t(std::clamp<uint64_t>(clusterCount, capacity, 1u << 22));
+        // The cut list holds the instances that pass the instance tests: start with room for all of them, within
+        // reason (4 bytes each), so that a frame rarely pays for an overflow redraw.
+        cutCapacity = uint32_t(std::clamp<uint64_t>(instanceCount, cutCapacity, 1u << 16));
     }
 
     // Each instance's transform relative to its batch's origin, and its batch word, written straight into the GPU

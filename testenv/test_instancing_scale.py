@@ -147,6 +147,7 @@ def test_a_hundred_thousand_instances_each_cover_their_pixels(render):
     assert len(np.unique(ids)) == 100_000, "every instance covers pixels, and nothing else does"
     assert np.array_equal(np.unique(ids), np.arange(100_000))
     assert len(np.unique(result["primId"].ids())) == 1, "one prim"
+    assert result.stats["overflow_redraws"] == 1, "the cut list (room for 65536 instances at first) grew once"
     # What the instances cost on the GPU: a 48-byte transform, a batch word and a deferral slot each, plus the list of
     # instances the cut walks (here all of them).
     assert 56 * 100_000 <= result.stats["instance_bytes"] <= 64 * 100_000

@@ -36,7 +36,7 @@ def to_column_major(gf_matrix) -> list[float]:
     return np.asarray(gf_matrix, dtype=np.float64).T.ravel().tolist()
 
 
-@dataclass
+@dataclass(slots=True)  # one per rprim: 100 k of them on big stages
 class _Rprim:
     prim: Usd.Prim
     # For instanced rprims: the frames of its copies (C, 4, 4), in the C++ convention: each copy's world transform,
