@@ -321,6 +321,7 @@ struct Renderer::Impl {
     Buffer deferredInstances, deferredClusters;
     Buffer cutList;  // instances the cut step walks (those the instance step did not cull); grows on overflow
     uint32_t cutCapacity = 1u << 12;
+    uint32_t deferredCapacity = 1u << 12;  // the deferred-instance list's (instances the previous HZB hid); grows on overflow
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
     uint32_t materialCount = 1;
@@ -587,6 +588,7 @@ struct Renderer::Impl {
         // The cut list holds the instances that pass the instance tests: start with room for all of them, within
         // reason (4 bytes each), so that a frame rarely pays for an overflow redraw.
         cutCapacity = uint32_t(std::clamp<uint64_t>(instanceCount, cutCapacity, 1u << 16));
+        deferredCapacity = uint32_t(std::clamp<uint64_t>(instanceCount, deferredCapacity, 1u << 16));
     }
 
     // Each instance's transform relative to its batch's origin, and its batch word, written straight into the GPU
@@ -788,8 +790,7 @@ struct Renderer::Impl {
             hzbCurrent = device.create_buffer(texels * 4, MemoryUse::Device);
         }
         if (!deferredClusters.handle) deferredClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
-        if (deferredInstances.size < uint64_t(std::max(instanceCount, 1u)) * 4)
-            deferredInstances = device.create_buffer(uint64_t(std::max(instanceCount, 1u)) * 4, MemoryUse::Device);
+        if (deferredInstances.size < uint64_t(deferredCapacity) * 4) deferredInstances = device.create_buffer(uint64_t(deferredCapacity) * 4, MemoryUse::Device);
     }
 
     // Builds every HZB level from the visibility buffer into `target`, one dispatch per level.
@@ -902,7 +903,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                                                       cam.position[2] - s.previousCamera[2]);
             f.previousViewProjection = to_gpu(multiply(s.previousViewProjection, shift));
         }
-        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, s.cutCapacity, 0, 0};
+        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, s.cutCapacity, s.deferredCapacity, 0};
         f.cutList = s.cutList.address;
         f.instances = s.instances.address;
         f.instanceBatches = s.instanceBatches.address;
@@ -1095,9 +1096,13 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
         gpu::GpuDrawState state;
         std::memcpy(&state, s.readback.mapped, sizeof(state));
-        if (state.cutInstancesNeeded > s.cutCapacity) {  // more instances survived the instance step than the list holds
+        if (state.cutInstancesNeeded > s.cutCapacity || state.deferredInstances > s.deferredCapacity) {
+            // More instances survived the instance step, or were hidden by the previous HZB, than the lists hold.
             ++frameStats.overflowRedraws;
-            s.cutCapacity = std::max(s.cutCapacity * 2, state.cutInstancesNeeded + state.cutInstancesNeeded / 4);
+            if (state.cutInstancesNeeded > s.cutCapacity)
+                s.cutCapacity = std::max(s.cutCapacity * 2, state.cutInstancesNeeded + state.cutInstancesNeeded / 4);
+            if (state.deferredInstances > s.deferredCapacity)
+                s.deferredCapacity = std::max(s.deferredCapacity * 2, state.deferredInstances + state.deferredInstances / 4);
             continue;
         }
         const uint32_t needed = std::max(state.visibleClusters, state.deferredClusters);

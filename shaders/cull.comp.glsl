@@ -212,14 +212,15 @@ void test_instance(GpuFrame frame, uint step, uint thread) {
         if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
         if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {
             uint k = atomicAdd(draw.state.deferredInstances, 1u);
-            SlotListRef(frame.deferredInstances).data[k] = thread;  // one slot per instance: never overflows
+            if (k >= frame.hzb.z) return;  // overflow: the CPU grows the list and redraws
+            SlotListRef(frame.deferredInstances).data[k] = thread;
             atomicMax(draw.state.postInstanceGroupsX, min(k / TS_CULL_INSTANCES_PER_GROUP + 1u, 65535u));
             atomicMax(draw.state.postInstanceGroupsY, k / TS_CULL_INSTANCES_PER_GROUP / 65535u + 1u);
             return;
         }
         list_for_cut(frame, step, thread);
     } else {
-        if (thread >= draw.state.deferredInstances) return;
+        if (thread >= min(draw.state.deferredInstances, frame.hzb.z)) return;
         uint instanceIndex = UintRef(frame.deferredInstances).data[thread];
         vec4 sphere = instance_sphere(frame, load_instance(frame, instanceIndex));
         if (hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {

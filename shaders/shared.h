@@ -274,7 +274,7 @@ struct GpuDrawState {
     uint postGroupsX;      // VkDispatchIndirectCommand of the post cull pass: enough workgroups for the deferred work
     uint postGroupsY;
     uint postGroupsZ;
-    uint deferredInstances; // instances the main pass deferred (hidden by the previous frame's HZB)
+    uint deferredInstances; // instances the main pass deferred (hidden by the previous frame's HZB), may exceed capacity
     uint deferredClusters; // clusters the main pass deferred, may exceed capacity (overflow)
     uint visibleClusters;  // visible clusters found, may exceed capacity (overflow is detected on the CPU)
     uint visibleInstances;
@@ -322,7 +322,7 @@ struct GpuFrame {
     vec4 raster;             // x: software raster below this estimated area per triangle (pixels); y: sub-pixel steps
     mat4 previousViewProjection; // the previous frame's camera, mapping this frame's camera-relative world to its clip
     uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels);
-                             // y: capacity of the cut list
+                             // y: capacity of the cut list; z: capacity of the deferred-instance list
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     GpuLight lights[TS_MAX_LIGHTS];
@@ -345,7 +345,7 @@ struct GpuFrame {
     address drawState;       // GpuDrawState
     address visibility;      // uint64[width * height]
     address aovOutput;       // vec4[width * height]
-    address deferredInstances; // uint[instances]: instances the main pass left to the post pass
+    address deferredInstances; // uint[hzb.z]: instances the main pass left to the post pass
     address cutList;         // uint[hzb.y]: instances the cut step of this pass walks
     address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
     address overdraw;        // uint[width * height]: fragments per pixel, only with TS_VIS_OVERDRAW (else 0)

@@ -148,6 +148,36 @@ def test_a_hundred_thousand_instances_each_cover_their_pixels(render):
     assert np.array_equal(np.unique(ids), np.arange(100_000))
     assert len(np.unique(result["primId"].ids())) == 1, "one prim"
     assert result.stats["overflow_redraws"] == 1, "the cut list (room for 65536 instances at first) grew once"
-    # What the instances cost on the GPU: a 48-byte transform, a batch word and a deferral slot each, plus the list of
-    # instances the cut walks (here all of them).
-    assert 56 * 100_000 <= result.stats["instance_bytes"] <= 64 * 100_000
+    # What the instances cost on the GPU: a 48-byte transform and a batch word each, plus the lists of instances the
+    # cut walks (here all of them) and of those the previous frame hid (bounded).
+    assert 52 * 100_000 <= result.stats["instance_bytes"] <= 64 * 100_000
+
+
+def test_a_hundred_thousand_hidden_instances_are_deferred_then_culled(render):
+    """A wall hides 90,000 instances: the second frame defers them all on the previous frame's HZB (more than the
+    deferred list holds at first: it grows and the frame is drawn again) and the post pass finds them hidden."""
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    wall = UsdGeom.Mesh.Define(stage, "/Wall")
+    wall.CreatePointsAttr([(-50, -50, 0), (50, -50, 0), (50, 50, 0), (-50, 50, 0)])
+    wall.CreateFaceVertexCountsAttr([4])
+    wall.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    wall.CreateSubdivisionSchemeAttr("none")
+    _box(stage, "/Field/Protos/Box", (0.02, 0.02, 0.02))
+    instancer = UsdGeom.PointInstancer.Define(stage, "/Field")
+    instancer.CreatePrototypesRel().SetTargets(["/Field/Protos/Box"])
+    x, y = np.meshgrid(np.linspace(-1.4, 1.4, 300), np.linspace(-1.0, 1.0, 300))  # all in view
+    positions = np.stack([x.ravel(), y.ravel(), np.full(x.size, -2.0)], -1).astype(np.float32)
+    instancer.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(positions))
+    instancer.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(len(positions), np.int32)))
+    _camera(stage, (0, 0, 10), (0, 0, 0))
+    import tessera
+
+    session = tessera.Session(stage, validation=True)
+    first = session.render(camera="/Camera", resolution=(160, 120), aovs=("primId",))
+    second = session.render(camera="/Camera", resolution=(160, 120), aovs=("primId",))
+    assert first.stats["instances"] == 90_001
+    assert second.stats["occlusion_tested"] and second.stats["occluded_instances"] == 90_000
+    assert second.stats["overflow_redraws"] == 1, "the deferred list (room for 65536 at first) grew once"
+    assert np.array_equal(first["primId"].ids(), second["primId"].ids())
+    assert [e for e in second.errors if e.startswith("validation")] == []
