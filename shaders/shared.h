@@ -112,7 +112,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Each pass first tests instances, TS_CULL_INSTANCES_PER_GROUP per workgroup (steps *_INSTANCES: frustum and HZB),
 // and lists the survivors; the cut steps then walk each listed instance's DAG, one workgroup each (on lavapipe a
 // workgroup of the cull shader costs about 30 us even when it culls at once: a workgroup per instance of a
-// 10 M-instance field was 5 minutes of culling).
+// 10 M-instance field would be 5 minutes of culling).
 #define TS_CULL_MAIN 0u
 #define TS_CULL_POST 1u
 #define TS_CULL_MAIN_INSTANCES 2u
