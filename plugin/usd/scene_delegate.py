@@ -166,10 +166,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if hidden_under is None:
                     found.sprims[str(path)] = role
             elif role == "mesh":
-                found.rprims[str(path)] = prim
-                found.authored[str(path)] = authored
+                key = str(path)
+                found.rprims[key] = prim
+                found.authored[key] = authored
                 if hidden_under is not None:
-                    found.hidden.add(str(path))
+                    found.hidden.add(key)
             else:
                 self.warnings.append(f"{path}: {prim.GetTypeName()} is not drawn (not supported yet)")
 
@@ -417,7 +418,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _insert_rprim(self, id: str, record: _Rprim) -> None:
         self.rprims[id] = record
-        self._paths.add(str(record.prim.GetPath()), id)
+        self._paths.add(id if record.group is None else str(record.prim.GetPath()), id)  # a plain rprim's id is its path
         self._rebind(id, record)
         self.index.insert_rprim("mesh", id, record.instancer_id)
 
@@ -599,18 +600,17 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         # dozen attributes a mesh may have; each read is a round trip through usd-core).
         authored, record.walked_authored = record.walked_authored, None
         authored = set(authored if authored is not None else prim.GetAuthoredPropertyNames())
-        source = self._mesh_source(prim, authored, record.material)
+        source = self._mesh_source(prim, authored, record.material, id if record.group is None else str(prim.GetPath()))
         if any(name.startswith("tessera:") for name in authored):
             source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
         else:  # nothing of TesseraMeshAPI authored: the render's defaults, applied or not
             source.settings = self.build_settings
         return source
 
-    def _mesh_source(self, prim: Usd.Prim, authored: set[str], material: str):
+    def _mesh_source(self, prim: Usd.Prim, authored: set[str], material: str, name: str):
         if not prim.IsA(UsdGeom.Mesh):
             return implicit.mesh_source(prim, self.time)
         t = self.time
-        name = str(prim.GetPath())
 
         def array(attribute_name, dtype, width=None):
             value = prim.GetAttribute(attribute_name).Get(t) if attribute_name in authored else None
