@@ -157,11 +157,24 @@ bool MeshCache::store(const std::string& key, const BuiltMesh& mesh, const std::
     }
 }
 
+namespace {
+// A mesh this small (face-vertex indices, before any refinement) builds in well under 0.1 ms, less than reading its
+// page file back, let alone writing one: it is built every time and never cached (100 k tiny prims filled the cache
+// with 100 k files for nothing).
+constexpr size_t kUncachedFaceVertices = 1024;
+
+bool worth_caching(const MeshView& mesh) {
+    const bool refined = mesh.subdivisionScheme != SubdivisionScheme::None && mesh.refineLevel > 0;
+    return refined || mesh.faceVertexIndices.size() > kUncachedFaceVertices;
+}
+}  // namespace
+
 CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& settings, const MeshCache& cache) {
     validate_settings(settings);  // before the lookup: a bad setting fails whether or not the mesh is cached
     CachedBuild result;
     std::string key;
-    if (cache.enabled()) {
+    const bool cached = cache.enabled() && worth_caching(mesh);
+    if (cached) {
         key = MeshCache::key(mesh, settings);
         std::string problem;
         if (auto entry = cache.load(key, &problem)) {
@@ -174,7 +187,7 @@ CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& setti
     }
     PreparedMesh prepared = prepare_mesh(mesh);
     auto built = std::make_shared<BuiltMesh>(build_mesh(prepared, settings));
-    if (cache.enabled()) {
+    if (cached) {
         std::string problem;
         if (!cache.store(key, *built, prepared.warnings, &problem)) result.warnings.push_back(mesh.name + ": " + problem);
     }

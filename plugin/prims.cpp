@@ -60,7 +60,7 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
         materialId_ = scene.get_material_id(id());
         subsetMaterialIds_ = scene.get_subset_material_ids(id());
     }
-    if ((dirtyBits & DirtyInstancer) && !instancerId_.empty()) instances_ = scene.get_instance_transforms(instancerId_, id());
+    if ((dirtyBits & DirtyInstancer) && !instancerId_.empty()) instances_ = scene.get_instances(instancerId_, id());
 }
 
 void Material::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {

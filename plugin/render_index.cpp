@@ -107,7 +107,7 @@ std::string one_line(const std::string& text) {
 
 bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<InstanceDesc>& b) {
     return std::equal(a.begin(), a.end(), b.begin(), b.end(), [](const InstanceDesc& x, const InstanceDesc& y) {
-        return x.mesh == y.mesh && x.transform == y.transform && x.primId == y.primId && x.material == y.material &&
+        return x.mesh == y.mesh && x.transform == y.transform && x.arrays == y.arrays && x.primId == y.primId && x.material == y.material &&
                x.materialTable == y.materialTable && x.doubleSided == y.doubleSided;
     });
 }
@@ -215,9 +215,11 @@ void RenderIndex::commit_resources() {
             instance.transform = mesh.transform();
             instances.push_back(instance);
         } else {
-            const MatrixArray& transforms = mesh.instance_transforms();
-            for (size_t i = 0; i < transforms.size(); ++i) {
-                std::copy_n(transforms.values.data() + 16 * i, 16, instance.transform.begin());
+            // One batch per frame: the arrays (a PointInstancer's, borrowed) are shared, never expanded here.
+            const InstanceSet& set = mesh.instances();
+            instance.arrays = set.arrays;
+            for (size_t i = 0; i < set.frames.size(); ++i) {
+                std::copy_n(set.frames.values.data() + 16 * i, 16, instance.transform.begin());
                 instances.push_back(instance);
             }
         }

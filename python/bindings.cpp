@@ -71,8 +71,8 @@ struct PySceneDelegate : SceneDelegate {
     Matrix4d get_transform(const PrimId& id) override { NB_OVERRIDE_PURE(get_transform, id); }
     bool get_visible(const PrimId& id) override { NB_OVERRIDE_PURE(get_visible, id); }
     PrimId get_material_id(const PrimId& id) override { NB_OVERRIDE_PURE(get_material_id, id); }
-    MatrixArray get_instance_transforms(const PrimId& instancerId, const PrimId& prototypeId) override {
-        NB_OVERRIDE_PURE(get_instance_transforms, instancerId, prototypeId);
+    InstanceSet get_instances(const PrimId& instancerId, const PrimId& prototypeId) override {
+        NB_OVERRIDE_PURE(get_instances, instancerId, prototypeId);
     }
     MaterialDesc get_material(const PrimId& id) override { NB_OVERRIDE_PURE(get_material, id); }
     LightDesc get_light(const PrimId& id) override { NB_OVERRIDE_PURE(get_light, id); }
@@ -89,6 +89,8 @@ Visualize visualize_from(const std::string& name) {
 nb::dict stats_dict(const FrameStats& s) {
     nb::dict d;
     d["instances"] = s.instances;
+    d["instance_batches"] = s.instanceBatches;
+    d["instance_bytes"] = s.instanceBytes;
     d["visible_instances"] = s.visibleInstances;
     d["clusters"] = s.clusters;
     d["candidate_clusters"] = s.candidateClusters;
@@ -122,6 +124,7 @@ nb::dict stats_dict(const FrameStats& s) {
     gpuMs["hzb"] = s.hzbMs;
     gpuMs["resolve"] = s.resolveMs;
     d["gpu_ms"] = gpuMs;
+    d["upload_ms"] = s.uploadMs;
     return d;
 }
 
@@ -263,6 +266,49 @@ NB_MODULE(_tessera, m) {
         },
         "matrices"_a, "Row-major (N, 4, 4) float64 matrices acting on column vectors.");
 
+    // A PointInstancer's arrays, borrowed (numpy views of USD's VtArrays): validated here, never copied.
+    nb::class_<InstanceArrays>(m, "InstanceArrays").def_prop_ro("count", &InstanceArrays::count);
+    nb::class_<InstanceSet>(m, "InstanceSet")
+        .def_prop_ro("count", &InstanceSet::count)
+        .def_prop_ro("instances_per_frame", [](const InstanceSet& set) { return set.arrays ? set.arrays->count() : 1; });
+    m.def(
+        "instance_arrays",
+        [](nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu> positions,
+           std::optional<nb::ndarray<const float, nb::shape<-1, 4>, nb::c_contig, nb::device::cpu>> orientations,
+           std::optional<nb::ndarray<const uint16_t, nb::shape<-1, 4>, nb::c_contig, nb::device::cpu>> orientationsHalf,
+           std::optional<nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu>> scales,
+           std::optional<Array1<uint32_t>> selection, std::optional<Matrix4d> local) {
+            auto arrays = std::make_shared<InstanceArrays>();
+            nb::list owners;
+            arrays->positions = {positions.data(), positions.shape(0) * 3};
+            owners.append(nb::cast(positions));
+            if (orientations) arrays->orientations = {orientations->data(), orientations->shape(0) * 4}, owners.append(nb::cast(*orientations));
+            if (orientationsHalf) arrays->orientationsHalf = {orientationsHalf->data(), orientationsHalf->shape(0) * 4}, owners.append(nb::cast(*orientationsHalf));
+            if (scales) arrays->scales = {scales->data(), scales->shape(0) * 3}, owners.append(nb::cast(*scales));
+            if (selection) arrays->selection = span_of(selection), owners.append(nb::cast(*selection));
+            if (local) arrays->local = *local;
+            arrays->validate();
+            arrays->keepAlive = keep_alive(owners);
+            return arrays;
+        },
+        "positions"_a, "orientations"_a = nb::none(), "orientations_half"_a = nb::none(), "scales"_a = nb::none(), "selection"_a = nb::none(),
+        "local"_a = nb::none(),
+        "A PointInstancer's arrays for one prototype: positions (N, 3) float32; orientations (N, 4) float32 or orientations_half "
+        "(N, 4) float16 bits as uint16 (i j k r); scales (N, 3) float32; selection: uint32 indices of the instances drawn "
+        "(None: all); local: the mesh within the prototype (row-major, column vectors).");
+    m.def(
+        "instance_set",
+        [](nb::ndarray<const double, nb::shape<-1, 4, 4>, nb::c_contig, nb::device::cpu> frames, std::shared_ptr<InstanceArrays> arrays) {
+            InstanceSet set;
+            set.frames.values = {frames.data(), frames.shape(0) * 16};
+            set.frames.keepAlive = keep_alive(nb::cast(frames));
+            set.arrays = std::move(arrays);
+            return set;
+        },
+        "frames"_a, nb::arg("arrays").none() = nb::none(),
+        "The copies of a prototype: one per frame (row-major (N, 4, 4) float64, column vectors), or every instance of "
+        "`arrays` in each frame.");
+
     nb::enum_<ColorSpace>(m, "ColorSpace").value("auto", ColorSpace::Auto).value("sRGB", ColorSpace::Srgb).value("raw", ColorSpace::Raw);
     nb::enum_<TextureWrap>(m, "TextureWrap")
         .value("repeat", TextureWrap::Repeat)
@@ -384,7 +430,7 @@ NB_MODULE(_tessera, m) {
         .def("get_transform", &SceneDelegate::get_transform)
         .def("get_visible", &SceneDelegate::get_visible)
         .def("get_material_id", &SceneDelegate::get_material_id)
-        .def("get_instance_transforms", &SceneDelegate::get_instance_transforms)
+        .def("get_instances", &SceneDelegate::get_instances)
         .def("get_material", &SceneDelegate::get_material)
         .def("get_light", &SceneDelegate::get_light)
         .def("get_camera", &SceneDelegate::get_camera)

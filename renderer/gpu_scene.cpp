@@ -1,5 +1,10 @@
 #include "tessera/renderer.h"
 
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+#include <string>
+
 namespace tessera {
 
 Matrix4d identity_matrix() { return {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1}; }
@@ -13,6 +18,63 @@ Matrix4d multiply(const Matrix4d& a, const Matrix4d& b) {
             r[i * 4 + j] = sum;
         }
     return r;
+}
+
+namespace {
+double half_to_double(uint16_t h) {
+    const int exponent = (h >> 10) & 0x1f, mantissa = h & 0x3ff;
+    const double sign = (h & 0x8000) ? -1.0 : 1.0;
+    if (exponent == 0) return sign * std::ldexp(mantissa, -24);
+    if (exponent == 31) return mantissa ? NAN : sign * INFINITY;
+    return sign * std::ldexp(mantissa + 1024, exponent - 25);
+}
+}  // namespace
+
+void InstanceArrays::validate() const {
+    const size_t n = positions.size() / 3;
+    if (positions.size() % 3) throw std::invalid_argument("positions must hold 3 floats per instance");
+    if (!orientations.empty() && !orientationsHalf.empty()) throw std::invalid_argument("give orientations as floats or as halves, not both");
+    if (!orientations.empty() && orientations.size() != 4 * n)
+        throw std::invalid_argument(std::to_string(orientations.size() / 4) + " orientations for " + std::to_string(n) + " positions");
+    if (!orientationsHalf.empty() && orientationsHalf.size() != 4 * n)
+        throw std::invalid_argument(std::to_string(orientationsHalf.size() / 4) + " orientations for " + std::to_string(n) + " positions");
+    if (!scales.empty() && scales.size() != 3 * n)
+        throw std::invalid_argument(std::to_string(scales.size() / 3) + " scales for " + std::to_string(n) + " positions");
+    for (uint32_t index : selection)
+        if (index >= n) throw std::invalid_argument("instance " + std::to_string(index) + " selected of " + std::to_string(n));
+}
+
+// USD's PointInstancer order (UsdGeomPointInstancer::ComputeInstanceTransformsAtTime): scale, then rotate, then
+// translate, in double, the quaternion normalized (a zero one is no rotation).
+Matrix4d InstanceArrays::transform(size_t n) const {
+    const size_t i = selection.empty() ? n : selection[n];
+    double q[4] = {0, 0, 0, 1};
+    if (!orientations.empty())
+        for (int k = 0; k < 4; ++k) q[k] = orientations[4 * i + k];
+    else if (!orientationsHalf.empty())
+        for (int k = 0; k < 4; ++k) q[k] = half_to_double(orientationsHalf[4 * i + k]);
+    const double length = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if (length > 0 && std::isfinite(length))
+        for (double& c : q) c /= length;
+    else
+        q[0] = q[1] = q[2] = 0, q[3] = 1;
+    const double x = q[0], y = q[1], z = q[2], w = q[3];
+    const double r[9] = {1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+                         2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+                         2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)};
+    const double s[3] = {scales.empty() ? 1.0 : scales[3 * i], scales.empty() ? 1.0 : scales[3 * i + 1], scales.empty() ? 1.0 : scales[3 * i + 2]};
+    Matrix4d trs = identity_matrix();
+    for (int row = 0; row < 3; ++row) {
+        for (int col = 0; col < 3; ++col) trs[row * 4 + col] = r[row * 3 + col] * s[col];
+        trs[row * 4 + 3] = positions[3 * i + row];
+    }
+    return multiply(trs, local);
+}
+
+uint64_t GpuScene::instance_count() const {
+    uint64_t count = 0;
+    for (const InstanceDesc& desc : instances_) count += desc.count();
+    return count;
 }
 
 uint32_t GpuScene::add_mesh(std::shared_ptr<const BuiltMesh> mesh) {

@@ -23,7 +23,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
+#include <atomic>
+#include <chrono>
 #include <cstring>
+#include <string>
+#include <thread>
 #include <unordered_map>
 
 namespace tessera {
@@ -455,16 +459,22 @@ struct Renderer::Impl {
     static constexpr uint32_t kTimestamps = 12;
     Buffer hardwareList, softwareList;
     Buffer instances, meshes, levels, clusters, positions, normals, colors, uvs, triangles, materials, materialTables;
-    uint32_t instanceCount = 0, clusterCount = 0;
-    uint64_t sourceTriangles = 0;
+    Buffer instanceBatches, batches;
+    uint32_t instanceCount = 0;
+    uint64_t clusterCount = 0, sourceTriangles = 0;
     const GpuScene* uploadedScene = nullptr;
-    std::vector<gpu::GpuInstance> gpuInstances;
-    std::vector<std::array<double, 3>> translations;  // world translation per instance, in double
-    std::array<double, 3> relativeTo{NAN, NAN, NAN};  // camera position the uploaded translations are relative to
+    // Instance batches: their GPU records and world origins in double, re-expressed relative to the camera when it
+    // moves. Per-instance data is written straight into the GPU buffers and kept nowhere else.
+    std::vector<gpu::GpuInstanceBatch> gpuBatches;
+    std::vector<std::array<double, 3>> origins;
+    std::array<double, 3> relativeTo{NAN, NAN, NAN};  // camera position the uploaded origins are relative to
     uint64_t geometryVersion = 0, instancesVersion = 0, materialsVersion = 0;
     // Frame resources.
     Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
     Buffer deferredInstances, deferredClusters;
+    Buffer cutList;  // instances the cut step walks (those the instance step did not cull); grows on overflow
+    uint32_t cutCapacity = 1u << 12;
+    uint32_t deferredCapacity = 1u << 12;  // the deferred-instance list's (instances the previous HZB hid); grows on overflow
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
     uint32_t materialCount = 1;
@@ -744,24 +754,19 @@ struct Renderer::Impl {
 
     // `moved`: the instances may have moved (else only their material flags changed, and the last frame's depths hold).
     void upload_instances(GpuScene& scene, bool moved) {
-        gpuInstances.clear();
-        translations.clear();
-        gpuInstances.reserve(scene.instances_.size());
+        gpuBatches.clear();
+        origins.clear();
         clusterCount = 0;
         sourceTriangles = 0;
         anyMasked = false;
+        std::vector<const InstanceDesc*> drawn;  // batch -> its desc
+        std::vector<uint64_t> firstInstance;     // batch -> its first instance; one more entry at the end
+        uint64_t count = 0;
         for (const InstanceDesc& desc : scene.instances_) {
             const BuiltMesh* mesh = desc.mesh < scene.meshes_.size() ? scene.meshes_[desc.mesh].get() : nullptr;
-            if (!mesh) continue;
-            const Matrix4d& m = desc.transform;
-            // Fold the mesh's origin into the translation, in double.
-            double t[3];
-            for (int r = 0; r < 3; ++r) t[r] = m[r * 4 + 3] + m[r * 4 + 0] * mesh->origin[0] + m[r * 4 + 1] * mesh->origin[1] + m[r * 4 + 2] * mesh->origin[2];
-            const Matrix3d linear = {m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]};
-            gpu::GpuInstance g{};
-            for (int r = 0; r < 3; ++r) g.rows[r] = {float(m[r * 4]), float(m[r * 4 + 1]), float(m[r * 4 + 2]), 0.0f};
-            g.translationLow = {0, 0, 0, float(max_stretch(linear))};
-            translations.push_back({t[0], t[1], t[2]});
+            const uint64_t copies = desc.count();
+            if (!mesh || copies == 0) continue;
+            gpu::GpuInstanceBatch g{};
             g.meshIndex = desc.mesh;
             g.primId = desc.primId;
             const bool table = desc.materialTable && mesh->materialSlots > 1 &&
@@ -779,33 +784,97 @@ struct Renderer::Impl {
             anyMasked |= masked;
             const auto tableBound = table ? tableDisplacement.find(g.materialIndex) : tableDisplacement.end();
             const bool displaced = table ? tableBound != tableDisplacement.end() && tableBound->second > 0 : material_displaced(g.materialIndex);
-            g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (determinant3(linear) < 0 ? TS_INSTANCE_FLIP_WINDING : 0u) |
-                      (conformal(linear) ? TS_INSTANCE_CONFORMAL : 0u) | (table ? TS_INSTANCE_MATERIAL_SLOTS : 0u) |
-                      (masked ? TS_INSTANCE_MASKED : 0u) | (displaced ? TS_INSTANCE_DISPLACED : 0u);
-            gpuInstances.push_back(g);
-            clusterCount += mesh->leafClusters;
-            sourceTriangles += mesh->sourceTriangles;
+            g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (table ? TS_INSTANCE_MATERIAL_SLOTS : 0u) | (masked ? TS_INSTANCE_MASKED : 0u) |
+                      (displaced ? TS_INSTANCE_DISPLACED : 0u);
+            // The origin: a single instance's translation with the mesh's origin folded in (its offset is then 0, as
+            // when every instance carried its own double translation); an instancer's frame for an array.
+            const Matrix4d& m = desc.transform;
+            std::array<double, 3> origin;
+            for (int r = 0; r < 3; ++r)
+                origin[r] = desc.arrays ? m[r * 4 + 3]
+                                        : m[r * 4 + 3] + m[r * 4 + 0] * mesh->origin[0] + m[r * 4 + 1] * mesh->origin[1] + m[r * 4 + 2] * mesh->origin[2];
+            gpuBatches.push_back(g);
+            origins.push_back(origin);
+            drawn.push_back(&desc);
+            firstInstance.push_back(count);
+            count += copies;
+            clusterCount += uint64_t(mesh->leafClusters) * copies;
+            sourceTriangles += uint64_t(mesh->sourceTriangles) * copies;
         }
-        instanceCount = uint32_t(gpuInstances.size());
+        firstInstance.push_back(count);
+        if (count > 0xffffffffull) throw std::runtime_error("more than 2^32 - 1 instances: " + std::to_string(count));
+        if (gpuBatches.size() > TS_INSTANCE_BATCH_MASK) throw std::runtime_error("more than 2^30 instance batches");
+        instanceCount = uint32_t(count);
+        write_instances(scene, drawn, firstInstance);
         relativeTo = {NAN, NAN, NAN};
         if (moved) previousValid = false;  // last frame's depths say nothing about instances that moved
         // Every cluster of every instance is an upper bound on the visible ones: start there (8 bytes each, within
         // reason) so that a frame rarely pays for an overflow redraw.
-        if (!capacityPinned) capacity = std::clamp<uint32_t>(clusterCount, capacity, 1u << 22);
+        if (!capacityPinned) capacity = uint32_t(std::clamp<uint64_t>(clusterCount, capacity, 1u << 22));
+        // The cut list holds the instances that pass the instance tests: start with room for all of them, within
+        // reason (4 bytes each), so that a frame rarely pays for an overflow redraw.
+        cutCapacity = uint32_t(std::clamp<uint64_t>(instanceCount, cutCapacity, 1u << 16));
+        deferredCapacity = uint32_t(std::clamp<uint64_t>(instanceCount, deferredCapacity, 1u << 16));
     }
 
-    // Camera-relative rendering: translations minus the camera position, subtracted in double, so geometry far
+    // Each instance's transform relative to its batch's origin, and its batch word, written straight into the GPU
+    // buffers (through a transient staging buffer where those are not host-visible), on every core.
+    void write_instances(const GpuScene& scene, const std::vector<const InstanceDesc*>& drawn, const std::vector<uint64_t>& firstInstance) {
+        const uint64_t count = std::max<uint64_t>(instanceCount, 1);
+        if (instances.size < count * sizeof(gpu::GpuInstance) || !instances.handle)
+            instances = device.create_buffer(count * sizeof(gpu::GpuInstance), MemoryUse::Device);
+        if (instanceBatches.size < count * 4 || !instanceBatches.handle) instanceBatches = device.create_buffer(count * 4, MemoryUse::Device);
+        Buffer stagingInstances, stagingBatches;
+        auto* records = static_cast<gpu::GpuInstance*>(instances.mapped);
+        auto* words = static_cast<uint32_t*>(instanceBatches.mapped);
+        if (!records) records = static_cast<gpu::GpuInstance*>((stagingInstances = device.create_buffer(count * sizeof(gpu::GpuInstance), MemoryUse::Upload)).mapped);
+        if (!words) words = static_cast<uint32_t*>((stagingBatches = device.create_buffer(count * 4, MemoryUse::Upload)).mapped);
+
+        auto write_range = [&](uint64_t begin, uint64_t end) {
+            size_t b = std::upper_bound(firstInstance.begin(), firstInstance.end(), begin) - firstInstance.begin() - 1;
+            for (uint64_t i = begin; i < end; ++i) {
+                while (i >= firstInstance[b + 1]) ++b;
+                const InstanceDesc& desc = *drawn[b];
+                const BuiltMesh& mesh = *scene.meshes_[desc.mesh];
+                const Matrix4d m = desc.arrays ? multiply(desc.transform, desc.arrays->transform(i - firstInstance[b])) : desc.transform;
+                const Matrix3d linear = {m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]};
+                gpu::GpuInstance& g = records[i];
+                for (int r = 0; r < 3; ++r) {
+                    const double t = m[r * 4 + 3] + m[r * 4 + 0] * mesh.origin[0] + m[r * 4 + 1] * mesh.origin[1] + m[r * 4 + 2] * mesh.origin[2];
+                    g.rows[r] = {float(m[r * 4]), float(m[r * 4 + 1]), float(m[r * 4 + 2]), desc.arrays ? float(t - origins[b][r]) : 0.0f};
+                }
+                words[i] = uint32_t(b) | (determinant3(linear) < 0 ? TS_INSTANCE_BATCH_FLIP : 0u) | (conformal(linear) ? TS_INSTANCE_BATCH_CONFORMAL : 0u);
+            }
+        };
+        const uint64_t chunk = 1 << 16, chunks = (instanceCount + chunk - 1) / chunk;
+        std::atomic<uint64_t> next{0};
+        auto work = [&] {
+            for (uint64_t c = next++; c < chunks; c = next++) write_range(c * chunk, std::min<uint64_t>(instanceCount, (c + 1) * chunk));
+        };
+        std::vector<std::thread> pool;
+        for (uint64_t t = 1; t < std::min<uint64_t>(chunks, std::max(1u, std::thread::hardware_concurrency())); ++t) pool.emplace_back(work);
+        work();
+        for (auto& thread : pool) thread.join();
+        if (stagingInstances.handle || stagingBatches.handle)
+            device.run([&](VkCommandBuffer cmd) {
+                const VkBufferCopy instanceRegion{0, 0, uint64_t(instanceCount) * sizeof(gpu::GpuInstance)}, wordRegion{0, 0, uint64_t(instanceCount) * 4};
+                if (instanceCount && stagingInstances.handle) vkCmdCopyBuffer(cmd, stagingInstances.handle, instances.handle, 1, &instanceRegion);
+                if (instanceCount && stagingBatches.handle) vkCmdCopyBuffer(cmd, stagingBatches.handle, instanceBatches.handle, 1, &wordRegion);
+            });
+    }
+
+    // Camera-relative rendering: batch origins minus the camera position, subtracted in double, so geometry far
     // from the origin renders like geometry at the origin. Re-uploaded only when the camera moves.
     void upload_relative_translations(const std::array<double, 3>& camera) {
         if (camera == relativeTo) return;
-        for (size_t i = 0; i < gpuInstances.size(); ++i)
+        for (size_t i = 0; i < gpuBatches.size(); ++i)
             for (int r = 0; r < 3; ++r) {
                 float high, low;
-                split_double(translations[i][r] - camera[r], high, low);
-                gpuInstances[i].rows[r].w = high;
-                (&gpuInstances[i].translationLow.x)[r] = low;
+                split_double(origins[i][r] - camera[r], high, low);
+                (&gpuBatches[i].originHigh.x)[r] = high;
+                (&gpuBatches[i].originLow.x)[r] = low;
             }
-        upload_vector(device, instances, gpuInstances);
+        upload_vector(device, batches, gpuBatches);
         relativeTo = camera;
     }
 
@@ -958,6 +1027,7 @@ struct Renderer::Impl {
             softwareList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
             deferredClusters = Buffer{};  // sized with the visible list, made on first use
         }
+        if (cutList.size < uint64_t(cutCapacity) * 4) cutList = device.create_buffer(uint64_t(cutCapacity) * 4, MemoryUse::Device);
         const uint64_t pixels = uint64_t(w) * h;
         if (w != width || h != height || !visibility.handle) {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
@@ -993,8 +1063,7 @@ struct Renderer::Impl {
             hzbCurrent = device.create_buffer(texels * 4, MemoryUse::Device);
         }
         if (!deferredClusters.handle) deferredClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
-        if (deferredInstances.size < uint64_t(std::max(instanceCount, 1u)) * 4)
-            deferredInstances = device.create_buffer(uint64_t(std::max(instanceCount, 1u)) * 4, MemoryUse::Device);
+        if (deferredInstances.size < uint64_t(deferredCapacity) * 4) deferredInstances = device.create_buffer(uint64_t(deferredCapacity) * 4, MemoryUse::Device);
     }
 
     // Builds every HZB level from the visibility buffer into `target`, one dispatch per level.
@@ -1027,6 +1096,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     Impl& s = *impl_;
     if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
         throw std::invalid_argument("resolution must be between 1x1 and 16384x16384");
+    const auto uploadStarted = std::chrono::steady_clock::now();
     bool instancesMoved = s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_, materialsChanged = false;
     if (s.uploadedScene != &scene || s.materialsVersion != scene.materialsVersion_) {
         s.upload_materials(scene);
@@ -1062,7 +1132,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
-    frameStats.instances = uint32_t(scene.instances_.size());
+    frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
+    frameStats.instances = s.instanceCount;
+    frameStats.instanceBatches = uint32_t(s.gpuBatches.size());
     frameStats.clusters = s.clusterCount;
     frameStats.sourceTriangles = s.sourceTriangles;
     frameStats.textures = uint32_t(s.poolImages.size());
@@ -1144,8 +1216,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                                                       cam.position[2] - s.previousCamera[2]);
             f.previousViewProjection = to_gpu(multiply(s.previousViewProjection, shift));
         }
-        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, 0, 0, 0};
+        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, s.cutCapacity, s.deferredCapacity, 0};
+        f.cutList = s.cutList.address;
         f.instances = s.instances.address;
+        f.instanceBatches = s.instanceBatches.address;
+        f.batches = s.batches.address;
         f.meshes = s.meshes.address;
         f.levels = s.levels.address;
         f.clusters = s.clusters.address;
@@ -1192,6 +1267,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             initial.tessGroupsZ = 1;
             initial.dicePatchGroupsZ = 1;
             initial.postGroupsY = initial.postGroupsZ = 1;
+            initial.cutGroupsY = initial.cutGroupsZ = 1;
+            initial.postInstanceGroupsY = initial.postInstanceGroupsZ = 1;
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
             if (countOverdraw) vkCmdFillBuffer(cmd, s.overdraw.handle, 0, pixels * 4, 0);
@@ -1254,14 +1331,26 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_TRANSFER_WRITE_BIT);
             };
 
-            // Main pass.
-            PushConstants push{s.frame.address, 0, TS_CULL_MAIN, s.hzbPrevious.address};
-            vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+            // Main pass: instances one per thread, then a workgroup per instance they listed.
+            auto cull_step = [&](uint32_t step, const Buffer& hzb) {
+                PushConstants push{s.frame.address, 0, step, hzb.address};
+                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+            };
+            auto compute_to_indirect = [&]() {
+                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                        VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                        VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+            };
             vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
+            cull_step(TS_CULL_MAIN_INSTANCES, s.hzbPrevious);
             if (s.instanceCount) {
-                const uint32_t groupsX = std::min(s.instanceCount, 65535u);
-                vkCmdDispatch(cmd, groupsX, (s.instanceCount + groupsX - 1) / groupsX, 1);
+                const uint32_t groups = (s.instanceCount + TS_CULL_INSTANCES_PER_GROUP - 1) / TS_CULL_INSTANCES_PER_GROUP;
+                const uint32_t groupsX = std::min(groups, 65535u);
+                vkCmdDispatch(cmd, groupsX, (groups + groupsX - 1) / groupsX, 1);
             }
+            compute_to_indirect();
+            cull_step(TS_CULL_MAIN, s.hzbPrevious);
+            vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, cutGroupsX));
             mark();
             rasterize();
 
@@ -1271,6 +1360,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, instanceCount), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swClusters), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, cutInstances), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessClusters), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, patchDraws), 4, 0);
@@ -1280,11 +1370,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 mark();
-                PushConstants post{s.frame.address, 0, TS_CULL_POST, s.hzbCurrent.address};
-                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(post), &post);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
-                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
-                        VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
+                compute_to_indirect();
+                cull_step(TS_CULL_POST_INSTANCES, s.hzbCurrent);
+                vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postInstanceGroupsX));
+                compute_to_indirect();
+                cull_step(TS_CULL_POST, s.hzbCurrent);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postGroupsX));
                 mark();
                 rasterize();
@@ -1355,6 +1446,15 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
         gpu::GpuDrawState state;
         std::memcpy(&state, s.readback.mapped, sizeof(state));
+        if (state.cutInstancesNeeded > s.cutCapacity || state.deferredInstances > s.deferredCapacity) {
+            // More instances survived the instance step, or were hidden by the previous HZB, than the lists hold.
+            ++frameStats.overflowRedraws;
+            if (state.cutInstancesNeeded > s.cutCapacity)
+                s.cutCapacity = std::max(s.cutCapacity * 2, state.cutInstancesNeeded + state.cutInstancesNeeded / 4);
+            if (state.deferredInstances > s.deferredCapacity)
+                s.deferredCapacity = std::max(s.deferredCapacity * 2, state.deferredInstances + state.deferredInstances / 4);
+            continue;
+        }
         const uint32_t needed = std::max(state.visibleClusters, state.deferredClusters);
         const bool patchesOverflowed = s.anyDisplaced && state.patches > s.patchCapacity;
         if (needed > s.capacity || patchesOverflowed) {
@@ -1403,6 +1503,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         }
         break;
     }
+
+    frameStats.instanceBytes = s.instances.size + s.instanceBatches.size + s.batches.size + s.deferredInstances.size + s.cutList.size;
 
     std::vector<Image> images;
     for (size_t i = 0; i < aovs.size(); ++i) {

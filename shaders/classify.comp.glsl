@@ -15,7 +15,7 @@ void main() {
     if (value == 0ul) return;
     Payload payload = decode_payload(frame, uint(value));
     uvec2 visible = visible_cluster(frame, payload.slot);
-    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     uint material = pixel_material(frame, instance, visible.y, payload.triangle);
     BinRef bins = BinRef(frame.bins);
     if (push.step == TS_CLASSIFY_COUNT) {

@@ -1,7 +1,7 @@
 // Instance culling and the DAG cut, in two passes (push.step).
-// Main pass, one workgroup per instance: a visible instance tests the clusters of the DAG levels its distance
-// allows; a cluster is drawn iff its own error, projected to the screen, is within the threshold while its
-// parent's is not, and its bounds touch the frustum. With two-pass occlusion, instances and clusters that the
+// Main pass: instances are tested one per thread (frustum, previous HZB), then one workgroup per listed instance
+// tests the clusters of the DAG levels its distance allows; a cluster is drawn iff its own error, projected to the
+// screen, is within the threshold while its parent's is not, and its bounds touch the frustum. With two-pass occlusion, instances and clusters that the
 // previous frame's HZB hides are deferred instead of drawn. Survivors are appended to the visible-cluster list.
 // Post pass: the deferred instances and clusters are tested against an HZB of what the main pass drew; those it
 // does not hide are drawn. Nothing is lost: whatever the main pass leaves out, the post pass tests against
@@ -17,7 +17,7 @@ const float NEVER_FINE_ENOUGH = 3.4e38;
 // Screen-space size in pixels of an error of `error` mesh units anywhere in `sphere` (mesh space): measured at
 // the sphere's nearest view depth, so the estimate is conservative. Every cluster that shares a sphere and
 // an error gets the same answer, which keeps siblings and parents consistent (a cut without cracks).
-float projected_error(GpuFrame frame, GpuInstance instance, vec3 translation, float scale, vec4 sphere, float error) {
+float projected_error(GpuFrame frame, Instance instance, vec3 translation, float scale, vec4 sphere, float error) {
     if (error >= TS_ROOT_ERROR) return NEVER_FINE_ENOUGH;
     if (error <= 0.0) return 0.0;  // exact (source triangles): fine enough even from inside its sphere
     float size = error * scale * frame.lod.x;
@@ -87,7 +87,7 @@ bool hidden(GpuFrame frame, uint step, vec3 center, float radius) {
 
 // True when every triangle of the cluster faces away from the camera (camera-relative centre and radius): the
 // meshoptimizer cone test, widened by the bounding sphere so that it holds for a viewer anywhere near the cluster.
-bool facing_away(GpuFrame frame, GpuInstance instance, GpuCluster cluster, vec3 center, float radius) {
+bool facing_away(GpuFrame frame, Instance instance, GpuCluster cluster, vec3 center, float radius) {
     if ((frame.counts.z & TS_FRAME_OCCLUSION) == 0u || (frame.counts.z & TS_FRAME_NO_LOD) != 0u) return false;
     if ((instance.flags & (TS_INSTANCE_DOUBLE_SIDED | TS_INSTANCE_CONFORMAL | TS_INSTANCE_DISPLACED)) != TS_INSTANCE_CONFORMAL) return false;
     vec4 cone = unpackSnorm4x8(cluster.normalCone);
@@ -100,7 +100,7 @@ bool facing_away(GpuFrame frame, GpuInstance instance, GpuCluster cluster, vec3 
 // True when a displaced instance's cluster is diced: unless the displacement, seen from the cluster's nearest point,
 // projects to no more than its material's fade-end size, where it has faded out entirely (tessellation.h). Clusters of
 // instances with material tables are always diced (each triangle fades by its own material).
-bool tessellated(GpuFrame frame, GpuInstance instance, vec3 center, float radius, float scale) {
+bool tessellated(GpuFrame frame, Instance instance, vec3 center, float radius, float scale) {
     if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return false;
     if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return true;
     GpuMaterial material = MaterialRef(frame.materials).data[instance.materialIndex];
@@ -119,7 +119,7 @@ void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterInd
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint slot = atomicAdd(draw.state.visibleClusters, 1u);
     if (step == TS_CULL_POST) atomicAdd(draw.state.postClusters, 1u);
-    GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
+    Instance instance = load_instance(frame, instanceIndex);
     if (tessellated(frame, instance, center, radius, scale)) {
         atomicAdd(draw.state.tessClustersDrawn, 1u);
         if (slot >= frame.counts.y) return;
@@ -158,7 +158,7 @@ void defer_cluster(GpuFrame frame, uint instanceIndex, uint clusterIndex) {
 
 // The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup.
 void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
-    GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
+    Instance instance = load_instance(frame, instanceIndex);
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
@@ -207,50 +207,83 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     }
 }
 
-vec4 instance_sphere(GpuFrame frame, GpuInstance instance) {
+vec4 instance_sphere(GpuFrame frame, Instance instance) {
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     float scale = instance_scale(instance);
     return vec4(to_camera_relative(instance, camera_relative_translation(instance), mesh.sphere.xyz),
                 mesh.sphere.w * scale + instance_displacement(frame, instance) * scale);
 }
 
-void main_pass(GpuFrame frame) {
-    uint instanceIndex = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
-    if (instanceIndex >= frame.counts.x) return;
-    GpuInstance instance = InstanceRef(frame.instances).data[instanceIndex];
-    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u &&
-        (MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
-    vec4 sphere = instance_sphere(frame, instance);
-    if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
-    if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {
-        if (gl_LocalInvocationIndex == 0) {
-            DrawStateRef draw = DrawStateRef(frame.drawState);
-            uint k = atomicAdd(draw.state.deferredInstances, 1u);
-            UintRef(frame.deferredInstances).data[k] = instanceIndex;  // one slot per instance: never overflows
-            atomicMax(draw.state.postGroupsX, min(k + 1u, 65535u));
-        }
-        return;
+// Steps *_INSTANCES: one thread per instance (main) or per deferred instance (post). An instance that a material
+// cuts out entirely, outside the frustum, or hidden, goes no further; the main pass defers those the previous
+// frame's HZB hides; the rest are listed for the cut step.
+void list_for_cut(GpuFrame frame, uint step, uint instanceIndex) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint k = atomicAdd(draw.state.cutInstances, 1u);
+    atomicMax(draw.state.cutInstancesNeeded, k + 1u);
+    if (k >= frame.hzb.y) return;  // overflow: the CPU grows the list and redraws
+    SlotListRef(frame.cutList).data[k] = instanceIndex;
+    if (step == TS_CULL_MAIN_INSTANCES) {
+        atomicMax(draw.state.cutGroupsX, min(k + 1u, 65535u));
+        atomicMax(draw.state.cutGroupsY, k / 65535u + 1u);
+    } else {
+        atomicMax(draw.state.postGroupsX, min(k + 1u, 65535u));  // the post cut step also strides over deferred clusters
     }
-    cut_instance(frame, TS_CULL_MAIN, instanceIndex);
 }
 
-// Workgroups take the deferred instances in turn; every thread takes deferred clusters in turn.
+void test_instance(GpuFrame frame, uint step, uint thread) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    if (step == TS_CULL_MAIN_INSTANCES) {
+        if (thread >= frame.counts.x) return;
+        Instance instance = load_instance(frame, thread);
+        if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u &&
+            (MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
+        vec4 sphere = instance_sphere(frame, instance);
+        if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
+        if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {
+            uint k = atomicAdd(draw.state.deferredInstances, 1u);
+            if (k >= frame.hzb.z) return;  // overflow: the CPU grows the list and redraws
+            SlotListRef(frame.deferredInstances).data[k] = thread;
+            atomicMax(draw.state.postInstanceGroupsX, min(k / TS_CULL_INSTANCES_PER_GROUP + 1u, 65535u));
+            atomicMax(draw.state.postInstanceGroupsY, k / TS_CULL_INSTANCES_PER_GROUP / 65535u + 1u);
+            return;
+        }
+        list_for_cut(frame, step, thread);
+    } else {
+        if (thread >= min(draw.state.deferredInstances, frame.hzb.z)) return;
+        uint instanceIndex = UintRef(frame.deferredInstances).data[thread];
+        vec4 sphere = instance_sphere(frame, load_instance(frame, instanceIndex));
+        if (hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {
+            atomicAdd(draw.state.occludedInstances, 1u);
+            return;
+        }
+        list_for_cut(frame, step, instanceIndex);
+    }
+}
+
+// A workgroup tests TS_CULL_INSTANCES_PER_GROUP consecutive instances, each thread every TS_CULL_GROUP_SIZE-th: on
+// lavapipe a workgroup of this shader costs about 30 us before it does anything, so each must do much.
+void test_instances(GpuFrame frame, uint step) {
+    uint first = (gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x) * TS_CULL_INSTANCES_PER_GROUP;
+    for (uint i = gl_LocalInvocationIndex; i < TS_CULL_INSTANCES_PER_GROUP; i += TS_CULL_GROUP_SIZE) test_instance(frame, step, first + i);
+}
+
+// Main pass: one workgroup per listed instance.
+void main_pass(GpuFrame frame) {
+    uint entry = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    if (entry >= min(DrawStateRef(frame.drawState).state.cutInstances, frame.hzb.y)) return;
+    cut_instance(frame, TS_CULL_MAIN, UintRef(frame.cutList).data[entry]);
+}
+
+// Post pass: workgroups take the listed instances in turn; every thread takes deferred clusters in turn.
 void post_pass(GpuFrame frame) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
-    uint instances = draw.state.deferredInstances;
-    for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) {
-        uint instanceIndex = UintRef(frame.deferredInstances).data[i];
-        vec4 sphere = instance_sphere(frame, InstanceRef(frame.instances).data[instanceIndex]);
-        if (hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {
-            if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.occludedInstances, 1u);
-            continue;
-        }
-        cut_instance(frame, TS_CULL_POST, instanceIndex);
-    }
+    uint instances = min(draw.state.cutInstances, frame.hzb.y);
+    for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) cut_instance(frame, TS_CULL_POST, UintRef(frame.cutList).data[i]);
     uint clusters = min(draw.state.deferredClusters, frame.counts.y);
     for (uint i = gl_GlobalInvocationID.x; i < clusters; i += gl_NumWorkGroups.x * TS_CULL_GROUP_SIZE) {
         uvec2 entry = VisibleClusterRef(frame.deferredClusters).data[i];
-        GpuInstance instance = InstanceRef(frame.instances).data[entry.x];
+        Instance instance = load_instance(frame, entry.x);
         GpuCluster cluster = ClusterRef(frame.clusters).data[entry.y];
         float scale = instance_scale(instance);
         vec3 center = to_camera_relative(instance, camera_relative_translation(instance), cluster.sphere.xyz);
@@ -263,5 +296,6 @@ void post_pass(GpuFrame frame) {
 void main() {
     GpuFrame frame = push.frame.f;
     if (push.step == TS_CULL_MAIN) main_pass(frame);
-    else post_pass(frame);
+    else if (push.step == TS_CULL_POST) post_pass(frame);
+    else test_instances(frame, push.step);
 }

@@ -6,6 +6,7 @@
 
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer FrameRef { GpuFrame f; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceRef { GpuInstance data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceBatchRef { GpuInstanceBatch data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MeshRef { GpuMesh data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer ClusterRef { GpuCluster data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer LevelRef { GpuLevel data[]; };
@@ -35,13 +36,37 @@ vec2 depth_range(GpuFrame frame, vec3 center, float radius) {
     return vec2(d - radius, d + radius);
 }
 
-// Instance translation relative to the camera (already subtracted in double on the CPU).
-vec3 camera_relative_translation(GpuInstance instance) {
-    return vec3(instance.rows[0].w, instance.rows[1].w, instance.rows[2].w) + instance.translationLow.xyz;
+// An instance as the passes see it: its transform (camera-relative) with its batch's mesh, prim, material and flags.
+struct Instance {
+    vec4 rows[3];          // xyz: rows of the linear part of mesh -> world
+    vec3 translation;      // relative to the camera
+    uint meshIndex;
+    uint primId;
+    uint materialIndex;
+    uint flags;            // TS_INSTANCE_*
+};
+
+Instance load_instance(GpuFrame frame, uint index) {
+    GpuInstance g = InstanceRef(frame.instances).data[index];
+    uint batchWord = UintRef(frame.instanceBatches).data[index];
+    GpuInstanceBatch batch = InstanceBatchRef(frame.batches).data[batchWord & TS_INSTANCE_BATCH_MASK];
+    Instance instance;
+    instance.rows = g.rows;
+    // The batch origin's high and low parts first (both large), then the instance's offset from it.
+    instance.translation = (batch.originHigh.xyz + batch.originLow.xyz) + vec3(g.rows[0].w, g.rows[1].w, g.rows[2].w);
+    instance.meshIndex = batch.meshIndex;
+    instance.primId = batch.primId;
+    instance.materialIndex = batch.materialIndex;
+    instance.flags = batch.flags | ((batchWord & TS_INSTANCE_BATCH_FLIP) != 0u ? TS_INSTANCE_FLIP_WINDING : 0u) |
+                     ((batchWord & TS_INSTANCE_BATCH_CONFORMAL) != 0u ? TS_INSTANCE_CONFORMAL : 0u);
+    return instance;
 }
 
+// Instance translation relative to the camera (the batch origin subtracted in double on the CPU).
+vec3 camera_relative_translation(Instance instance) { return instance.translation; }
+
 // Mesh-space point -> camera-relative world.
-vec3 to_camera_relative(GpuInstance instance, vec3 translation, vec3 p) {
+vec3 to_camera_relative(Instance instance, vec3 translation, vec3 p) {
     return vec3(dot(instance.rows[0].xyz, p), dot(instance.rows[1].xyz, p), dot(instance.rows[2].xyz, p)) + translation;
 }
 
@@ -58,8 +83,25 @@ uint corner_vertex(GpuFrame frame, GpuCluster cluster, uint triangle, uint corne
     return cluster.vertexOffset + ((packed >> (8u * corner)) & 0xffu);
 }
 
-// Largest factor by which the instance transform stretches a length (kept by the CPU in translationLow.w).
-float instance_scale(GpuInstance instance) { return instance.translationLow.w; }
+// Largest factor by which the instance transform stretches a length: the square root of the largest eigenvalue of
+// A^T A (A the linear part), in closed form (Smith's trigonometric solution for symmetric 3x3 matrices, as the CPU did).
+float instance_scale(Instance instance) {
+    mat3 a = transpose(mat3(instance.rows[0].xyz, instance.rows[1].xyz, instance.rows[2].xyz));  // columns = A's columns
+    mat3 c = transpose(a) * a;
+    float p1 = c[0][1] * c[0][1] + c[0][2] * c[0][2] + c[1][2] * c[1][2];
+    float largest;
+    if (p1 == 0.0) {
+        largest = max(c[0][0], max(c[1][1], c[2][2]));
+    } else {
+        float q = (c[0][0] + c[1][1] + c[2][2]) / 3.0;
+        float p2 = (c[0][0] - q) * (c[0][0] - q) + (c[1][1] - q) * (c[1][1] - q) + (c[2][2] - q) * (c[2][2] - q) + 2.0 * p1;
+        float p = sqrt(p2 / 6.0);
+        mat3 b = (c - q * mat3(1.0)) / p;
+        float r = clamp(determinant(b) / 2.0, -1.0, 1.0);
+        largest = q + 2.0 * p * cos(acos(r) / 3.0);
+    }
+    return sqrt(max(largest, 0.0)) * 1.000002;  // a hair above: float rounding must not shrink bounds
+}
 
 bool sphere_in_frustum(GpuFrame frame, vec3 center, float radius) {
     for (int i = 0; i < 6; ++i)
@@ -124,7 +166,7 @@ uvec2 visible_cluster(GpuFrame frame, uint slot) {
 // How far a displaced instance's surface may move from its mesh (mesh units: times instance_scale in the world); 0
 // when nothing displaces it. An instance with a material table keeps the largest of its materials' in the word before
 // its table.
-float instance_displacement(GpuFrame frame, GpuInstance instance) {
+float instance_displacement(GpuFrame frame, Instance instance) {
     if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
     if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return uintBitsToFloat(UintRef(frame.materialTables).data[instance.materialIndex - 1u]);
     return MaterialRef(frame.materials).data[instance.materialIndex].displacement.w;
@@ -132,7 +174,7 @@ float instance_displacement(GpuFrame frame, GpuInstance instance) {
 
 // The material of a visible triangle: the instance's own, or, for meshes whose triangles carry material slots
 // (GeomSubsets), the slot's entry in the instance's material table.
-uint pixel_material(GpuFrame frame, GpuInstance instance, uint cluster, uint triangle) {
+uint pixel_material(GpuFrame frame, Instance instance, uint cluster, uint triangle) {
     if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u) return instance.materialIndex;
     uint slot = UintRef(frame.triangles).data[ClusterRef(frame.clusters).data[cluster].triangleOffset + triangle] >> 24;
     return UintRef(frame.materialTables).data[instance.materialIndex + slot];

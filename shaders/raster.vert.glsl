@@ -19,7 +19,7 @@ void main() {
         outFlags = 0u;
         return;
     }
-    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
     uint vertex = corner_vertex(frame, cluster, triangle, uint(gl_VertexIndex) % 3u, flip);
     vec3 p = to_camera_relative(instance, camera_relative_translation(instance), vertex_position(frame, vertex));

@@ -27,7 +27,7 @@ void main() {
     if (k >= count) return;  // the whole workgroup: no barrier is skipped by some threads only
     uint slot = SlotListRef(frame.softwareList).data[k];
     uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
-    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     vec3 translation = camera_relative_translation(instance);
 

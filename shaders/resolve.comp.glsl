@@ -36,16 +36,19 @@ vec3 level_color(uint level) {
 }
 
 // `patchIndex`: the micro-triangle's patch (0xffffffff for a cluster's own triangle); `largestFactor`: its triangle's.
-vec3 visualize(uint mode, GpuInstance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software, uint material,
-               uint patchIndex, uint micro, uint largestFactor) {
+vec3 visualize(GpuFrame frame, uint mode, Instance instance, uvec2 visible, GpuCluster cluster, uint triangle, bool software,
+               uint material, uint patchIndex, uint micro, uint largestFactor) {
     bool diced = patchIndex != 0xffffffffu;
+    // A micro-triangle's id from what it is (cluster, triangle, cell, index), not from its patch's list slot, which the
+    // GPU hands out in no fixed order: the same frame shows the same colours.
+    uint microId = diced ? ((visible.y * 128u + triangle) * 256u + (PatchRef(frame.patches).data[patchIndex].cell >> 8u)) * 256u + micro : 0u;
     if (mode == TS_VIS_RASTER_BINS) return diced ? vec3(0.25, 0.85, 0.3) : software ? vec3(0.15, 0.45, 1.0) : vec3(1.0, 0.55, 0.1);
     if (mode == TS_VIS_TESSELLATION) {
         if (!diced) return vec3(0.45);
-        float shade = 0.8 + 0.2 * id_color(patchIndex * 256u + micro).x;  // neighbouring micro-triangles apart
+        float shade = 0.8 + 0.2 * id_color(microId).x;  // neighbouring micro-triangles apart
         return level_color(uint(round(log2(float(largestFactor))))) * shade;  // 1 blue ... 256 red
     }
-    if (mode == TS_VIS_TRIANGLES) return diced ? id_color(patchIndex * 256u + micro) : id_color(cluster.triangleOffset + triangle);
+    if (mode == TS_VIS_TRIANGLES) return diced ? id_color(microId) : id_color(cluster.triangleOffset + triangle);
     if (mode == TS_VIS_CLUSTERS) return id_color(visible.y);
     if (mode == TS_VIS_GROUPS) return id_color(cluster.group == 0xffffffffu ? visible.y : cluster.group * 7919u + cluster.meshIndex);
     if (mode == TS_VIS_LOD) return level_color(cluster.levelVertices >> 16);
@@ -69,7 +72,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     uvec2 visible = visible_cluster(frame, payload.slot);
     bool software = (visible.x & TS_VISIBLE_SOFTWARE) != 0u;
     visible.x &= ~TS_VISIBLE_SOFTWARE;
-    GpuInstance instance = InstanceRef(frame.instances).data[visible.x];
+    Instance instance = load_instance(frame, visible.x);
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     if (idAov) {
         uint id = aov == TS_AOV_PRIM_ID ? instance.primId
@@ -153,7 +156,8 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
             OutputRef(frame.aovOutput).data[index] = vec4(uvColor, 1.0);
             return;
         }
-        vec3 tint = visualize(frame.counts.w, instance, visible, cluster, triangle, software, push.step, payload.patchIndex, payload.micro, largestFactor);
+        vec3 tint = visualize(frame, frame.counts.w, instance, visible, cluster, triangle, software, push.step, payload.patchIndex, payload.micro,
+                              largestFactor);
         OutputRef(frame.aovOutput).data[index] = vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0);
         return;
     }

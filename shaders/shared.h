@@ -132,8 +132,14 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Cull steps (push constant `step`). Two-pass occlusion culling: the main pass draws what the previous frame's HZB
 // does not hide and defers the rest; the post pass tests the deferred instances and clusters against an HZB of
 // what the main pass drew, and draws those it does not hide.
+// Each pass first tests instances, TS_CULL_INSTANCES_PER_GROUP per workgroup (steps *_INSTANCES: frustum and HZB),
+// and lists the survivors; the cut steps then walk each listed instance's DAG, one workgroup each (on lavapipe a
+// workgroup of the cull shader costs about 30 us even when it culls at once: a workgroup per instance of a
+// 10 M-instance field would be 5 minutes of culling).
 #define TS_CULL_MAIN 0u
 #define TS_CULL_POST 1u
+#define TS_CULL_MAIN_INSTANCES 2u
+#define TS_CULL_POST_INSTANCES 3u
 
 // Material bins: covered pixels are counted per material, given each material a range, and scattered into it, so
 // that each material's pixels are shaded by one indirect dispatch of their own (push constant `step`: the material);
@@ -166,6 +172,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
+#define TS_CULL_INSTANCES_PER_GROUP 2048  // the cull's instance steps: instances tested per workgroup
 #define TS_PIXEL_TILE 8         // classify: 8x8 pixels per workgroup
 #define TS_SHADE_GROUP_SIZE 64  // resolve: a material bin's pixels per workgroup
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
@@ -227,18 +234,31 @@ struct GpuMesh {
 };
 TS_CHECK_SIZE(GpuMesh, 64);
 
-// A drawn copy of a mesh. The transform maps mesh space to camera-relative world space: the CPU subtracts
-// the camera position from the translation in double and stores the result as a high and a low float, so
-// geometry far from the origin renders like geometry at the origin.
-struct GpuInstance {
-    vec4 rows[3];          // rows of the 3x4 mesh->world matrix; w holds the high part of the translation
-    vec4 translationLow;   // xyz: low part of the translation; w: largest stretch of the matrix (for bounds)
+// Instances come in batches: the copies of one mesh that share its prim, material and flags and one origin (a plain
+// mesh or a native instance: a batch of one; a PointInstancer prototype: a batch of all its instances). The batch
+// origin is re-expressed relative to the camera in double on the CPU (a high and a low float) whenever the camera
+// moves; each instance stores its transform relative to that origin in float, so geometry far from the origin renders
+// like geometry at the origin and an instance costs 52 bytes: its GpuInstance and its word of frame.instanceBatches.
+struct GpuInstanceBatch {
+    vec4 originHigh;       // xyz: the batch origin relative to the camera, high float part; w: unused
+    vec4 originLow;        // xyz: low part
     uint meshIndex;
     uint primId;
     uint materialIndex;    // its material; with TS_INSTANCE_MATERIAL_SLOTS the first entry of its table (frame.materialTables)
-    uint flags;            // TS_INSTANCE_*
+    uint flags;            // TS_INSTANCE_DOUBLE_SIDED, TS_INSTANCE_MATERIAL_SLOTS, TS_INSTANCE_MASKED
 };
-TS_CHECK_SIZE(GpuInstance, 80);
+TS_CHECK_SIZE(GpuInstanceBatch, 48);
+
+// A drawn copy of a mesh: rows of its 3x4 mesh->world matrix; w holds the translation relative to its batch's origin.
+struct GpuInstance {
+    vec4 rows[3];
+};
+TS_CHECK_SIZE(GpuInstance, 48);
+
+// frame.instanceBatches[i]: the batch of instance i, with these flags of its transform in the top bits.
+#define TS_INSTANCE_BATCH_MASK 0x3fffffffu
+#define TS_INSTANCE_BATCH_FLIP (1u << 30)       // TS_INSTANCE_FLIP_WINDING
+#define TS_INSTANCE_BATCH_CONFORMAL (1u << 31)  // TS_INSTANCE_CONFORMAL
 
 // UsdPreviewSurface: a Lambert diffuse lobe and a GGX specular lobe with Schlick's Fresnel. The constants hold the
 // inputs no texture drives; a material without textures (textureInputs 0) does no texture work at all.
@@ -306,7 +326,7 @@ struct GpuDrawState {
     uint postGroupsX;      // VkDispatchIndirectCommand of the post cull pass: enough workgroups for the deferred work
     uint postGroupsY;
     uint postGroupsZ;
-    uint deferredInstances; // instances the main pass deferred (hidden by the previous frame's HZB)
+    uint deferredInstances; // instances the main pass deferred (hidden by the previous frame's HZB), may exceed capacity
     uint deferredClusters; // clusters the main pass deferred, may exceed capacity (overflow)
     uint visibleClusters;  // visible clusters found, may exceed capacity (overflow is detected on the CPU)
     uint visibleInstances;
@@ -319,6 +339,14 @@ struct GpuDrawState {
     uint postClusters;     // clusters drawn by the post pass (hidden last frame, visible now)
     uint backfaceClusters; // clusters all of whose triangles face away from the camera
     uint shadingBins;      // materials with at least one visible pixel
+    uint cutGroupsX;       // VkDispatchIndirectCommand of the cut step: one workgroup per listed instance, as X (at most
+    uint cutGroupsY;       // 65535) times Y
+    uint cutGroupsZ;
+    uint cutInstances;     // instances listed for the cut step (this pass), may exceed the list's capacity
+    uint postInstanceGroupsX; // VkDispatchIndirectCommand of the post pass's instance step: a thread per deferred instance
+    uint postInstanceGroupsY;
+    uint postInstanceGroupsZ;
+    uint cutInstancesNeeded; // the most instances either pass listed (overflow is detected on the CPU)
     uint tessGroupsX;      // VkDispatchIndirectCommand of the tessellate pass: one workgroup per tessellated cluster
     uint tessGroupsY;
     uint tessGroupsZ;
@@ -334,7 +362,7 @@ struct GpuDrawState {
     uint dicePatches;      // patches listed for the compute patch rasterizer (this pass)
     uint dicePatchesDrawn; // patches the compute rasterizer drew, both passes (the rest went to hardware raster)
 };
-TS_CHECK_SIZE(GpuDrawState, 152);
+TS_CHECK_SIZE(GpuDrawState, 184);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.
@@ -369,7 +397,8 @@ struct GpuFrame {
                              // y: error threshold in pixels; z: 1 when orthographic; w: near-plane distance
     vec4 raster;             // x: software raster below this estimated area per triangle (pixels); y: sub-pixel steps
     mat4 previousViewProjection; // the previous frame's camera, mapping this frame's camera-relative world to its clip
-    uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels)
+    uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels);
+                             // y: capacity of the cut list; z: capacity of the deferred-instance list
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     vec4 tessellation;       // x: dicing rate (pixels per micro-edge); y: patch capacity (exact: at most 2^23)
@@ -378,6 +407,8 @@ struct GpuFrame {
     // harmonics coefficients (rgb), in the dome's own frame; only read for a dome with a texture.
     vec4 environment[9];
     address instances;       // GpuInstance[]
+    address instanceBatches; // uint[instances]: batch index | TS_INSTANCE_BATCH_* flags
+    address batches;         // GpuInstanceBatch[]
     address meshes;          // GpuMesh[]
     address levels;          // GpuLevel[]
     address clusters;        // GpuCluster[]
@@ -394,7 +425,8 @@ struct GpuFrame {
     address drawState;       // GpuDrawState
     address visibility;      // uint64[width * height]
     address aovOutput;       // vec4[width * height]
-    address deferredInstances; // uint[instances]: instances the main pass left to the post pass
+    address deferredInstances; // uint[hzb.z]: instances the main pass left to the post pass
+    address cutList;         // uint[hzb.y]: instances the cut step of this pass walks
     address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
     address overdraw;        // uint[width * height]: fragments per pixel, only with TS_VIS_OVERDRAW (else 0)
     address bins;            // GpuBin[materials]
@@ -408,8 +440,9 @@ struct GpuFrame {
     address patchDraws;      // VkDrawIndirectCommand[patch capacity]: this pass's patches
     address seams;           // uint[]: UV seams of meshes drawn displaced (GpuMesh.seamVertexOffset, tessellation.h)
     address dicePatches;     // uint[patch capacity]: this pass's patches for the compute patch rasterizer (dice.comp.glsl)
+    address padding;         // the size a multiple of 16, as std430 rounds it
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 30);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 34);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

@@ -74,7 +74,7 @@ struct PixelTriangle {
     vec3 bary;
 };
 
-PixelTriangle pixel_triangle(GpuFrame frame, GpuInstance instance, GpuCluster cluster, uint triangle, uvec2 pixel) {
+PixelTriangle pixel_triangle(GpuFrame frame, Instance instance, GpuCluster cluster, uint triangle, uvec2 pixel) {
     PixelTriangle t;
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
     vec3 translation = camera_relative_translation(instance);
@@ -96,7 +96,7 @@ PixelTriangle pixel_triangle(GpuFrame frame, GpuInstance instance, GpuCluster cl
 bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
     if ((payload & TS_VIS_TESSELLATED) != 0u) return false;  // micro-triangles of displaced surfaces are not masked yet
     uvec2 visible = visible_cluster(frame, payload >> TS_VIS_TRIANGLE_BITS);
-    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
     GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];

@@ -49,7 +49,7 @@ void main() {
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     uint triangle = gl_LocalInvocationIndex;
     if (triangle >= cluster.triangleCount) return;
-    GpuInstance instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);

@@ -35,7 +35,7 @@ struct DisplacedTriangle {
     vec4 twin[3];  // edge e (corners e, e + 1): the other side's texture coordinates at those corners; NaN: no seam
 };
 
-DisplacedTriangle displaced_triangle(GpuFrame frame, GpuInstance instance, GpuCluster cluster, uint triangle) {
+DisplacedTriangle displaced_triangle(GpuFrame frame, Instance instance, GpuCluster cluster, uint triangle) {
     DisplacedTriangle t;
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
@@ -209,7 +209,7 @@ vec3 patch_edge_point(uvec2 q, uvec2 r, vec3 wq, vec3 wr, uint m, uint g, uint s
 // A patch ready to dice: its triangle, instance and material, where it lies in the triangle's split lattice, and its
 // edge factors (corners 0-1, 1-2, 2-0).
 struct DicedPatch {
-    GpuInstance instance;
+    Instance instance;
     GpuMaterial material;
     DisplacedTriangle triangle;
     vec3 translation;
@@ -229,7 +229,7 @@ DicedPatch load_patch(GpuFrame frame, uint index) {
     d.triangleIndex = record.triangle & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
     uvec2 visible = visible_cluster(frame, d.slot);
     d.clusterIndex = visible.y;
-    d.instance = InstanceRef(frame.instances).data[visible.x & ~TS_VISIBLE_SOFTWARE];
+    d.instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     d.material = MaterialRef(frame.materials).data[pixel_material(frame, d.instance, visible.y, d.triangleIndex)];
     d.triangle = displaced_triangle(frame, d.instance, cluster, d.triangleIndex);

@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 import tessera
@@ -175,34 +176,61 @@ def test_bench_textures_measures_loads_and_shading(tmp_path):
 
 def test_bench_usd_translates_and_resyncs_one_edit(tmp_path):
     rows_file = tmp_path / "rows.json"
-    done = run("bench", "usd", "--prims", "50", "--instances", "40", "--edits", "2", "--stages-dir", tmp_path, "--json", rows_file)
+    done = run("bench", "usd", "--prims", "50", "--instances", "40", "--point-instances", "3000", "--prototype-triangles", "400",
+               "--edits", "2", "--stages-dir", tmp_path, "--json", rows_file)
     assert done.returncode == 0, done.stderr + done.stdout
-    assert "edit re-sync ms" in done.stdout
-    one_shape, distinct, instances = json.loads(rows_file.read_text())
+    assert "edit re-sync ms" in done.stdout and "GPU B/inst" in done.stdout
+    one_shape, distinct, instances, points = json.loads(rows_file.read_text())
+    assert points["instances"] == 3000 and points["batches"] == 1, "one PointInstancer prototype: one batch"
+    assert points["gpu_bytes_per_instance"] <= 64 and points["load_seconds"] >= points["upload_seconds"] >= 0
+    assert points["visible_instances"][0] > 0, "the frame drew some of the field"
     assert one_shape["rprims"] == distinct["rprims"] == 50 and instances["rprims"] == 1
     assert one_shape["meshes_shared"] == 49, "one shape: built or loaded once, shared by the other 49"
     assert distinct["meshes_built"] + distinct["meshes_cached"] == 50 and distinct["meshes_shared"] == 0
     assert all(row["edit_resynced_prims"] == 1 and row["edit_resync_ms"] > 0 for row in (one_shape, distinct, instances))
 
 
+def _big_and_tiny_meshes(path):
+    """Two meshes above the size the cache keeps (a 24 x 24-quad grid each, one raised) and one tiny cube."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.CreateNew(str(path))
+    i, j = np.meshgrid(np.arange(24), np.arange(24), indexing="ij")
+    a = (i * 25 + j).ravel()
+    quads = np.stack([a, a + 1, a + 26, a + 25], -1).ravel().tolist()
+    x, z = np.meshgrid(np.linspace(-1, 1, 25), np.linspace(-1, 1, 25), indexing="ij")
+    for name, height in (("GridA", 0.0), ("GridB", 0.5)):
+        grid = UsdGeom.Mesh.Define(stage, f"/{name}")
+        grid.CreatePointsAttr([(float(px), height + 0.1 * float(px * pz), float(pz)) for px, pz in zip(x.ravel(), z.ravel())])
+        grid.CreateFaceVertexCountsAttr([4] * 576)
+        grid.CreateFaceVertexIndicesAttr(quads)
+        grid.CreateSubdivisionSchemeAttr("none")
+    UsdGeom.Cube.Define(stage, "/Tiny")
+    stage.GetRootLayer().Save()
+    return path
+
+
 def test_an_unchanged_stage_is_never_built_twice(tmp_path, monkeypatch):
+    """Meshes are loaded from the cache the second time; tiny ones (the cube) are built again instead, which costs
+    less than reading a page file, and never fill the cache."""
     monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
-    stage = TESTENV / "testNativeInstancing" / "native_instancing.usda"
+    stage = _big_and_tiny_meshes(tmp_path / "meshes.usda")
     first = tessera.Session(stage, validation=True).render(resolution=(64, 48), aovs=("primId",))
-    assert first.stats["meshes_built"] == 2 and first.stats["meshes_cached"] == 0
+    assert first.stats["meshes_built"] == 3 and first.stats["meshes_cached"] == 0
     second = tessera.Session(stage, validation=True).render(resolution=(64, 48), aovs=("primId",))
-    assert second.stats["meshes_built"] == 0 and second.stats["meshes_cached"] == 2
+    assert second.stats["meshes_built"] == 1 and second.stats["meshes_cached"] == 2, "the two grids from the cache"
     assert (first["primId"].ids() == second["primId"].ids()).all()
+    assert len(list((tmp_path / "cache").rglob("*.tsra"))) == 2, "the cube's build is not cached"
 
 
 def test_tessera_build_fills_the_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
-    stage = TESTENV / "testPointInstancer" / "point_instancer.usda"
+    stage = _big_and_tiny_meshes(tmp_path / "meshes.usda")
     done = run("build", stage)
     assert done.returncode == 0, done.stderr
     assert "3/3 meshes" in done.stderr and "built 3 mesh(es), 0 from the cache" in done.stderr
-    assert run("build", stage).stderr.count("built 0 mesh(es), 3 from the cache") == 1
+    assert run("build", stage).stderr.count("built 1 mesh(es), 2 from the cache") == 1
     stats_file = tmp_path / "stats.json"
     assert run("render", stage, "-o", tmp_path / "x.png", "--resolution", "32x24", "--stats", stats_file).returncode == 0
     stats = json.loads(stats_file.read_text())
-    assert stats["meshes_built"] == 0 and stats["meshes_cached"] == 3
+    assert stats["meshes_built"] == 1 and stats["meshes_cached"] == 2

@@ -1,7 +1,7 @@
 """`tessera bench ...`: benchmarks that print tables of speed, memory and error (never timed tests).
 
     tessera bench build [STAGE.usd | MESH.obj ...] [--json FILE]
-    tessera bench usd [--prims N] [--instances N] [--edits N] [--json FILE]
+    tessera bench usd [--prims N] [--instances N] [--point-instances N] [--edits N] [--json FILE]
 
 Each mesh is built in a child process so that its peak memory is its own (the input arrays excluded).
 """
@@ -561,12 +561,12 @@ def _usd_case(queue, case, stage_path, count, edits, device):
         del warm, warm_index
         index = _tessera.RenderIndex(delegate)
         before_rss = _rss_bytes()
-        translating = time.perf_counter()
+        translating, translating_cpu = time.perf_counter(), time.process_time()
         scene = UsdSceneDelegate(stage, index)
         scene.populate()
         populated = time.perf_counter()
         index.sync_all(scene)  # every mesh built, loaded from the cache or shared, then committed
-        synced = time.perf_counter()
+        synced, synced_cpu = time.perf_counter(), time.process_time()
         translated_rss = _rss_bytes()
         diagnostics = index.take_diagnostics()
         # One transform edited, then re-synced (notice -> dirty bits -> sync -> commit), `edits` times.
@@ -592,6 +592,7 @@ def _usd_case(queue, case, stage_path, count, edits, device):
             "populate_seconds": round(populated - translating, 2),
             "first_sync_seconds": round(synced - populated, 2),
             "translate_seconds": round(synced - translating, 2),
+            "translate_cpu_seconds": round(synced_cpu - translating_cpu, 2),  # this process's own, whatever else runs
             "translate_memory_mib": round((translated_rss - before_rss) / 2**20, 1),
             "translate_bytes_per_prim": round((translated_rss - before_rss) / count),
             "edit_resync_ms": round(1000 * float(np.median(times)), 2),
@@ -602,10 +603,138 @@ def _usd_case(queue, case, stage_path, count, edits, device):
         queue.put(error)
 
 
+def _write_point_instancer_stage(path, count: int, n: int):
+    """One PointInstancer of `count` instances of a displaced sphere of 4 n^2 triangles, scattered over a square
+    field (jittered grid, 4 units apart) with random orientations (quath, USD's usual type) and scales, and a camera
+    looking across a corner of the field with a 300-unit far clip. The arrays go to USD straight from numpy."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+
+    rng = np.random.default_rng(5)
+    side = int(np.ceil(np.sqrt(count)))
+    index = np.arange(count)
+    positions = np.stack([4.0 * (index % side), np.zeros(count), 4.0 * (index // side)], -1) + rng.uniform(-1, 1, (count, 3)) * [1, 0, 1]
+    orientations = rng.normal(size=(count, 4))
+    orientations /= np.linalg.norm(orientations, axis=1, keepdims=True)
+    scales = rng.uniform(0.6, 1.4, (count, 1)) * rng.uniform(0.8, 1.2, (count, 3))
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.Xform.Define(stage, "/World")
+    instancer = UsdGeom.PointInstancer.Define(stage, "/World/Field")
+    rock = UsdGeom.Mesh.Define(stage, "/World/Field/Prototypes/Rock")
+    points, counts, indices = displaced_sphere(n)
+    rock.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points.reshape(-1, 3)))
+    rock.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts))
+    rock.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(indices))
+    rock.CreateSubdivisionSchemeAttr("none")
+    instancer.CreatePrototypesRel().SetTargets([rock.GetPath()])
+    instancer.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(count, np.int32)))
+    instancer.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(positions.astype(np.float32)))
+    instancer.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(orientations.astype(np.float16)))
+    instancer.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(scales.astype(np.float32)))
+    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
+    camera.CreateClippingRangeAttr(Gf.Vec2f(0.5, 300.0))
+    camera.CreateFocalLengthAttr(24.0)
+    eye = Gf.Vec3d(-20.0, 25.0, -20.0)
+    look = Gf.Matrix4d().SetLookAt(eye, Gf.Vec3d(60.0, 0.0, 60.0), Gf.Vec3d(0, 1, 0)).GetInverse()
+    camera.AddTransformOp().Set(look)
+    stage.GetRootLayer().Save()
+
+
+def _rss_parts() -> tuple[int, int]:
+    """(anonymous, file-backed) resident bytes, after handing freed heap back to the system."""
+    import ctypes
+    import gc
+
+    gc.collect()
+    ctypes.CDLL("libc.so.6").malloc_trim(0)
+    parts = {}
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(("RssAnon:", "RssFile:", "RssShmem:")):
+                name, value, _ = line.split()
+                parts[name] = int(value) * 1024
+    return parts["RssAnon:"] + parts.get("RssShmem:", 0), parts["RssFile:"]
+
+
+def _point_instancer_case(queue, stage_path, warm_path, count, resolution, device):
+    """Runs in a child process: opens the stage, translates it (populate, sync, commit) and renders two frames."""
+    try:
+        from pxr import Usd
+
+        from tessera import _tessera
+        from tessera.usd import UsdSceneDelegate
+
+        delegate = _tessera.RenderDelegate(device=device)
+        # The small stage first: the prototype is built into the cache there (its build is reported apart), and code
+        # and USD caches the first use loads are not counted as this stage's.
+        warm_started = time.perf_counter()
+        warm_index = _tessera.RenderIndex(delegate)
+        warm = UsdSceneDelegate(Usd.Stage.Open(warm_path), warm_index)
+        warm.populate()
+        warm_index.sync_all(warm)
+        warm_seconds = time.perf_counter() - warm_started
+        warm_built = warm_index.take_diagnostics()["meshes_built"]
+        del warm, warm_index
+        anon_before, file_before = _rss_parts()
+        started, started_cpu = time.perf_counter(), time.process_time()
+        stage = Usd.Stage.Open(stage_path)
+        opened = time.perf_counter()
+        index = _tessera.RenderIndex(delegate)
+        scene = UsdSceneDelegate(stage, index)
+        scene.populate()
+        populated = time.perf_counter()
+        index.sync_all(scene)
+        synced, synced_cpu = time.perf_counter(), time.process_time()
+        anon_translated, file_translated = _rss_parts()
+        frames = []
+        for _ in range(2):  # the first frame uploads and culls by the frustum; the second has its HZB too
+            frame_started = time.perf_counter()
+            images, stats = index.execute("/World/Camera", _tessera.CameraDesc(), resolution[0], resolution[1], ["color"], (0, 0, 0, 0))
+            frames.append((time.perf_counter() - frame_started, stats))
+        anon_rendered, file_rendered = _rss_parts()
+        first, second = frames[0][1], frames[1][1]
+        upload = first["upload_ms"] / 1000
+        queue.put({
+            "case": f"{count:,} point instances of a {first['source_triangles'] // max(first['instances'], 1):,}-triangle prototype",
+            "instances": first["instances"],
+            "batches": first["instance_batches"],
+            "prototype_build_seconds": round(warm_seconds, 2) if warm_built else None,
+            "open_seconds": round(opened - started, 2),
+            "populate_seconds": round(populated - opened, 2),
+            "sync_seconds": round(synced - populated, 2),
+            "upload_seconds": round(upload, 2),
+            "load_seconds": round(synced - started + upload, 2),
+            "translate_cpu_seconds": round(synced_cpu - started_cpu, 2),
+            "cpu_bytes_per_instance": round((anon_translated - anon_before) / count, 1),
+            "usd_file_bytes_per_instance": round((file_translated - file_before) / count, 1),
+            "gpu_bytes_per_instance": round(first["instance_bytes"] / max(first["instances"], 1), 1),
+            "process_bytes_per_instance": round((anon_rendered + file_rendered - anon_before - file_before) / count, 1),
+            "first_frame_seconds": round(frames[0][0], 2),
+            "second_frame_seconds": round(frames[1][0], 2),
+            "cull_ms": [round(f[1]["gpu_ms"]["cull"], 1) for f in frames],
+            "visible_instances": [f[1]["visible_instances"] for f in frames],
+            "occluded_instances": second["occluded_instances"],
+            "visible_clusters": [f[1]["visible_clusters"] for f in frames],
+            "resolution": f"{resolution[0]}x{resolution[1]}",
+            "device": delegate.device_name,
+        })
+    except Exception as error:  # reported by the parent
+        queue.put(error)
+
+
+POINT_INSTANCER_COLUMNS = [("case", "case"), ("instances", "instances"), ("open_seconds", "open s"), ("populate_seconds", "populate s"),
+                           ("sync_seconds", "sync s"), ("upload_seconds", "upload s"), ("load_seconds", "load s"),
+                           ("cpu_bytes_per_instance", "CPU B/inst"), ("usd_file_bytes_per_instance", "USD file-backed B/inst"),
+                           ("gpu_bytes_per_instance", "GPU B/inst"), ("process_bytes_per_instance", "process B/inst after a frame"),
+                           ("first_frame_seconds", "frame 1 s"), ("second_frame_seconds", "frame 2 s"), ("cull_ms", "cull ms"),
+                           ("visible_instances", "visible inst"), ("occluded_instances", "occluded inst (frame 2)"),
+                           ("visible_clusters", "visible clusters")]
+
+
 USD_COLUMNS = [("case", "case"), ("rprims", "rprims"), ("meshes_built", "built"), ("meshes_cached", "cached"),
                ("meshes_shared", "shared"), ("open_seconds", "open s"),
                ("populate_seconds", "populate s"), ("first_sync_seconds", "first sync s"), ("translate_seconds", "translate s"),
-               ("translate_memory_mib", "translate MiB"), ("translate_bytes_per_prim", "B/prim"),
+               ("translate_cpu_seconds", "translate CPU s"), ("translate_memory_mib", "translate MiB"), ("translate_bytes_per_prim", "B/prim"),
                ("edit_resync_ms", "edit re-sync ms"), ("edit_resynced_prims", "prims re-synced")]
 
 
@@ -618,6 +747,8 @@ def usd(args) -> int:
     rows = []
     print(" | ".join(title for _, title in USD_COLUMNS))
     for case, count in (("prims", args.prims), ("distinct", args.prims), ("instances", args.instances)):
+        if count <= 0:
+            continue
         stage = directory / f"usd_{case}_{count}.usdc"
         if not stage.exists():
             _write_usd_stage(stage, case, count)
@@ -631,6 +762,28 @@ def usd(args) -> int:
             continue
         rows.append(row)
         print(" | ".join(str(row[key]) for key, _ in USD_COLUMNS), flush=True)
+    if args.point_instances:
+        n = max(1, int(round(np.sqrt(args.prototype_triangles / 4))))
+        stage = directory / f"usd_point_instancer_{args.point_instances}_{n}.usdc"
+        warm = directory / f"usd_point_instancer_4_{n}.usdc"
+        for path, count in ((stage, args.point_instances), (warm, 4)):
+            if not path.exists():
+                _write_point_instancer_stage(path, count, n)
+        queue = multiprocessing.get_context("fork").Queue()
+        process = multiprocessing.get_context("fork").Process(
+            target=_point_instancer_case, args=(queue, str(stage), str(warm), args.point_instances, (640, 360), args.device))
+        process.start()
+        row = queue.get()
+        process.join()
+        if isinstance(row, Exception):
+            print(f"tessera: error: point instancer: {row}")
+        else:
+            rows.append(row)
+            print()
+            print(" | ".join(title for _, title in POINT_INSTANCER_COLUMNS))
+            print(" | ".join(str(row[key]) for key, _ in POINT_INSTANCER_COLUMNS), flush=True)
+            if row["prototype_build_seconds"] is not None:
+                print(f"(the prototype was built first, in {row['prototype_build_seconds']} s, with the 4-instance stage)")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=2)

@@ -145,6 +145,9 @@ def _parser() -> argparse.ArgumentParser:
     bench_usd.add_argument("--prims", type=int, default=100_000,
                            help="mesh prims of the first two stages, one shape shared and every mesh distinct (default 100000)")
     bench_usd.add_argument("--instances", type=int, default=10_000, help="native instances of the second stage (default 10000)")
+    bench_usd.add_argument("--point-instances", type=int, default=10_000_000,
+                           help="instances of the PointInstancer stage; 0 skips it (default 10000000)")
+    bench_usd.add_argument("--prototype-triangles", type=int, default=100_000, help="triangles of its prototype (default 100000)")
     bench_usd.add_argument("--edits", type=int, default=20, help="transform edits timed; the median is reported (default 20)")
     bench_usd.add_argument("--stages-dir", default="out/bench", help="where the generated stages are kept (default out/bench)")
     bench_usd.add_argument("--device", help="Vulkan device, as for render")

@@ -96,7 +96,7 @@ TEST(Cache, SecondBuildComesFromTheCacheAndMatches) {
 TEST(Cache, WarningsAreKeptAndCorruptEntriesRebuilt) {
     const fs::path dir = fresh_directory("corrupt");
     MeshCache cache(dir.string());
-    Quads q(10);
+    Quads q(20);  // big enough to be cached (TinyMeshesAreBuiltNotCached)
     q.counts.push_back(3);
     q.indices.insert(q.indices.end(), {0, 1, 9999});  // a bad face: dropped with a warning
     CachedBuild first = build_through_cache(q.view(), {}, cache);
@@ -114,6 +114,21 @@ TEST(Cache, WarningsAreKeptAndCorruptEntriesRebuilt) {
     ASSERT_FALSE(rebuilt.warnings.empty());
     EXPECT_NE(rebuilt.warnings[0].find("cached build unreadable, rebuilding"), std::string::npos) << rebuilt.warnings[0];
     EXPECT_TRUE(build_through_cache(q.view(), {}, cache).fromCache) << "the rebuilt entry replaced the corrupt one";
+    fs::remove_all(dir);
+}
+
+TEST(Cache, TinyMeshesAreBuiltNotCached) {
+    // Building a mesh of a few hundred triangles costs less than reading its page file: such meshes never fill the cache.
+    const fs::path dir = fresh_directory("tiny");
+    MeshCache cache(dir.string());
+    Quads tiny(16), big(17);  // 1024 and 1156 face-vertex indices
+    EXPECT_FALSE(build_through_cache(tiny.view(), {}, cache).fromCache);
+    EXPECT_FALSE(build_through_cache(tiny.view(), {}, cache).fromCache) << "built again";
+    EXPECT_FALSE(build_through_cache(big.view(), {}, cache).fromCache);
+    EXPECT_TRUE(build_through_cache(big.view(), {}, cache).fromCache);
+    size_t files = 0;
+    for (const auto& entry : fs::recursive_directory_iterator(dir)) files += entry.path().extension() == ".tsra";
+    EXPECT_EQ(files, 1u);
     fs::remove_all(dir);
 }
 

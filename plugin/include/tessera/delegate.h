@@ -55,6 +55,15 @@ struct MatrixArray {
     size_t size() const { return values.size() / 16; }
 };
 
+// The copies of a prototype mesh an instancer draws: for each of `frames`, one copy there (`arrays` null), or every
+// instance of a PointInstancer's `arrays` in that frame (the instancer's world transform; one frame per copy of the
+// instancer itself when it is nested). Each frame becomes one batch of the GPU scene's instances.
+struct InstanceSet {
+    MatrixArray frames;
+    std::shared_ptr<const InstanceArrays> arrays;
+    uint64_t count() const { return frames.size() * (arrays ? arrays->count() : 1); }
+};
+
 class SceneDelegate {
 public:
     virtual ~SceneDelegate() = default;
@@ -65,8 +74,8 @@ public:
     // For a mesh whose faces carry material slots (MeshView::faceMaterials): the material of slots 1, 2, ... (Hydra's
     // GeomSubsets); "" for a slot that takes the mesh's own. Slot 0 is get_material_id's.
     virtual std::vector<PrimId> get_subset_material_ids(const PrimId&) { return {}; }
-    // World transforms of every copy of `prototypeId` drawn by `instancerId` (nesting already composed).
-    virtual MatrixArray get_instance_transforms(const PrimId& instancerId, const PrimId& prototypeId) = 0;
+    // Every copy of `prototypeId` drawn by `instancerId` (nesting already composed).
+    virtual InstanceSet get_instances(const PrimId& instancerId, const PrimId& prototypeId) = 0;
     virtual MaterialDesc get_material(const PrimId& id) = 0;
     virtual LightDesc get_light(const PrimId& id) = 0;
     virtual CameraDesc get_camera(const PrimId& id) = 0;
@@ -134,7 +143,7 @@ public:
     bool double_sided() const { return doubleSided_; }
     std::optional<uint32_t> gpu_mesh() const { return mesh_ ? std::optional(mesh_->gpuMesh) : std::nullopt; }
     const Matrix4d& transform() const { return transform_; }
-    const MatrixArray& instance_transforms() const { return instances_; }
+    const InstanceSet& instances() const { return instances_; }
     const BuiltMesh* built() const { return mesh_ ? scene_.mesh(mesh_->gpuMesh).get() : nullptr; }
 
 private:
@@ -145,7 +154,7 @@ private:
     MeshTable& meshes_;
     std::optional<MeshTable::Handle> mesh_;
     Matrix4d transform_ = identity_matrix();
-    MatrixArray instances_;
+    InstanceSet instances_;
     bool visible_ = true, doubleSided_ = false;
 };
 

@@ -43,13 +43,37 @@ struct MaterialDesc {
     std::string uvPrimvar;  // the primvar the texture readers read as st ("" without textures)
 };
 
+// Copies of a mesh laid out as a USD PointInstancer lays them out, borrowed from the instancer's own arrays (owned by
+// `keepAlive`, never copied): instance i maps mesh space by T(positions[i]) R(orientations[i]) S(scales[i]) local, in
+// the frame of the InstanceDesc that holds the arrays. Only `selection` (the instances of one prototype, when the
+// instancer has several or hides some) is Tessera's own.
+struct InstanceArrays {
+    std::span<const float> positions;           // 3 per instance
+    std::span<const float> orientations;        // 4 per instance (imaginary i j k, then real: GfQuatf), or empty
+    std::span<const uint16_t> orientationsHalf; // the same as IEEE halves (GfQuath, USD's usual type), or empty
+    std::span<const float> scales;              // 3 per instance, or empty (1, 1, 1)
+    std::span<const uint32_t> selection;        // the instances drawn; empty: all of them
+    Matrix4d local = identity_matrix();         // the mesh within the prototype (applied first)
+    std::shared_ptr<const void> keepAlive;
+    size_t count() const { return selection.empty() ? positions.size() / 3 : selection.size(); }
+    // Throws std::invalid_argument when the arrays disagree in length or a selected index is out of range.
+    void validate() const;
+    // Mesh space -> the batch's frame for the n-th drawn instance.
+    Matrix4d transform(size_t n) const;
+};
+
+// A batch of instances of one mesh: one (`arrays` null) at `transform`, or every instance of `arrays` in the frame
+// `transform` (a PointInstancer's world transform). They share the prim, material and flags, and their GPU transforms
+// are stored relative to the batch's origin.
 struct InstanceDesc {
     uint32_t mesh = 0;        // a handle from GpuScene::add_mesh
-    Matrix4d transform{};     // mesh space -> world, in double
+    Matrix4d transform{};     // mesh space (or the arrays' frame) -> world, in double
+    std::shared_ptr<const InstanceArrays> arrays;
     uint32_t primId = 0;      // reported by the primId AOV
     uint32_t material = 0;    // a handle from GpuScene::add_material; with materialTable, one from add_material_table
     bool materialTable = false;  // the mesh's triangles carry material slots (BuiltMesh::materialSlots > 1)
     bool doubleSided = false;
+    size_t count() const { return arrays ? arrays->count() : 1; }
 };
 
 enum class LightType { Distant, Dome, Rect, Sphere };
@@ -131,8 +155,12 @@ struct RenderSettings {
 };
 
 struct FrameStats {
-    uint32_t instances = 0, visibleInstances = 0;
-    uint32_t clusters = 0, visibleClusters = 0;  // clusters: level 0 of every instance (the source)
+    uint64_t instances = 0;         // every drawn copy of every mesh (batches expanded)
+    uint32_t visibleInstances = 0;
+    uint32_t instanceBatches = 0;   // InstanceDescs: a plain mesh or native instance is one, a PointInstancer prototype one
+    uint64_t instanceBytes = 0;     // GPU memory that grows with the instance count (transforms, batch words, lists)
+    uint64_t clusters = 0;  // level 0 of every instance (the source)
+    uint32_t visibleClusters = 0;
     uint64_t candidateClusters = 0;  // clusters the cut tested (the levels an instance's distance did not rule out)
     uint64_t sourceTriangles = 0;   // every triangle of every instance
     uint64_t visibleTriangles = 0;  // triangles of the cut's visible clusters
@@ -155,6 +183,7 @@ struct FrameStats {
     uint64_t tessellationBytes = 0;
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.
     double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, tessellationMs = 0, hzbMs = 0, resolveMs = 0;
+    double uploadMs = 0;  // CPU time spent uploading what changed in the scene (instances, geometry, materials) this frame
 };
 
 // The GPU scene: meshes shared by any number of instances. Changes are uploaded by the next render.
@@ -168,10 +197,11 @@ public:
     uint32_t add_material_table(std::span<const uint32_t> materials);
     void clear_materials();  // and the tables
     void set_instances(std::vector<InstanceDesc> instances);
-    void set_instance_transform(size_t index, const Matrix4d& transform);  // one instance moved (a live edit)
+    void set_instance_transform(size_t index, const Matrix4d& transform);  // one batch moved (a live edit)
     void set_lights(std::vector<LightDesc> lights);
 
-    const std::vector<InstanceDesc>& instances() const { return instances_; }
+    const std::vector<InstanceDesc>& instances() const { return instances_; }  // batches
+    uint64_t instance_count() const;  // drawn copies, batches expanded
     const std::vector<LightDesc>& lights() const { return lights_; }
     const std::shared_ptr<const BuiltMesh>& mesh(uint32_t handle) const { return meshes_.at(handle); }
     size_t mesh_count() const { return meshes_.size(); }
