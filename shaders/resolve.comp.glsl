@@ -94,9 +94,11 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     if (diced) {
         DicedPatch d = load_patch(frame, payload.patchIndex);
         largestFactor = max(d.factors.x, max(d.factors.y, d.factors.z));
+        uvec2 lattice[3];
+        lattice_cell(payload.micro, d.n, lattice[0], lattice[1], lattice[2]);
         vec3 w[3], corner[3];
         for (uint k = 0u; k < 3u; ++k) {
-            w[k] = micro_corner(d, payload.micro, k);
+            w[k] = micro_point(d, lattice[k]);
             corner[k] = displaced_point(frame, d, w[k], cornerUv[k]);
         }
         hitTriangle.v0 = d.triangle.v[0];
