@@ -450,7 +450,8 @@ struct Renderer::Impl {
     std::array<VkPipeline, 8> resolveVariants{};
     // Runtime tessellation, made when a scene first displaces: the tessellate pass and the patch raster (and its mask
     // variant).
-    VkPipeline tessellate = VK_NULL_HANDLE, dice = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE, patchRasterMasked = VK_NULL_HANDLE;
+    VkPipeline tessellate = VK_NULL_HANDLE, dice = VK_NULL_HANDLE, diceMasked = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE,
+               patchRasterMasked = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
@@ -517,6 +518,7 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, rasterSoftwareMasked, nullptr);
         vkDestroyPipeline(vk, tessellate, nullptr);
         vkDestroyPipeline(vk, dice, nullptr);
+        vkDestroyPipeline(vk, diceMasked, nullptr);
         vkDestroyPipeline(vk, patchRaster, nullptr);
         vkDestroyPipeline(vk, patchRasterMasked, nullptr);
         vkDestroyPipeline(vk, backgroundTextured, nullptr);
@@ -596,7 +598,10 @@ struct Renderer::Impl {
             dice = compute_pipeline(dice_comp, sizeof(dice_comp));
             patchRaster = graphics_pipeline(patch_vert, sizeof(patch_vert), false);
         }
-        if (masks && !patchRasterMasked) patchRasterMasked = graphics_pipeline(patch_vert, sizeof(patch_vert), true);
+        if (masks && !patchRasterMasked) {
+            patchRasterMasked = graphics_pipeline(patch_vert, sizeof(patch_vert), true);
+            diceMasked = compute_pipeline(dice_comp, sizeof(dice_comp), true);
+        }
     }
 
     // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
@@ -1312,7 +1317,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                             VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
                                 VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.dice);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.anyMasked ? s.diceMasked : s.dice);
                     vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatchGroupsX));
                     barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);

@@ -13,6 +13,9 @@
 
 layout(local_size_x = TS_DICE_GROUP_SIZE) in;
 
+// The pipeline variant for frames with textured opacity masks (the others carry no mask code).
+layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
+
 shared ivec2 screen[TS_DICE_MAX_POINTS];  // sub-pixel position
 shared float depth[TS_DICE_MAX_POINTS];   // reversed-Z depth
 
@@ -49,6 +52,6 @@ void main() {
         uint ia = lattice_index(a, n), ib = lattice_index(b, n), ic = lattice_index(c, n);
         uint64_t payload = uint64_t(TS_VIS_TESSELLATED | index << TS_VIS_MICRO_BITS | micro);
         rasterize_triangle(frame, screen[ia], screen[ib], screen[ic], depth[ia], depth[ib], depth[ic], payload,
-                           (d.instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, false);  // micro-triangles are not masked
+                           (d.instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, MASKS && (d.instance.flags & TS_INSTANCE_MASKED) != 0u);
     }
 }

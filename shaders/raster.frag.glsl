@@ -5,6 +5,7 @@
 #extension GL_EXT_shader_atomic_int64 : require
 #include "frame.h"
 #include "surface.h"
+#include "tessellation.h"
 
 layout(location = 0) flat in uint inPayload;
 layout(location = 1) flat in uint inFlags;

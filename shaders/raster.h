@@ -1,7 +1,7 @@
 // The compute rasterizer's triangle setup and scan, shared by the cluster rasterizer (raster_sw.comp.glsl) and the patch
 // rasterizer (dice.comp.glsl): vertices already snapped to the hardware rasterizer's sub-pixel grid, coverage by its
 // top-left rule, so that both compute paths and hardware raster cover the same pixels for the same triangle. Include
-// after surface.h; needs GL_EXT_shader_atomic_int64.
+// after tessellation.h (masks: masked_out); needs GL_EXT_shader_atomic_int64.
 #ifndef TESSERA_RASTER_H
 #define TESSERA_RASTER_H
 

@@ -92,24 +92,11 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     bool diced = DISPLACED && payload.patchIndex != 0xffffffffu;
     uint largestFactor = 1u;
     if (diced) {
-        DicedPatch d = load_patch(frame, payload.patchIndex);
-        largestFactor = max(d.factors.x, max(d.factors.y, d.factors.z));
-        uvec2 lattice[3];
-        lattice_cell(payload.micro, d.n, lattice[0], lattice[1], lattice[2]);
-        vec3 w[3], corner[3];
-        for (uint k = 0u; k < 3u; ++k) {
-            w[k] = micro_point(d, lattice[k]);
-            corner[k] = displaced_point(frame, d, w[k], cornerUv[k]);
-        }
-        hitTriangle.v0 = d.triangle.v[0];
-        hitTriangle.v1 = d.triangle.v[1];
-        hitTriangle.v2 = d.triangle.v[2];
-        hitTriangle.p0 = corner[0];
-        hitTriangle.e1 = corner[1] - corner[0];
-        hitTriangle.e2 = corner[2] - corner[0];
-        pixel_ray(frame, vec2(pixel) + 0.5, hitTriangle.origin, hitTriangle.direction);
-        hitTriangle.bary = plane_barycentrics(hitTriangle.origin, hitTriangle.direction, hitTriangle.p0, hitTriangle.e1, hitTriangle.e2);
-        sourceBary = hitTriangle.bary.x * w[0] + hitTriangle.bary.y * w[1] + hitTriangle.bary.z * w[2];
+        MicroTriangle m = pixel_micro_triangle(frame, payload.patchIndex, payload.micro, pixel);
+        hitTriangle = m.t;
+        largestFactor = m.largestFactor;
+        cornerUv = m.uv;
+        sourceBary = m.t.bary.x * m.w[0] + m.t.bary.y * m.w[1] + m.t.bary.z * m.w[2];
     } else {
         hitTriangle = pixel_triangle(frame, instance, cluster, triangle, pixel);
         sourceBary = hitTriangle.bary;

@@ -277,4 +277,62 @@ vec3 displaced_point(GpuFrame frame, DicedPatch d, vec3 w, out vec2 st) {
     return to_camera_relative(d.instance, d.translation, p + n * (offset * inversesqrt(length2)));
 }
 
+// The micro-triangle a pixel shows, rebuilt with the code that drew it: its corners' weights on the cluster's triangle,
+// their texture coordinates, and the pixel's ray and barycentrics on it (PixelTriangle: v0-v2 are the cluster
+// triangle's vertices, p0, e1, e2 the micro-triangle's corners).
+struct MicroTriangle {
+    PixelTriangle t;
+    vec3 w[3];
+    vec2 uv[3];
+    GpuMaterial material;
+    uint largestFactor;  // the triangle's largest edge factor (--vis tessellation)
+};
+
+MicroTriangle pixel_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, uvec2 pixel) {
+    MicroTriangle m;
+    DicedPatch d = load_patch(frame, patchIndex);
+    m.material = d.material;
+    m.largestFactor = max(d.factors.x, max(d.factors.y, d.factors.z));
+    uvec2 lattice[3];
+    lattice_cell(micro, d.n, lattice[0], lattice[1], lattice[2]);
+    vec3 corner[3];
+    for (uint k = 0u; k < 3u; ++k) {
+        m.w[k] = micro_point(d, lattice[k]);
+        corner[k] = displaced_point(frame, d, m.w[k], m.uv[k]);
+    }
+    m.t.v0 = d.triangle.v[0];
+    m.t.v1 = d.triangle.v[1];
+    m.t.v2 = d.triangle.v[2];
+    m.t.p0 = corner[0];
+    m.t.e1 = corner[1] - corner[0];
+    m.t.e2 = corner[2] - corner[0];
+    pixel_ray(frame, vec2(pixel) + 0.5, m.t.origin, m.t.direction);
+    m.t.bary = plane_barycentrics(m.t.origin, m.t.direction, m.t.p0, m.t.e1, m.t.e2);
+    return m;
+}
+
+// UsdPreviewSurface opacityThreshold over a textured opacity (instances flagged TS_INSTANCE_MASKED): true where the
+// opacity at this pixel is below the threshold, so that the rasterizer leaves the pixel to what lies behind. Both
+// rasterizers call this same code for a pixel with the payload they write (visible cluster << 7 | triangle), so they
+// cut the same pixels; the patch rasterizers likewise for a micro-triangle (its payload), rebuilt as they made it.
+bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
+    if ((payload & TS_VIS_TESSELLATED) != 0u) {
+        Payload p = decode_payload(frame, payload);
+        MicroTriangle m = pixel_micro_triangle(frame, p.patchIndex, p.micro, pixel);
+        if ((m.material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;
+        PixelUv uv = pixel_uv(frame, vec2(pixel), m.t.bary, m.t.p0, m.t.e1, m.t.e2, m.uv[0], m.uv[1], m.uv[2]);
+        return material_texture(frame, m.material, TS_INPUT_OPACITY, uv).x < m.material.diffuseColor.a;
+    }
+    uvec2 visible = visible_cluster(frame, payload >> TS_VIS_TRIANGLE_BITS);
+    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
+    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
+    GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
+    if ((material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;  // another slot of the mesh's materials
+    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    PixelTriangle t = pixel_triangle(frame, instance, cluster, triangle, pixel);
+    PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), t.bary, t.p0, t.e1, t.e2, t.v0, t.v1, t.v2);
+    return material_texture(frame, material, TS_INPUT_OPACITY, uv).x < material.diffuseColor.a;  // a: the threshold
+}
+
 #endif

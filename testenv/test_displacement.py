@@ -287,3 +287,39 @@ def test_bricks_height_map(tmp_path):
     assert (np.abs(raised) < 0.01).mean() > 0.02, "the mortar stays where the wall was"
     result.write(tmp_path / "wall.png")
     assert_matches_baseline(tmp_path / "wall.png", TESTENV / "testDisplacement" / "baseline" / "bricks.png")
+
+
+def test_opacity_masks_cut_micro_triangles(tmp_path):
+    """A displaced quad whose textured opacity cuts holes (opacityThreshold): the holes show what lies behind, as they
+    do on the same quad undisplaced."""
+    from test_textures import checker, write_png as write_rgba_png
+
+    write_rgba_png(tmp_path / "holes.png", checker(4, a=(255, 255, 255, 255), b=(255, 255, 255, 0)))
+    path = tmp_path / "cut.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    quad = UsdGeom.Mesh.Define(stage, "/Quad")
+    quad.GetPointsAttr().Set([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
+    quad.GetFaceVertexCountsAttr().Set([4])
+    quad.GetFaceVertexIndicesAttr().Set([0, 1, 2, 3])
+    quad.GetSubdivisionSchemeAttr().Set("none")
+    st = UsdGeom.PrimvarsAPI(quad).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set([(0, 0), (1, 0), (1, 1), (0, 1)])
+    material = displaced_material(stage, "/Looks/Cut", constant=0.1)
+    surface = UsdShade.Shader(stage.GetPrimAtPath("/Looks/Cut/Surface"))
+    surface.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
+    reader = UsdShade.Shader.Define(stage, "/Looks/Cut/St")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
+    holes = UsdShade.Shader.Define(stage, "/Looks/Cut/Holes")
+    holes.CreateIdAttr("UsdUVTexture")
+    holes.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(str(tmp_path / "holes.png"))
+    holes.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    surface.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(holes.ConnectableAPI(), "a")
+    bind(quad, material)
+    camera_at(stage, (0, 0, 3))
+    stage.GetRootLayer().Save()
+    for raster in ("auto", "hardware"):  # the compute patch rasterizer and the patch raster's hardware path
+        displaced = session_render(path, resolution=(128, 128), dicing_rate=4.0, raster=raster)
+        assert displaced.stats["micro_triangles"] > 0
+        inside = covered(displaced)[24:104, 24:104]  # the quad fills the middle of the image
+        assert 0.35 < inside.mean() < 0.65, f"{raster}: half the checker is cut away ({inside.mean():.2f} covered)"
