@@ -105,6 +105,10 @@ std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) 
     hash_primvar(h, mesh.displayColor);
     hash_primvar(h, mesh.uvs);
     h.span(mesh.faceMaterials);
+    if (mesh.bake) {  // a static displacement: its height map and values (DisplacementBake::key)
+        h.bytes(mesh.bake->key.data(), mesh.bake->key.size());
+        h.word(mesh.bake->maxTriangles);
+    }
     return h.hex();
 }
 
@@ -165,7 +169,7 @@ constexpr size_t kUncachedFaceVertices = 1024;
 
 bool worth_caching(const MeshView& mesh) {
     const bool refined = mesh.subdivisionScheme != SubdivisionScheme::None && mesh.refineLevel > 0;
-    return refined || mesh.faceVertexIndices.size() > kUncachedFaceVertices;
+    return refined || mesh.bake || mesh.faceVertexIndices.size() > kUncachedFaceVertices;  // baking is costly: cached
 }
 }  // namespace
 
@@ -186,6 +190,7 @@ CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& setti
         if (!problem.empty()) result.warnings.push_back(mesh.name + ": cached build unreadable, rebuilding (" + problem + ")");
     }
     PreparedMesh prepared = prepare_mesh(mesh);
+    if (mesh.bake) prepared = bake_displacement(prepared, *mesh.bake);
     auto built = std::make_shared<BuiltMesh>(build_mesh(prepared, settings));
     if (cached) {
         std::string problem;

@@ -3,6 +3,35 @@
 
 namespace tessera::hd {
 
+// What a material's static displacement does to a mesh (builder.h DisplacementBake), with a key naming everything that
+// changes the result: the height map (file, size, time) and how it is read, and the material's values.
+std::optional<DisplacementBake> displacement_bake(const MaterialDesc& m) {
+    DisplacementBake bake;
+    bake.magnitude = m.displacementMagnitude;
+    bake.center = m.displacementCenter;
+    bake.constant = m.displacement;
+    std::string key = "bake " + std::to_string(bake.magnitude) + " " + std::to_string(bake.center) + " " + std::to_string(bake.constant);
+    for (const TextureSlot& slot : m.textures) {
+        if (slot.input != MaterialInput::Displacement) continue;
+        if (!slot.image) {  // unreadable: its fallback is the height everywhere (already warned about)
+            bake.constant = slot.fallback[slot.channel == TextureChannel::Rgb ? 0 : size_t(slot.channel)];
+            key += " fallback " + std::to_string(bake.constant);
+            break;
+        }
+        bake.height = [slot](float s, float t) { return sample_slot_level0(slot, s, t); };
+        bake.texels = std::max(slot.image->width, slot.image->height);
+        key += " " + slot.file + " " + std::to_string(slot.image->fileTime) + " " + std::to_string(slot.image->fileSize) + " " +
+               std::to_string(int(slot.colorSpace)) + " " + std::to_string(int(slot.wrapS)) + " " + std::to_string(int(slot.wrapT)) + " " +
+               std::to_string(int(slot.channel));
+        for (float v : slot.scale) key += " " + std::to_string(v);
+        for (float v : slot.bias) key += " " + std::to_string(v);
+        for (float v : slot.transform) key += " " + std::to_string(v);
+        break;
+    }
+    bake.key = std::move(key);
+    return bake;
+}
+
 MeshTable::Handle MeshTable::acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param) {
     validate_settings(settings);
     std::string key = MeshCache::key(view, settings);
@@ -41,6 +70,10 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
     if (!visible_) return;
     // Only points, topology, primvars and sidedness rebuild the mesh; a transform, a material or new instance
     // transforms are read alone.
+    if (dirtyBits & DirtyMaterialId) {
+        materialId_ = scene.get_material_id(id());
+        subsetMaterialIds_ = scene.get_subset_material_ids(id());
+    }
     if (dirtyBits & (DirtyPoints | DirtyTopology | DirtyPrimvar | DirtyDoubleSided)) {
         if (mesh_) {
             meshes_.release(*mesh_);
@@ -50,16 +83,17 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
             MeshSource source = scene.get_mesh(id());
             doubleSided_ = source.doubleSided;
             if (source.view.name.empty()) source.view.name = id();
+            // A material that bakes its displacement: the mesh is diced and displaced as it is built.
+            const MaterialDesc* material = param.material && !materialId_.empty() ? param.material(materialId_) : nullptr;
+            std::optional<DisplacementBake> bake;
+            if (material && material->displacementBake) bake = displacement_bake(*material);
+            if (bake) source.view.bake = &*bake;
             mesh_ = meshes_.acquire(source.view, source.settings, param);
         } catch (const MeshError& e) {
             param.errors.push_back(std::string(e.what()) + "; the mesh is skipped");
         }
     }
     if (dirtyBits & DirtyTransform) transform_ = scene.get_transform(id());
-    if (dirtyBits & DirtyMaterialId) {
-        materialId_ = scene.get_material_id(id());
-        subsetMaterialIds_ = scene.get_subset_material_ids(id());
-    }
     if ((dirtyBits & DirtyInstancer) && !instancerId_.empty()) instances_ = scene.get_instances(instancerId_, id());
 }
 

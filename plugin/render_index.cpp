@@ -115,6 +115,10 @@ bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<Instan
 
 void RenderIndex::sync_all(SceneDelegate& scene) {
     lastSynced_.clear();
+    param_.material = [this](const PrimId& id) -> const MaterialDesc* {
+        auto it = sprims_.find(id);
+        return it != sprims_.end() && it->second.type == "material" ? &static_cast<const Material&>(*it->second.prim).desc() : nullptr;
+    };
     std::vector<const Entry*> moved;  // plain meshes whose transform alone changed: patched into the instance list
     // Only the prims marked dirty are visited (sprims first: rprims refer to materials), in id order.
     for (auto* dirty : {&dirtySprims_, &dirtyRprims_}) {

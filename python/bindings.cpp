@@ -393,6 +393,7 @@ NB_MODULE(_tessera, m) {
         .def_rw("displacement_center", &MaterialDesc::displacementCenter)
         .def_rw("displacement_fade_start", &MaterialDesc::displacementFadeStart)
         .def_rw("displacement_fade_end", &MaterialDesc::displacementFadeEnd)
+        .def_rw("displacement_bake", &MaterialDesc::displacementBake)
         .def_rw("textures", &MaterialDesc::textures)
         .def_rw("uv_primvar", &MaterialDesc::uvPrimvar);
 

@@ -933,7 +933,7 @@ struct Renderer::Impl {
             high = std::max(a, b);
         }
         const float bound = std::max(std::abs(low - m.displacementCenter), std::abs(high - m.displacementCenter)) * std::abs(m.displacementMagnitude);
-        const bool displaced = std::isfinite(bound) && bound > 0;
+        const bool displaced = std::isfinite(bound) && bound > 0 && !m.displacementBake;  // a baked one is in the mesh
         g.displacement = {m.displacement, m.displacementMagnitude, m.displacementCenter, displaced ? bound : 0.0f};
         g.displacementFade = {m.displacementFadeStart, m.displacementFadeEnd, 0, 0};
         if (displaced) g.flags |= TS_MATERIAL_DISPLACED;

@@ -280,6 +280,43 @@ TextureImage make_texture(uint32_t width, uint32_t height, uint32_t channels, co
     return t;
 }
 
+float sample_slot_level0(const TextureSlot& slot, float s, float t) {
+    const size_t channel = slot.channel == TextureChannel::Rgb ? 0 : size_t(slot.channel);
+    if (!slot.image) return slot.fallback[channel];
+    const TextureImage& image = *slot.image;
+    const auto& m = slot.transform;
+    const float u = m[0] * s + m[1] * t + m[2], v = m[3] * s + m[4] * t + m[5];
+    const bool srgb = (image.format & TS_TEXTURE_SRGB) != 0;
+    const uint32_t format = image.format & TS_TEXTURE_FORMAT_MASK;
+    auto texel = [&](int x, int y, TextureWrap wrapX, TextureWrap wrapY) -> float {
+        auto wrap = [](int i, int n, TextureWrap mode) {
+            if (mode == TextureWrap::Clamp) return std::clamp(i, 0, n - 1);
+            if (mode == TextureWrap::Black) return i < 0 || i >= n ? -1 : i;
+            if (mode == TextureWrap::Mirror) {
+                const int m2 = ((i % (2 * n)) + 2 * n) % (2 * n);
+                return m2 < n ? m2 : 2 * n - 1 - m2;
+            }
+            return ((i % n) + n) % n;
+        };
+        x = wrap(x, int(image.width), wrapX);
+        y = wrap(y, int(image.height), wrapY);
+        if (x < 0 || y < 0) return 0.0f;
+        const uint64_t i = uint64_t(y) * image.width + uint64_t(x);
+        float value;
+        if (format == TS_TEXTURE_RGBA8) value = float((image.words[i] >> (8 * channel)) & 0xffu) / 255.0f;
+        else if (format == TS_TEXTURE_R8) value = channel == 3 ? 1.0f : float((image.words[i / 4] >> (8 * (i % 4))) & 0xffu) / 255.0f;
+        else value = half_to_float(uint16_t(image.words[2 * i + channel / 2] >> (16 * (channel % 2))));
+        return srgb && channel < 3 ? srgb_to_linear(value) : value;
+    };
+    const double x = double(u) * image.width - 0.5, y = double(v) * image.height - 0.5;
+    const int x0 = int(std::floor(x)), y0 = int(std::floor(y));
+    const float fx = float(x - x0), fy = float(y - y0);
+    const float a = texel(x0, y0, slot.wrapS, slot.wrapT), b = texel(x0 + 1, y0, slot.wrapS, slot.wrapT);
+    const float c = texel(x0, y0 + 1, slot.wrapS, slot.wrapT), d = texel(x0 + 1, y0 + 1, slot.wrapS, slot.wrapT);
+    const float value = (a * (1 - fx) + b * fx) * (1 - fy) + (c * (1 - fx) + d * fx) * fy;
+    return value * slot.scale[channel] + slot.bias[channel];
+}
+
 TextureImage read_texture(const std::string& path, ColorSpace colorSpace) {
     OIIO::ImageSpec config;
     config.attribute("oiio:UnassociatedAlpha", 1);  // colours as stored: UsdUVTexture reads straight alpha

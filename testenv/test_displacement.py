@@ -323,3 +323,41 @@ def test_opacity_masks_cut_micro_triangles(tmp_path):
         assert displaced.stats["micro_triangles"] > 0
         inside = covered(displaced)[24:104, 24:104]  # the quad fills the middle of the image
         assert 0.35 < inside.mean() < 0.65, f"{raster}: half the checker is cut away ({inside.mean():.2f} covered)"
+
+
+def test_static_displacement_bakes_the_detail_into_the_mesh(tmp_path):
+    """tessera:displacement:bake: the sphere is diced and displaced when it is built, so the DAG carries the detail: no
+    runtime tessellation, many more source triangles, no cracks, and the same surface as the CPU reference."""
+    runtime_stage, reference_stage = write_stages(tmp_path, n=24)
+    stage = Usd.Stage.Open(str(runtime_stage))
+    stage.GetPrimAtPath("/Looks/Bumps").CreateAttribute("tessera:displacement:bake", Sdf.ValueTypeNames.Bool).Set(True)
+    stage.GetRootLayer().Save()
+    baked = session_render(runtime_stage, lod=False)
+    assert baked.stats["micro_triangles"] == 0 and baked.stats["tessellation_bytes"] == 0, "nothing is diced at render time"
+    assert baked.stats["source_triangles"] > 20 * 528, "the 528-triangle sphere was diced to about a texel of its height map"
+    assert enclosed_background(covered(baked)) == 0
+    reference = session_render(reference_stage, lod=False)
+    assert (covered(baked) == covered(reference)).mean() >= 0.995
+    quality = psnr(baked["color"].pixels[..., :3], reference["color"].pixels[..., :3])
+    assert quality >= 35.0, f"PSNR {quality:.1f} dB against the pre-tessellated reference"
+    again = session_render(runtime_stage, lod=False)
+    assert again.stats["meshes_cached"] == 1 and again.stats["meshes_built"] == 0, "a baked mesh is built once"
+
+
+def test_static_displacement_does_not_tear_at_hard_edges_or_uv_seams(tmp_path):
+    """The cube of hard edges and a UV island per face, its ramp height map differing across every edge, baked."""
+    from tessera.bench_textures import write_png
+
+    u, v = np.meshgrid((np.arange(16) + 0.5) / 16, (np.arange(16) + 0.5) / 16)
+    write_png(tmp_path / "ramp.png", np.round((0.7 * u + 0.3 * v) * 255)[::-1].astype(np.uint8))
+    path = tmp_path / "cube.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    cube = hard_cube(stage, "/Cube")
+    material = displaced_material(stage, "/Looks/Ramp", texture=tmp_path / "ramp.png", magnitude=0.4)
+    material.GetPrim().CreateAttribute("tessera:displacement:bake", Sdf.ValueTypeNames.Bool).Set(True)
+    bind(cube, material)
+    camera_at(stage, (1.6, 1.3, 2.0))
+    stage.GetRootLayer().Save()
+    result = session_render(path)
+    assert result.stats["source_triangles"] > 12 * 16 and result.stats["micro_triangles"] == 0
+    assert enclosed_background(covered(result)) == 0, "no background shows through the baked cube's edges"

@@ -26,7 +26,7 @@ _TEXTURE_INPUTS = {
 }
 # Tessera's displacement settings, authored on the Material prim (defaults: MaterialDesc's). Offset along the normal =
 # (displacement - center) * magnitude, mesh units; it fades out while its largest offset projects to between fadeStart
-# and fadeEnd pixels.
+# and fadeEnd pixels. A bool tessera:displacement:bake displaces the bound meshes when they are built instead.
 _DISPLACEMENT_SETTINGS = {
     "tessera:displacement:magnitude": "displacement_magnitude",
     "tessera:displacement:center": "displacement_center",
@@ -232,3 +232,6 @@ def _read_displacement(material, desc, value, path: str, time, warnings: list[st
             warnings.append(f"{path}: {attribute} is {number}; the default is used")
             continue
         setattr(desc, field, number)
+    bake = prim.GetAttribute("tessera:displacement:bake")
+    if bake and bake.Get(time) is not None:
+        desc.displacement_bake = bool(bake.Get(time))

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <array>
+#include <functional>
 #include <cstdint>
 #include <span>
 #include <stdexcept>
@@ -32,6 +33,8 @@ struct PrimvarView {
 };
 
 // A polygon mesh as authored; all views are borrowed for the duration of prepare_mesh().
+struct DisplacementBake;
+
 struct MeshView {
     std::string name;                          // used in every message (a prim path, say)
     std::span<const float> points;             // 3 floats per point
@@ -50,6 +53,9 @@ struct MeshView {
     // linearly (as Storm's default face-varying interpolation of "cornersPlus1" does on the interior).
     SubdivisionScheme subdivisionScheme = SubdivisionScheme::None;
     int refineLevel = 0;
+    // Static displacement: when set, the prepared mesh is diced and displaced before its DAG is built
+    // (bake_displacement), and the bake's key joins the cache key.
+    const DisplacementBake* bake = nullptr;
 };
 
 // The mesh cannot be used at all (no valid face left, or data that do not fit together).
@@ -76,6 +82,25 @@ struct PreparedMesh {
 // are dropped with a warning; a mesh with nothing left to draw, or whose arrays do not fit together,
 // throws MeshError naming the mesh and the problem.
 PreparedMesh prepare_mesh(const MeshView& mesh);
+
+// Static displacement (a material's tessera:displacement:bake, Nanite's build-time tessellation): the mesh is diced
+// finely enough for its height map and displaced along its normals, so that the cluster DAG carries the detail and
+// simplifies it by error like any other. Offset = (height - center) * magnitude, mesh units.
+struct DisplacementBake {
+    float magnitude = 1.0f, center = 0.0f;
+    float constant = 0.0f;                     // the height where `height` is empty
+    std::function<float(float, float)> height; // the height at texture coordinates (s, t): a height map, read on the CPU
+    uint32_t texels = 0;                       // the height map's larger side: edges are cut about one texel long
+    uint64_t maxTriangles = 4'000'000;         // the dicing coarsens until the result fits
+    std::string key;                           // identifies the height map and the values above (joins the cache key)
+};
+
+// Every edge is cut into segments of about one texel of the height map (measured over the mesh: its area against its
+// UV area), at most 64; triangles are diced on a lattice whose edge points follow each edge's own segments, so the
+// edges' two triangles agree; each point's height is the mean of the samples every triangle around its position reads
+// (UV seams do not tear) and moves it along the mean normal there (hard edges do not tear). Normals are recomputed from
+// the displaced surface; texture coordinates, colours, slots and source faces carry over.
+PreparedMesh bake_displacement(const PreparedMesh& mesh, const DisplacementBake& bake);
 
 // One cluster of the DAG. Level 0 holds the source triangles; each higher level was made by simplifying a
 // group of clusters below it. The runtime draws a cluster iff its LOD error, projected from its LOD sphere,

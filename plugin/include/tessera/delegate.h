@@ -12,6 +12,7 @@
 #include "tessera/renderer.h"
 
 #include <map>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <span>
@@ -85,6 +86,8 @@ class RenderDelegate;
 
 // Where prims report what they could not use; messages name the prim.
 struct RenderParam {
+    // The synced material sprim of an id, or null (meshes read their material's static displacement when they build).
+    std::function<const MaterialDesc*(const PrimId&)> material;
     std::vector<std::string> warnings;
     std::vector<std::string> errors;
     uint32_t meshesBuilt = 0, meshesFromCache = 0;

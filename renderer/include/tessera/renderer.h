@@ -39,6 +39,9 @@ struct MaterialDesc {
     float displacement = 0.0f;
     float displacementMagnitude = 1.0f, displacementCenter = 0.0f;
     float displacementFadeStart = 4.0f, displacementFadeEnd = 1.0f;
+    // tessera:displacement:bake: the meshes bound to it are diced and displaced when they are built (bake_displacement)
+    // and drawn as they are; nothing is displaced at render time.
+    bool displacementBake = false;
     std::vector<TextureSlot> textures;  // at most one per input; a slot without an image uses its fallback
     std::string uvPrimvar;  // the primvar the texture readers read as st ("" without textures)
 };

@@ -77,6 +77,11 @@ struct TextureSlot {
     std::shared_ptr<const TextureImage> image;
 };
 
+// A texture slot's first output channel at st, read on the CPU as shaders/texture.h reads level 0 (UsdTransform2d, wrap,
+// bilinear, scale and bias, the output): for what the CPU computes from a texture (static displacement). The fallback
+// without an image.
+float sample_slot_level0(const TextureSlot& slot, float s, float t);
+
 // Row-major 2x3 matrix of UsdTransform2d: scale, then rotate counter-clockwise by `rotationDegrees`, then translate.
 std::array<float, 6> transform2d(float rotationDegrees, std::array<float, 2> scale, std::array<float, 2> translation);
 
