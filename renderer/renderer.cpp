@@ -13,6 +13,7 @@
 #include "spirv/dice_comp.h"
 #include "spirv/cull_comp.h"
 #include "spirv/hzb_comp.h"
+#include "spirv/patch_frag.h"
 #include "spirv/patch_vert.h"
 #include "spirv/raster_frag.h"
 #include "spirv/raster_sw_comp.h"
@@ -565,7 +566,7 @@ struct Renderer::Impl {
         bins = compute_pipeline(bins_comp, sizeof(bins_comp));
         background = compute_pipeline(background_comp, sizeof(background_comp));
         rasterSoftware = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp));
-        raster = graphics_pipeline(raster_vert, sizeof(raster_vert), false);
+        raster = graphics_pipeline(false, false);
 
         VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
         queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
@@ -580,7 +581,7 @@ struct Renderer::Impl {
                 resolve_variant(textured, displaced, light);
         if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
         if (masks && !rasterMasked) {
-            rasterMasked = graphics_pipeline(raster_vert, sizeof(raster_vert), true);
+            rasterMasked = graphics_pipeline(false, true);
             rasterSoftwareMasked = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), true);
         }
     }
@@ -596,19 +597,19 @@ struct Renderer::Impl {
         if (!tessellate) {
             tessellate = compute_pipeline(tessellate_comp, sizeof(tessellate_comp));
             dice = compute_pipeline(dice_comp, sizeof(dice_comp));
-            patchRaster = graphics_pipeline(patch_vert, sizeof(patch_vert), false);
+            patchRaster = graphics_pipeline(true, false);
         }
         if (masks && !patchRasterMasked) {
-            patchRasterMasked = graphics_pipeline(patch_vert, sizeof(patch_vert), true);
+            patchRasterMasked = graphics_pipeline(true, true);
             diceMasked = compute_pipeline(dice_comp, sizeof(dice_comp), true);
         }
     }
 
     // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
-    // `vertexCode`: clusters (raster.vert.glsl) or patches (patch.vert.glsl).
-    VkPipeline graphics_pipeline(const uint32_t* vertexCode, size_t vertexBytes, bool masks) {
-        VkShaderModule vert = create_module(device.handle(), vertexCode, vertexBytes);
-        VkShaderModule frag = create_module(device.handle(), raster_frag, sizeof(raster_frag));
+    // Clusters (raster.vert.glsl, raster.frag.glsl) or patches (patch.vert.glsl, patch.frag.glsl).
+    VkPipeline graphics_pipeline(bool patches, bool masks) {
+        VkShaderModule vert = patches ? create_module(device.handle(), patch_vert, sizeof(patch_vert)) : create_module(device.handle(), raster_vert, sizeof(raster_vert));
+        VkShaderModule frag = patches ? create_module(device.handle(), patch_frag, sizeof(patch_frag)) : create_module(device.handle(), raster_frag, sizeof(raster_frag));
         VkPipelineShaderStageCreateInfo stages[2] = {
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};

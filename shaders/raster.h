@@ -1,9 +1,19 @@
 // The compute rasterizer's triangle setup and scan, shared by the cluster rasterizer (raster_sw.comp.glsl) and the patch
 // rasterizer (dice.comp.glsl): vertices already snapped to the hardware rasterizer's sub-pixel grid, coverage by its
 // top-left rule, so that both compute paths and hardware raster cover the same pixels for the same triangle. Include
-// after tessellation.h (masks: masked_out); needs GL_EXT_shader_atomic_int64.
+// after surface.h, and after tessellation.h where micro-triangles are drawn (their masks); needs
+// GL_EXT_shader_atomic_int64.
 #ifndef TESSERA_RASTER_H
 #define TESSERA_RASTER_H
+
+// The mask test: with tessellation.h included first (the patch rasterizer), micro-triangles' payloads too; the cluster
+// rasterizer carries none of the tessellation code (on lavapipe it would lengthen every pipeline's compile).
+#ifdef TESSERA_TESSELLATION_H
+#define PIXEL_MASKED_OUT(frame, payload, pixel) \
+    (((payload) & TS_VIS_TESSELLATED) != 0u ? micro_masked_out(frame, payload, pixel) : masked_out(frame, payload, pixel))
+#else
+#define PIXEL_MASKED_OUT(frame, payload, pixel) masked_out(frame, payload, pixel)
+#endif
 
 // Top-left rule for counter-clockwise triangles in y-down framebuffer space: left edges run downwards, top
 // edges run exactly horizontally to the left. A sample exactly on an edge belongs to the triangle only then.
@@ -20,7 +30,7 @@ float depth_at(vec3 edges, vec4 z) { return (edges.x * z.x + edges.y * z.y + edg
 // `masked`: the instance's material cuts pixels by a textured opacity (TS_INSTANCE_MASKED; the same for a workgroup).
 void write_pixel(GpuFrame frame, int x, int y, float depth, uint64_t payload, bool masked) {
     if (depth < 0.0 || depth > 1.0) return;  // beyond the far plane
-    if (masked && masked_out(frame, uint(payload), uvec2(x, y))) return;
+    if (masked && PIXEL_MASKED_OUT(frame, uint(payload), uvec2(x, y))) return;
     uint pixel = uint(y) * frame.viewport.x + uint(x);
     atomicMax(VisibilityRef(frame.visibility).data[pixel], (uint64_t(floatBitsToUint(depth)) << 32) | payload);
     count_fragment(frame, pixel);

@@ -8,7 +8,6 @@
 #extension GL_EXT_shader_atomic_int64 : require
 #include "frame.h"
 #include "surface.h"
-#include "tessellation.h"
 #include "raster.h"
 
 layout(local_size_x = TS_SW_RASTER_GROUP_SIZE) in;

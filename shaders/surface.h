@@ -89,6 +89,24 @@ PixelTriangle pixel_triangle(GpuFrame frame, Instance instance, GpuCluster clust
     return t;
 }
 
+// UsdPreviewSurface opacityThreshold over a textured opacity (instances flagged TS_INSTANCE_MASKED): true where the
+// opacity at this pixel is below the threshold, so that the rasterizer leaves the pixel to what lies behind. Both
+// rasterizers call this same code for a pixel with the payload they write (visible cluster << 7 | triangle), so they
+// cut the same pixels. Micro-triangles are masked by micro_masked_out (tessellation.h), which the patch rasterizers
+// reach through PIXEL_MASKED_OUT (raster.h): the cluster rasterizers carry none of the tessellation code.
+bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
+    uvec2 visible = visible_cluster(frame, payload >> TS_VIS_TRIANGLE_BITS);
+    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
+    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
+    GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
+    if ((material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;  // another slot of the mesh's materials
+    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    PixelTriangle t = pixel_triangle(frame, instance, cluster, triangle, pixel);
+    PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), t.bary, t.p0, t.e1, t.e2, t.v0, t.v1, t.v2);
+    return material_texture(frame, material, TS_INPUT_OPACITY, uv).x < material.diffuseColor.a;  // a: the threshold
+}
+
 // A tangent-space normal (UsdPreviewSurface's normal input, after the texture's scale and bias) turned into the world
 // frame of the triangle's UV parametrization around the shading normal n. A triangle whose UVs are degenerate keeps n.
 vec3 apply_normal_map(vec3 n, vec3 tangentNormal, vec3 e1, vec3 e2, vec2 uv0, vec2 uv1, vec2 uv2) {

@@ -311,28 +311,14 @@ MicroTriangle pixel_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, 
     return m;
 }
 
-// UsdPreviewSurface opacityThreshold over a textured opacity (instances flagged TS_INSTANCE_MASKED): true where the
-// opacity at this pixel is below the threshold, so that the rasterizer leaves the pixel to what lies behind. Both
-// rasterizers call this same code for a pixel with the payload they write (visible cluster << 7 | triangle), so they
-// cut the same pixels; the patch rasterizers likewise for a micro-triangle (its payload), rebuilt as they made it.
-bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
-    if ((payload & TS_VIS_TESSELLATED) != 0u) {
-        Payload p = decode_payload(frame, payload);
-        MicroTriangle m = pixel_micro_triangle(frame, p.patchIndex, p.micro, pixel);
-        if ((m.material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;
-        PixelUv uv = pixel_uv(frame, vec2(pixel), m.t.bary, m.t.p0, m.t.e1, m.t.e2, m.uv[0], m.uv[1], m.uv[2]);
-        return material_texture(frame, m.material, TS_INPUT_OPACITY, uv).x < m.material.diffuseColor.a;
-    }
-    uvec2 visible = visible_cluster(frame, payload >> TS_VIS_TRIANGLE_BITS);
-    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
-    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
-    uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
-    GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
-    if ((material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;  // another slot of the mesh's materials
-    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
-    PixelTriangle t = pixel_triangle(frame, instance, cluster, triangle, pixel);
-    PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), t.bary, t.p0, t.e1, t.e2, t.v0, t.v1, t.v2);
-    return material_texture(frame, material, TS_INPUT_OPACITY, uv).x < material.diffuseColor.a;  // a: the threshold
+// masked_out (surface.h) for a micro-triangle's payload: the micro-triangle rebuilt as the patch rasterizers made it, its
+// opacity read at the pixel. The patch rasterizers reach it through PIXEL_MASKED_OUT (raster.h).
+bool micro_masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
+    Payload p = decode_payload(frame, payload);
+    MicroTriangle m = pixel_micro_triangle(frame, p.patchIndex, p.micro, pixel);
+    if ((m.material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;
+    PixelUv uv = pixel_uv(frame, vec2(pixel), m.t.bary, m.t.p0, m.t.e1, m.t.e2, m.uv[0], m.uv[1], m.uv[2]);
+    return material_texture(frame, m.material, TS_INPUT_OPACITY, uv).x < m.material.diffuseColor.a;  // a: the threshold
 }
 
 #endif
