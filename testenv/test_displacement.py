@@ -11,7 +11,7 @@ import tessera
 from conftest import TESTENV, shared_asset
 from imagecompare import assert_matches_baseline
 from tessera.bench import psnr
-from tessera.bench_displacement import sample_bilinear, write_stages
+from tessera.bench_displacement import displaced_material, sample_bilinear, write_stages
 
 NO_HIT = 0xFFFFFFFF
 
@@ -30,34 +30,6 @@ def enclosed_background(covered: np.ndarray) -> int:
         if (grown == outside).all():
             return int((~covered & ~outside).sum())
         outside = grown
-
-
-def displaced_material(stage, path, *, constant=None, texture=None, magnitude=None, center=None, fade=(0.0, 0.0)):
-    """A grey preview surface displaced by a constant or by the r channel of an 8-bit texture (read with st)."""
-    material = UsdShade.Material.Define(stage, path)
-    surface = UsdShade.Shader.Define(stage, f"{path}/Surface")
-    surface.CreateIdAttr("UsdPreviewSurface")
-    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.6, 0.6, 0.6))
-    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
-    material.CreateDisplacementOutput().ConnectToSource(surface.ConnectableAPI(), "displacement")
-    displacement = surface.CreateInput("displacement", Sdf.ValueTypeNames.Float)
-    if constant is not None:
-        displacement.Set(constant)
-    if texture is not None:
-        reader = UsdShade.Shader.Define(stage, f"{path}/St")
-        reader.CreateIdAttr("UsdPrimvarReader_float2")
-        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
-        tex = UsdShade.Shader.Define(stage, f"{path}/Height")
-        tex.CreateIdAttr("UsdUVTexture")
-        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(str(texture))
-        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")  # heights, not colours
-        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-        displacement.ConnectToSource(tex.ConnectableAPI(), "r")
-    prim = material.GetPrim()
-    for name, value in (("magnitude", magnitude), ("center", center), ("fadeStart", fade[0]), ("fadeEnd", fade[1])):
-        if value is not None:
-            prim.CreateAttribute(f"tessera:displacement:{name}", Sdf.ValueTypeNames.Float).Set(value)
-    return material
 
 
 def bind(prim, material):

@@ -97,7 +97,9 @@ def pre_tessellated(points, normals, uvs, triangles, heights, n: int, magnitude:
     return np.concatenate(out_points), np.concatenate(out_triangles)
 
 
-def _material(stage, path, heights_file=None, magnitude=0.15, center=0.5):
+def displaced_material(stage, path, *, constant=None, texture=None, magnitude=None, center=None, fade=(0.0, 0.0)):
+    """A grey preview surface displaced by a constant or by the r channel of a height map (read raw, with st), with
+    Tessera's magnitude, center and fade (0, 0 by default: never faded) where given."""
     from pxr import Gf, Sdf, UsdShade
 
     material = UsdShade.Material.Define(stage, path)
@@ -105,22 +107,35 @@ def _material(stage, path, heights_file=None, magnitude=0.15, center=0.5):
     surface.CreateIdAttr("UsdPreviewSurface")
     surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.6, 0.6, 0.6))
     material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
-    if heights_file is not None:
-        material.CreateDisplacementOutput().ConnectToSource(surface.ConnectableAPI(), "displacement")
+    material.CreateDisplacementOutput().ConnectToSource(surface.ConnectableAPI(), "displacement")
+    displacement = surface.CreateInput("displacement", Sdf.ValueTypeNames.Float)
+    if constant is not None:
+        displacement.Set(constant)
+    if texture is not None:
         reader = UsdShade.Shader.Define(stage, f"{path}/St")
         reader.CreateIdAttr("UsdPrimvarReader_float2")
         reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
-        texture = UsdShade.Shader.Define(stage, f"{path}/Height")
-        texture.CreateIdAttr("UsdUVTexture")
-        texture.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(str(heights_file))
-        texture.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")  # heights, not colours
-        texture.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-        surface.CreateInput("displacement", Sdf.ValueTypeNames.Float).ConnectToSource(texture.ConnectableAPI(), "r")
-        prim = material.GetPrim()
-        prim.CreateAttribute("tessera:displacement:magnitude", Sdf.ValueTypeNames.Float).Set(magnitude)
-        prim.CreateAttribute("tessera:displacement:center", Sdf.ValueTypeNames.Float).Set(center)
-        prim.CreateAttribute("tessera:displacement:fadeStart", Sdf.ValueTypeNames.Float).Set(0.0)  # never fades (a fair reference)
-        prim.CreateAttribute("tessera:displacement:fadeEnd", Sdf.ValueTypeNames.Float).Set(0.0)
+        tex = UsdShade.Shader.Define(stage, f"{path}/Height")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(str(texture))
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")  # heights, not colours
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        displacement.ConnectToSource(tex.ConnectableAPI(), "r")
+    prim = material.GetPrim()
+    for name, value in (("magnitude", magnitude), ("center", center), ("fadeStart", fade[0]), ("fadeEnd", fade[1])):
+        if value is not None:
+            prim.CreateAttribute(f"tessera:displacement:{name}", Sdf.ValueTypeNames.Float).Set(value)
+    return material
+
+
+def grey_material(stage, path):
+    from pxr import Gf, Sdf, UsdShade
+
+    material = UsdShade.Material.Define(stage, path)
+    surface = UsdShade.Shader.Define(stage, f"{path}/Surface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.6, 0.6, 0.6))
+    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
     return material
 
 
@@ -158,13 +173,14 @@ def write_stages(directory, *, segments=24, rings=12, heights=None, n=24, magnit
     sphere.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
     st = UsdGeom.PrimvarsAPI(sphere).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
     st.Set(np.asarray(uvs, np.float32))
-    UsdShade.MaterialBindingAPI.Apply(sphere.GetPrim()).Bind(_material(runtime, "/Looks/Bumps", directory / "heights.png", magnitude, center))
+    material = displaced_material(runtime, "/Looks/Bumps", texture=directory / "heights.png", magnitude=magnitude, center=center)
+    UsdShade.MaterialBindingAPI.Apply(sphere.GetPrim()).Bind(material)
     runtime.GetRootLayer().Save()
 
     reference = stage_with_camera(directory / "reference.usda")
     dense_points, dense_triangles = pre_tessellated(points, normals, uvs, triangles, heights, n, magnitude, center)
     dense = mesh(reference, dense_points, dense_triangles)
-    UsdShade.MaterialBindingAPI.Apply(dense.GetPrim()).Bind(_material(reference, "/Looks/Grey"))
+    UsdShade.MaterialBindingAPI.Apply(dense.GetPrim()).Bind(grey_material(reference, "/Looks/Grey"))
     reference.GetRootLayer().Save()
     return directory / "runtime.usda", directory / "reference.usda"
 
