@@ -493,6 +493,10 @@ struct Renderer::Impl {
     bool anyDisplaced = false;
     Buffer displacementNormals, seams, tessellationList, patches, patchDraws, dicePatches;
     uint32_t patchCapacity = 1u << 16;
+    // The compute patch rasterizer's diced points, kept for resolve: a pool that grows (for the next frame) to what the
+    // last frame asked for, up to 2^24 points; patches it cannot hold are diced again by resolve.
+    Buffer patchPoints;
+    uint32_t pointCapacity = 1u << 18;
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbPrevious, hzbCurrent;
@@ -1058,6 +1062,8 @@ struct Renderer::Impl {
             patchDraws = device.create_buffer(uint64_t(patchCapacity) * sizeof(VkDrawIndirectCommand), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
             dicePatches = device.create_buffer(uint64_t(patchCapacity) * 4, MemoryUse::Device);
         }
+        if (patchPoints.size < uint64_t(pointCapacity) * TS_PATCH_POINT_FLOATS * 4)
+            patchPoints = device.create_buffer(uint64_t(pointCapacity) * TS_PATCH_POINT_FLOATS * 4, MemoryUse::Device);
     }
 
     // Occlusion culling's buffers, allocated only when a frame uses it.
@@ -1205,7 +1211,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const double pixelsPerUnit = cam.projectionScaleY * 0.5 * settings.height;
         f.lod = {float(pixelsPerUnit), std::max(settings.pixelError, 0.0f), camera.orthographic ? 1.0f : 0.0f, float(camera.nearClip)};
         f.raster = {settings.softwareRasterArea, float(1u << device_.sub_pixel_bits()), 0, 0};
-        f.tessellation = {std::max(settings.dicingRate, 1e-3f), float(s.patchCapacity), 0, 0};
+        f.tessellation = {std::max(settings.dicingRate, 1e-3f), float(s.patchCapacity), float(s.pointCapacity), 0};
         // With the DAG off and no rasterizer forced, draw the classic way: every source triangle through hardware raster.
         const bool hardwareOnly = settings.raster == RasterMode::Hardware || (settings.raster == RasterMode::Auto && !settings.lod);
         const uint32_t rasterFlags = hardwareOnly ? TS_FRAME_HARDWARE_ONLY : settings.raster == RasterMode::Software ? TS_FRAME_SOFTWARE_FIRST : 0u;
@@ -1258,6 +1264,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.patchDraws = s.anyDisplaced ? s.patchDraws.address : 0;
         f.seams = s.anyDisplaced ? s.seams.address : 0;
         f.dicePatches = s.anyDisplaced ? s.dicePatches.address : 0;
+        f.patchPoints = s.anyDisplaced ? s.patchPoints.address : 0;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
@@ -1494,8 +1501,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.patches = state.patches;
         frameStats.microTriangles = state.microTriangles;
         frameStats.computePatches = state.dicePatchesDrawn;
+        if (state.patchPoints > s.pointCapacity)  // the next frame keeps them all (no redraw: resolve dices the rest again)
+            s.pointCapacity = std::min<uint32_t>(1u << 24, std::max(s.pointCapacity * 2, state.patchPoints + state.patchPoints / 4));
         frameStats.tessellationBytes =
-            s.anyDisplaced ? s.displacementNormals.size + s.seams.size + s.tessellationList.size + s.patches.size + s.patchDraws.size + s.dicePatches.size : 0;
+            s.anyDisplaced ? s.displacementNormals.size + s.seams.size + s.tessellationList.size + s.patches.size + s.patchDraws.size + s.dicePatches.size +
+                                  s.patchPoints.size
+                            : 0;
         uint64_t ticks[Impl::kTimestamps] = {};
         if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, Impl::kTimestamps, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
             const double ms = device_.timestamp_period_ns() * 1e-6;

@@ -19,9 +19,6 @@ layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
 shared ivec2 screen[TS_DICE_MAX_POINTS];  // sub-pixel position
 shared float depth[TS_DICE_MAX_POINTS];   // reversed-Z depth
 
-// A lattice point's index, row by row (row b holds n + 1 - b points).
-uint lattice_index(uvec2 ab, uint n) { return ab.y * (n + 1u) - (ab.y * (ab.y - 1u)) / 2u + ab.x; }
-
 void main() {
     GpuFrame frame = push.frame.f;
     DrawStateRef draw = DrawStateRef(frame.drawState);
@@ -42,6 +39,16 @@ void main() {
         vec2 st;
         vec3 p = displaced_point(frame, d, micro_point(d, uvec2(v - first, b)), st);
         snap_vertex(frame, frame.viewProjection * vec4(p, 1.0), screen[v], depth[v]);
+        uint points = PatchRef(frame.patches).data[index].points;
+        if (points != TS_NO_STREAM) {  // kept for resolve, which then need not dice again
+            PatchPointRef pool = PatchPointRef(frame.patchPoints);
+            uint at = (points + v) * TS_PATCH_POINT_FLOATS;
+            pool.data[at] = p.x;
+            pool.data[at + 1u] = p.y;
+            pool.data[at + 2u] = p.z;
+            pool.data[at + 3u] = st.x;
+            pool.data[at + 4u] = st.y;
+        }
     }
     barrier();
 

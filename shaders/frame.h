@@ -25,6 +25,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer O
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer HzbRef { float data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchRef { GpuPatch data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchDrawRef { uvec4 data[]; };  // VkDrawIndirectCommand
+layout(buffer_reference, std430, buffer_reference_align = 4) buffer PatchPointRef { float data[]; };
 
 // layout: renderer.cpp PushConstants. `step`: the cull step (TS_CULL_*) or the HZB level being built; `hzb`: the
 // HZB that step tests against or builds.

@@ -92,7 +92,15 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     bool diced = DISPLACED && payload.patchIndex != 0xffffffffu;
     uint largestFactor = 1u;
     if (diced) {
-        MicroTriangle m = pixel_micro_triangle(frame, payload.patchIndex, payload.micro, pixel);
+        // The points the compute patch rasterizer kept, unless vertex colours need the corners' weights (or none were
+        // kept): then the micro-triangle is diced again, as the rasterizer diced it.
+        bool weights = (MaterialRef(frame.materials).data[push.step].flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM;
+        MicroTriangle m;
+        if (weights || !kept_micro_triangle(frame, payload.patchIndex, payload.micro, pixel, m)) {
+            m = pixel_micro_triangle(frame, payload.patchIndex, payload.micro, pixel);
+        } else {
+            m.t.v0 = m.t.v1 = m.t.v2 = 0u;  // not read: no vertex colours, and the normal is the micro-triangle's own
+        }
         hitTriangle = m.t;
         largestFactor = m.largestFactor;
         cornerUv = m.uv;

@@ -361,8 +361,9 @@ struct GpuDrawState {
     uint dicePatchGroupsZ;
     uint dicePatches;      // patches listed for the compute patch rasterizer (this pass)
     uint dicePatchesDrawn; // patches the compute rasterizer drew, both passes (the rest went to hardware raster)
+    uint patchPoints;      // points asked of the point pool (may exceed it: those patches keep none)
 };
-TS_CHECK_SIZE(GpuDrawState, 184);
+TS_CHECK_SIZE(GpuDrawState, 188);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.
@@ -371,8 +372,14 @@ struct GpuPatch {
     uint cell;             // split | cell << 8: which cell of the triangle's split x split lattice
     uint factors;          // the triangle's edge factors (corner 0-1, 1-2, 2-0), TS_TESS_FACTOR_BITS each
     uint patchFactors;     // this patch's edge factors (its corners 0-1, 1-2, 2-0), 5 bits each (0 to 16)
+    // The compute patch rasterizer keeps its diced points for resolve: TS_PATCH_POINT_FLOATS floats each from float
+    // points * TS_PATCH_POINT_FLOATS of frame.patchPoints (lattice order), or TS_NO_STREAM (hardware raster, or the
+    // point pool was full: resolve dices again).
+    uint points;
+    uint pad0, pad1, pad2;
 };
-TS_CHECK_SIZE(GpuPatch, 16);
+TS_CHECK_SIZE(GpuPatch, 32);
+#define TS_PATCH_POINT_FLOATS 5   // camera-relative displaced position, texture coordinates
 
 // One material's bin: its covered pixels' range in the bin pixel list, and the indirect dispatch that shades them.
 struct GpuBin {
@@ -401,7 +408,8 @@ struct GpuFrame {
                              // y: capacity of the cut list; z: capacity of the deferred-instance list
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
-    vec4 tessellation;       // x: dicing rate (pixels per micro-edge); y: patch capacity (exact: at most 2^23)
+    vec4 tessellation;       // x: dicing rate (pixels per micro-edge); y: patch capacity (exact: at most 2^23); z: point pool
+                             // capacity (points)
     GpuLight lights[TS_MAX_LIGHTS];
     // The textured dome's irradiance (times 1/pi: an outgoing diffuse radiance per unit albedo) as 9 spherical
     // harmonics coefficients (rgb), in the dome's own frame; only read for a dome with a texture.
@@ -440,7 +448,7 @@ struct GpuFrame {
     address patchDraws;      // VkDrawIndirectCommand[patch capacity]: this pass's patches
     address seams;           // uint[]: UV seams of meshes drawn displaced (GpuMesh.seamVertexOffset, tessellation.h)
     address dicePatches;     // uint[patch capacity]: this pass's patches for the compute patch rasterizer (dice.comp.glsl)
-    address padding;         // the size a multiple of 16, as std430 rounds it
+    address patchPoints;     // float[tessellation.z * TS_PATCH_POINT_FLOATS]: diced points kept for resolve (GpuPatch.points)
 };
 TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 34);
 

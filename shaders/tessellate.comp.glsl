@@ -103,9 +103,16 @@ void main() {
         }
         uint n = max(max(g[0], g[1]), max(g[2], 1u));
         uint index = first + cell;
+        bool compute = dice_in_compute(frame, p, material.displacement.w * scale);
+        uint points = TS_NO_STREAM;
+        if (compute) {  // room in the point pool for its diced points, if there is any left
+            uint count = (n + 1u) * (n + 2u) / 2u;
+            uint at = atomicAdd(draw.state.patchPoints, count);
+            if (at + count <= uint(frame.tessellation.z)) points = at;
+        }
         PatchRef(frame.patches).data[index] = GpuPatch(slot << TS_VIS_TRIANGLE_BITS | triangle, split | cell << 8u, packedFactors,
-                                                       g[0] | g[1] << 5u | g[2] << 10u);
-        if (dice_in_compute(frame, p, material.displacement.w * scale)) {
+                                                       g[0] | g[1] << 5u | g[2] << 10u, points, 0u, 0u, 0u);
+        if (compute) {
             uint k = atomicAdd(draw.state.dicePatches, 1u);
             atomicAdd(draw.state.dicePatchesDrawn, 1u);
             SlotListRef(frame.dicePatches).data[k] = index;

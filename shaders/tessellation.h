@@ -134,6 +134,9 @@ vec3 edge_point(uint from, uint to, uint k, uint factor) {
     return w;
 }
 
+// A lattice point's index, row by row (row b holds n + 1 - b points).
+uint lattice_index(uvec2 ab, uint n) { return ab.y * (n + 1u) - (ab.y * (ab.y - 1u)) / 2u + ab.x; }
+
 // Cell `cell` of a triangular lattice of n segments a side (n^2 cells; row j holds n - j upward cells and n - j - 1
 // downward ones, interleaved), as its three lattice points (i toward corner 1, j toward corner 2), counter-clockwise
 // like the triangle's corners.
@@ -309,6 +312,32 @@ MicroTriangle pixel_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, 
     pixel_ray(frame, vec2(pixel) + 0.5, m.t.origin, m.t.direction);
     m.t.bary = plane_barycentrics(m.t.origin, m.t.direction, m.t.p0, m.t.e1, m.t.e2);
     return m;
+}
+
+// The same from the points the compute patch rasterizer kept (GpuPatch.points), when it kept them: no dicing again.
+// Without the corners' weights (m.w is left zero), which only vertex colours need. False when no points were kept.
+bool kept_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, uvec2 pixel, out MicroTriangle m) {
+    GpuPatch record = PatchRef(frame.patches).data[patchIndex];
+    if (record.points == TS_NO_STREAM) return false;
+    uint n = max(max(record.patchFactors & 31u, (record.patchFactors >> 5u) & 31u), max((record.patchFactors >> 10u) & 31u, 1u));
+    uint mask = (1u << TS_TESS_FACTOR_BITS) - 1u;
+    m.largestFactor = max(record.factors & mask, max((record.factors >> TS_TESS_FACTOR_BITS) & mask, (record.factors >> (2u * TS_TESS_FACTOR_BITS)) & mask));
+    uvec2 lattice[3];
+    lattice_cell(micro, n, lattice[0], lattice[1], lattice[2]);
+    PatchPointRef pool = PatchPointRef(frame.patchPoints);
+    vec3 corner[3];
+    for (uint k = 0u; k < 3u; ++k) {
+        uint at = (record.points + lattice_index(lattice[k], n)) * TS_PATCH_POINT_FLOATS;
+        corner[k] = vec3(pool.data[at], pool.data[at + 1u], pool.data[at + 2u]);
+        m.uv[k] = vec2(pool.data[at + 3u], pool.data[at + 4u]);
+        m.w[k] = vec3(0.0);
+    }
+    m.t.p0 = corner[0];
+    m.t.e1 = corner[1] - corner[0];
+    m.t.e2 = corner[2] - corner[0];
+    pixel_ray(frame, vec2(pixel) + 0.5, m.t.origin, m.t.direction);
+    m.t.bary = plane_barycentrics(m.t.origin, m.t.direction, m.t.p0, m.t.e1, m.t.e2);
+    return true;
 }
 
 // masked_out (surface.h) for a micro-triangle's payload: the micro-triangle rebuilt as the patch rasterizers made it, its
