@@ -152,6 +152,9 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // The compute rasterizer takes clusters whose bounding sphere projects to at most this radius in pixels (so a
 // triangle's box stays small and its integer edge functions cannot overflow) and that lie beyond the near plane.
 #define TS_SW_MAX_RADIUS_PIXELS 64.0
+// The compute patch rasterizer takes patches up to this radius: their micro-triangles stay small (16 segments an edge),
+// and sub-pixel coordinates this far off screen still fit 32 bits.
+#define TS_DICE_MAX_RADIUS_PIXELS 256.0
 
 #define TS_MAX_LIGHTS 8u
 #define TS_LIGHT_DISTANT 0u

@@ -28,15 +28,15 @@ uint edge_factor(GpuFrame frame, vec3 a, vec3 b, float fadeA, float fadeB, uint 
 }
 
 // Whether the compute patch rasterizer takes a patch (camera-relative corners p, its displacement reaching `reach`
-// further): only beyond the near plane (it does not clip) and within TS_SW_MAX_RADIUS_PIXELS on screen (its edge
-// functions stay small), as for clusters; the rest go to hardware raster.
+// further): only beyond the near plane (it does not clip) and within TS_DICE_MAX_RADIUS_PIXELS on screen; the rest go to
+// hardware raster.
 bool dice_in_compute(GpuFrame frame, vec3 p[3], float reach) {
     if ((frame.counts.z & TS_FRAME_HARDWARE_ONLY) != 0u) return false;
     vec3 center = (p[0] + p[1] + p[2]) / 3.0;
     float radius = max(max(distance(center, p[0]), distance(center, p[1])), distance(center, p[2])) + reach;
     float nearest = depth_range(frame, center, radius).x;
     if (nearest <= frame.lod.w * 1.001) return false;
-    return radius * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest) <= TS_SW_MAX_RADIUS_PIXELS;
+    return radius * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest) <= TS_DICE_MAX_RADIUS_PIXELS;
 }
 
 void main() {
