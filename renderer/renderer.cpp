@@ -287,20 +287,24 @@ void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2
     vkCmdPipelineBarrier2(cmd, &dependency);
 }
 
+// A built mesh vertex's position, by its bits: vertices that meet (split at seams and hard edges) have the same key.
+using PositionKey = std::array<uint32_t, 3>;
+struct PositionKeyHash {
+    size_t operator()(const PositionKey& p) const { return (size_t(p[0]) * 73856093u) ^ (size_t(p[1]) * 19349663u) ^ (size_t(p[2]) * 83492791u); }
+};
+PositionKey position_key(const BuiltMesh& mesh, uint32_t vertex) {
+    PositionKey k;
+    std::memcpy(k.data(), &mesh.positions[3 * size_t(vertex)], 12);
+    return k;
+}
+
 // Per vertex, the direction displacement moves it: the mean of the distinct normals that the source (level 0) has at its
 // position. Split vertices (hard edges, UV seams) share a position, so they move alike and a displaced hard edge does not
 // tear. Every vertex of every level is a source vertex (simplification only removes vertices), so every level finds its
 // positions here.
 std::vector<uint32_t> displacement_normals(const BuiltMesh& mesh) {
-    struct PositionHash {
-        size_t operator()(const std::array<uint32_t, 3>& p) const { return (size_t(p[0]) * 73856093u) ^ (size_t(p[1]) * 19349663u) ^ (size_t(p[2]) * 83492791u); }
-    };
-    auto key = [&](uint32_t v) {
-        std::array<uint32_t, 3> k;
-        std::memcpy(k.data(), &mesh.positions[3 * size_t(v)], 12);
-        return k;
-    };
-    std::unordered_map<std::array<uint32_t, 3>, std::vector<uint32_t>, PositionHash> normalsAt;
+    auto key = [&](uint32_t v) { return position_key(mesh, v); };
+    std::unordered_map<PositionKey, std::vector<uint32_t>, PositionKeyHash> normalsAt;
     for (const Cluster& c : mesh.clusters) {
         if (c.level != 0) break;  // clusters come level by level, level 0 first
         for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) {
@@ -333,16 +337,10 @@ std::vector<uint32_t> displacement_normals(const BuiltMesh& mesh) {
 // {TS_NO_STREAM, TS_NO_STREAM} for a mesh without seams (no UVs, or one UV per position).
 std::array<uint32_t, 2> append_uv_seams(const BuiltMesh& mesh, std::vector<uint32_t>& words) {
     if (mesh.uvs.empty()) return {TS_NO_STREAM, TS_NO_STREAM};
-    using Key = std::array<uint32_t, 3>;
+    using Key = PositionKey;
+    using KeyHash = PositionKeyHash;
     using Uv = std::array<uint32_t, 2>;  // float bits
-    struct KeyHash {
-        size_t operator()(const Key& p) const { return (size_t(p[0]) * 73856093u) ^ (size_t(p[1]) * 19349663u) ^ (size_t(p[2]) * 83492791u); }
-    };
-    auto key = [&](uint32_t v) {
-        Key k;
-        std::memcpy(k.data(), &mesh.positions[3 * size_t(v)], 12);
-        return k;
-    };
+    auto key = [&](uint32_t v) { return position_key(mesh, v); };
     auto uv = [&](uint32_t v) {
         Uv u;
         std::memcpy(u.data(), &mesh.uvs[2 * size_t(v)], 8);
