@@ -209,6 +209,17 @@ vec3 patch_edge_point(uvec2 q, uvec2 r, vec3 wq, vec3 wr, uint m, uint g, uint s
     return blend;
 }
 
+// A patch record's triangle edge factors and its own (corners 0-1, 1-2, 2-0), and its lattice: n = its largest
+// edge factor (at least 1).
+uvec3 triangle_factors(GpuPatch record) {
+    uint mask = (1u << TS_TESS_FACTOR_BITS) - 1u;
+    return uvec3(record.factors & mask, (record.factors >> TS_TESS_FACTOR_BITS) & mask, (record.factors >> (2u * TS_TESS_FACTOR_BITS)) & mask);
+}
+uvec3 patch_factors(GpuPatch record) {
+    return uvec3(record.patchFactors & 31u, (record.patchFactors >> 5u) & 31u, (record.patchFactors >> 10u) & 31u);
+}
+uint patch_lattice(uvec3 patchFactors) { return max(max(patchFactors.x, patchFactors.y), max(patchFactors.z, 1u)); }
+
 // A patch ready to dice: its triangle, instance and material, where it lies in the triangle's split lattice, and its
 // edge factors (corners 0-1, 1-2, 2-0).
 struct DicedPatch {
@@ -239,10 +250,9 @@ DicedPatch load_patch(GpuFrame frame, uint index) {
     d.translation = camera_relative_translation(d.instance);
     d.scale = instance_scale(d.instance);
     d.split = record.cell & 0xffu;
-    uint mask = (1u << TS_TESS_FACTOR_BITS) - 1u;
-    d.factors = uvec3(record.factors & mask, (record.factors >> TS_TESS_FACTOR_BITS) & mask, (record.factors >> (2u * TS_TESS_FACTOR_BITS)) & mask);
-    d.patchFactors = uvec3(record.patchFactors & 31u, (record.patchFactors >> 5u) & 31u, (record.patchFactors >> 10u) & 31u);
-    d.n = max(max(d.patchFactors.x, d.patchFactors.y), max(d.patchFactors.z, 1u));
+    d.factors = triangle_factors(record);
+    d.patchFactors = patch_factors(record);
+    d.n = patch_lattice(d.patchFactors);
     lattice_cell(record.cell >> 8u, d.split, d.q[0], d.q[1], d.q[2]);
     for (uint k = 0u; k < 3u; ++k) d.w[k] = split_point(d.q[k], d.split, d.factors);
     return d;
@@ -291,6 +301,16 @@ struct MicroTriangle {
     uint largestFactor;  // the triangle's largest edge factor (--vis tessellation)
 };
 
+// A micro-triangle's camera-relative corners as the pixel sees them: its first corner and edges, the pixel's ray and the
+// barycentrics where it meets the micro-triangle's plane.
+void seen_through(GpuFrame frame, vec3 corner[3], uvec2 pixel, inout PixelTriangle t) {
+    t.p0 = corner[0];
+    t.e1 = corner[1] - corner[0];
+    t.e2 = corner[2] - corner[0];
+    pixel_ray(frame, vec2(pixel) + 0.5, t.origin, t.direction);
+    t.bary = plane_barycentrics(t.origin, t.direction, t.p0, t.e1, t.e2);
+}
+
 MicroTriangle pixel_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, uvec2 pixel) {
     MicroTriangle m;
     DicedPatch d = load_patch(frame, patchIndex);
@@ -306,11 +326,7 @@ MicroTriangle pixel_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, 
     m.t.v0 = d.triangle.v[0];
     m.t.v1 = d.triangle.v[1];
     m.t.v2 = d.triangle.v[2];
-    m.t.p0 = corner[0];
-    m.t.e1 = corner[1] - corner[0];
-    m.t.e2 = corner[2] - corner[0];
-    pixel_ray(frame, vec2(pixel) + 0.5, m.t.origin, m.t.direction);
-    m.t.bary = plane_barycentrics(m.t.origin, m.t.direction, m.t.p0, m.t.e1, m.t.e2);
+    seen_through(frame, corner, pixel, m.t);
     return m;
 }
 
@@ -319,9 +335,9 @@ MicroTriangle pixel_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, 
 bool kept_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, uvec2 pixel, out MicroTriangle m) {
     GpuPatch record = PatchRef(frame.patches).data[patchIndex];
     if (record.points == TS_NO_STREAM) return false;
-    uint n = max(max(record.patchFactors & 31u, (record.patchFactors >> 5u) & 31u), max((record.patchFactors >> 10u) & 31u, 1u));
-    uint mask = (1u << TS_TESS_FACTOR_BITS) - 1u;
-    m.largestFactor = max(record.factors & mask, max((record.factors >> TS_TESS_FACTOR_BITS) & mask, (record.factors >> (2u * TS_TESS_FACTOR_BITS)) & mask));
+    uint n = patch_lattice(patch_factors(record));
+    uvec3 factors = triangle_factors(record);
+    m.largestFactor = max(factors.x, max(factors.y, factors.z));
     uvec2 lattice[3];
     lattice_cell(micro, n, lattice[0], lattice[1], lattice[2]);
     PatchPointRef pool = PatchPointRef(frame.patchPoints);
@@ -332,11 +348,7 @@ bool kept_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, uvec2 pixe
         m.uv[k] = vec2(pool.data[at + 3u], pool.data[at + 4u]);
         m.w[k] = vec3(0.0);
     }
-    m.t.p0 = corner[0];
-    m.t.e1 = corner[1] - corner[0];
-    m.t.e2 = corner[2] - corner[0];
-    pixel_ray(frame, vec2(pixel) + 0.5, m.t.origin, m.t.direction);
-    m.t.bary = plane_barycentrics(m.t.origin, m.t.direction, m.t.p0, m.t.e1, m.t.e2);
+    seen_through(frame, corner, pixel, m.t);
     return true;
 }
 
