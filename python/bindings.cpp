@@ -114,6 +114,8 @@ nb::dict stats_dict(const FrameStats& s) {
     d["tessellated_triangles"] = s.tessellatedTriangles;
     d["patches"] = s.patches;
     d["compute_patches"] = s.computePatches;
+    d["deferred_patches"] = s.deferredPatches;
+    d["occluded_patches"] = s.occludedPatches;
     d["micro_triangles"] = s.microTriangles;
     d["tessellation_bytes"] = s.tessellationBytes;
     nb::dict gpuMs;

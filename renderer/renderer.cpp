@@ -6,6 +6,7 @@
 // frame is kept for the next frame.
 #include "tessera/renderer.h"
 
+#include "displacement.h"
 #include "shared.h"
 #include "spirv/background_comp.h"
 #include "spirv/bins_comp.h"
@@ -27,6 +28,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstring>
+#include <map>
 #include <string>
 #include <thread>
 #include <unordered_map>
@@ -287,144 +289,6 @@ void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2
     vkCmdPipelineBarrier2(cmd, &dependency);
 }
 
-// A built mesh vertex's position, by its bits: vertices that meet (split at seams and hard edges) have the same key.
-using PositionKey = std::array<uint32_t, 3>;
-struct PositionKeyHash {
-    size_t operator()(const PositionKey& p) const { return (size_t(p[0]) * 73856093u) ^ (size_t(p[1]) * 19349663u) ^ (size_t(p[2]) * 83492791u); }
-};
-PositionKey position_key(const BuiltMesh& mesh, uint32_t vertex) {
-    PositionKey k;
-    std::memcpy(k.data(), &mesh.positions[3 * size_t(vertex)], 12);
-    return k;
-}
-
-// Per vertex, the direction displacement moves it: the mean of the distinct normals that the source (level 0) has at its
-// position. Split vertices (hard edges, UV seams) share a position, so they move alike and a displaced hard edge does not
-// tear. Every vertex of every level is a source vertex (simplification only removes vertices), so every level finds its
-// positions here.
-std::vector<uint32_t> displacement_normals(const BuiltMesh& mesh) {
-    auto key = [&](uint32_t v) { return position_key(mesh, v); };
-    std::unordered_map<PositionKey, std::vector<uint32_t>, PositionKeyHash> normalsAt;
-    for (const Cluster& c : mesh.clusters) {
-        if (c.level != 0) break;  // clusters come level by level, level 0 first
-        for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) {
-            auto& normals = normalsAt[key(v)];
-            if (std::find(normals.begin(), normals.end(), mesh.normals[v]) == normals.end()) normals.push_back(mesh.normals[v]);
-        }
-    }
-    std::vector<uint32_t> out(mesh.normals.size());
-    for (size_t v = 0; v < out.size(); ++v) {
-        const auto it = normalsAt.find(key(uint32_t(v)));
-        if (it == normalsAt.end() || it->second.size() == 1) {
-            out[v] = it == normalsAt.end() ? mesh.normals[v] : it->second[0];
-            continue;
-        }
-        double sum[3] = {0, 0, 0};
-        for (uint32_t packed : it->second) {
-            const auto n = decode_octahedral(packed);
-            for (int k = 0; k < 3; ++k) sum[k] += n[k];
-        }
-        const double length = std::sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]);
-        out[v] = length > 1e-12 ? encode_octahedral(float(sum[0] / length), float(sum[1] / length), float(sum[2] / length)) : mesh.normals[v];
-    }
-    return out;
-}
-
-// The UV seams of a mesh drawn displaced, appended to `words` in the layout of shaders/shared.h (TS_SEAM_COUNT_SHIFT):
-// per vertex, the texture coordinates the source has at its position when there are several; per triangle with a seam
-// edge, the other side's coordinates along each edge (found among the triangles of every level, keyed by the edge's two
-// positions: every level's vertices are source vertices). Returns {first vertex word, first triangle word}, or
-// {TS_NO_STREAM, TS_NO_STREAM} for a mesh without seams (no UVs, or one UV per position).
-std::array<uint32_t, 2> append_uv_seams(const BuiltMesh& mesh, std::vector<uint32_t>& words) {
-    if (mesh.uvs.empty()) return {TS_NO_STREAM, TS_NO_STREAM};
-    using Key = PositionKey;
-    using KeyHash = PositionKeyHash;
-    using Uv = std::array<uint32_t, 2>;  // float bits
-    auto key = [&](uint32_t v) { return position_key(mesh, v); };
-    auto uv = [&](uint32_t v) {
-        Uv u;
-        std::memcpy(u.data(), &mesh.uvs[2 * size_t(v)], 8);
-        return u;
-    };
-    std::unordered_map<Key, std::vector<Uv>, KeyHash> uvsAt;  // distinct, sorted
-    for (const Cluster& c : mesh.clusters) {
-        if (c.level != 0) break;
-        for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) {
-            auto& list = uvsAt[key(v)];
-            const Uv u = uv(v);
-            if (std::find(list.begin(), list.end(), u) == list.end()) list.insert(std::upper_bound(list.begin(), list.end(), u), u);
-        }
-    }
-    // Edges by their two positions (lower first), with the distinct (uv at lower, uv at upper) pairs of their triangles.
-    struct EdgeHash {
-        size_t operator()(const std::array<Key, 2>& e) const { return KeyHash{}(e[0]) * 31 + KeyHash{}(e[1]); }
-    };
-    std::unordered_map<std::array<Key, 2>, std::vector<std::array<Uv, 2>>, EdgeHash> edges;
-    auto corners = [&](const Cluster& c, uint32_t t) {
-        const uint32_t packed = mesh.triangles[c.triangleOffset + t];
-        return std::array<uint32_t, 3>{c.vertexOffset + (packed & 0xffu), c.vertexOffset + ((packed >> 8) & 0xffu), c.vertexOffset + ((packed >> 16) & 0xffu)};
-    };
-    auto oriented = [&](uint32_t a, uint32_t b, std::array<Key, 2>& edge, std::array<Uv, 2>& pair) {
-        const Key ka = key(a), kb = key(b);
-        const bool swap = kb < ka;
-        edge = swap ? std::array<Key, 2>{kb, ka} : std::array<Key, 2>{ka, kb};
-        pair = swap ? std::array<Uv, 2>{uv(b), uv(a)} : std::array<Uv, 2>{uv(a), uv(b)};
-        return swap;
-    };
-    for (const Cluster& c : mesh.clusters)
-        for (uint32_t t = 0; t < c.triangleCount; ++t) {
-            const auto v = corners(c, t);
-            for (int k = 0; k < 3; ++k) {
-                std::array<Key, 2> edge;
-                std::array<Uv, 2> pair;
-                oriented(v[k], v[(k + 1) % 3], edge, pair);
-                auto& pairs = edges[edge];
-                if (std::find(pairs.begin(), pairs.end(), pair) == pairs.end()) pairs.push_back(pair);
-            }
-        }
-    bool any = false;
-    for (const auto& [k, list] : uvsAt) any |= list.size() > 1;
-    if (!any) return {TS_NO_STREAM, TS_NO_STREAM};
-
-    const uint32_t vertexWords = uint32_t(words.size());
-    words.resize(words.size() + mesh.normals.size(), TS_NO_STREAM);
-    std::unordered_map<Key, uint32_t, KeyHash> listAt;  // each position's list stored once
-    for (uint32_t v = 0; v < mesh.normals.size(); ++v) {
-        const auto it = uvsAt.find(key(v));
-        if (it == uvsAt.end() || it->second.size() < 2) continue;
-        auto [stored, fresh] = listAt.try_emplace(it->first, uint32_t(words.size()));
-        if (fresh)
-            for (const Uv& u : it->second) words.insert(words.end(), u.begin(), u.end());
-        words[vertexWords + v] = stored->second | std::min<uint32_t>(uint32_t(it->second.size()), 15u) << TS_SEAM_COUNT_SHIFT;
-    }
-    const uint32_t triangleWords = uint32_t(words.size());
-    words.resize(words.size() + mesh.triangles.size(), TS_NO_STREAM);
-    const uint32_t nan = 0x7fc00000u;
-    for (const Cluster& c : mesh.clusters)
-        for (uint32_t t = 0; t < c.triangleCount; ++t) {
-            const auto v = corners(c, t);
-            std::array<uint32_t, 12> record;
-            record.fill(nan);
-            bool seam = false;
-            for (int k = 0; k < 3; ++k) {
-                std::array<Key, 2> edge;
-                std::array<Uv, 2> pair;
-                const bool swapped = oriented(v[k], v[(k + 1) % 3], edge, pair);
-                const auto& pairs = edges[edge];
-                if (pairs.size() != 2) continue;  // inside a UV island (or a non-manifold edge: no single other side)
-                const auto& other = pairs[0] == pair ? pairs[1] : pairs[0];
-                const Uv& atK = swapped ? other[1] : other[0];
-                const Uv& atNext = swapped ? other[0] : other[1];
-                record[4 * k] = atK[0], record[4 * k + 1] = atK[1], record[4 * k + 2] = atNext[0], record[4 * k + 3] = atNext[1];
-                seam = true;
-            }
-            if (!seam) continue;
-            words[triangleWords + c.triangleOffset + t] = uint32_t(words.size());
-            words.insert(words.end(), record.begin(), record.end());
-        }
-    return {vertexWords, triangleWords};
-}
-
 template <typename T>
 void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
     const size_t bytes = data.size() * sizeof(T);
@@ -489,7 +353,7 @@ struct Renderer::Impl {
     // displacement normals); the lists of runtime tessellation, made only for scenes that displace.
     std::vector<bool> displacedMaterials, displacedMeshes;
     bool anyDisplaced = false;
-    Buffer displacementNormals, seams, tessellationList, patches, patchDraws, dicePatches;
+    Buffer displacementNormals, seams, tessellationList, patches, patchDraws, dicePatches, deferredPatchList;
     uint32_t patchCapacity = 1u << 16;
     // The compute patch rasterizer's diced points, kept for resolve: a pool that grows (for the next frame) to what the
     // last frame asked for, up to 2^24 points; patches it cannot hold are diced again by resolve.
@@ -663,6 +527,7 @@ struct Renderer::Impl {
         std::vector<gpu::GpuLevel> gpuLevels;
         std::vector<float> gpuPositions, gpuUvs;
         std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles, gpuDisplacementNormals, gpuSeams;
+        uvBoxes.assign(scene.meshes_.size(), {});
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
             const BuiltMesh* mesh = scene.meshes_[m].get();
             gpu::GpuMesh& g = gpuMeshes[m];
@@ -682,6 +547,7 @@ struct Renderer::Impl {
                     g.seamVertexOffset = seams[0];
                     g.seamTriangleOffset = seams[1] - triangleBase;  // indexed by scene triangle: the base folded in (mod 2^32)
                 }
+                uvBoxes[m] = cluster_uv_boxes(*mesh, gpuSeams, seams);
             }
             if (!mesh->colors.empty()) g.colorOffset = uint32_t(gpuColors.size() / 2);
             if (!mesh->uvs.empty()) g.uvOffset = uint32_t(gpuUvs.size() / 2);
@@ -735,6 +601,39 @@ struct Renderer::Impl {
         else upload_vector(device, displacementNormals, gpuDisplacementNormals);
         if (gpuSeams.empty()) seams = Buffer{};
         else upload_vector(device, seams, gpuSeams);
+    }
+
+    // Per mesh drawn displaced, the texture coordinates each cluster reads its displacement at (empty for the others).
+    std::vector<std::vector<ClusterUvBoxes>> uvBoxes;
+    // Per-cluster displacement bounds of the displaced batches (frame.clusterDisplacement), one run per mesh and
+    // material (or table) that some batch draws, and what they are computed from.
+    Buffer clusterDisplacement;
+    ClusterDisplacementBounds displacementBounds;
+
+    // The runs of frame.clusterDisplacement for the displaced batches, and each batch's first entry.
+    void upload_displacement_bounds(const GpuScene& scene) {
+        std::vector<float> bounds;
+        std::map<std::pair<uint32_t, uint32_t>, uint32_t> runs;  // (mesh, material or table | 1 << 31) -> first entry
+        for (gpu::GpuInstanceBatch& g : gpuBatches) {
+            g.displacementBounds = TS_NO_STREAM;
+            if ((g.flags & TS_INSTANCE_DISPLACED) == 0 || g.meshIndex >= uvBoxes.size() || uvBoxes[g.meshIndex].empty()) continue;
+            const bool table = (g.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0;
+            const auto [run, fresh] = runs.try_emplace({g.meshIndex, g.materialIndex | (table ? 1u << 31 : 0u)}, uint32_t(bounds.size()));
+            g.displacementBounds = run->second;
+            if (!fresh) continue;
+            const BuiltMesh& mesh = *scene.meshes_[g.meshIndex];
+            auto material = [&](uint32_t index) -> const MaterialDesc* {  // clamped as upload_materials clamps table entries
+                return scene.materials_.empty() ? nullptr : &scene.materials_[std::min<size_t>(index, scene.materials_.size() - 1)];
+            };
+            std::vector<const MaterialDesc*> materials;
+            if (!table) materials.push_back(material(g.materialIndex));
+            else
+                for (uint32_t k = 0; k < mesh.materialSlots; ++k) materials.push_back(material(scene.materialTables_[g.materialIndex + k]));
+            const std::vector<float> run_bounds = displacementBounds.compute(mesh, uvBoxes[g.meshIndex], materials);
+            bounds.insert(bounds.end(), run_bounds.begin(), run_bounds.end());
+        }
+        if (bounds.empty()) clusterDisplacement = Buffer{};
+        else upload_vector(device, clusterDisplacement, bounds);
     }
 
     bool material_displaced(uint32_t material) const { return material < displacedMaterials.size() && displacedMaterials[material]; }
@@ -810,6 +709,7 @@ struct Renderer::Impl {
             sourceTriangles += uint64_t(mesh->sourceTriangles) * copies;
         }
         firstInstance.push_back(count);
+        upload_displacement_bounds(scene);
         if (count > 0xffffffffull) throw std::runtime_error("more than 2^32 - 1 instances: " + std::to_string(count));
         if (gpuBatches.size() > TS_INSTANCE_BATCH_MASK) throw std::runtime_error("more than 2^30 instance batches");
         instanceCount = uint32_t(count);
@@ -927,16 +827,9 @@ struct Renderer::Impl {
                   (!texturedOpacity && m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
         if (texturedOpacity) g.diffuseColor.w = m.opacityThreshold;  // masked per pixel: the threshold takes opacity's place
         // Displacement: offset = (value - center) * magnitude; its bound from the value's range (the texture's level 0
-        // through scale, bias and the output channel, or the constant).
-        float low = m.displacement, high = m.displacement;
-        if (const TextureSlot* slot = textured[TS_INPUT_DISPLACEMENT]) {
-            const size_t c = slot->channel == TextureChannel::Rgb ? 0 : size_t(slot->channel);
-            const float a = slot->image->minValue[c] * slot->scale[c] + slot->bias[c], b = slot->image->maxValue[c] * slot->scale[c] + slot->bias[c];
-            low = std::min(a, b);
-            high = std::max(a, b);
-        }
-        const float bound = std::max(std::abs(low - m.displacementCenter), std::abs(high - m.displacementCenter)) * std::abs(m.displacementMagnitude);
-        const bool displaced = std::isfinite(bound) && bound > 0 && !m.displacementBake;  // a baked one is in the mesh
+        // through scale, bias and the output channel, or the constant). 0 for a baked one: it is in the mesh.
+        const float bound = material_displacement_bound(m);
+        const bool displaced = bound > 0;
         g.displacement = {m.displacement, m.displacementMagnitude, m.displacementCenter, displaced ? bound : 0.0f};
         g.displacementFade = {m.displacementFadeStart, m.displacementFadeEnd, 0, 0};
         if (displaced) g.flags |= TS_MATERIAL_DISPLACED;
@@ -969,6 +862,7 @@ struct Renderer::Impl {
         maskedMaterials.clear();
         texturedMaterials.clear();
         displacedMaterials.clear();
+        displacementBounds.clear();  // the images may have changed
         for (const MaterialDesc& m : scene.materials_) {
             gpuMaterials.push_back(gpu_material(m, slots, images));
             const gpu::GpuMaterial& g = gpuMaterials.back();
@@ -1059,6 +953,7 @@ struct Renderer::Impl {
             patches = device.create_buffer(uint64_t(patchCapacity) * sizeof(gpu::GpuPatch), MemoryUse::Device);
             patchDraws = device.create_buffer(uint64_t(patchCapacity) * sizeof(VkDrawIndirectCommand), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
             dicePatches = device.create_buffer(uint64_t(patchCapacity) * 4, MemoryUse::Device);
+            deferredPatchList = device.create_buffer(uint64_t(patchCapacity) * 4, MemoryUse::Device);
         }
         if (patchPoints.size < uint64_t(pointCapacity) * TS_PATCH_POINT_FLOATS * 4)
             patchPoints = device.create_buffer(uint64_t(pointCapacity) * TS_PATCH_POINT_FLOATS * 4, MemoryUse::Device);
@@ -1262,7 +1157,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.patchDraws = s.anyDisplaced ? s.patchDraws.address : 0;
         f.seams = s.anyDisplaced ? s.seams.address : 0;
         f.dicePatches = s.anyDisplaced ? s.dicePatches.address : 0;
+        f.deferredPatchList = s.anyDisplaced ? s.deferredPatchList.address : 0;
         f.patchPoints = s.anyDisplaced ? s.patchPoints.address : 0;
+        f.clusterDisplacement = s.clusterDisplacement.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         device_.run([&](VkCommandBuffer cmd) {
@@ -1277,6 +1174,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             initial.swGroupsZ = 1;
             initial.tessGroupsZ = 1;
             initial.dicePatchGroupsZ = 1;
+            initial.deferredPatchGroupsY = initial.deferredPatchGroupsZ = 1;
             initial.postGroupsY = initial.postGroupsZ = 1;
             initial.cutGroupsY = initial.cutGroupsZ = 1;
             initial.postInstanceGroupsY = initial.postInstanceGroupsZ = 1;
@@ -1290,7 +1188,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
             // Both rasterizers draw the clusters the cull step before them listed: small triangles through the compute
             // rasterizer (one workgroup per cluster, indirect), the rest through hardware raster (one draw instance each).
-            auto rasterize = [&]() {
+            auto rasterize = [&](bool post) {
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                         VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
@@ -1319,6 +1217,15 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 if (s.anyDisplaced) {
                     vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.tessellate);
                     vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessGroupsX));
+                    if (post) {  // the patches the main pass deferred, against this frame's HZB
+                        barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                                VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                        PushConstants push{s.frame.address, 0, TS_TESS_DEFERRED_PATCHES, s.hzbCurrent.address};
+                        vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+                        vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, deferredPatchGroupsX));
+                        push.step = TS_CULL_POST;
+                        vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+                    }
                     barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                             VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
                                 VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
@@ -1363,7 +1270,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             cull_step(TS_CULL_MAIN, s.hzbPrevious);
             vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, cutGroupsX));
             mark();
-            rasterize();
+            rasterize(false);
 
             // Post pass: an HZB of what the main pass drew, then what it deferred, tested against that.
             if (postPass) {
@@ -1389,7 +1296,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 cull_step(TS_CULL_POST, s.hzbCurrent);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postGroupsX));
                 mark();
-                rasterize();
+                rasterize(true);
             } else {
                 for (int i = 0; i < 5; ++i) mark();
             }
@@ -1499,10 +1406,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.patches = state.patches;
         frameStats.microTriangles = state.microTriangles;
         frameStats.computePatches = state.dicePatchesDrawn;
+        frameStats.deferredPatches = state.deferredPatches;
+        frameStats.occludedPatches = state.occludedPatches;
         if (state.patchPoints > s.pointCapacity)  // the next frame keeps them all (no redraw: resolve dices the rest again)
             s.pointCapacity = std::min<uint32_t>(1u << 24, std::max(s.pointCapacity * 2, state.patchPoints + state.patchPoints / 4));
         frameStats.tessellationBytes =
-            s.anyDisplaced ? s.displacementNormals.size + s.seams.size + s.tessellationList.size + s.patches.size + s.patchDraws.size + s.dicePatches.size +
+            s.anyDisplaced ? s.displacementNormals.size + s.seams.size + s.clusterDisplacement.size + s.tessellationList.size + s.patches.size + s.patchDraws.size + s.dicePatches.size + s.deferredPatchList.size +
                                   s.patchPoints.size
                             : 0;
         uint64_t ticks[Impl::kTimestamps] = {};

@@ -280,41 +280,175 @@ TextureImage make_texture(uint32_t width, uint32_t height, uint32_t channels, co
     return t;
 }
 
+namespace {
+
+// One channel of a level-0 texel inside the image, linear, as shaders/texture.h decodes it.
+float level0_texel(const TextureImage& image, size_t channel, uint32_t x, uint32_t y) {
+    const uint32_t format = image.format & TS_TEXTURE_FORMAT_MASK;
+    const uint64_t i = uint64_t(y) * image.width + uint64_t(x);
+    float value;
+    if (format == TS_TEXTURE_RGBA8) value = float((image.words[i] >> (8 * channel)) & 0xffu) / 255.0f;
+    else if (format == TS_TEXTURE_R8) value = channel == 3 ? 1.0f : float((image.words[i / 4] >> (8 * (i % 4))) & 0xffu) / 255.0f;
+    else value = half_to_float(uint16_t(image.words[2 * i + channel / 2] >> (16 * (channel % 2))));
+    return (image.format & TS_TEXTURE_SRGB) != 0 && channel < 3 ? srgb_to_linear(value) : value;
+}
+
+// A texel coordinate through a wrap mode: inside [0, n), or -1 outside a black border.
+int wrap_texel(int i, int n, TextureWrap mode) {
+    if (mode == TextureWrap::Clamp) return std::clamp(i, 0, n - 1);
+    if (mode == TextureWrap::Black) return i < 0 || i >= n ? -1 : i;
+    if (mode == TextureWrap::Mirror) {
+        const int m2 = ((i % (2 * n)) + 2 * n) % (2 * n);
+        return m2 < n ? m2 : 2 * n - 1 - m2;
+    }
+    return ((i % n) + n) % n;
+}
+
+size_t slot_channel(const TextureSlot& slot) { return slot.channel == TextureChannel::Rgb ? 0 : size_t(slot.channel); }
+
+}  // namespace
+
 float sample_slot_level0(const TextureSlot& slot, float s, float t) {
-    const size_t channel = slot.channel == TextureChannel::Rgb ? 0 : size_t(slot.channel);
+    const size_t channel = slot_channel(slot);
     if (!slot.image) return slot.fallback[channel];
     const TextureImage& image = *slot.image;
     const auto& m = slot.transform;
     const float u = m[0] * s + m[1] * t + m[2], v = m[3] * s + m[4] * t + m[5];
-    const bool srgb = (image.format & TS_TEXTURE_SRGB) != 0;
-    const uint32_t format = image.format & TS_TEXTURE_FORMAT_MASK;
-    auto texel = [&](int x, int y, TextureWrap wrapX, TextureWrap wrapY) -> float {
-        auto wrap = [](int i, int n, TextureWrap mode) {
-            if (mode == TextureWrap::Clamp) return std::clamp(i, 0, n - 1);
-            if (mode == TextureWrap::Black) return i < 0 || i >= n ? -1 : i;
-            if (mode == TextureWrap::Mirror) {
-                const int m2 = ((i % (2 * n)) + 2 * n) % (2 * n);
-                return m2 < n ? m2 : 2 * n - 1 - m2;
-            }
-            return ((i % n) + n) % n;
-        };
-        x = wrap(x, int(image.width), wrapX);
-        y = wrap(y, int(image.height), wrapY);
-        if (x < 0 || y < 0) return 0.0f;
-        const uint64_t i = uint64_t(y) * image.width + uint64_t(x);
-        float value;
-        if (format == TS_TEXTURE_RGBA8) value = float((image.words[i] >> (8 * channel)) & 0xffu) / 255.0f;
-        else if (format == TS_TEXTURE_R8) value = channel == 3 ? 1.0f : float((image.words[i / 4] >> (8 * (i % 4))) & 0xffu) / 255.0f;
-        else value = half_to_float(uint16_t(image.words[2 * i + channel / 2] >> (16 * (channel % 2))));
-        return srgb && channel < 3 ? srgb_to_linear(value) : value;
+    auto texel = [&](int x, int y) -> float {
+        x = wrap_texel(x, int(image.width), slot.wrapS);
+        y = wrap_texel(y, int(image.height), slot.wrapT);
+        return x < 0 || y < 0 ? 0.0f : level0_texel(image, channel, uint32_t(x), uint32_t(y));
     };
     const double x = double(u) * image.width - 0.5, y = double(v) * image.height - 0.5;
     const int x0 = int(std::floor(x)), y0 = int(std::floor(y));
     const float fx = float(x - x0), fy = float(y - y0);
-    const float a = texel(x0, y0, slot.wrapS, slot.wrapT), b = texel(x0 + 1, y0, slot.wrapS, slot.wrapT);
-    const float c = texel(x0, y0 + 1, slot.wrapS, slot.wrapT), d = texel(x0 + 1, y0 + 1, slot.wrapS, slot.wrapT);
+    const float a = texel(x0, y0), b = texel(x0 + 1, y0);
+    const float c = texel(x0, y0 + 1), d = texel(x0 + 1, y0 + 1);
     const float value = (a * (1 - fx) + b * fx) * (1 - fy) + (c * (1 - fx) + d * fx) * fy;
     return value * slot.scale[channel] + slot.bias[channel];
+}
+
+TextureRange::TextureRange(const TextureImage& image, uint32_t channel) {
+    // Blocks small enough to follow a cluster's footprint, few enough that the pyramid stays small (at most 512^2
+    // entries at its base, 2.8 MB for any image).
+    while ((image.width + block_ - 1) / block_ > 512 || (image.height + block_ - 1) / block_ > 512) block_ *= 2;
+    uint32_t w = std::max(1u, (image.width + block_ - 1) / block_), h = std::max(1u, (image.height + block_ - 1) / block_);
+    std::vector<std::array<float, 2>> base(size_t(w) * h, {INFINITY, -INFINITY});
+    for (uint32_t y = 0; y < image.height; ++y)
+        for (uint32_t x = 0; x < image.width; ++x) {
+            const float value = level0_texel(image, channel, x, y);
+            auto& entry = base[size_t(y / block_) * w + x / block_];
+            entry = {std::min(entry[0], value), std::max(entry[1], value)};
+        }
+    sizes_.push_back({w, h});
+    levels_.push_back(std::move(base));
+    while (w > 1 || h > 1) {
+        const uint32_t pw = w, ph = h;
+        w = (w + 1) / 2, h = (h + 1) / 2;
+        const auto& below = levels_.back();
+        std::vector<std::array<float, 2>> level(size_t(w) * h, {INFINITY, -INFINITY});
+        for (uint32_t y = 0; y < ph; ++y)
+            for (uint32_t x = 0; x < pw; ++x) {
+                auto& entry = level[size_t(y / 2) * w + x / 2];
+                const auto& from = below[size_t(y) * pw + x];
+                entry = {std::min(entry[0], from[0]), std::max(entry[1], from[1])};
+            }
+        sizes_.push_back({w, h});
+        levels_.push_back(std::move(level));
+    }
+}
+
+std::array<float, 2> TextureRange::texels(uint32_t x0, uint32_t y0, uint32_t x1, uint32_t y1) const {
+    uint32_t bx0 = x0 / block_, by0 = y0 / block_, bx1 = x1 / block_, by1 = y1 / block_;
+    size_t l = 0;
+    while (l + 1 < levels_.size() && (bx1 - bx0 > 7 || by1 - by0 > 7)) {  // the finest level with at most 8 x 8 entries
+        bx0 /= 2, by0 /= 2, bx1 /= 2, by1 /= 2;
+        ++l;
+    }
+    std::array<float, 2> out{INFINITY, -INFINITY};
+    const uint32_t w = sizes_[l][0], h = sizes_[l][1];
+    for (uint32_t y = by0; y <= std::min(by1, h - 1); ++y)
+        for (uint32_t x = bx0; x <= std::min(bx1, w - 1); ++x) {
+            const auto& entry = levels_[l][size_t(y) * w + x];
+            out = {std::min(out[0], entry[0]), std::max(out[1], entry[1])};
+        }
+    return out;
+}
+
+namespace {
+
+// The texels [a, b] of one axis (any integers: before wrapping), through its wrap mode, as at most three runs inside
+// [0, n); `outside` when some fall on a black border.
+void wrapped_runs(int64_t a, int64_t b, int64_t n, TextureWrap mode, std::vector<std::array<uint32_t, 2>>& runs, bool& outside) {
+    runs.clear();
+    auto whole = [&] { runs.push_back({0, uint32_t(n - 1)}); };
+    switch (mode) {
+        case TextureWrap::Clamp: runs.push_back({uint32_t(std::clamp<int64_t>(a, 0, n - 1)), uint32_t(std::clamp<int64_t>(b, 0, n - 1))}); return;
+        case TextureWrap::Black:
+            outside = outside || a < 0 || b >= n;
+            if (b >= 0 && a < n) runs.push_back({uint32_t(std::max<int64_t>(a, 0)), uint32_t(std::min<int64_t>(b, n - 1))});
+            return;
+        case TextureWrap::Repeat: {
+            if (b - a + 1 >= n) return whole();
+            const int64_t start = ((a % n) + n) % n, end = start + (b - a);
+            if (end < n) runs.push_back({uint32_t(start), uint32_t(end)});
+            else runs.push_back({uint32_t(start), uint32_t(n - 1)}), runs.push_back({0, uint32_t(end - n)});
+            return;
+        }
+        case TextureWrap::Mirror: {
+            if (b - a + 1 >= 2 * n) return whole();
+            // Tile k of width n is mirrored when k is odd: split [a, b] at tile borders and map each piece.
+            for (int64_t i = a; i <= b;) {
+                const int64_t tile = i >= 0 ? i / n : -((-i + n - 1) / n), tileEnd = std::min(b, (tile + 1) * n - 1);
+                const int64_t p = i - tile * n, q = tileEnd - tile * n;
+                if (tile % 2 == 0) runs.push_back({uint32_t(p), uint32_t(q)});
+                else runs.push_back({uint32_t(n - 1 - q), uint32_t(n - 1 - p)});
+                i = tileEnd + 1;
+            }
+            return;
+        }
+    }
+}
+
+}  // namespace
+
+std::array<float, 2> slot_range(const TextureSlot& slot, const TextureRange& range, std::array<float, 2> lo, std::array<float, 2> hi) {
+    const size_t channel = slot_channel(slot);
+    auto output = [&](float a, float b) {  // a value range through scale and bias
+        const float x = a * slot.scale[channel] + slot.bias[channel], y = b * slot.scale[channel] + slot.bias[channel];
+        return std::array<float, 2>{std::min(x, y), std::max(x, y)};
+    };
+    if (!slot.image) return output(slot.fallback[channel], slot.fallback[channel]);
+    const TextureImage& image = *slot.image;
+    // The rectangle's corners through UsdTransform2d, then the texels bilinear reads touch, a texel wider each way.
+    const auto& m = slot.transform;
+    double u0 = INFINITY, u1 = -INFINITY, v0 = INFINITY, v1 = -INFINITY;
+    for (float s : {lo[0], hi[0]})
+        for (float t : {lo[1], hi[1]}) {
+            const double u = double(m[0]) * s + double(m[1]) * t + m[2], v = double(m[3]) * s + double(m[4]) * t + m[5];
+            u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+        }
+    const double limit = 1e9;  // coordinates beyond any image: the whole range
+    if (!(u0 > -limit && u1 < limit && v0 > -limit && v1 < limit)) {
+        const auto all = range.texels(0, 0, image.width - 1, image.height - 1);
+        auto out = output(all[0], all[1]);
+        if (slot.wrapS == TextureWrap::Black || slot.wrapT == TextureWrap::Black) out = {std::min(out[0], output(0, 0)[0]), std::max(out[1], output(0, 0)[1])};
+        return out;
+    }
+    const int64_t x0 = int64_t(std::floor(u0 * image.width - 0.5)) - 1, x1 = int64_t(std::floor(u1 * image.width - 0.5)) + 2;
+    const int64_t y0 = int64_t(std::floor(v0 * image.height - 0.5)) - 1, y1 = int64_t(std::floor(v1 * image.height - 0.5)) + 2;
+    std::vector<std::array<uint32_t, 2>> columns, rows;
+    bool outside = false;
+    wrapped_runs(x0, x1, image.width, slot.wrapS, columns, outside);
+    wrapped_runs(y0, y1, image.height, slot.wrapT, rows, outside);
+    float low = INFINITY, high = -INFINITY;
+    for (const auto& r : rows)
+        for (const auto& c : columns) {
+            const auto part = range.texels(c[0], r[0], c[1], r[1]);
+            low = std::min(low, part[0]), high = std::max(high, part[1]);
+        }
+    if (outside) low = std::min(low, 0.0f), high = std::max(high, 0.0f);
+    return output(low, high);
 }
 
 TextureImage read_texture(const std::string& path, ColorSpace colorSpace) {

@@ -9,6 +9,7 @@
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
+#include "occlusion.h"
 
 layout(local_size_x = TS_CULL_GROUP_SIZE) in;
 
@@ -39,50 +40,6 @@ bool software_raster(GpuFrame frame, vec3 center, float radius, float scale, flo
     if ((frame.counts.z & TS_FRAME_SOFTWARE_FIRST) != 0u) return true;
     float pixelsPerUnit = scale * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest);
     return meanTriangleArea * pixelsPerUnit * pixelsPerUnit < frame.raster.x;
-}
-
-// True when the sphere is certainly hidden: its nearest depth lies behind the farthest depth the HZB holds over
-// its whole screen footprint (the box of its bounding cube's corners, read at the finest HZB level where that box
-// spans at most 4x4 texels: a coarser level would reach far past the box and find background). A sphere that
-// reaches the camera plane is never hidden.
-bool sphere_occluded(GpuFrame frame, mat4 viewProjection, vec3 center, float radius) {
-    vec2 lo = vec2(3.4e38), hi = vec2(-3.4e38);
-    float nearestDepth = 0.0;  // reversed Z: larger is nearer
-    for (int i = 0; i < 8; ++i) {
-        vec3 corner = center + radius * vec3((i & 1) != 0 ? 1.0 : -1.0, (i & 2) != 0 ? 1.0 : -1.0, (i & 4) != 0 ? 1.0 : -1.0);
-        vec4 clip = viewProjection * vec4(corner, 1.0);
-        if (clip.w <= 0.0) return false;
-        vec3 ndc = clip.xyz / clip.w;
-        lo = min(lo, ndc.xy);
-        hi = max(hi, ndc.xy);
-        nearestDepth = max(nearestDepth, ndc.z);
-    }
-    if (nearestDepth >= 1.0) return false;  // reaches the near plane
-    vec2 size = vec2(frame.viewport.xy);
-    vec2 pixelLo = clamp((lo * 0.5 + 0.5) * size, vec2(0.0), size - 1.0);
-    vec2 pixelHi = clamp((hi * 0.5 + 0.5) * size, vec2(0.0), size - 1.0);
-    float extent = max(pixelHi.x - pixelLo.x, pixelHi.y - pixelLo.y);
-    // A texel of level l spans 2^(l+1) pixels; at least a third of the extent keeps the box within 4 texels.
-    uint level = min(uint(max(ceil(log2(max(extent / 3.0, 1.0))) - 1.0, 0.0)), frame.hzb.x - 1u);
-    uvec2 levelSize = hzb_level_size(frame, level);
-    uint offset = hzb_level_offset(frame, level);
-    uvec2 t0 = min(uvec2(pixelLo) >> (level + 1u), levelSize - 1u);
-    uvec2 t1 = min(uvec2(pixelHi) >> (level + 1u), levelSize - 1u);
-    float farthest = 3.4e38;
-    for (uint y = t0.y; y <= t1.y; ++y)
-        for (uint x = t0.x; x <= t1.x; ++x) farthest = min(farthest, push.hzb.data[offset + y * levelSize.x + x]);
-    // The margin covers rounding between this bound and the rasterizers' interpolated depths.
-    return nearestDepth * 1.00001 < farthest;
-}
-
-// The test of this step: the main pass asks the previous frame's HZB (seen from the previous camera), the post
-// pass this frame's. False when the main pass has no previous HZB.
-bool hidden(GpuFrame frame, uint step, vec3 center, float radius) {
-    if (step == TS_CULL_MAIN) {
-        if ((frame.counts.z & TS_FRAME_PREVIOUS_HZB) == 0u) return false;
-        return sphere_occluded(frame, frame.previousViewProjection, center, radius);
-    }
-    return sphere_occluded(frame, frame.viewProjection, center, radius);
 }
 
 // True when every triangle of the cluster faces away from the camera (camera-relative centre and radius): the
@@ -162,7 +119,6 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
-    float displacement = instance_displacement(frame, instance) * scale;  // bounds widen by it
     vec3 meshCenter = to_camera_relative(instance, translation, mesh.sphere.xyz);
 
     DrawStateRef draw = DrawStateRef(frame.drawState);
@@ -191,7 +147,7 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
                 if (projected_error(frame, instance, translation, scale, cluster.parentSphere, cluster.parentError) <= threshold) continue;
             }
             vec3 center = to_camera_relative(instance, translation, cluster.sphere.xyz);
-            float radius = cluster.sphere.w * scale + displacement;
+            float radius = (cluster.sphere.w + cluster_displacement(frame, instance, level.clusterOffset + c)) * scale;  // widened by its displacement
             if (!sphere_in_frustum(frame, center, radius)) continue;
             if (facing_away(frame, instance, cluster, center, radius)) {
                 atomicAdd(draw.state.backfaceClusters, 1u);
@@ -287,7 +243,9 @@ void post_pass(GpuFrame frame) {
         GpuCluster cluster = ClusterRef(frame.clusters).data[entry.y];
         float scale = instance_scale(instance);
         vec3 center = to_camera_relative(instance, camera_relative_translation(instance), cluster.sphere.xyz);
-        float radius = cluster.sphere.w * scale + instance_displacement(frame, instance) * scale;
+        float displacement = (instance.flags & TS_INSTANCE_DISPLACED) != 0u
+            ? cluster_displacement(frame, instance, entry.y - MeshRef(frame.meshes).data[instance.meshIndex].clusterOffset) : 0.0;
+        float radius = (cluster.sphere.w + displacement) * scale;
         if (hidden(frame, TS_CULL_POST, center, radius)) atomicAdd(draw.state.occludedClusters, 1u);
         else draw_cluster(frame, TS_CULL_POST, entry.x, entry.y, cluster, center, radius, scale);
     }

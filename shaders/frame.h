@@ -45,6 +45,7 @@ struct Instance {
     uint primId;
     uint materialIndex;
     uint flags;            // TS_INSTANCE_*
+    uint displacementBounds;  // GpuInstanceBatch.displacementBounds
 };
 
 Instance load_instance(GpuFrame frame, uint index) {
@@ -58,6 +59,7 @@ Instance load_instance(GpuFrame frame, uint index) {
     instance.meshIndex = batch.meshIndex;
     instance.primId = batch.primId;
     instance.materialIndex = batch.materialIndex;
+    instance.displacementBounds = batch.displacementBounds;
     instance.flags = batch.flags | ((batchWord & TS_INSTANCE_BATCH_FLIP) != 0u ? TS_INSTANCE_FLIP_WINDING : 0u) |
                      ((batchWord & TS_INSTANCE_BATCH_CONFORMAL) != 0u ? TS_INSTANCE_CONFORMAL : 0u);
     return instance;
@@ -171,6 +173,15 @@ float instance_displacement(GpuFrame frame, Instance instance) {
     if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
     if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return uintBitsToFloat(UintRef(frame.materialTables).data[instance.materialIndex - 1u]);
     return MaterialRef(frame.materials).data[instance.materialIndex].displacement.w;
+}
+
+// How far displacement moves one cluster of a displaced instance (mesh units): its own bound, from the texture's range
+// under it, where the CPU found it (GpuInstanceBatch.displacementBounds), else its materials'. `clusterInMesh` counts
+// from the mesh's first cluster.
+float cluster_displacement(GpuFrame frame, Instance instance, uint clusterInMesh) {
+    if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
+    if (instance.displacementBounds == TS_NO_STREAM) return instance_displacement(frame, instance);
+    return FloatRef(frame.clusterDisplacement).data[instance.displacementBounds + clusterInMesh];
 }
 
 // The material of a visible triangle: the instance's own, or, for meshes whose triangles carry material slots

@@ -140,6 +140,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_CULL_POST 1u
 #define TS_CULL_MAIN_INSTANCES 2u
 #define TS_CULL_POST_INSTANCES 3u
+#define TS_TESS_DEFERRED_PATCHES 4u  // tessellate.comp.glsl, post pass: the patches the main pass deferred
 
 // Material bins: covered pixels are counted per material, given each material a range, and scattered into it, so
 // that each material's pixels are shaded by one indirect dispatch of their own (push constant `step`: the material);
@@ -249,8 +250,12 @@ struct GpuInstanceBatch {
     uint primId;
     uint materialIndex;    // its material; with TS_INSTANCE_MATERIAL_SLOTS the first entry of its table (frame.materialTables)
     uint flags;            // TS_INSTANCE_DOUBLE_SIDED, TS_INSTANCE_MATERIAL_SLOTS, TS_INSTANCE_MASKED
+    // Displaced (TS_INSTANCE_DISPLACED): the first of its mesh's per-cluster displacement bounds under its materials
+    // (frame.clusterDisplacement, indexed by the cluster's place in its mesh), or TS_NO_STREAM: its materials' bound.
+    uint displacementBounds;
+    uint pad0, pad1, pad2;
 };
-TS_CHECK_SIZE(GpuInstanceBatch, 48);
+TS_CHECK_SIZE(GpuInstanceBatch, 64);
 
 // A drawn copy of a mesh: rows of its 3x4 mesh->world matrix; w holds the translation relative to its batch's origin.
 struct GpuInstance {
@@ -365,8 +370,13 @@ struct GpuDrawState {
     uint dicePatches;      // patches listed for the compute patch rasterizer (this pass)
     uint dicePatchesDrawn; // patches the compute rasterizer drew, both passes (the rest went to hardware raster)
     uint patchPoints;      // points asked of the point pool (may exceed it: those patches keep none)
+    uint deferredPatchGroupsX; // VkDispatchIndirectCommand of step TS_TESS_DEFERRED_PATCHES: a thread per deferred patch
+    uint deferredPatchGroupsY;
+    uint deferredPatchGroupsZ;
+    uint deferredPatches;  // patches the main pass deferred (hidden by the previous frame's HZB)
+    uint occludedPatches;  // patches the post pass found hidden
 };
-TS_CHECK_SIZE(GpuDrawState, 188);
+TS_CHECK_SIZE(GpuDrawState, 208);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.
@@ -452,8 +462,11 @@ struct GpuFrame {
     address seams;           // uint[]: UV seams of meshes drawn displaced (GpuMesh.seamVertexOffset, tessellation.h)
     address dicePatches;     // uint[patch capacity]: this pass's patches for the compute patch rasterizer (dice.comp.glsl)
     address patchPoints;     // float[tessellation.z * TS_PATCH_POINT_FLOATS]: diced points kept for resolve (GpuPatch.points)
+    address deferredPatchList; // uint[patch capacity]: patches the main pass deferred to the post pass
+    address clusterDisplacement; // float[]: per cluster of a displaced batch's mesh, the largest offset its materials move
+                                 // it by (mesh units; GpuInstanceBatch.displacementBounds)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 34);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 36);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

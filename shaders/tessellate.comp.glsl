@@ -3,9 +3,12 @@
 // (tessellation.h); each patch is stored and listed for the compute patch rasterizer (dice.comp.glsl) when it lies
 // beyond the near plane and is small on screen, else given an indirect draw of its own, 3 vertices per micro-triangle,
 // for the patch raster's hardware path (patch.vert.glsl). Patches are counted past capacity: the CPU grows the list and redraws.
+// Patches are culled by the frustum and by occlusion like clusters: in the main pass those the previous frame's HZB
+// hides are deferred, and the post pass (step TS_TESS_DEFERRED_PATCHES) tests them against this frame's.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
+#include "occlusion.h"
 #include "surface.h"
 #include "tessellation.h"
 
@@ -39,8 +42,65 @@ bool dice_in_compute(GpuFrame frame, vec3 p[3], float reach) {
     return radius * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest) <= TS_DICE_MAX_RADIUS_PIXELS;
 }
 
-void main() {
-    GpuFrame frame = push.frame.f;
+// The bounding sphere of a triangle or patch (camera-relative corners p) and of all its displacement, `reach`, can move it.
+vec4 displaced_sphere(vec3 p[3], float reach) {
+    vec3 center = (p[0] + p[1] + p[2]) / 3.0;
+    return vec4(center, max(max(distance(center, p[0]), distance(center, p[1])), distance(center, p[2])) + reach);
+}
+
+bool occlusion_culling(GpuFrame frame) { return (frame.counts.z & TS_FRAME_OCCLUSION) != 0u; }
+
+// Sends a stored patch to a patch rasterizer: the compute one (with room in the point pool for its diced points, if
+// any is left) or an indirect draw of its own. Returns its micro-triangles.
+uint route_patch(GpuFrame frame, uint index, vec3 p[3], float reach, uint n) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    if (dice_in_compute(frame, p, reach)) {
+        uint count = (n + 1u) * (n + 2u) / 2u;
+        uint at = atomicAdd(draw.state.patchPoints, count);
+        if (at + count <= uint(frame.tessellation.z)) PatchRef(frame.patches).data[index].points = at;
+        uint k = atomicAdd(draw.state.dicePatches, 1u);
+        atomicAdd(draw.state.dicePatchesDrawn, 1u);
+        SlotListRef(frame.dicePatches).data[k] = index;
+        atomicMax(draw.state.dicePatchGroupsX, min(k + 1u, 65535u));
+        atomicMax(draw.state.dicePatchGroupsY, k / 65535u + 1u);
+    } else {
+        uint d = atomicAdd(draw.state.patchDraws, 1u);
+        PatchDrawRef(frame.patchDraws).data[d] = uvec4(3u * n * n, 1u, 0u, index);
+    }
+    return n * n;
+}
+
+// How far displacement can move a triangle of a cluster: its material's bound, or its cluster's where that is tighter
+// (mesh units times the instance's scale).
+float displacement_reach(GpuFrame frame, Instance instance, GpuMaterial material, uint clusterIndex, float scale) {
+    uint clusterInMesh = clusterIndex - MeshRef(frame.meshes).data[instance.meshIndex].clusterOffset;
+    return min(material.displacement.w, cluster_displacement(frame, instance, clusterInMesh)) * scale;
+}
+
+// Step TS_TESS_DEFERRED_PATCHES (post pass, a thread per patch the main pass deferred): each is tested against this
+// frame's HZB and, not hidden, sent to its rasterizer.
+void route_deferred_patch(GpuFrame frame) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint k = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * TS_TESS_GROUP_SIZE + gl_LocalInvocationIndex;
+    if (k >= draw.state.deferredPatches) return;
+    uint index = SlotListRef(frame.deferredPatchList).data[k];
+    DicedPatch d = load_patch(frame, index);
+    vec3 p[3];
+    for (uint i = 0u; i < 3u; ++i) {
+        precise vec3 meshPoint = d.w[i].x * d.triangle.p[0] + d.w[i].y * d.triangle.p[1] + d.w[i].z * d.triangle.p[2];
+        p[i] = to_camera_relative(d.instance, d.translation, meshPoint);
+    }
+    float reach = displacement_reach(frame, d.instance, d.material, d.clusterIndex, d.scale);
+    vec4 sphere = displaced_sphere(p, reach);
+    if (hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {
+        atomicAdd(draw.state.occludedPatches, 1u);
+        return;
+    }
+    atomicAdd(draw.state.microTriangles, route_patch(frame, index, p, reach, d.n));
+}
+
+// Steps TS_CULL_MAIN and TS_CULL_POST: a workgroup per listed cluster, a thread per triangle.
+void tessellate_triangle(GpuFrame frame) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
     if (k >= draw.state.tessClusters) return;
@@ -54,6 +114,7 @@ void main() {
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
     DisplacedTriangle t = displaced_triangle(frame, instance, cluster, triangle);
+    float reach = displacement_reach(frame, instance, material, visible.y, scale);
 
     vec3 c[3];
     float fade[3];
@@ -61,10 +122,8 @@ void main() {
         c[i] = to_camera_relative(instance, translation, t.p[i]);
         fade[i] = displacement_fade(frame, material, scale, c[i]);
     }
-    // The triangle's bounds, widened by all its displacement can move it, against the frustum.
-    vec3 center = (c[0] + c[1] + c[2]) / 3.0;
-    float radius = max(max(distance(center, c[0]), distance(center, c[1])), distance(center, c[2])) + material.displacement.w * scale;
-    if (!sphere_in_frustum(frame, center, radius)) return;
+    vec4 bounds = displaced_sphere(c, reach);
+    if (!sphere_in_frustum(frame, bounds.xyz, bounds.w)) return;
 
     uvec3 factors = uvec3(edge_factor(frame, c[0], c[1], fade[0], fade[1], TS_TESS_MAX_FACTOR),
                           edge_factor(frame, c[1], c[2], fade[1], fade[2], TS_TESS_MAX_FACTOR),
@@ -89,6 +148,18 @@ void main() {
             p[i] = to_camera_relative(instance, translation, meshPoint);
             f[i] = displacement_fade(frame, material, scale, p[i]);
         }
+        // Culled patches leave their slot unused. In the main pass, one the previous frame's HZB hides is stored and
+        // left to the post pass, which tests it against this frame's (like the clusters the cull defers).
+        vec4 sphere = displaced_sphere(p, reach);
+        if (split > 1u && !sphere_in_frustum(frame, sphere.xyz, sphere.w)) continue;
+        bool deferred = false;
+        if (occlusion_culling(frame)) {
+            if (push.step == TS_CULL_POST && hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {
+                atomicAdd(draw.state.occludedPatches, 1u);
+                continue;
+            }
+            deferred = push.step == TS_CULL_MAIN && hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w);
+        }
         // A patch edge on the triangle's edge has that edge's points between its ends; one inside gets its own factor.
         uint g[3];
         for (uint e = 0u; e < 3u; ++e) {
@@ -103,26 +174,22 @@ void main() {
         }
         uint n = max(max(g[0], g[1]), max(g[2], 1u));
         uint index = first + cell;
-        bool compute = dice_in_compute(frame, p, material.displacement.w * scale);
-        uint points = TS_NO_STREAM;
-        if (compute) {  // room in the point pool for its diced points, if there is any left
-            uint count = (n + 1u) * (n + 2u) / 2u;
-            uint at = atomicAdd(draw.state.patchPoints, count);
-            if (at + count <= uint(frame.tessellation.z)) points = at;
-        }
         PatchRef(frame.patches).data[index] = GpuPatch(slot << TS_VIS_TRIANGLE_BITS | triangle, split | cell << 8u, packedFactors,
-                                                       g[0] | g[1] << 5u | g[2] << 10u, points, 0u, 0u, 0u);
-        if (compute) {
-            uint k = atomicAdd(draw.state.dicePatches, 1u);
-            atomicAdd(draw.state.dicePatchesDrawn, 1u);
-            SlotListRef(frame.dicePatches).data[k] = index;
-            atomicMax(draw.state.dicePatchGroupsX, min(k + 1u, 65535u));
-            atomicMax(draw.state.dicePatchGroupsY, k / 65535u + 1u);
-        } else {
-            uint d = atomicAdd(draw.state.patchDraws, 1u);
-            PatchDrawRef(frame.patchDraws).data[d] = uvec4(3u * n * n, 1u, 0u, index);
+                                                       g[0] | g[1] << 5u | g[2] << 10u, TS_NO_STREAM, 0u, 0u, 0u);
+        if (deferred) {
+            uint d = atomicAdd(draw.state.deferredPatches, 1u);
+            SlotListRef(frame.deferredPatchList).data[d] = index;
+            atomicMax(draw.state.deferredPatchGroupsX, min(d / TS_TESS_GROUP_SIZE + 1u, 65535u));
+            atomicMax(draw.state.deferredPatchGroupsY, d / TS_TESS_GROUP_SIZE / 65535u + 1u);
+            continue;
         }
-        microTriangles += n * n;
+        microTriangles += route_patch(frame, index, p, reach, n);
     }
     atomicAdd(draw.state.microTriangles, microTriangles);
+}
+
+void main() {
+    GpuFrame frame = push.frame.f;
+    if (push.step == TS_TESS_DEFERRED_PATCHES) route_deferred_patch(frame);
+    else tessellate_triangle(frame);
 }

@@ -207,6 +207,39 @@ def test_a_patch_list_overflow_redraws_the_same_image(tmp_path):
     assert np.array_equal(tight["color"].pixels, roomy["color"].pixels)
 
 
+def test_patches_hidden_by_the_previous_frame_are_deferred_and_tested_again(tmp_path):
+    """Occlusion culling of patches: in a second frame the previous frame's HZB hides the back of the sphere, whose
+    patches the main pass defers and the post pass drops; after the camera orbits to the other side, the deferred
+    patches that came into view are drawn. Either way the image is the one a first frame draws."""
+    runtime_stage, _ = write_stages(tmp_path, n=1)
+    stage = Usd.Stage.Open(str(runtime_stage))
+    orbit = UsdGeom.Camera.Define(stage, "/Orbit")
+    orbit.GetFocalLengthAttr().Set(35.0)
+    orbit.GetClippingRangeAttr().Set(Gf.Vec2f(0.05, 100))
+    view = Gf.Matrix4d().SetLookAt(Gf.Vec3d(-1.2, 0.8, -3.2), Gf.Vec3d(0, 0, 0), Gf.Vec3d(0, 1, 0))
+    orbit.AddTransformOp().Set(view.GetInverse())
+    stage.GetRootLayer().Save()
+
+    def frame(session, camera):
+        result = session.render(camera=camera, resolution=(192, 192), aovs=("color", "primId"), dicing_rate=2.0)
+        assert not result.errors
+        return result
+
+    session = tessera.Session(str(runtime_stage), validation=True)
+    first, second = frame(session, "/Camera"), frame(session, "/Camera")
+    assert first.stats["deferred_patches"] == 0, "a first frame has no previous HZB"
+    assert second.stats["deferred_patches"] > 0 and second.stats["occluded_patches"] > 0
+    assert second.stats["micro_triangles"] < first.stats["micro_triangles"]
+    assert np.array_equal(second["primId"].ids(), first["primId"].ids())
+    assert np.array_equal(second["color"].pixels, first["color"].pixels)
+
+    moved = frame(session, "/Orbit")
+    fresh = frame(tessera.Session(str(runtime_stage), validation=True), "/Orbit")
+    assert moved.stats["deferred_patches"] > moved.stats["occluded_patches"], "some deferred patches came into view"
+    assert np.array_equal(moved["primId"].ids(), fresh["primId"].ids())
+    assert np.array_equal(moved["color"].pixels, fresh["color"].pixels)
+
+
 @pytest.mark.parametrize("vis", [None, "tessellation"])
 def test_openusd_displacement_scene(tmp_path, vis):
     """OpenUSD's testUsdImagingGLDisplacement: subdivided quad and triangle meshes displaced by a height map."""

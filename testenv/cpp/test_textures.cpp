@@ -318,6 +318,72 @@ TEST(Textures, Transform2dScalesThenRotatesThenTranslates) {
 
 // ---- Files ----
 
+// slot_range must hold every value a bilinear level-0 read returns anywhere in the rectangle (whatever the wrap mode,
+// transform, scale and bias), and stay within the texels around the rectangle where it can (clamp, no transform).
+TEST(Textures, SlotRangeHoldsEveryReadOverTheRectangleAndLittleMore) {
+    std::mt19937 random(7);
+    std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+    for (const auto [width, height] : {std::array<uint32_t, 2>{37, 23}, std::array<uint32_t, 2>{1500, 700}}) {
+        // Smooth structure plus noise, so that ranges differ from place to place.
+        std::vector<uint8_t> pixels(size_t(width) * height * 3);
+        for (uint32_t y = 0; y < height; ++y)
+            for (uint32_t x = 0; x < width; ++x) {
+                const double smooth = 0.5 + 0.4 * std::sin(6.0 * x / width) * std::cos(4.0 * y / height);
+                for (int c = 0; c < 3; ++c)
+                    pixels[(size_t(y) * width + x) * 3 + c] = uint8_t(std::clamp(smooth * 255 + (c ? 60.0 : 20.0) * (unit(random) - 0.5), 0.0, 255.0));
+            }
+        auto image = std::make_shared<TextureImage>(make_texture(width, height, 3, pixels.data(), nullptr, ColorSpace::Raw));
+        for (uint32_t channel : {0u, 1u}) {
+            const TextureRange range(*image, channel);
+            for (int trial = 0; trial < 400; ++trial) {
+                TextureSlot slot;
+                slot.input = MaterialInput::Displacement;
+                slot.image = image;
+                slot.channel = channel ? TextureChannel::G : TextureChannel::R;
+                const int mode = trial % 4;
+                slot.wrapS = TextureWrap(mode);
+                slot.wrapT = TextureWrap((trial / 4) % 4);
+                const bool plain = trial % 3 == 0;  // no transform, scale or bias
+                if (!plain) {
+                    slot.transform = transform2d(360 * unit(random), {0.3f + 3 * unit(random), 0.3f + 3 * unit(random)}, {unit(random) - 0.5f, unit(random) - 0.5f});
+                    slot.scale[channel] = 4 * unit(random) - 2;
+                    slot.bias[channel] = unit(random) - 0.5f;
+                }
+                const float size = trial % 5 == 0 ? 1.5f * unit(random) : 0.1f * unit(random) * unit(random);
+                const std::array<float, 2> lo{3 * unit(random) - 1, 3 * unit(random) - 1};
+                const std::array<float, 2> hi{lo[0] + size * unit(random), lo[1] + size * unit(random)};
+                const auto r = slot_range(slot, range, lo, hi);
+                for (int k = 0; k < 64; ++k) {
+                    const float s = k == 0 ? lo[0] : k == 1 ? hi[0] : lo[0] + (hi[0] - lo[0]) * unit(random);
+                    const float t = k == 0 ? lo[1] : k == 1 ? hi[1] : lo[1] + (hi[1] - lo[1]) * unit(random);
+                    const float value = sample_slot_level0(slot, s, t);
+                    ASSERT_GE(value, r[0] - 1e-5f) << "trial " << trial << " at (" << s << ", " << t << ")";
+                    ASSERT_LE(value, r[1] + 1e-5f) << "trial " << trial << " at (" << s << ", " << t << ")";
+                }
+                if (plain && slot.wrapS == TextureWrap::Clamp && slot.wrapT == TextureWrap::Clamp) {
+                    // Tight: within the texels bilinear reads touch, widened by the margin (2 texels), a pyramid block
+                    // and the pyramid's reach (its entries are square: under the rectangle's larger side, each way).
+                    auto clamped = [](int i, uint32_t n) { return std::clamp(i, 0, int(n) - 1); };
+                    const int x0 = clamped(int(std::floor(lo[0] * width - 0.5)) - 2, width), x1 = clamped(int(std::floor(hi[0] * width - 0.5)) + 3, width);
+                    const int y0 = clamped(int(std::floor(lo[1] * height - 0.5)) - 2, height), y1 = clamped(int(std::floor(hi[1] * height - 0.5)) + 3, height);
+                    const int reach = std::max(x1 - x0, y1 - y0) + 1 + int(range.block());
+                    const std::array<int, 2> xs{clamped(x0 - reach, width), clamped(x1 + reach, width)};
+                    const std::array<int, 2> ys{clamped(y0 - reach, height), clamped(y1 + reach, height)};
+                    float low = INFINITY, high = -INFINITY;
+                    for (int y = ys[0]; y <= ys[1]; ++y)
+                        for (int x = xs[0]; x <= xs[1]; ++x) {
+                            // Rows are stored bottom first: texel row y of the image is file row height - 1 - y.
+                            const float v = pixels[(size_t(height - 1 - y) * width + x) * 3 + channel] / 255.0f;
+                            low = std::min(low, v), high = std::max(high, v);
+                        }
+                    EXPECT_GE(r[0], low - 1e-6f) << "trial " << trial;
+                    EXPECT_LE(r[1], high + 1e-6f) << "trial " << trial;
+                }
+            }
+        }
+    }
+}
+
 TEST(Textures, FilesAreReadSharedAndReadAgainWhenTheyChange) {
     const std::string path = temp_path("checker.png");
     std::vector<uint8_t> rgba = {255, 0, 0, 255, 0, 255, 0, 128, 0, 0, 255, 255, 255, 255, 255, 0};

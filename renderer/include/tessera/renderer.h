@@ -182,6 +182,8 @@ struct FrameStats {
     // and the GPU memory of the patch lists and displacement normals.
     uint32_t tessellatedClusters = 0, patches = 0;
     uint32_t computePatches = 0;  // of the patches, those the compute rasterizer drew (the rest: hardware raster)
+    uint32_t deferredPatches = 0; // patches the previous frame's HZB hid, left to the post pass
+    uint32_t occludedPatches = 0; // patches the post pass found hidden (not drawn)
     uint64_t tessellatedTriangles = 0, microTriangles = 0;
     uint64_t tessellationBytes = 0;
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.

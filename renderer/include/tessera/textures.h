@@ -82,6 +82,28 @@ struct TextureSlot {
 // without an image.
 float sample_slot_level0(const TextureSlot& slot, float s, float t);
 
+// Minima and maxima of one channel of a texture's level 0 (linear, as sample_slot_level0 reads its texels) over blocks
+// of texels, and over blocks of those blocks up to the whole image: any rectangle of texels has its range in at most
+// 64 look-ups, at the price of the blocks around it (under a third of its larger side, and a block, on each side).
+// Bounds what a displacement texture reads under a cluster.
+class TextureRange {
+public:
+    TextureRange(const TextureImage& image, uint32_t channel);
+    // Lowest and highest value of texels [x0, x1] x [y0, y1] (inclusive, inside the image), or of a little more.
+    std::array<float, 2> texels(uint32_t x0, uint32_t y0, uint32_t x1, uint32_t y1) const;
+    uint32_t block() const { return block_; }  // level 0 of the pyramid: one entry per block x block texels
+
+private:
+    uint32_t block_ = 1;
+    std::vector<std::array<uint32_t, 2>> sizes_;             // entries per row and column, per level
+    std::vector<std::vector<std::array<float, 2>>> levels_;  // (min, max) per entry, row by row
+};
+
+// The lowest and highest value a slot's reads (sample_slot_level0: UsdTransform2d, wrap, bilinear at level 0, scale and
+// bias, its output channel) can return over the rectangle [lo, hi] of st, from the range of the slot's image and
+// channel (a TextureRange of it). Conservative by a texel around the rectangle (the GPU's float coordinates).
+std::array<float, 2> slot_range(const TextureSlot& slot, const TextureRange& range, std::array<float, 2> lo, std::array<float, 2> hi);
+
 // Row-major 2x3 matrix of UsdTransform2d: scale, then rotate counter-clockwise by `rotationDegrees`, then translate.
 std::array<float, 6> transform2d(float rotationDegrees, std::array<float, 2> scale, std::array<float, 2> translation);
 
