@@ -179,6 +179,43 @@ def test_bounds_widen_by_the_displacement(tmp_path):
     assert covered(result).mean() > 0.05, "the displaced plane is drawn where it ends up"
 
 
+def test_cluster_bounds_follow_the_height_map_under_each_cluster(tmp_path):
+    """Bounds per cluster come from the displacement texture's range under its UVs (min/max pyramids): a plane whose
+    height map is flat but for one far corner keeps far fewer clusters around the view than the same plane under a
+    height map with that range everywhere, though both materials bound their displacement alike (0 to 1 unit)."""
+    from tessera.bench_displacement import write_height_png
+
+    n, size = 64, 8.0
+    xs = np.linspace(-size / 2, size / 2, n + 1)
+    points = np.array([(x, 0.0, z) for z in xs for x in xs], np.float32)
+    st = np.array([((x + size / 2) / size, (size / 2 - z) / size) for z in xs for x in xs], np.float32)
+    quads = [(r * (n + 1) + c, (r + 1) * (n + 1) + c, (r + 1) * (n + 1) + c + 1, r * (n + 1) + c + 1) for r in range(n) for c in range(n)]
+    corner = np.zeros((128, 128), np.uint8)
+    corner[112:, 112:] = 255  # rows bottom first: the far corner where s and t near 1
+    everywhere = np.zeros((128, 128), np.uint8)
+    everywhere[::8, ::8] = 255
+
+    def covered_clusters(name, heights):
+        path = tmp_path / f"{name}.usda"
+        write_height_png(tmp_path / f"{name}.png", heights)
+        stage = Usd.Stage.CreateNew(str(path))
+        mesh = UsdGeom.Mesh.Define(stage, "/Plane")
+        mesh.GetPointsAttr().Set(points)
+        mesh.GetFaceVertexCountsAttr().Set([4] * len(quads))
+        mesh.GetFaceVertexIndicesAttr().Set([i for q in quads for i in q])
+        mesh.GetSubdivisionSchemeAttr().Set("none")
+        UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(st)
+        bind(mesh, displaced_material(stage, "/Looks/Heights", texture=tmp_path / f"{name}.png", magnitude=1.0, center=0.0))
+        camera_at(stage, (0.0, 1.2, 0.3), target=(0.0, 0.0, -0.2))  # looking down at the middle of the plane
+        stage.GetRootLayer().Save()
+        result = session_render(path, resolution=(96, 96), dicing_rate=8.0)
+        assert covered(result).all()
+        return result.stats["tessellated_clusters"]
+
+    tight, loose = covered_clusters("corner", corner), covered_clusters("everywhere", everywhere)
+    assert 0 < tight < 0.6 * loose, f"{tight} clusters tessellated under the flat middle, {loose} under bumps everywhere"
+
+
 def test_displacement_fades_out_where_it_is_too_small_to_see(tmp_path):
     path = tmp_path / "faded.usda"
     stage = Usd.Stage.CreateNew(str(path))
