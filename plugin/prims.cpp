@@ -74,7 +74,18 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
         materialId_ = scene.get_material_id(id());
         subsetMaterialIds_ = scene.get_subset_material_ids(id());
     }
-    if (dirtyBits & (DirtyPoints | DirtyTopology | DirtyPrimvar | DirtyDoubleSided)) {
+    // A material that bakes its displacement: the mesh is diced and displaced as it is built, and built again when
+    // its material's bake changes (or a binding moves it to or from one).
+    std::optional<DisplacementBake> bake;
+    bool rebuild = dirtyBits & (DirtyPoints | DirtyTopology | DirtyPrimvar | DirtyDoubleSided);
+    if (rebuild || (dirtyBits & DirtyMaterialId)) {
+        const MaterialDesc* material = param.material && !materialId_.empty() ? param.material(materialId_) : nullptr;
+        if (material && material->displacementBake) bake = displacement_bake(*material);
+        const std::string bakeKey = bake ? bake->key : "";
+        rebuild = rebuild || bakeKey != bakeKey_;
+        bakeKey_ = bakeKey;
+    }
+    if (rebuild) {
         if (mesh_) {
             meshes_.release(*mesh_);
             mesh_.reset();
@@ -83,10 +94,6 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
             MeshSource source = scene.get_mesh(id());
             doubleSided_ = source.doubleSided;
             if (source.view.name.empty()) source.view.name = id();
-            // A material that bakes its displacement: the mesh is diced and displaced as it is built.
-            const MaterialDesc* material = param.material && !materialId_.empty() ? param.material(materialId_) : nullptr;
-            std::optional<DisplacementBake> bake;
-            if (material && material->displacementBake) bake = displacement_bake(*material);
             if (bake) source.view.bake = &*bake;
             mesh_ = meshes_.acquire(source.view, source.settings, param);
         } catch (const MeshError& e) {
@@ -102,6 +109,7 @@ void Material::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits
     MaterialDesc desc = scene.get_material(id());
     textures_.load_slots(desc.textures, id(), param.warnings);  // while desc_ still holds the old images: shared, not re-read
     desc_ = std::move(desc);
+    bakeKey_ = desc_.displacementBake ? displacement_bake(desc_)->key : "";
 }
 
 bool Light::is_light_type(const std::string& type) {

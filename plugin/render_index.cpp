@@ -136,8 +136,11 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
                 dirty->insert(&entry);
                 continue;
             }
+            const bool material = entry.type == "material";
+            const std::string bakeBefore = material ? static_cast<const Material&>(*entry.prim).bake_key() : "";
             try {
                 entry.prim->sync(scene, param_, entry.dirty);
+                if (material && static_cast<const Material&>(*entry.prim).bake_key() != bakeBefore) rebuild_bound_meshes(id);
             } catch (const std::exception& e) {
                 // One bad prim never stops the stage: report it and leave it out of the frame.
                 param_.errors.push_back(id + ": " + one_line(e.what()) + "; the prim is skipped");
@@ -166,6 +169,18 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
             delegate_.scene().set_instance_transform(entry->firstInstance, static_cast<const Mesh&>(*entry->prim).transform());
     }
     structureDirty_ = false;
+}
+
+// A material's static displacement changed: the meshes bound to it (directly or by a GeomSubset) look at their material
+// again (Mesh::sync builds them again when the bake they were built with differs).
+void RenderIndex::rebuild_bound_meshes(const PrimId& materialId) {
+    for (auto& [id, entry] : rprims_) {
+        const Mesh& mesh = static_cast<const Mesh&>(*entry.prim);
+        const auto& subsets = mesh.subset_material_ids();
+        if (mesh.material_id() != materialId && std::find(subsets.begin(), subsets.end(), materialId) == subsets.end()) continue;
+        entry.dirty |= DirtyMaterialId;
+        dirtyRprims_.insert(&entry);
+    }
 }
 
 // Rebuilds the instance, material and light lists of the GPU scene from the synced prims.

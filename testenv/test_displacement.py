@@ -386,6 +386,35 @@ def test_static_displacement_bakes_the_detail_into_the_mesh(tmp_path):
     assert again.stats["meshes_cached"] == 1 and again.stats["meshes_built"] == 0, "a baked mesh is built once"
 
 
+def test_editing_a_baked_displacement_builds_its_mesh_again(tmp_path):
+    """A baked displacement lives in the built mesh: an edit of the material's bake (its magnitude, then the bake turned
+    off) builds the bound mesh again; an edit that leaves the bake alone (the colour) builds nothing."""
+    runtime_stage, _ = write_stages(tmp_path, n=1)
+    stage = Usd.Stage.Open(str(runtime_stage))
+    looks = stage.GetPrimAtPath("/Looks/Bumps")
+    looks.CreateAttribute("tessera:displacement:bake", Sdf.ValueTypeNames.Bool).Set(True)
+    session = tessera.Session(stage, validation=True)
+
+    def render():
+        result = session.render(camera="/Camera", resolution=(128, 128), aovs=("primId",))
+        assert not result.errors, result.errors
+        return result, result.stats["meshes_built"] + result.stats["meshes_cached"]
+
+    baked, loaded = render()
+    assert loaded == 1 and baked.stats["source_triangles"] > 20 * 528 and baked.stats["micro_triangles"] == 0
+    stage.GetPrimAtPath("/Looks/Bumps/Surface").GetAttribute("inputs:diffuseColor").Set(Gf.Vec3f(0.2, 0.5, 0.8))
+    recoloured, loaded = render()
+    assert loaded == 0 and dict(session.index.last_synced) == {"/Looks/Bumps": tessera._tessera.dirty.PARAMS}
+    looks.GetAttribute("tessera:displacement:magnitude").Set(0.4)
+    taller, loaded = render()
+    assert loaded == 1 and "/Sphere" in dict(session.index.last_synced)
+    assert covered(taller).sum() > covered(baked).sum(), "the bumps grew"
+    looks.GetAttribute("tessera:displacement:bake").Set(False)
+    runtime, loaded = render()
+    assert loaded == 1 and runtime.stats["source_triangles"] == 528 and runtime.stats["micro_triangles"] > 0
+    assert (covered(runtime) == covered(taller)).mean() > 0.99, "the same surface, displaced at render time"
+
+
 def test_static_displacement_does_not_tear_at_hard_edges_or_uv_seams(tmp_path):
     """The cube of hard edges and a UV island per face, its ramp height map differing across every edge, baked."""
     from tessera.bench_textures import write_png

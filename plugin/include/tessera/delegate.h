@@ -151,6 +151,7 @@ public:
 
 private:
     PrimId instancerId_, materialId_;
+    std::string bakeKey_;  // the static displacement its mesh was built with (Material::bake_key), "" for none
     std::vector<PrimId> subsetMaterialIds_;
     uint32_t primId_;
     GpuScene& scene_;
@@ -168,10 +169,14 @@ public:
     // Pulls the material and loads its textures (a file that cannot be read is a warning naming it and the material).
     void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
     const MaterialDesc& desc() const { return desc_; }
+    // What its static displacement does to the meshes bound to it ("" without tessera:displacement:bake): when this
+    // changes, those meshes are built again.
+    const std::string& bake_key() const { return bakeKey_; }
 
 private:
     TextureStore& textures_;
     MaterialDesc desc_;
+    std::string bakeKey_;
 };
 
 // distantLight, domeLight, rectLight, sphereLight.
@@ -272,6 +277,7 @@ public:
 
 private:
     void commit_resources();
+    void rebuild_bound_meshes(const PrimId& materialId);
 
     struct Entry {
         std::string type;
