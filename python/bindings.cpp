@@ -109,6 +109,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["backface_clusters"] = s.backfaceClusters;
     d["shading_bins"] = s.shadingBins;
     d["textures"] = s.textures;
+    d["geometry_bytes"] = s.geometryBytes;
     d["texture_bytes"] = s.textureBytes;
     d["tessellated_clusters"] = s.tessellatedClusters;
     d["tessellated_triangles"] = s.tessellatedTriangles;

@@ -1044,6 +1044,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.sourceTriangles = s.sourceTriangles;
     frameStats.textures = uint32_t(s.poolImages.size());
     frameStats.textureBytes = s.texturePool.size + s.textureSlots.size;
+    frameStats.geometryBytes = s.meshes.size + s.levels.size + s.clusters.size + s.positions.size + s.normals.size + s.colors.size + s.uvs.size +
+                               s.triangles.size;
     const uint64_t pixels = uint64_t(settings.width) * settings.height;
 
     for (;;) {

@@ -289,7 +289,7 @@ RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("visib
                   ("occluded_instances", "occluded inst"), ("occluded_clusters", "occluded clusters"),
                   ("peak_memory_mib", "peak MiB"), ("psnr_db", "PSNR dB"), ("pixels_off_percent", "px off %"),
                   ("same_prim_percent", "same prim %"), ("speedup_vs_no_lod", "speedup"), ("micro_triangles", "micro tris"),
-                  ("tessellation_ms", "tess ms")]
+                  ("tessellation_ms", "tess ms"), ("surface_gpu_mib", "surface GPU MiB")]
 
 
 def _write_plot(rows, path):

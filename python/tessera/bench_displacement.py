@@ -190,14 +190,19 @@ def measure(frames_of, runtime_session, reference_session, frames: int, resoluti
     at 0.5, 1 and 2 px, and the runtime tessellation at dicing rates 0.5 to 8 px (the coarser ones to find where its
     error meets the DAG's); error against the full-detail reference."""
     settings = {"resolution": resolution, "aovs": ("color",), "camera": "/Camera"}
+    def gpu_mib(result):  # what the surface costs in GPU memory: geometry, height map, tessellation lists
+        s = result.stats
+        return round((s["geometry_bytes"] + s["texture_bytes"] + s["tessellation_bytes"]) / 2**20, 1)
+
     reference, ref_wall, ref_gpu = frames_of(reference_session, frames, lod=False, **settings)
-    rows = [row_of("displacement", "pre-tessellated, --no-lod", reference, ref_wall, ref_gpu, reference)]
+    rows = [row_of("displacement", "pre-tessellated, --no-lod", reference, ref_wall, ref_gpu, reference, surface_gpu_mib=gpu_mib(reference))]
     for error in (0.5, 1.0, 2.0):
         result, wall, gpu = frames_of(reference_session, frames, pixel_error=error, **settings)
-        rows.append(row_of("displacement", f"pre-tessellated, {error:g} px", result, wall, gpu, reference))
+        rows.append(row_of("displacement", f"pre-tessellated, {error:g} px", result, wall, gpu, reference, surface_gpu_mib=gpu_mib(result)))
     for rate in (0.5, 1.0, 2.0, 4.0, 8.0):
         result, wall, gpu = frames_of(runtime_session, frames, dicing_rate=rate, **settings)
         rows.append(row_of("displacement", f"runtime, dicing {rate:g} px", result, wall, gpu, reference,
                            micro_triangles=result.stats["micro_triangles"], patches=result.stats["patches"],
-                           tessellation_ms=round(gpu["tessellation"], 1), tessellation_bytes=result.stats["tessellation_bytes"]))
+                           occluded_patches=result.stats["occluded_patches"], tessellation_ms=round(gpu["tessellation"], 1),
+                           tessellation_bytes=result.stats["tessellation_bytes"], surface_gpu_mib=gpu_mib(result)))
     return rows

@@ -177,6 +177,7 @@ struct FrameStats {
     uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
     uint32_t shadingBins = 0;           // materials with visible pixels (each shaded by a dispatch of its own)
     uint32_t textures = 0;              // images in the texture pool
+    uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, vertex streams, triangles
     uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
     // Runtime tessellation (0 without displaced materials): clusters and triangles diced, patches, micro-triangles,
     // and the GPU memory of the patch lists and displacement normals.
