@@ -154,6 +154,7 @@ def test_runtime_tessellation_matches_the_surface_pre_tessellated_on_the_cpu(tmp
     assert same_coverage >= 0.995, f"silhouettes agree on {same_coverage:.2%} of pixels"
     quality = psnr(runtime["color"].pixels[..., :3], reference["color"].pixels[..., :3])
     assert quality >= 35.0, f"PSNR {quality:.1f} dB against the pre-tessellated reference"
+    assert 0 < 100 * runtime.stats["geometry_bytes"] < reference.stats["geometry_bytes"], "the detail is made, not stored"
 
 
 def test_cpu_reference_samples_like_the_gpu():
