@@ -1110,14 +1110,15 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         // With the DAG off and no rasterizer forced, draw the classic way: every source triangle through hardware raster.
         const bool hardwareOnly = settings.raster == RasterMode::Hardware || (settings.raster == RasterMode::Auto && !settings.lod);
         const uint32_t rasterFlags = hardwareOnly ? TS_FRAME_HARDWARE_ONLY : settings.raster == RasterMode::Software ? TS_FRAME_SOFTWARE_FIRST : 0u;
-        // The post pass only has work when the main pass could defer something: with a previous frame to ask.
+        // The main pass defers what the previous frame's HZB hides or, in a first frame, the instances too small on screen
+        // to hide much (cull.comp.glsl likely_occluder); the post pass tests those against this frame's HZB.
         const bool occlusion = settings.occlusion && settings.lod;  // --no-lod: every source triangle, the classic way
-        const bool postPass = occlusion && s.previousValid;
+        const bool postPass = occlusion, previous = occlusion && s.previousValid;
         if (occlusion) s.ensure_occlusion_buffers();
-        f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags | (postPass ? TS_FRAME_PREVIOUS_HZB : 0u) |
+        f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags | (previous ? TS_FRAME_PREVIOUS_HZB : 0u) |
                         (occlusion ? TS_FRAME_OCCLUSION : 0u),
                     uint32_t(settings.visualize)};
-        if (postPass) {
+        if (previous) {
             // The previous camera saw positions relative to itself: shift this frame's camera-relative positions back.
             const Matrix4d shift = translation_matrix(cam.position[0] - s.previousCamera[0], cam.position[1] - s.previousCamera[1],
                                                       cam.position[2] - s.previousCamera[2]);
@@ -1371,8 +1372,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             ++frameStats.overflowRedraws;
             if (state.cutInstancesNeeded > s.cutCapacity)
                 s.cutCapacity = std::max(s.cutCapacity * 2, state.cutInstancesNeeded + state.cutInstancesNeeded / 4);
-            if (state.deferredInstances > s.deferredCapacity)
+            if (state.deferredInstances > s.deferredCapacity) {
                 s.deferredCapacity = std::max(s.deferredCapacity * 2, state.deferredInstances + state.deferredInstances / 4);
+                // Every deferred instance may come back in the post pass's cut list: room for them at once, not in a
+                // second redraw.
+                s.cutCapacity = std::max(s.cutCapacity, std::min(s.deferredCapacity, std::max(s.instanceCount, 1u)));
+            }
             continue;
         }
         const uint32_t needed = std::max(state.visibleClusters, state.deferredClusters);
@@ -1397,7 +1402,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.swClusters = state.swClustersDrawn;
         frameStats.candidateClusters = state.candidateClusters;
         frameStats.visibleClusterCapacity = s.capacity;
-        frameStats.occlusionTested = postPass;
+        frameStats.occlusionTested = previous;
         frameStats.occludedInstances = state.occludedInstances;
         frameStats.occludedClusters = state.occludedClusters;
         frameStats.postPassClusters = state.postClusters;

@@ -187,6 +187,15 @@ void list_for_cut(GpuFrame frame, uint step, uint instanceIndex) {
     }
 }
 
+// Without a previous frame's HZB the main pass draws only the instances likely to hide others (TS_OCCLUDER_FRACTION):
+// large on screen, or reaching the camera plane. The others wait for the post pass and its HZB of these.
+bool likely_occluder(GpuFrame frame, vec4 sphere) {
+    float least = TS_OCCLUDER_FRACTION * float(min(frame.viewport.x, frame.viewport.y));
+    if (frame.lod.z != 0.0) return sphere.w * frame.lod.x >= least;
+    float depth = dot(sphere.xyz, frame.cameraForward.xyz);
+    return depth <= sphere.w || sphere.w * frame.lod.x >= least * depth;
+}
+
 void test_instance(GpuFrame frame, uint step, uint thread) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     if (step == TS_CULL_MAIN_INSTANCES) {
@@ -196,7 +205,10 @@ void test_instance(GpuFrame frame, uint step, uint thread) {
             (MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
         vec4 sphere = instance_sphere(frame, instance);
         if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
-        if (hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)) {
+        bool previous = (frame.counts.z & TS_FRAME_PREVIOUS_HZB) != 0u;
+        bool deferred = previous ? hidden(frame, TS_CULL_MAIN, sphere.xyz, sphere.w)
+                                 : (frame.counts.z & TS_FRAME_OCCLUSION) != 0u && !likely_occluder(frame, sphere);
+        if (deferred) {
             uint k = atomicAdd(draw.state.deferredInstances, 1u);
             if (k >= frame.hzb.z) return;  // overflow: the CPU grows the list and redraws
             SlotListRef(frame.deferredInstances).data[k] = thread;

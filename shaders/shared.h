@@ -177,6 +177,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
 #define TS_CULL_INSTANCES_PER_GROUP 2048  // the cull's instance steps: instances tested per workgroup
+// A first frame (no previous HZB) draws in its main pass only the instances likely to hide others: those whose bounds
+// project at least this fraction of the viewport's smaller side across (radius), or reach the camera plane. The post
+// pass tests the rest against the HZB of those.
+#define TS_OCCLUDER_FRACTION 0.125
 #define TS_PIXEL_TILE 8         // classify: 8x8 pixels per workgroup
 #define TS_SHADE_GROUP_SIZE 64  // resolve: a material bin's pixels per workgroup
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
