@@ -96,7 +96,7 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--raster", choices=RASTER_MODES, default="auto",
                         help="auto: small triangles through the compute rasterizer, large ones through hardware raster (default)")
     render.add_argument("--no-occlusion", action="store_true",
-                        help="no two-pass HZB occlusion culling (it only acts from a sequence's second frame on)")
+                        help="no two-pass HZB occlusion culling (a first frame tests small instances against the large ones; later frames test against the frame before)")
     render.add_argument("--stats", help="write frame statistics to this JSON file (with --frames: {\"frames\": [one per frame]})")
     render.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N",
                         help="uniform refinements of subdivision surfaces before the DAG (default 2; 0 draws the cage)")
