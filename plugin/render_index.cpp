@@ -256,8 +256,27 @@ std::vector<Image> RenderIndex::execute(const RenderPassSettings& settings, Fram
         camera = static_cast<Camera&>(*it->second.prim).desc();
     }
     std::vector<LightDesc> lights;
+    std::vector<const PrimId*> lightIds;
     for (auto& [id, entry] : sprims_)
-        if (Light::is_light_type(entry.type)) lights.push_back(static_cast<Light&>(*entry.prim).desc());
+        if (Light::is_light_type(entry.type)) {
+            lights.push_back(static_cast<Light&>(*entry.prim).desc());
+            lightIds.push_back(&id);
+        }
+    if (lights.size() > kMaxLights) {
+        // Domes and distant lights first (they light everything), then the others in path order; say who is left out.
+        std::vector<size_t> order(lights.size());
+        for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+        std::stable_partition(order.begin(), order.end(), [&](size_t i) { return lights[i].type == LightType::Dome || lights[i].type == LightType::Distant; });
+        std::string dropped;
+        std::vector<LightDesc> kept;
+        for (size_t k = 0; k < order.size(); ++k) {
+            if (k < kMaxLights) kept.push_back(lights[order[k]]);
+            else dropped += (dropped.empty() ? "" : ", ") + *lightIds[order[k]];
+        }
+        param_.warnings.push_back(std::to_string(lights.size()) + " lights, and a frame is lit by at most " + std::to_string(kMaxLights) +
+                                  " (domes and distant lights first): left out " + dropped);
+        lights = std::move(kept);
+    }
     if (lights.empty()) {
         // The default rig when a stage has no lights: a key light over the camera's shoulder and a dim dome.
         const Matrix4d& c = camera.cameraToWorld;

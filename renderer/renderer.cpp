@@ -37,6 +37,7 @@ namespace tessera {
 
 static_assert(kClusterMaxTriangles == TS_CLUSTER_MAX_TRIANGLES && kClusterMaxVertices == TS_CLUSTER_MAX_VERTICES,
               "builder and shaders must agree on the cluster budget");
+static_assert(kMaxLights == TS_MAX_LIGHTS, "the render index and the frame must agree on the light budget");
 static_assert((1u << TS_VIS_TRIANGLE_BITS) == TS_CLUSTER_MAX_TRIANGLES, "the visibility buffer addresses every triangle of a cluster");
 
 const char* aov_name(Aov aov) {

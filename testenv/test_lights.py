@@ -72,6 +72,24 @@ def test_sphere_light_delivers_the_exact_irradiance_of_a_sphere():
         assert pixels[50, column, :3] == pytest.approx([expected] * 3, rel=2e-3), column
 
 
+def test_lights_beyond_the_frame_budget_are_named_in_a_warning():
+    """A frame is lit by at most 8 lights: a stage with more keeps its distant light and the first bulbs in path order,
+    and the warning names every bulb left out (never dropped silently)."""
+    stage = _floor_stage()
+    sun = UsdLux.DistantLight.Define(stage, "/Z/Sun")  # last in path order, kept first
+    sun.GetIntensityAttr().Set(0.5)
+    for i in range(10):
+        bulb = UsdLux.SphereLight.Define(stage, f"/Bulb{i}")
+        bulb.AddTranslateOp().Set(Gf.Vec3d(-9 + 2 * i, 1, 0))
+        bulb.GetRadiusAttr().Set(0.2)
+    result = _render(stage)
+    dropped = [w for w in result.warnings if "at most 8" in w]
+    assert len(dropped) == 1 and dropped[0].endswith("left out /Bulb7, /Bulb8, /Bulb9"), result.warnings
+    pixels = result["color"].pixels
+    lit_by_bulb = lambda i: pixels[50, int((-9 + 2 * i + 10) / 20 * SIZE), 0]
+    assert lit_by_bulb(6) > 2 * lit_by_bulb(8), "the floor under a kept bulb is brighter than under one left out"
+
+
 def _cone_irradiance(cos_theta, sin_sigma, steps=600):
     """The integral of max(cos, 0) to the normal over a cone of half-angle sigma whose axis makes angle theta with the
     normal, by quadrature: what a sphere light straddling the horizon delivers per unit radiance."""

@@ -81,6 +81,10 @@ struct InstanceDesc {
 
 enum class LightType { Distant, Dome, Rect, Sphere };
 // A light as the renderer shades it (shaders/lights.h says how). World space, double where it is a place.
+// The most lights one frame is lit by (shaders/shared.h TS_MAX_LIGHTS): the render index keeps domes and distant lights
+// first and says which others it leaves out.
+constexpr size_t kMaxLights = 8;
+
 struct LightDesc {
     LightType type = LightType::Distant;
     // Distant: the direction the light travels. Rect: the direction its front faces (it emits along its local -Z).
