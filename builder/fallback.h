@@ -6,8 +6,9 @@
 
 namespace tessera {
 
-// The triangles of the clusters in `cut`, with vertices that match in position and normal (bit for bit) merged, so
-// that cluster borders, whose positions the DAG keeps identical, become shared vertices. `error` is left to the caller.
+// The triangles of the clusters in `cut` (with their material slots), with vertices that match in every attribute
+// (position, normal, colour, texture coordinates; bit for bit) merged, so that cluster borders, whose vertices the DAG
+// keeps identical, become shared vertices. `error` is left to the caller.
 FallbackMesh extract_cut(const BuiltMesh& mesh, const DagCut& cut);
 
 }  // namespace tessera

@@ -174,12 +174,16 @@ nb::dict settings_dict(const BuildSettings& s) {
     return d;
 }
 
-// (N, 3) numpy array owning `values`.
-template <typename T>
-nb::ndarray<T, nb::numpy, nb::shape<-1, 3>> rows_of_three(std::vector<T> values) {
+// (N, Columns) numpy array owning `values`.
+template <size_t Columns, typename T>
+nb::ndarray<T, nb::numpy, nb::shape<-1, Columns>> rows_of(std::vector<T> values) {
     auto* owned = new std::vector<T>(std::move(values));
     nb::capsule owner(owned, [](void* v) noexcept { delete static_cast<std::vector<T>*>(v); });
-    return nb::ndarray<T, nb::numpy, nb::shape<-1, 3>>(owned->data(), {owned->size() / 3, 3}, owner);
+    return nb::ndarray<T, nb::numpy, nb::shape<-1, Columns>>(owned->data(), {owned->size() / Columns, Columns}, owner);
+}
+template <typename T>
+nb::ndarray<T, nb::numpy, nb::shape<-1, 3>> rows_of_three(std::vector<T> values) {
+    return rows_of<3>(std::move(values));
 }
 
 nb::dict fallback_dict(const BuiltMesh& built) {
@@ -190,6 +194,10 @@ nb::dict fallback_dict(const BuiltMesh& built) {
     d["positions"] = rows_of_three(std::move(positions));
     d["normals"] = rows_of_three(f.normals);
     d["indices"] = rows_of_three(f.indices);
+    // None where the mesh has no such attribute.
+    d["colors"] = f.colors.empty() ? nb::none() : nb::object(nb::cast(rows_of<4>(f.colors)));
+    d["uvs"] = f.uvs.empty() ? nb::none() : nb::object(nb::cast(rows_of<2>(f.uvs)));
+    d["material_slots"] = f.materialSlots.empty() ? nb::none() : nb::object(nb::cast(rows_of<1>(f.materialSlots)));
     d["triangles"] = f.indices.size() / 3;
     d["error"] = f.error;
     d["relative_error"] = built.size > 0 ? f.error / built.size : 0.0f;

@@ -2,6 +2,7 @@
 #include "tessera/textures.h"
 
 #include "shared.h"
+#include "tessera/builder.h"  // half_to_float
 
 #include <OpenImageIO/imageio.h>
 
@@ -89,18 +90,6 @@ uint16_t float_to_half(float value) {
     return uint16_t(sign | half);
 }
 
-float half_to_float(uint16_t h) {
-    const uint32_t sign = uint32_t(h & 0x8000u) << 16, exponent = (h >> 10) & 0x1fu, mantissa = h & 0x3ffu;
-    float magnitude;
-    if (exponent == 0) magnitude = std::ldexp(float(mantissa), -24);
-    else if (exponent == 31) magnitude = mantissa ? NAN : INFINITY;
-    else magnitude = std::ldexp(float(mantissa | 0x400u), int(exponent) - 25);
-    uint32_t bits;
-    std::memcpy(&bits, &magnitude, 4);
-    bits |= sign;
-    std::memcpy(&magnitude, &bits, 4);
-    return magnitude;
-}
 
 uint32_t level_words(uint32_t format, uint32_t width, uint32_t height) {
     const uint64_t texels = uint64_t(width) * height;

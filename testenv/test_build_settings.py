@@ -36,6 +36,7 @@ def test_defaults_are_nanites_and_the_fallback_comes_back():
     positions, normals, indices = fallback["positions"], fallback["normals"], fallback["indices"]
     assert positions.dtype == np.float32 and positions.shape[1] == 3 and normals.shape == positions.shape
     assert indices.dtype == np.uint32 and indices.shape == (fallback["triangles"], 3) and indices.max() < len(positions)
+    assert fallback["colors"] is None and fallback["uvs"] is None and fallback["material_slots"] is None, "none authored"
     assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-3)
     assert fallback["relative_error"] >= 0.01, "the first cut at 1 % of the mesh size"
     assert fallback["triangles"] < stats["source_triangles"]

@@ -35,7 +35,8 @@ def build_mesh(points, face_vertex_counts, face_vertex_indices, name: str = "mes
     A bad value raises ValueError naming the setting. Returns the DAG's statistics: ``levels`` (clusters,
     triangles, max_error and relative_error, a fraction of the size, per level), ``leaf_triangles`` and
     ``leaf_error`` (what trimming kept, and its error), ``fallback`` (``positions`` and ``normals`` as (N, 3)
-    float32 in object space, ``indices`` as (M, 3) uint32, ``triangles``, ``error``, ``relative_error``),
+    float32 in object space, ``indices`` as (M, 3) uint32, ``colors`` (N, 4), ``uvs`` (N, 2) and ``material_slots``
+    (M, 1) where the mesh has them (else None), ``triangles``, ``error``, ``relative_error``),
     ``settings``, bytes in memory and on disk, and the mesh's ``warnings``.
     """
     points = np.ascontiguousarray(points, dtype=np.float32).reshape(-1)

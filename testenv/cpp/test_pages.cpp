@@ -127,9 +127,60 @@ void expect_same(const BuiltMesh& a, const BuiltMesh& b) {
     EXPECT_EQ(a.fallback.positions, b.fallback.positions);
     EXPECT_EQ(a.fallback.normals, b.fallback.normals);
     EXPECT_EQ(a.fallback.indices, b.fallback.indices);
+    EXPECT_EQ(a.fallback.colors, b.fallback.colors);
+    EXPECT_EQ(a.fallback.uvs, b.fallback.uvs);
+    EXPECT_EQ(a.fallback.materialSlots, b.fallback.materialSlots);
 }
 
 }  // namespace
+
+// The fallback mesh carries what the source has: colours, texture coordinates (split at their seams) and material slots.
+TEST(Fallback, CarriesColoursTextureCoordinatesAndMaterialSlots) {
+    const int n = 48;
+    std::vector<float> points, colorValues, uvValues;
+    std::vector<int32_t> counts, indices, slots;
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x), float(y), 0.0f});
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+            const int a = y * (n + 1) + x;
+            counts.push_back(4);
+            indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+            colorValues.insert(colorValues.end(), {float(y / 24), 0.25f, 0.75f});  // two bands, each across many UV tiles
+            // A UV tile per 8 x 8 block of quads, tiles apart (seams on every block border): [2 bx, 2 bx + 1].
+            const float u0 = float(2 * (x / 8)) + float(x % 8) / 8, v0 = float(2 * (y / 8)) + float(y % 8) / 8;
+            uvValues.insert(uvValues.end(), {u0, v0, u0 + 0.125f, v0, u0 + 0.125f, v0 + 0.125f, u0, v0 + 0.125f});
+            slots.push_back(x < n / 2 ? 0 : 2);
+        }
+    MeshView v = polygon_view("/Grid", points, counts, indices);
+    v.displayColor = {Interpolation::Uniform, 3, colorValues, {}};
+    v.uvs = {Interpolation::FaceVarying, 2, uvValues, {}};
+    v.faceMaterials = slots;
+    const BuiltMesh built = build_mesh(prepare_mesh(v));
+    for (const float threshold : {-1.0f, built.fallback.threshold}) {
+        const FallbackMesh f = extract_fallback(built, threshold);
+        const size_t vertices = f.positions.size() / 3, triangles = f.indices.size() / 3;
+        ASSERT_GT(triangles, 0u);
+        ASSERT_EQ(f.colors.size(), 4 * vertices);
+        ASSERT_EQ(f.uvs.size(), 2 * vertices);
+        ASSERT_EQ(f.materialSlots.size(), triangles);
+        for (size_t t = 0; t < triangles; ++t) {
+            float cx = 0, cy = 0;
+            for (int k = 0; k < 3; ++k) cx += f.positions[3 * f.indices[3 * t + k]] / 3, cy += f.positions[3 * f.indices[3 * t + k] + 1] / 3;
+            cx += built.origin[0], cy += built.origin[1];
+            EXPECT_EQ(f.materialSlots[t], cx < n / 2 ? 0 : 2) << "triangle " << t << " at x " << cx;
+            if (threshold >= 0) continue;  // simplified triangles may span blocks; source ones lie in one quad
+            const int bx = int(cx) / 8, by = int(cy) / 8;
+            for (int k = 0; k < 3; ++k) {
+                const uint32_t i = f.indices[3 * t + k];
+                EXPECT_EQ(f.colors[4 * i], float(int(cy) / 24)) << "triangle " << t;
+                EXPECT_EQ(f.colors[4 * i + 3], 1.0f);
+                EXPECT_TRUE(f.uvs[2 * i] >= 2 * bx && f.uvs[2 * i] <= 2 * bx + 1 && f.uvs[2 * i + 1] >= 2 * by && f.uvs[2 * i + 1] <= 2 * by + 1)
+                    << "triangle " << t << ": its corners' coordinates lie in its block's tile";
+            }
+        }
+    }
+}
 
 TEST(Pages, RoundTripIsExact) {
     for (bool colors : {false, true})

@@ -133,7 +133,10 @@ struct LevelStats {
 struct FallbackMesh {
     std::vector<float> positions;   // 3 per vertex, relative to BuiltMesh::origin
     std::vector<float> normals;     // 3 per vertex, unit length
+    std::vector<float> colors;      // 4 per vertex (linear RGBA) when the mesh has vertex colours, else empty
+    std::vector<float> uvs;         // 2 per vertex when the mesh has texture coordinates, else empty
     std::vector<uint32_t> indices;  // 3 per triangle, counter-clockwise from the front
+    std::vector<uint8_t> materialSlots;  // per triangle when the mesh has several (BuiltMesh::materialSlots > 1), else empty
     float error = 0;                // largest error of its clusters against the source, mesh units
     float threshold = -1;           // its cut: the clusters with lodError <= threshold < parentError; < 0: level 0
 };
@@ -268,5 +271,6 @@ std::array<float, 3> decode_octahedral(uint32_t packed);
 std::array<int32_t, 2> octahedral_to_bits(uint32_t packed);
 uint32_t octahedral_from_bits(int32_t u, int32_t v);
 uint16_t float_to_half(float value);
+float half_to_float(uint16_t half);
 
 }  // namespace tessera
