@@ -1,6 +1,8 @@
 // Sync of each prim kind: pull only what the dirty bits name.
 #include "tessera/delegate.h"
 
+#include <algorithm>
+
 namespace tessera::hd {
 
 // What a material's static displacement does to a mesh (builder.h DisplacementBake), with a key naming everything that
@@ -67,7 +69,10 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
     // A hidden mesh reads only its visibility: the rest (a build among it) waits until it shows, as in Hydra
     // (the render index keeps those bits dirty).
     if (dirtyBits & DirtyVisibility) visible_ = scene.get_visible(id());
-    if (!visible_) return;
+    if (!visible_) {
+        awaitingBits_ = 0;  // its bits stay dirty with the render index, as a hidden mesh's do
+        return;
+    }
     // Only points, topology, primvars and sidedness rebuild the mesh; a transform, a material or new instance
     // transforms are read alone.
     if (dirtyBits & DirtyMaterialId) {
@@ -85,10 +90,24 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
         rebuild = rebuild || bakeKey != bakeKey_;
         bakeKey_ = bakeKey;
     }
+    if (dirtyBits & DirtyTransform) transform_ = scene.get_transform(id());
+    awaitingBits_ = 0;
     if (rebuild) {
         if (mesh_) {
             meshes_.release(*mesh_);
             mesh_.reset();
+        }
+        // Model only what the render needs: a plain mesh whose bounds the view does not see waits (its build held back
+        // as DirtyPoints, with the material id to read again) until a view sees them. Instanced meshes (many places)
+        // and displaced ones (bounds that grow) are built at once.
+        if (param.view && instancerId_.empty() && !displaced_by_materials(param)) {
+            if (const auto extent = scene.get_extent(id())) {
+                box_ = *extent;
+                if (!seen_by(*param.view)) {
+                    awaitingBits_ = DirtyPoints | (dirtyBits & (DirtyTopology | DirtyPrimvar | DirtyDoubleSided | DirtyMaterialId));
+                    return;
+                }
+            }
         }
         try {
             MeshSource source = scene.get_mesh(id());
@@ -100,8 +119,18 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
             param.errors.push_back(std::string(e.what()) + "; the mesh is skipped");
         }
     }
-    if (dirtyBits & DirtyTransform) transform_ = scene.get_transform(id());
     if ((dirtyBits & DirtyInstancer) && !instancerId_.empty()) instances_ = scene.get_instances(instancerId_, id());
+}
+
+bool Mesh::displaced_by_materials(const RenderParam& param) const {
+    auto displaces = [&](const PrimId& id) {
+        const MaterialDesc* m = param.material && !id.empty() ? param.material(id) : nullptr;
+        if (!m) return false;
+        for (const TextureSlot& slot : m->textures)
+            if (slot.input == MaterialInput::Displacement) return true;
+        return m->displacementBake || m->displacement != 0.0f;
+    };
+    return displaces(materialId_) || std::any_of(subsetMaterialIds_.begin(), subsetMaterialIds_.end(), displaces);
 }
 
 void Material::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {

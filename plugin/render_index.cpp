@@ -71,6 +71,7 @@ void RenderIndex::remove_prim(const PrimId& id) {
         auto it = prims->find(id);
         if (it == prims->end()) continue;
         dirty->erase(&it->second);
+        awaitingView_.erase(&it->second);
         prims->erase(it);
         structureDirty_ = true;
     }
@@ -113,7 +114,7 @@ bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<Instan
 }
 }  // namespace
 
-void RenderIndex::sync_all(SceneDelegate& scene) {
+void RenderIndex::sync_all(SceneDelegate& scene, const PrimId& cameraId, uint32_t width, uint32_t height) {
     lastSynced_.clear();
     param_.material = [this](const PrimId& id) -> const MaterialDesc* {
         auto it = sprims_.find(id);
@@ -122,6 +123,7 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
     std::vector<const Entry*> moved;  // plain meshes whose transform alone changed: patched into the instance list
     // Only the prims marked dirty are visited (sprims first: rprims refer to materials), in id order.
     for (auto* dirty : {&dirtySprims_, &dirtyRprims_}) {
+        if (dirty == &dirtyRprims_) prepare_view(cameraId, width, height);
         std::vector<Entry*> entries(dirty->begin(), dirty->end());
         std::sort(entries.begin(), entries.end(), [](const Entry* a, const Entry* b) { return a->prim->id() < b->prim->id(); });
         dirty->clear();
@@ -158,6 +160,8 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
             }
             entry.dirty = mesh && !mesh->visible() && !entry.failed ? entry.dirty & ~uint32_t(DirtyVisibility) : Clean;
             if (entry.dirty != Clean) dirty->insert(&entry);
+            if (mesh && mesh->awaiting_view()) awaitingView_.insert(&entry);
+            else if (mesh) awaitingView_.erase(&entry);
             ++syncCounts_[entry.type];
         }
     }
@@ -169,6 +173,27 @@ void RenderIndex::sync_all(SceneDelegate& scene) {
             delegate_.scene().set_instance_transform(entry->firstInstance, static_cast<const Mesh&>(*entry->prim).transform());
     }
     structureDirty_ = false;
+}
+
+// The view this sync builds for (RenderParam::view): the camera sprim's at the resolution, or none (build everything).
+// Meshes waiting for a view come back to the dirty list, their held-back bits with them, when this one sees them (or
+// when there is no view, or an edit dirtied them again).
+void RenderIndex::prepare_view(const PrimId& cameraId, uint32_t width, uint32_t height) {
+    param_.view.reset();
+    auto camera = sprims_.find(cameraId);
+    if (!cameraId.empty() && camera != sprims_.end() && camera->second.type == "camera" && width > 0 && height > 0)
+        param_.view = view_frustum(static_cast<const Camera&>(*camera->second.prim).desc(), width, height);
+    for (auto it = awaitingView_.begin(); it != awaitingView_.end();) {
+        Entry& entry = **it;
+        const Mesh& mesh = static_cast<const Mesh&>(*entry.prim);
+        if (param_.view && !mesh.seen_by(*param_.view) && !dirtyRprims_.count(&entry)) {
+            ++it;
+            continue;
+        }
+        entry.dirty |= mesh.awaiting_view();
+        dirtyRprims_.insert(&entry);
+        it = awaitingView_.erase(it);
+    }
 }
 
 // A material's static displacement changed: the meshes bound to it (directly or by a GeomSubset) look at their material

@@ -66,7 +66,7 @@ Aov aov_from(const std::string& name) {
 }
 
 struct PySceneDelegate : SceneDelegate {
-    NB_TRAMPOLINE(SceneDelegate, 8);
+    NB_TRAMPOLINE(SceneDelegate, 11);
     MeshSource get_mesh(const PrimId& id) override { NB_OVERRIDE_PURE(get_mesh, id); }
     Matrix4d get_transform(const PrimId& id) override { NB_OVERRIDE_PURE(get_transform, id); }
     bool get_visible(const PrimId& id) override { NB_OVERRIDE_PURE(get_visible, id); }
@@ -78,6 +78,7 @@ struct PySceneDelegate : SceneDelegate {
     LightDesc get_light(const PrimId& id) override { NB_OVERRIDE_PURE(get_light, id); }
     CameraDesc get_camera(const PrimId& id) override { NB_OVERRIDE_PURE(get_camera, id); }
     std::vector<PrimId> get_subset_material_ids(const PrimId& id) override { NB_OVERRIDE(get_subset_material_ids, id); }
+    std::optional<std::array<double, 6>> get_extent(const PrimId& id) override { NB_OVERRIDE(get_extent, id); }
 };
 
 Visualize visualize_from(const std::string& name) {
@@ -446,7 +447,8 @@ NB_MODULE(_tessera, m) {
         .def("get_material", &SceneDelegate::get_material)
         .def("get_light", &SceneDelegate::get_light)
         .def("get_camera", &SceneDelegate::get_camera)
-        .def("get_subset_material_ids", &SceneDelegate::get_subset_material_ids);
+        .def("get_subset_material_ids", &SceneDelegate::get_subset_material_ids)
+        .def("get_extent", &SceneDelegate::get_extent);
 
     nb::class_<Image>(m, "Image")
         .def_ro("width", &Image::width)
@@ -513,7 +515,9 @@ NB_MODULE(_tessera, m) {
         .def("remove_prim", &RenderIndex::remove_prim, "id"_a)
         .def("mark_dirty", &RenderIndex::mark_dirty, "id"_a, "bits"_a)
         .def("mark_all_dirty", &RenderIndex::mark_all_dirty, "bits"_a)
-        .def("sync_all", &RenderIndex::sync_all, "scene_delegate"_a)
+        .def("sync_all", &RenderIndex::sync_all, "scene_delegate"_a, "camera"_a = "", "width"_a = 0, "height"_a = 0,
+             "Syncs what is dirty; with a camera sprim and a resolution, meshes that view does not see wait to be built")
+        .def_prop_ro("meshes_out_of_view", &RenderIndex::meshes_out_of_view)
         .def(
             "execute",
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,

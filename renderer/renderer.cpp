@@ -269,6 +269,27 @@ CameraMatrices camera_matrices(const CameraDesc& camera, uint32_t width, uint32_
     return out;
 }
 
+// The frustum planes from the rows of the view-projection (Vulkan clip: -w <= x, y <= w, 0 <= z <= w), normalized.
+ViewFrustum frustum_of(const CameraMatrices& cam) {
+    const Matrix4d& vp = cam.viewProjection;
+    auto row = [&](int r, int k) { return vp[r * 4 + k]; };
+    const double planes[6][4] = {
+        {row(3, 0) + row(0, 0), row(3, 1) + row(0, 1), row(3, 2) + row(0, 2), row(3, 3) + row(0, 3)},
+        {row(3, 0) - row(0, 0), row(3, 1) - row(0, 1), row(3, 2) - row(0, 2), row(3, 3) - row(0, 3)},
+        {row(3, 0) + row(1, 0), row(3, 1) + row(1, 1), row(3, 2) + row(1, 2), row(3, 3) + row(1, 3)},
+        {row(3, 0) - row(1, 0), row(3, 1) - row(1, 1), row(3, 2) - row(1, 2), row(3, 3) - row(1, 3)},
+        {row(2, 0), row(2, 1), row(2, 2), row(2, 3)},
+        {row(3, 0) - row(2, 0), row(3, 1) - row(2, 1), row(3, 2) - row(2, 2), row(3, 3) - row(2, 3)}};
+    ViewFrustum out;
+    out.position = cam.position;
+    for (int i = 0; i < 6; ++i) {
+        const double len = std::sqrt(planes[i][0] * planes[i][0] + planes[i][1] * planes[i][1] + planes[i][2] * planes[i][2]);
+        out.planes[i] = len > 1e-300 ? std::array<double, 4>{planes[i][0] / len, planes[i][1] / len, planes[i][2] / len, planes[i][3] / len}
+                                     : std::array<double, 4>{0, 0, 0, 1};  // an infinite far plane culls nothing
+    }
+    return out;
+}
+
 VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes) {
     VkShaderModuleCreateInfo info{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
     info.codeSize = bytes;
@@ -298,6 +319,25 @@ void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
 }
 
 }  // namespace
+
+ViewFrustum view_frustum(const CameraDesc& camera, uint32_t width, uint32_t height) {
+    return frustum_of(camera_matrices(camera, std::max(width, 1u), std::max(height, 1u)));
+}
+
+bool ViewFrustum::touches_box(const Matrix4d& transform, const std::array<double, 3>& lo, const std::array<double, 3>& hi) const {
+    std::array<std::array<double, 3>, 8> corners;
+    for (int c = 0; c < 8; ++c) {
+        const double p[3] = {(c & 1) ? hi[0] : lo[0], (c & 2) ? hi[1] : lo[1], (c & 4) ? hi[2] : lo[2]};
+        for (int r = 0; r < 3; ++r)
+            corners[c][r] = transform[r * 4] * p[0] + transform[r * 4 + 1] * p[1] + transform[r * 4 + 2] * p[2] + transform[r * 4 + 3] - position[r];
+    }
+    for (const auto& plane : planes) {
+        bool allOutside = true;
+        for (const auto& q : corners) allOutside = allOutside && plane[0] * q[0] + plane[1] * q[1] + plane[2] * q[2] + plane[3] < 0;
+        if (allOutside) return false;
+    }
+    return true;
+}
 
 struct Renderer::Impl {
     Device& device;
@@ -1057,20 +1097,10 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.viewProjection = to_gpu(cam.viewProjection);
         f.inverseViewProjection = to_gpu(cam.inverseViewProjection);
         f.cameraForward = {float(cam.forward[0]), float(cam.forward[1]), float(cam.forward[2]), 0};
-        // Frustum planes from the rows of the view-projection (Vulkan clip: -w<=x,y<=w, 0<=z<=w).
-        const Matrix4d& vp = cam.viewProjection;
-        auto row = [&](int r, int k) { return vp[r * 4 + k]; };
-        const double planes[6][4] = {
-            {row(3, 0) + row(0, 0), row(3, 1) + row(0, 1), row(3, 2) + row(0, 2), row(3, 3) + row(0, 3)},
-            {row(3, 0) - row(0, 0), row(3, 1) - row(0, 1), row(3, 2) - row(0, 2), row(3, 3) - row(0, 3)},
-            {row(3, 0) + row(1, 0), row(3, 1) + row(1, 1), row(3, 2) + row(1, 2), row(3, 3) + row(1, 3)},
-            {row(3, 0) - row(1, 0), row(3, 1) - row(1, 1), row(3, 2) - row(1, 2), row(3, 3) - row(1, 3)},
-            {row(2, 0), row(2, 1), row(2, 2), row(2, 3)},
-            {row(3, 0) - row(2, 0), row(3, 1) - row(2, 1), row(3, 2) - row(2, 2), row(3, 3) - row(2, 3)}};
+        const ViewFrustum frustum = frustum_of(cam);
         for (int i = 0; i < 6; ++i) {
-            const double len = std::sqrt(planes[i][0] * planes[i][0] + planes[i][1] * planes[i][1] + planes[i][2] * planes[i][2]);
-            f.frustumPlanes[i] = len > 1e-300 ? gpu::vec4{float(planes[i][0] / len), float(planes[i][1] / len), float(planes[i][2] / len), float(planes[i][3] / len)}
-                                              : gpu::vec4{0, 0, 0, 1};  // an infinite far plane culls nothing
+            const auto& p = frustum.planes[i];
+            f.frustumPlanes[i] = gpu::vec4{float(p[0]), float(p[1]), float(p[2]), float(p[3])};
         }
         f.background = {settings.background[0], settings.background[1], settings.background[2], settings.background[3]};
         const auto& lights = scene.lights_;

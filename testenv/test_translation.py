@@ -71,3 +71,48 @@ def test_the_first_material_on_a_stage_binds_what_bound_it_already():
     material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
     r, g, b = _centre_colour(session.render(camera="/Camera", resolution=(80, 40)))
     assert g > 3 * r and g > 3 * b, "bound to the material that now exists"
+
+
+def test_meshes_no_rendered_view_sees_are_not_built_until_one_does():
+    """Model only what the render needs: a mesh whose authored extent the render's camera does not see is not built
+    (not even read); it is built at the first render whose view sees it. A mesh without an extent is built anyway, and
+    so is everything when no stage camera is given (the framing camera sees the whole stage)."""
+    stage, _ = _stage()  # the camera at z = 10 sees x in about [-9, 9]
+    def quad(path, x, extent=True):
+        mesh = UsdGeom.Mesh.Define(stage, path)
+        points = [(x - 1, -1, 0), (x + 1, -1, 0), (x + 1, 1, 0), (x - 1, 1, 0)]
+        mesh.GetPointsAttr().Set(points)
+        mesh.GetFaceVertexCountsAttr().Set([4])
+        mesh.GetFaceVertexIndicesAttr().Set([0, 1, 2, 3])
+        mesh.CreateSubdivisionSchemeAttr("none")
+        if extent:
+            mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(points))
+        return mesh
+
+    quad("/Far", 40.0)
+    quad("/FarNoExtent", -40.0, extent=False)
+    session = tessera.Session(stage, validation=True)
+
+    def render(camera="/Camera"):
+        result = session.render(camera=camera, resolution=(80, 40), aovs=("primId",))
+        assert not result.errors, result.errors
+        drawn = {result.prim_path(int(i)) for i in set(result["primId"].ids().ravel()) if i != NO_HIT}
+        return result.stats, drawn
+
+    stats, drawn = render()
+    assert stats["meshes_out_of_view"] == 1 and stats["meshes_built"] + stats["meshes_cached"] == 2, "/Far waits"
+    assert drawn == {"/Quad"}
+    stats, _ = render()
+    assert stats["meshes_out_of_view"] == 1 and stats["meshes_built"] + stats["meshes_cached"] == 0
+
+    stage.GetPrimAtPath("/Far").GetAttribute("points").Set([(38, -1, 0), (42, -1, 0), (42, 1, 0), (38, 1, 0)])
+    stats, _ = render()
+    assert stats["meshes_out_of_view"] == 1 and stats["meshes_built"] + stats["meshes_cached"] == 0, "an edit out of view builds nothing"
+
+    stage.GetPrimAtPath("/Camera").GetAttribute("xformOp:translate").Set(Gf.Vec3d(40, 0, 10))
+    stats, drawn = render()
+    assert stats["meshes_out_of_view"] == 0 and stats["meshes_built"] + stats["meshes_cached"] == 1, "built once seen"
+    assert drawn == {"/Far"}
+
+    fresh = tessera.Session(stage, validation=True).render(resolution=(80, 40), aovs=("primId",))  # framing camera
+    assert fresh.stats["meshes_out_of_view"] == 0 and fresh.stats["meshes_built"] + fresh.stats["meshes_cached"] == 3

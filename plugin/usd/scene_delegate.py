@@ -768,6 +768,18 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             return visible
         return UsdGeom.Imageable(record.prim).ComputeVisibility(self.time) != UsdGeom.Tokens.invisible
 
+    def get_extent(self, id: str):
+        """The mesh's authored extent in its own space (lo xyz, hi xyz), or None: a mesh without one is built whether
+        a view sees it or not."""
+        attribute = self.rprims[id].prim.GetAttribute("extent")
+        if not attribute.HasAuthoredValue():
+            return None
+        value = attribute.Get(self.time)
+        if value is None or len(value) != 2:
+            return None
+        lo, hi = value
+        return (lo[0], lo[1], lo[2], hi[0], hi[1], hi[2])
+
     def get_material_id(self, id: str) -> str:
         return self.rprims[id].material
 

@@ -152,14 +152,15 @@ class Session:
         if not (dicing_rate > 0.0):
             raise StageError(f"dicing rate must be a number of pixels > 0, not {dicing_rate}")
         self._apply_edits()
-        syncs_before = dict(self.index.sync_counts)
-        self.index.sync_all(self.scene)
-        syncs = {kind: count - syncs_before.get(kind, 0) for kind, count in self.index.sync_counts.items()}
         camera_id = ""
         if camera:
             if camera not in self.scene.cameras:
                 raise StageError(f"{camera}: not a camera on this stage (cameras: {', '.join(self.scene.cameras) or 'none'})")
             camera_id = camera
+        syncs_before = dict(self.index.sync_counts)
+        # With a stage camera, meshes whose extent it does not see are not built until a render sees them.
+        self.index.sync_all(self.scene, camera_id, width, height)
+        syncs = {kind: count - syncs_before.get(kind, 0) for kind, count in self.index.sync_counts.items()}
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
         fallback = (framing_camera(self.stage, self.time, width, height, self.purposes, self.scene.instancer_cycles)
                     if not camera_id else _tessera.CameraDesc())
@@ -181,5 +182,6 @@ class Session:
         stats["meshes_built"] = diagnostics["meshes_built"]
         stats["meshes_cached"] = diagnostics["meshes_cached"]
         stats["meshes_shared"] = diagnostics["meshes_shared"]  # identical to a mesh already in the scene: that one is used
+        stats["meshes_out_of_view"] = self.index.meshes_out_of_view  # not built: no rendered view has seen their extent
         stats["synced"] = {kind: count for kind, count in syncs.items() if count}  # prims synced for this render, per type
         return RenderResult(dict(zip(aovs, images)), stats, warnings, list(errors), self.index)

@@ -80,6 +80,9 @@ public:
     virtual MaterialDesc get_material(const PrimId& id) = 0;
     virtual LightDesc get_light(const PrimId& id) = 0;
     virtual CameraDesc get_camera(const PrimId& id) = 0;
+    // A mesh's bounds in mesh space (UsdGeomBoundable's extent: lo xyz, hi xyz), or none when unknown: a mesh with
+    // bounds is built only once a rendered view sees them.
+    virtual std::optional<std::array<double, 6>> get_extent(const PrimId&) { return std::nullopt; }
 };
 
 class RenderDelegate;
@@ -92,6 +95,8 @@ struct RenderParam {
     std::vector<std::string> errors;
     uint32_t meshesBuilt = 0, meshesFromCache = 0;
     uint32_t meshesShared = 0;  // meshes identical to one already in the GPU scene: that one is used
+    // The view the rprims sync for (sync_all's camera): a mesh whose bounds it does not see waits to be built.
+    std::optional<ViewFrustum> view;
 };
 
 // Built meshes shared by content: rprims whose meshes are identical (the mesh cache's key: points, topology,
@@ -148,8 +153,16 @@ public:
     const Matrix4d& transform() const { return transform_; }
     const InstanceSet& instances() const { return instances_; }
     const BuiltMesh* built() const { return mesh_ ? scene_.mesh(mesh_->gpuMesh).get() : nullptr; }
+    // The build bits it holds back while no rendered view has seen its bounds (0: none; it is built or unbuildable).
+    uint32_t awaiting_view() const { return awaitingBits_; }
+    bool seen_by(const ViewFrustum& view) const { return view.touches_box(transform_, {box_[0], box_[1], box_[2]}, {box_[3], box_[4], box_[5]}); }
 
 private:
+    // Whether a material of it moves its surface (its bounds then say too little to skip it).
+    bool displaced_by_materials(const RenderParam& param) const;
+
+    uint32_t awaitingBits_ = 0;
+    std::array<double, 6> box_{};  // its extent (mesh space) when it began to wait
     PrimId instancerId_, materialId_;
     std::string bakeKey_;  // the static displacement its mesh was built with (Material::bake_key), "" for none
     std::vector<PrimId> subsetMaterialIds_;
@@ -261,8 +274,12 @@ public:
     void mark_dirty(const PrimId& id, uint32_t bits);
     void mark_all_dirty(uint32_t bits);
 
-    // Syncs every dirty prim (sprims first: rprims refer to materials), then commits to the GPU scene.
-    void sync_all(SceneDelegate& scene);
+    // Syncs every dirty prim (sprims first: rprims refer to materials), then commits to the GPU scene. Given a camera
+    // sprim and the resolution it renders at, meshes whose bounds that view does not see are not built (yet): they
+    // are, at the first sync_all whose view sees them.
+    void sync_all(SceneDelegate& scene, const PrimId& cameraId = "", uint32_t width = 0, uint32_t height = 0);
+    // Meshes waiting for a view to see them (not built).
+    size_t meshes_out_of_view() const { return awaitingView_.size(); }
     // Renders the synced scene; the images also land in the render buffers named "aov:<name>".
     std::vector<Image> execute(const RenderPassSettings& settings, FrameStats* stats = nullptr);
 
@@ -278,6 +295,7 @@ public:
 private:
     void commit_resources();
     void rebuild_bound_meshes(const PrimId& materialId);
+    void prepare_view(const PrimId& cameraId, uint32_t width, uint32_t height);
 
     struct Entry {
         std::string type;
@@ -289,6 +307,7 @@ private:
     RenderDelegate& delegate_;
     std::map<PrimId, Entry> rprims_, sprims_, bprims_;
     std::unordered_set<Entry*> dirtyRprims_, dirtySprims_;  // what sync_all visits: an edit costs what it dirtied
+    std::unordered_set<Entry*> awaitingView_;  // meshes no view has seen yet (Mesh::awaiting_view), tested each sync
     std::vector<PrimId> primPaths_;  // primId -> path
     std::map<std::string, uint64_t> syncCounts_;
     std::vector<std::pair<PrimId, uint32_t>> lastSynced_;

@@ -116,6 +116,16 @@ struct CameraDesc {
     double nearClip = 0.1, farClip = 1.0e6;  // farClip may be infinity
 };
 
+// What a camera sees at a resolution, as a frame draws it: six planes (a x + b y + c z + d >= 0 inside, (a, b, c) of
+// unit length; an infinite far plane is 0 0 0 1) in world space relative to the camera's position.
+struct ViewFrustum {
+    std::array<double, 3> position{};
+    std::array<std::array<double, 4>, 6> planes{};
+    // False when the box [lo, hi] of mesh space, through `transform` (mesh -> world), lies wholly outside one plane.
+    bool touches_box(const Matrix4d& transform, const std::array<double, 3>& lo, const std::array<double, 3>& hi) const;
+};
+ViewFrustum view_frustum(const CameraDesc& camera, uint32_t width, uint32_t height);
+
 enum class Aov { Color, Depth, Normal, PrimId, InstanceId, ClusterId, TriangleId };
 const char* aov_name(Aov aov);
 bool aov_is_id(Aov aov);
