@@ -395,11 +395,12 @@ struct Renderer::Impl {
     std::vector<bool> displacedMaterials, displacedMeshes;
     bool anyDisplaced = false;
     Buffer displacementNormals, seams, tessellationList, patches, patchDraws, dicePatches, deferredPatchList;
-    uint32_t patchCapacity = 1u << 16;
+    static constexpr uint32_t kFirstPatchCapacity = 1u << 16, kFirstPointCapacity = 1u << 18;
+    uint32_t patchCapacity = kFirstPatchCapacity;
     // The compute patch rasterizer's diced points, kept for resolve: a pool that grows (for the next frame) to what the
     // last frame asked for, up to 2^24 points; patches it cannot hold are diced again by resolve.
     Buffer patchPoints;
-    uint32_t pointCapacity = 1u << 18;
+    uint32_t pointCapacity = kFirstPointCapacity;
     // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
     // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbPrevious, hzbCurrent;
@@ -990,13 +991,14 @@ struct Renderer::Impl {
     // visible cluster at most) and the patches with their draws.
     void ensure_tessellation_buffers() {
         if (tessellationList.size < uint64_t(capacity) * 4) tessellationList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
-        if (patches.size < uint64_t(patchCapacity) * sizeof(gpu::GpuPatch)) {
+        // Sized to the capacities, which grow on demand and shrink when frames need far less (a view that moved away).
+        if (patches.size != uint64_t(patchCapacity) * sizeof(gpu::GpuPatch)) {
             patches = device.create_buffer(uint64_t(patchCapacity) * sizeof(gpu::GpuPatch), MemoryUse::Device);
             patchDraws = device.create_buffer(uint64_t(patchCapacity) * sizeof(VkDrawIndirectCommand), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
             dicePatches = device.create_buffer(uint64_t(patchCapacity) * 4, MemoryUse::Device);
             deferredPatchList = device.create_buffer(uint64_t(patchCapacity) * 4, MemoryUse::Device);
         }
-        if (patchPoints.size < uint64_t(pointCapacity) * TS_PATCH_POINT_FLOATS * 4)
+        if (patchPoints.size != uint64_t(pointCapacity) * TS_PATCH_POINT_FLOATS * 4)
             patchPoints = device.create_buffer(uint64_t(pointCapacity) * TS_PATCH_POINT_FLOATS * 4, MemoryUse::Device);
     }
 
@@ -1448,6 +1450,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.occludedPatches = state.occludedPatches;
         if (state.patchPoints > s.pointCapacity)  // the next frame keeps them all (no redraw: resolve dices the rest again)
             s.pointCapacity = std::min<uint32_t>(1u << 24, std::max(s.pointCapacity * 2, state.patchPoints + state.patchPoints / 4));
+        // Memory follows the view down too: a pool or a patch list four times larger than this frame needed drops to
+        // twice the need for the next frame (never below the first sizes; a list sized by hand, smaller, stays).
+        if (state.patchPoints < s.pointCapacity / 4 && s.pointCapacity > Impl::kFirstPointCapacity)
+            s.pointCapacity = std::max(Impl::kFirstPointCapacity, 2 * state.patchPoints);
+        if (state.patches < s.patchCapacity / 4 && s.patchCapacity > Impl::kFirstPatchCapacity)
+            s.patchCapacity = std::max(Impl::kFirstPatchCapacity, 2 * state.patches);
         frameStats.tessellationBytes =
             s.anyDisplaced ? s.displacementNormals.size + s.seams.size + s.clusterDisplacement.size + s.tessellationList.size + s.patches.size + s.patchDraws.size + s.dicePatches.size + s.deferredPatchList.size +
                                   s.patchPoints.size

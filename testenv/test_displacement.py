@@ -278,6 +278,25 @@ def test_patches_hidden_by_the_previous_frame_are_deferred_and_tested_again(tmp_
     assert np.array_equal(moved["color"].pixels, fresh["color"].pixels)
 
 
+def test_tessellation_memory_follows_the_view_down_as_well_as_up(tmp_path):
+    """The kept-point pool and the patch lists grow to what a fine dicing rate asks (for the next frame), and drop back
+    once a frame asks far less, so a view that moved away does not keep its peak memory."""
+    runtime_stage, _ = write_stages(tmp_path, n=1)
+    session = tessera.Session(str(runtime_stage), validation=True)
+
+    def frame(rate):
+        result = session.render(camera="/Camera", resolution=(640, 640), aovs=("primId",), dicing_rate=rate)
+        assert not result.errors
+        return result.stats["tessellation_bytes"]
+
+    coarse = frame(8.0)
+    frame(0.35)  # asks for more than the pool holds: it grows for the next frame
+    fine = frame(0.35)
+    assert fine > 4 * coarse, (coarse, fine)
+    frame(8.0)  # still drawn with the grown pool, which is then found far too large
+    assert frame(8.0) < fine / 4
+
+
 @pytest.mark.parametrize("vis", [None, "tessellation"])
 def test_openusd_displacement_scene(tmp_path, vis):
     """OpenUSD's testUsdImagingGLDisplacement: subdivided quad and triangle meshes displaced by a height map."""
