@@ -66,7 +66,9 @@ Aov aov_from(const std::string& name) {
 }
 
 struct PySceneDelegate : SceneDelegate {
-    NB_TRAMPOLINE(SceneDelegate, 8);
+    // One slot per method overridden below, at least: a scene that called all nine (cameras, lights, materials,
+    // subsets and instances) failed its ninth lookup with "the trampoline ran out of slots".
+    NB_TRAMPOLINE(SceneDelegate, 9);
     MeshSource get_mesh(const PrimId& id) override { NB_OVERRIDE_PURE(get_mesh, id); }
     Matrix4d get_transform(const PrimId& id) override { NB_OVERRIDE_PURE(get_transform, id); }
     bool get_visible(const PrimId& id) override { NB_OVERRIDE_PURE(get_visible, id); }
