@@ -9,7 +9,7 @@ with its camera light and Tessera with its default key and dome:
   there: the same hue, or both grey (`imagecompare.colour_class`), so a wrong binding fails; regions Storm leaves
   black (turned away from its camera light) are not compared.
 
-Differences that remain, and why (also in docs/usd.md):
+Differences that remain, and why (also in docs/overview.md):
 * Storm tessellates implicit spheres coarsely (10 segments) where Tessera's are round: IoU ~0.89-0.96 on spheres.
 * Tiny objects (ni_pi's 40 spheres of ~6 px) lose about a fifth of their IoU to edge pixels alone.
 * BasisCurves and Points are not drawn (instance.usda: IoU 0.77, with a warning naming each prim).
