@@ -66,7 +66,9 @@ Aov aov_from(const std::string& name) {
 }
 
 struct PySceneDelegate : SceneDelegate {
-    NB_TRAMPOLINE(SceneDelegate, 11);
+    // One slot per method overridden below, at least: a scene that called all of them (cameras, lights, materials,
+    // subsets, instances, extents) failed a lookup past the slots with "the trampoline ran out of slots".
+    NB_TRAMPOLINE(SceneDelegate, 10);
     MeshSource get_mesh(const PrimId& id) override { NB_OVERRIDE_PURE(get_mesh, id); }
     Matrix4d get_transform(const PrimId& id) override { NB_OVERRIDE_PURE(get_transform, id); }
     bool get_visible(const PrimId& id) override { NB_OVERRIDE_PURE(get_visible, id); }

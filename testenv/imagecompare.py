@@ -63,3 +63,31 @@ def coverage_mask(rgba: np.ndarray, background_rgb=None, tolerance: float = 0.06
 def intersection_over_union(a: np.ndarray, b: np.ndarray) -> float:
     union = np.logical_or(a, b).sum()
     return float(np.logical_and(a, b).sum() / union) if union else 1.0
+
+
+def colour_class(rgb: np.ndarray, *, dark: float = 0.04, grey: float = 0.2) -> tuple[str, float]:
+    """What a region's colour is, in terms that survive a change of lights and of encoding (linear or sRGB):
+    ("dark", 0) when its median pixel is near black, ("grey", 0) when unsaturated, else ("hue", degrees).
+    The median keeps Storm's wireframe lines and specular highlights from swaying it."""
+    r, g, b = np.median(rgb.reshape(-1, 3), axis=0)
+    high, low = max(r, g, b), min(r, g, b)
+    if high < dark:
+        return "dark", 0.0
+    if (high - low) / high < grey:
+        return "grey", 0.0
+    if high == r:
+        hue = 60.0 * (((g - b) / (high - low)) % 6.0)
+    elif high == g:
+        hue = 60.0 * ((b - r) / (high - low) + 2.0)
+    else:
+        hue = 60.0 * ((r - g) / (high - low) + 4.0)
+    return "hue", float(hue)
+
+
+def same_colour(a: tuple[str, float], b: tuple[str, float], hue_tolerance: float = 45.0) -> bool:
+    """Same class, and hues within `hue_tolerance` degrees: primaries and secondaries are 60 degrees apart, and
+    Tessera's dome light tints a saturated colour by up to ~35 degrees."""
+    if a[0] != b[0]:
+        return False
+    difference = abs(a[1] - b[1]) % 360.0
+    return min(difference, 360.0 - difference) <= hue_tolerance

@@ -16,8 +16,8 @@ property dirties:
 |                                                                  | it places re-made (DirtyInstancer)                        |
 | `material:binding*`                                              | SUBTREE DirtyMaterialId, where the bound material changed|
 | `collection:*` (collection-based bindings)                       | EVERY_MESH DirtyMaterialId, where it changed             |
-| PointInstancer `positions`, `orientations`, `scales`,            | INSTANCER: the instancer re-made (DirtyInstancer, meshes |
-| `protoIndices`, `invisibleIds`, `prototypes`                     | of prototypes it no longer uses removed)                 |
+| PointInstancer `positions`, `orientations(f)`, `scales`,         | INSTANCER: the instancer re-made (DirtyInstancer, meshes |
+| `protoIndices`, `ids`, `invisibleIds`, `prototypes`              | of prototypes it no longer uses removed)                 |
 | anything on or under a Material (shader inputs, connections)     | SPRIM DirtyParams on that material                       |
 | anything on a camera or a light                                  | SPRIM DirtyParams on it                                  |
 | gprim `points`, implicit shapes' `size`, `radius`                | GPRIM DirtyPoints on the meshes read from it             |
@@ -58,7 +58,8 @@ class Effect(NamedTuple):
     bits: int = 0
 
 
-_INSTANCER_ATTRIBUTES = {"positions", "orientations", "scales", "protoIndices", "invisibleIds", "prototypes"}
+_INSTANCER_ATTRIBUTES = {"positions", "orientations", "orientationsf", "scales", "protoIndices", "ids", "invisibleIds",
+                         "prototypes"}  # ids: invisibleIds name instances by id
 _POINTS = {"points", "size", "radius"}  # implicit gprims' shape attributes are their points
 _TOPOLOGY = {"faceVertexCounts", "faceVertexIndices", "holeIndices", "orientation", "subdivisionScheme"}
 

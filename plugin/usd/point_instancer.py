@@ -92,12 +92,14 @@ def read(instancer: UsdGeom.PointInstancer, prototype_count: int, time: Usd.Time
     if positions is None or len(positions) != count:
         warnings.append(f"{path}: positions and protoIndices disagree in length; the instancer is skipped")
         return None
-    # orientationsf, when authored, is the float version of orientations (quath) and wins over it.
+    # orientationsf, when authored and not empty, is the float version of orientations (quath) and wins over it
+    # (an empty orientationsf leaves orientations in charge, as UsdGeomPointInstancer's own transforms do).
     orientations = None
     for attribute, dtype in ((instancer.GetOrientationsfAttr(), np.float32), (instancer.GetOrientationsAttr(), np.float16)):
         if attribute.HasAuthoredValue():
             orientations = _view(attribute.Get(time), dtype, 4)
-            break
+            if orientations is not None and len(orientations) > 0:
+                break
     scales = _view(instancer.GetScalesAttr().Get(time), np.float32, 3) if instancer.GetScalesAttr().HasAuthoredValue() else None
     for name, array in (("orientations", orientations), ("scales", scales)):
         if array is not None and len(array) == 0:  # authored empty: USD's default (no rotation, unit scale)

@@ -29,6 +29,7 @@ from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
 _LIGHT_TYPES = lights.SPRIM_TYPES
+_PROTOTYPE_PREDICATE = Usd.PrimIsActive & Usd.PrimIsLoaded & ~Usd.PrimIsAbstract  # PointInstancer prototypes: `over` too
 
 
 def to_column_major(gf_matrix) -> list[float]:
@@ -256,7 +257,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         instancer's world transforms and its arrays place the prototype's instances in them, kept as arrays."""
         if frame is None:
             frame = root
-        it = iter(Usd.PrimRange(root))
+        # A PointInstancer's prototypes are drawn even when defined under an `over` (a common way to keep them out of
+        # ordinary traversals), as UsdImaging does: its prototype walk does not ask for defined prims.
+        it = iter(Usd.PrimRange(root, _PROTOTYPE_PREDICATE) if points is not None else Usd.PrimRange(root))
         purposes = _Purposes(inherited_purpose(root.GetParent()) if root.GetParent() else UsdGeom.Tokens.default_)
         for prim in it:
             self._kind(prim)  # notes its type (_stage_has)
