@@ -52,7 +52,7 @@ class _Rprim:
     subset_materials: tuple = ()  # the materials of its materialBind GeomSubsets (slots 1, 2, ...), "" for the mesh's own
     # What the last walk found (None once read): the first sync after a walk need not ask USD again.
     walked_visible: bool | None = None
-    walked_authored: list | None = None  # its authored property names
+    walked_authored: _AuthoredNames | None = None
 
 
 @dataclass
@@ -66,6 +66,24 @@ class _Group:
     # the instances it moved.
     copies: np.ndarray | None = None
     order: list[str] = field(default_factory=list)
+
+
+class _AuthoredNames(frozenset):
+    """A mesh's authored property names, one shared object per distinct set (100 k meshes that author the same
+    names hold one), with what the mesh reader asks of them worked out once."""
+
+    __slots__ = ("tessera", "plain")
+
+    # Read by name when authored; anything else a mesh reader reads (normals, primvars, holes) makes it not plain.
+    _PLAIN = frozenset({"points", "faceVertexCounts", "faceVertexIndices", "subdivisionScheme", "orientation",
+                        "doubleSided"})
+    _OTHER_READS = ("normals", "primvars:", "holeIndices")
+
+    def __new__(cls, names):
+        self = super().__new__(cls, names)
+        self.tessera = any(name.startswith("tessera:") for name in names)  # TesseraMeshAPI settings authored
+        self.plain = not any(name.startswith(cls._OTHER_READS) for name in names)
+        return self
 
 
 class _Purposes:
@@ -136,7 +154,7 @@ class _Found:
     """What a walk of part of the stage found outside instancing contexts."""
     rprims: dict[str, Usd.Prim] = field(default_factory=dict)
     hidden: set[str] = field(default_factory=set)  # rprims found under (or at) an invisible prim
-    authored: dict[str, list] = field(default_factory=dict)  # rprim -> its authored property names
+    authored: dict[str, _AuthoredNames] = field(default_factory=dict)  # rprim -> its authored property names
     worlds: dict[str, Gf.Matrix4d] = field(default_factory=dict)  # rprim -> its world transform
     sprims: dict[str, str] = field(default_factory=dict)  # cameras and lights: path -> type
     natives: dict[str, list[str]] = field(default_factory=dict)  # prototype path -> instance prim paths
@@ -172,6 +190,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         self._material_users: dict[str, set[str]] = {}  # material path -> ids of the rprims bound to it
         self._time_varying: dict[str, set[str]] | None = None  # prim path -> time-varying attributes (on first need)
         self._kinds: dict[str, tuple[bool, str | None, bool]] = {}  # prim type name -> (imageable, role, xformable)
+        self._authored_sets: dict[tuple, _AuthoredNames] = {}  # one shared set per distinct list of names
         # World transforms (row vectors) of gprims drawn once that a walk computed and no sync has used yet.
         self._walked_worlds: dict[str, Gf.Matrix4d] = {}
 
@@ -264,7 +283,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             elif role == "mesh":
                 key = str(path)
                 found.rprims[key] = prim
-                found.authored[key] = authored
+                found.authored[key] = self._authored_names(authored)
                 found.worlds[key] = worlds.world(path)
                 if hidden_under is not None:
                     found.hidden.add(key)
@@ -718,21 +737,51 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     # -- SceneDelegate ----------------------------------------------------------------------------------
 
+    def _authored_names(self, names: list[str]) -> _AuthoredNames:
+        key = tuple(names)
+        shared = self._authored_sets.get(key)
+        if shared is None:
+            shared = self._authored_sets[key] = _AuthoredNames(key)
+        return shared
+
     def get_mesh(self, id: str):
         record = self.rprims[id]
         prim = record.prim
         # One call says which properties carry opinions: the reads below skip the others (a mesh authors a few of the
         # dozen attributes a mesh may have; each read is a round trip through usd-core).
         authored, record.walked_authored = record.walked_authored, None
-        authored = set(authored if authored is not None else prim.GetAuthoredPropertyNames())
-        source = self._mesh_source(prim, authored, record.material, id if record.group is None else str(prim.GetPath()))
-        if any(name.startswith("tessera:") for name in authored):
+        if authored is None:
+            authored = self._authored_names(prim.GetAuthoredPropertyNames())
+        name = id if record.group is None else str(prim.GetPath())
+        if authored.plain and "points" in authored and not self._stage_has("GeomSubset"):
+            source = self._plain_mesh_source(prim, authored, name)
+        else:
+            source = self._mesh_source(prim, authored, record.material, name)
+        if authored.tessera:
             source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
         else:  # nothing of TesseraMeshAPI authored: the render's defaults, applied or not
             source.settings = self.build_settings
         return source
 
-    def _mesh_source(self, prim: Usd.Prim, authored: set[str], material: str, name: str):
+    def _plain_mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, name: str):
+        """The common mesh, read in as few steps as can be: no primvars, normals or holes authored, no GeomSubsets on
+        the stage (what _mesh_source makes of it, with less Python per mesh)."""
+        t = self.time
+        attribute = prim.GetAttribute
+        points = attribute("points").Get(t)
+        counts = attribute("faceVertexCounts").Get(t) if "faceVertexCounts" in authored else None
+        indices = attribute("faceVertexIndices").Get(t) if "faceVertexIndices" in authored else None
+        if points is None or counts is None or indices is None:
+            return self._mesh_source(prim, authored, "", name)  # a Cube or Sphere, or the error named there
+        scheme = attribute("subdivisionScheme").Get(t) if "subdivisionScheme" in authored else None
+        left_handed = "orientation" in authored and attribute("orientation").Get(t) == UsdGeom.Tokens.leftHanded
+        double_sided = "doubleSided" in authored and bool(attribute("doubleSided").Get(t))
+        return _tessera.mesh_source(
+            name, np.asarray(points, np.float32).reshape(-1), np.asarray(counts, np.int32), np.asarray(indices, np.int32),
+            None, left_handed, double_sided, None, "vertex", None, None, "constant", None, None, "faceVarying", None, None,
+            scheme or "catmullClark", self.refine_level)
+
+    def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, material: str, name: str):
         if not prim.IsA(UsdGeom.Mesh):
             return implicit.mesh_source(prim, self.time)
         t = self.time
