@@ -194,3 +194,30 @@ def test_walked_world_transforms_are_dropped_by_edits_and_time():
     assert "/World/Switch/Mesh" in delegate._walked_worlds
     assert np.allclose(delegate.get_transform("/World/Switch/Mesh"), _usd_world(stage, "/World/Switch/Mesh", Usd.TimeCode(3.0)),
                        atol=1e-12)
+
+
+@pytest.mark.parametrize("orientation, double_sided, scheme", [
+    (None, None, None), (UsdGeom.Tokens.leftHanded, None, "none"), (UsdGeom.Tokens.leftHanded, True, "none"),
+    (UsdGeom.Tokens.rightHanded, False, "catmullClark"), (None, True, "loop")])
+def test_the_short_mesh_read_matches_the_full_one(orientation, double_sided, scheme):
+    """A mesh that authors no primvars, normals or holes is read by a short path (_plain_mesh_source); an empty
+    holeIndices sends the same mesh through the full reader: both render the same."""
+    images = []
+    for full in (False, True):
+        stage, quad = _stage()
+        quad.GetPointsAttr().Set([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0), (0, 0, 0.5)])
+        quad.GetFaceVertexCountsAttr().Set([3, 3, 3, 3])
+        quad.GetFaceVertexIndicesAttr().Set([0, 1, 4, 1, 2, 4, 2, 3, 4, 3, 0, 4])
+        quad.GetPrim().RemoveProperty("subdivisionScheme")  # unauthored unless the case authors it
+        for attribute, value in ((quad.GetOrientationAttr(), orientation), (quad.GetDoubleSidedAttr(), double_sided),
+                                 (quad.GetSubdivisionSchemeAttr(), scheme)):
+            if value is not None:
+                attribute.Set(value)
+        if full:
+            quad.GetHoleIndicesAttr().Set([])
+        result = tessera.Session(stage, validation=True).render(camera="/Camera", resolution=(64, 32), aovs=("primId", "normal"))
+        images.append((result["primId"].ids(), result["normal"].pixels))
+    (ids, normals), (full_ids, full_normals) = images
+    assert (ids != NO_HIT).any() or orientation == UsdGeom.Tokens.leftHanded, "the pyramid shows"
+    assert np.array_equal(ids, full_ids)
+    assert np.array_equal(normals, full_normals)
