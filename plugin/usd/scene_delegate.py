@@ -94,6 +94,11 @@ class _Purposes:
         self.inherited = inherited
         self._authored: list[tuple] = []  # (path, purpose) of the ancestors that author one, outermost first
 
+    @property
+    def authored_above(self) -> bool:
+        """Whether a prim walked so far authored a purpose (else every prim without one has `inherited`)."""
+        return bool(self._authored)
+
     def of(self, prim: Usd.Prim, path, authored=None) -> str:
         """`authored`: the prim's authored property names, when known (purpose is then read only where authored)."""
         while self._authored and not path.HasPrefix(self._authored[-1][0]):
@@ -114,29 +119,36 @@ class _WorldTransforms:
 
     _CLEAR_EVERY = 1024  # the local transforms are read through an XformCache, emptied now and then (its entries are not reused)
 
+    _IDENTITY = Gf.Matrix4d(1.0)
+
     def __init__(self, parent_world: Gf.Matrix4d, time: Usd.TimeCode):
-        self._stack: list[tuple] = [(None, parent_world)]  # (path, world) of the ancestors that author ops, outermost first
+        # (path, world) of the ancestors that author ops, outermost first, above the walk's parent world (None when
+        # the identity: a product with it is skipped).
+        self._stack: list[tuple] = [(None, None if parent_world == self._IDENTITY else parent_world)]
         self._cache = UsdGeom.XformCache(time)
         self._reads = 0
 
-    def _parent(self, path) -> Gf.Matrix4d:
+    def _parent(self, path) -> Gf.Matrix4d | None:
         stack = self._stack
         while len(stack) > 1 and not path.HasPrefix(stack[-1][0]):
             stack.pop()
         return stack[-1][1]
 
-    def enter(self, prim: Usd.Prim, path) -> None:
-        """A prim that authors xformOpOrder (and is Xformable): its world transform is noted for its subtree."""
+    def enter(self, prim: Usd.Prim, path) -> Gf.Matrix4d:
+        """A prim that authors xformOpOrder (and is Xformable): its world transform, noted for its subtree."""
         parent = self._parent(path)
         local, resets = self._cache.GetLocalTransformation(prim)
         self._reads += 1
         if self._reads % self._CLEAR_EVERY == 0:
             self._cache.Clear()
-        self._stack.append((path, local if resets else local * parent))
+        world = local if resets or parent is None else local * parent
+        self._stack.append((path, world))
+        return world
 
     def world(self, path) -> Gf.Matrix4d:
-        """The world transform at `path`, after `enter` saw it if it authors ops."""
-        return self._parent(path) if self._stack[-1][0] != path else self._stack[-1][1]
+        """The world transform of a prim that authors no ops (its nearest ancestor's that does)."""
+        world = self._parent(path)
+        return self._IDENTITY if world is None else world
 
 
 def inherited_purpose(prim: Usd.Prim) -> str:
@@ -242,6 +254,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                                   self.time)
         # Without prototypes there are no instances: the per-prim instance test is skipped.
         may_instance = bool(self.stage.GetPrototypes())
+        kinds, drawn_purposes, authored_sets = self._kinds, self.purposes, self._authored_sets
         it = iter(Usd.PrimRange(root))
         if at_top:
             next(it)
@@ -249,19 +262,22 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             path = prim.GetPath()
             if hidden_under is not None and not path.HasPrefix(hidden_under):
                 hidden_under = None
-            imageable, role, xformable = self._kind(prim)
-            authored = None
+            imageable, role, xformable = kinds.get(prim.GetTypeName()) or self._kind(prim)
+            authored = world = None
             drawn = True
             if imageable:
                 # One call lists what the prim authors; purpose and visibility are read only where authored (their
                 # fallbacks are inherited): three times faster than reading both on every prim.
                 authored = prim.GetAuthoredPropertyNames()
-                drawn = purposes.of(prim, path, authored) in self.purposes
+                if "purpose" in authored or purposes.authored_above:
+                    drawn = purposes.of(prim, path, authored) in drawn_purposes
+                else:
+                    drawn = purposes.inherited in drawn_purposes
                 if hidden_under is None and "visibility" in authored and \
                         prim.GetAttribute("visibility").Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
                 if xformable and "xformOpOrder" in authored:
-                    worlds.enter(prim, path)
+                    world = worlds.enter(prim, path)
             if may_instance and prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
                 if hidden_under is None and drawn:
                     found.natives.setdefault(str(prim.GetPrototype().GetPath()), []).append(str(path))
@@ -269,7 +285,15 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 continue
             if role is None:
                 continue
-            if role == "pointInstancer":
+            if role == "mesh" and drawn:
+                key = str(path)
+                found.rprims[key] = prim
+                names = authored_sets.get(tuple(authored))
+                found.authored[key] = names if names is not None else self._authored_names(authored)
+                found.worlds[key] = world if world is not None else worlds.world(path)
+                if hidden_under is not None:
+                    found.hidden.add(key)
+            elif role == "pointInstancer":
                 if hidden_under is None and drawn:
                     found.instancers.append(str(path))
                 it.PruneChildren()
@@ -280,14 +304,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                     found.sprims[str(path)] = role
             elif not drawn:
                 continue  # geometry of a purpose not rendered: not read
-            elif role == "mesh":
-                key = str(path)
-                found.rprims[key] = prim
-                found.authored[key] = self._authored_names(authored)
-                found.worlds[key] = worlds.world(path)
-                if hidden_under is not None:
-                    found.hidden.add(key)
-            else:
+            elif role != "mesh":
                 self.warnings.append(f"{path}: {prim.GetTypeName()} is not drawn (not supported yet)")
 
     def _kind(self, prim: Usd.Prim) -> tuple[bool, str | None, bool]:
@@ -423,10 +440,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 self._remove_rprim(id)
             elif self.sprims.get(id, "material") != "material" and id not in found.sprims:
                 self._remove_sprim(id)
+        new = []
         for id, found_prim in found.rprims.items():
             record = self.rprims.get(id)
             if record is None:
-                self._insert_rprim(id, _Rprim(found_prim, walked_visible=id not in found.hidden, walked_authored=found.authored[id]))
+                new.append(id)
                 continue
             record.walked_visible, record.walked_authored = id not in found.hidden, found.authored[id]
             if resync:
@@ -435,6 +453,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 self.index.mark_dirty(id, survivor_bits)
             elif survivor_bits:
                 self.index.mark_dirty(id, survivor_bits)
+        self._insert_walked(new, found)
         for id, kind in found.sprims.items():
             if self.sprims.get(id) not in (None, kind):
                 self._remove_sprim(id)
@@ -550,6 +569,15 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         group.copies = np.stack([kept[a] if a in kept and not (moved and is_at_or_under(a, moved)) else read(a) for a in anchors])
         group.order = anchors
         return group.copies
+
+    def _insert_walked(self, ids: list[str], found: _Found) -> None:
+        """Gprims drawn once that a walk found and the index lacks, inserted into the index in one call."""
+        for id in ids:
+            record = self.rprims[id] = _Rprim(found.rprims[id], walked_visible=id not in found.hidden,
+                                              walked_authored=found.authored[id])
+            self._paths.add(id, id)
+            self._rebind(id, record)
+        self.index.insert_rprims("mesh", ids)
 
     def _insert_rprim(self, id: str, record: _Rprim) -> None:
         self.rprims[id] = record
