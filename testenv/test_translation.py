@@ -221,3 +221,25 @@ def test_the_short_mesh_read_matches_the_full_one(orientation, double_sided, sch
     assert (ids != NO_HIT).any() or orientation == UsdGeom.Tokens.leftHanded, "the pyramid shows"
     assert np.array_equal(ids, full_ids)
     assert np.array_equal(normals, full_normals)
+
+
+def test_a_transform_usd_rejects_is_left_to_the_sync():
+    """Ops USD cannot evaluate (a scale of one double) stop the walk's transforms below that prim, and only there:
+    the meshes under it read theirs in their sync, which reports the prim by name (test_render.py); a reset below
+    it starts afresh."""
+    stage, _ = _stage()
+    bad = UsdGeom.Xform.Define(stage, "/Bad")
+    bad.GetPrim().CreateAttribute("xformOp:scale", Sdf.ValueTypeNames.Double).Set(2.0)
+    bad.GetPrim().CreateAttribute("xformOpOrder", Sdf.ValueTypeNames.TokenArray).Set(["xformOp:scale"])
+    _cube(stage, "/Bad/Mesh")
+    reset = UsdGeom.Xform.Define(stage, "/Bad/Reset")
+    reset.SetResetXformStack(True)
+    reset.AddTranslateOp().Set(Gf.Vec3d(0, 2, 0))
+    _cube(stage, "/Bad/Reset/Mesh")
+    _cube(stage, "/Good/Mesh").AddTranslateOp().Set(Gf.Vec3d(1, 0, 0))
+    delegate, _index = _delegate(stage)
+    assert set(delegate._walked_worlds) == {"/Quad", "/Bad/Reset/Mesh", "/Good/Mesh"}
+    for id in ("/Bad/Reset/Mesh", "/Good/Mesh"):
+        assert np.allclose(delegate.get_transform(id), _usd_world(stage, id, Usd.TimeCode.Default()), atol=1e-12)
+    with pytest.raises(Exception, match="opType"):
+        delegate.get_transform("/Bad/Mesh")

@@ -21,7 +21,7 @@ import gc
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
 from . import change_tracker, implicit, lights, materials, mesh_settings, point_instancer
@@ -109,6 +109,9 @@ class _Purposes:
         return self.authored[-1][1] if self.authored else self.inherited
 
 
+_UNKNOWN = object()  # a world transform the walk could not compute (USD rejected an ancestor's ops)
+
+
 class _WorldTransforms:
     """World transforms along a depth-first walk, by UsdGeom's rule (a prim's local transform times its parent's
     world, unless its xformOpOrder resets the stack). Only prims that author xformOpOrder have a local transform
@@ -132,21 +135,30 @@ class _WorldTransforms:
             stack.pop()
         return stack[-1][1]
 
-    def enter(self, prim: Usd.Prim, path) -> Gf.Matrix4d:
-        """A prim that authors xformOpOrder (and is Xformable): its world transform, noted for its subtree."""
+    def enter(self, prim: Usd.Prim, path) -> Gf.Matrix4d | None:
+        """A prim that authors xformOpOrder (and is Xformable): its world transform, noted for its subtree. None when
+        USD rejects its ops (a scale op of one double, say): below it, nothing is known, and the meshes' syncs read
+        their transforms through USD, which names the prim and skips it as before."""
         parent = self._parent(path)
-        local, resets = self._cache.GetLocalTransformation(prim)
+        try:
+            local, resets = self._cache.GetLocalTransformation(prim)
+        except Tf.ErrorException:
+            self._stack.append((path, _UNKNOWN))
+            return None
         self._reads += 1
         if self._reads % self._CLEAR_EVERY == 0:
             self._cache.Clear()
-        world = local if resets or parent is None else local * parent
+        if parent is _UNKNOWN and not resets:
+            world = _UNKNOWN
+        else:
+            world = local if resets or parent is None else local * parent
         self._stack.append((path, world))
-        return world
+        return None if world is _UNKNOWN else world
 
-    def world(self, path) -> Gf.Matrix4d:
-        """The world transform of a prim that authors no ops (its nearest ancestor's that does)."""
+    def world(self, path) -> Gf.Matrix4d | None:
+        """The world transform of a prim that authors no ops (its nearest ancestor's that does), None if unknown."""
         world = self._parent(path)
-        return self._IDENTITY if world is None else world
+        return self._IDENTITY if world is None else None if world is _UNKNOWN else world
 
 
 def inherited_purpose(prim: Usd.Prim) -> str:
@@ -262,6 +274,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 hidden_under = None
             imageable, role, xformable = kinds.get(prim.GetTypeName()) or self._kind(prim)
             authored = world = None
+            entered = False
             drawn = True
             if imageable:
                 # One call lists what the prim authors; purpose and visibility are read only where authored (their
@@ -274,7 +287,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if hidden_under is None and "visibility" in authored and \
                         prim.GetAttribute("visibility").Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
-                if xformable and "xformOpOrder" in authored:
+                entered = xformable and "xformOpOrder" in authored
+                if entered:
                     world = worlds.enter(prim, path)
             if may_instance and prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
                 if hidden_under is None and drawn:
@@ -288,7 +302,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 found.rprims[key] = prim
                 names = authored_sets.get(tuple(authored))
                 found.authored[key] = names if names is not None else self._authored_names(authored)
-                found.worlds[key] = world if world is not None else worlds.world(path)
+                if world is None and not entered:
+                    world = worlds.world(path)
+                if world is not None:
+                    found.worlds[key] = world
                 if hidden_under is not None:
                     found.hidden.add(key)
             elif role == "pointInstancer":
@@ -632,8 +649,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _rebind(self, id: str, record: _Rprim, mark: bool = False) -> bool:
         """Resolves the rprim's material binding (inserting the material's sprim when it is new); True if it changed."""
-        if not record.material and not record.subset_materials and not self._stage_has("Material"):
-            return False  # nothing bound, nothing to bind to (GeomSubsets bind materials too: none without one)
+        if not record.material and not record.subset_materials and not self._stage_has("Material") and \
+                not self._stage_has("GeomSubset"):
+            return False  # nothing bound and nothing to bind: what the resolution below would find
         material = self._bound_material(record.prim)
         subsets = tuple(self._bound_material(s.GetPrim()) for s in self._material_subsets(record.prim))
         if (material, subsets) == (record.material, record.subset_materials) and \
