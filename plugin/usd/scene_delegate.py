@@ -275,6 +275,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             imageable, role, xformable = kinds.get(prim.GetTypeName()) or self._kind(prim)
             authored = world = None
             entered = False
+            instance = may_instance and prim.IsInstance()
             drawn = True
             if imageable:
                 # One call lists what the prim authors; purpose and visibility are read only where authored (their
@@ -287,10 +288,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if hidden_under is None and "visibility" in authored and \
                         prim.GetAttribute("visibility").Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
-                entered = xformable and "xformOpOrder" in authored
+                # Instances and PointInstancers place their copies themselves (_visit): the walk stops there.
+                entered = xformable and "xformOpOrder" in authored and not instance and role != "pointInstancer"
                 if entered:
                     world = worlds.enter(prim, path)
-            if may_instance and prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
+            if instance:  # also a PointInstancer prototype root that is itself instanceable
                 if hidden_under is None and drawn:
                     found.natives.setdefault(str(prim.GetPrototype().GetPath()), []).append(str(path))
                 it.PruneChildren()
