@@ -243,3 +243,10 @@ def test_a_transform_usd_rejects_is_left_to_the_sync():
         assert np.allclose(delegate.get_transform(id), _usd_world(stage, id, Usd.TimeCode.Default()), atol=1e-12)
     with pytest.raises(Exception, match="opType"):
         delegate.get_transform("/Bad/Mesh")
+    # A subtree walked again under the rejected ops (a prim added there) is left to the sync the same way.
+    from tessera.usd import ChangeTracker
+
+    changes = ChangeTracker(stage)
+    _cube(stage, "/Bad/Added")
+    delegate.apply_changes(*changes.take())
+    assert "/Bad/Added" in delegate.rprims and "/Bad/Added" not in delegate._walked_worlds

@@ -118,14 +118,16 @@ class _WorldTransforms:
     other than the identity, so only those are read, each once: a mesh's world transform then costs no USD call of
     its own, where an XformCache look-up per mesh cost ~10 us and kept ~450 bytes per prim it passed."""
 
-    _CLEAR_EVERY = 1024  # the local transforms are read through an XformCache, emptied now and then (its entries are not reused)
+    # Local transforms are read through an XformCache, emptied now and then: its entries are never asked for again.
+    _CLEAR_EVERY = 1024
 
     _IDENTITY = Gf.Matrix4d(1.0)
 
-    def __init__(self, parent_world: Gf.Matrix4d, time: Usd.TimeCode):
+    def __init__(self, parent_world, time: Usd.TimeCode):
         # (path, world) of the ancestors that author ops, outermost first, above the walk's parent world (None when
         # the identity: a product with it is skipped).
-        self._stack: list[tuple] = [(None, None if parent_world == self._IDENTITY else parent_world)]
+        identity = parent_world is not _UNKNOWN and parent_world == self._IDENTITY
+        self._stack: list[tuple] = [(None, None if identity else parent_world)]
         self._cache = UsdGeom.XformCache(time)
         self._reads = 0
 
@@ -260,8 +262,13 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         hidden_under = root.GetPath() if hidden else None
         at_top = root.IsPseudoRoot()
         purposes = _Purposes(inherited_purpose(root.GetParent()) if not at_top else UsdGeom.Tokens.default_)
-        worlds = _WorldTransforms(Gf.Matrix4d(1.0) if at_top else self.xform_cache.GetLocalToWorldTransform(root.GetParent()),
-                                  self.time)
+        parent_world = Gf.Matrix4d(1.0)
+        if not at_top:
+            try:
+                parent_world = self.xform_cache.GetLocalToWorldTransform(root.GetParent())
+            except Tf.ErrorException:  # ops USD rejects above: the meshes' syncs read (and report) their transforms
+                parent_world = _UNKNOWN
+        worlds = _WorldTransforms(parent_world, self.time)
         # Without prototypes there are no instances: the per-prim instance test is skipped.
         may_instance = bool(self.stage.GetPrototypes())
         kinds, drawn_purposes, authored_sets = self._kinds, self.purposes, self._authored_sets
