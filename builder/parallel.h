@@ -10,9 +10,20 @@
 
 namespace tessera {
 
+// The number of cores, asked once: std::thread::hardware_concurrency() reads /sys/devices/system/cpu/online on every
+// call (an open, a read and a close), which cost more than building a small mesh's whole DAG.
+inline size_t core_count() {
+    static const size_t cores = std::max(1u, std::thread::hardware_concurrency());
+    return cores;
+}
+
 // Runs body(0..count-1) on every core. body must not throw (an exception on a worker thread ends the process).
 inline void parallel_for(size_t count, const std::function<void(size_t)>& body) {
-    const size_t threads = std::min<size_t>(count, std::max(1u, std::thread::hardware_concurrency()));
+    if (count <= 1) {  // nothing to share
+        if (count == 1) body(0);
+        return;
+    }
+    const size_t threads = std::min<size_t>(count, core_count());
     std::atomic<size_t> nextIndex{0};
     auto work = [&] {
         for (size_t i = nextIndex++; i < count; i = nextIndex++) body(i);

@@ -513,6 +513,12 @@ NB_MODULE(_tessera, m) {
     nb::class_<RenderIndex>(m, "RenderIndex")
         .def(nb::init<RenderDelegate&>(), "delegate"_a, nb::keep_alive<1, 2>())
         .def("insert_rprim", &RenderIndex::insert_rprim, "type"_a, "id"_a, "instancer_id"_a = "")
+        .def(
+            "insert_rprims",
+            [](RenderIndex& index, const std::string& type, const std::vector<PrimId>& ids) {
+                for (const PrimId& id : ids) index.insert_rprim(type, id);
+            },
+            "type"_a, "ids"_a, "insert_rprim for each id in turn (no instancer): one call for a whole walk's finds.")
         .def("insert_sprim", &RenderIndex::insert_sprim, "type"_a, "id"_a)
         .def("remove_prim", &RenderIndex::remove_prim, "id"_a)
         .def("mark_dirty", &RenderIndex::mark_dirty, "id"_a, "bits"_a)

@@ -2,6 +2,8 @@
 walk saw must not be trusted, and where the work it skips (material bindings on a stage without materials) must come
 back when the stage changes."""
 
+import numpy as np
+import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 import tessera
@@ -116,3 +118,180 @@ def test_meshes_no_rendered_view_sees_are_not_built_until_one_does():
 
     fresh = tessera.Session(stage, validation=True).render(resolution=(80, 40), aovs=("primId",))  # framing camera
     assert fresh.stats["meshes_out_of_view"] == 0 and fresh.stats["meshes_built"] + fresh.stats["meshes_cached"] == 3
+
+
+# -- world transforms computed by the walk (scene_delegate._WorldTransforms) against UsdGeom.XformCache ------------
+
+def _cube(stage, path):
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.GetPointsAttr().Set([(0, 0, 0), (1, 0, 0), (1, 1, 0)])
+    mesh.GetFaceVertexCountsAttr().Set([3])
+    mesh.GetFaceVertexIndicesAttr().Set([0, 1, 2])
+    return mesh
+
+
+def _layered_transform_stage():
+    """Transforms from every place a stage gets them: a sublayer overridden by the root layer, a reference with a
+    layer offset over time samples, a variant, resetXformStack, a mesh's own ops, a Scope (not Xformable: ops it
+    authors do not count), an instance (so the walk also meets prototypes) and a hidden subtree."""
+    asset = Sdf.Layer.CreateAnonymous("asset.usda")
+    asset_stage = Usd.Stage.Open(asset)
+    root = UsdGeom.Xform.Define(asset_stage, "/Asset")
+    op = root.AddTranslateOp()
+    op.Set(Gf.Vec3d(1, 0, 0), 0)
+    op.Set(Gf.Vec3d(11, 0, 0), 10)
+    root.AddRotateZOp().Set(30.0)
+    _cube(asset_stage, "/Asset/Body").AddScaleOp().Set(Gf.Vec3f(2, 2, 2))
+    weak = Sdf.Layer.CreateAnonymous("weak.usda")
+    weak_stage = Usd.Stage.Open(weak)
+    world = UsdGeom.Xform.Define(weak_stage, "/World")
+    world.AddTranslateOp().Set(Gf.Vec3d(0, 5, 0))
+    world.AddScaleOp().Set(Gf.Vec3f(1, 1, 3))
+    _cube(weak_stage, "/World/Group/Mesh")
+    UsdGeom.Xform.Define(weak_stage, "/World/Group").AddTranslateOp().Set(Gf.Vec3d(0, 0, 1))
+
+    stage = Usd.Stage.CreateInMemory()
+    stage.GetRootLayer().subLayerPaths.append(weak.identifier)
+    # The root layer's opinions win: the group moves elsewhere and gains a rotation.
+    group = UsdGeom.Xformable(stage.GetPrimAtPath("/World/Group"))
+    group.GetOrderedXformOps()[0].Set(Gf.Vec3d(4, 0, 0))
+    group.AddRotateXOp().Set(90.0)
+    placed = stage.DefinePrim("/World/Placed")
+    placed.GetReferences().AddReference(Sdf.Reference(asset.identifier, "/Asset", Sdf.LayerOffset(offset=5.0)))
+    reset = UsdGeom.Xform.Define(stage, "/World/Group/Reset")
+    reset.SetResetXformStack(True)
+    reset.AddTranslateOp().Set(Gf.Vec3d(0, 0, 7))
+    _cube(stage, "/World/Group/Reset/Mesh").AddRotateYOp().Set(45.0)
+    only_reset = UsdGeom.Xform.Define(stage, "/World/Group/OnlyReset")
+    only_reset.SetResetXformStack(True)
+    _cube(stage, "/World/Group/OnlyReset/Mesh")
+    scope = UsdGeom.Scope.Define(stage, "/World/Scope")
+    scope.GetPrim().CreateAttribute("xformOp:translate", Sdf.ValueTypeNames.Double3).Set(Gf.Vec3d(100, 0, 0))
+    scope.GetPrim().CreateAttribute("xformOpOrder", Sdf.ValueTypeNames.TokenArray).Set(["xformOp:translate"])
+    _cube(stage, "/World/Scope/Mesh")
+    switch = UsdGeom.Xform.Define(stage, "/World/Switch")
+    variants = switch.GetPrim().GetVariantSets().AddVariantSet("place")
+    for name, offset in (("near", 1.0), ("far", 50.0)):
+        variants.AddVariant(name)
+        variants.SetVariantSelection(name)
+        with variants.GetVariantEditContext():
+            UsdGeom.Xform(switch.GetPrim()).AddTranslateOp().Set(Gf.Vec3d(offset, 0, 0))
+            _cube(stage, "/World/Switch/Mesh")
+    variants.SetVariantSelection("far")
+    hidden = UsdGeom.Xform.Define(stage, "/World/Hidden")
+    hidden.AddTranslateOp().Set(Gf.Vec3d(0, 3, 0))
+    hidden.CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+    _cube(stage, "/World/Hidden/Mesh")
+    instance = stage.DefinePrim("/World/Instance")
+    instance.GetReferences().AddReference(Sdf.Reference(asset.identifier, "/Asset"))
+    instance.SetInstanceable(True)
+    return stage, (asset, weak)
+
+
+def _usd_world(stage, path, time):
+    return np.asarray(UsdGeom.XformCache(time).GetLocalToWorldTransform(stage.GetPrimAtPath(path))).T.ravel()
+
+
+def _delegate(stage, time=Usd.TimeCode.Default()):
+    from tessera import _tessera
+    from tessera.usd import UsdSceneDelegate
+
+    index = _tessera.RenderIndex(_tessera.RenderDelegate(device="cpu", validation=True))
+    delegate = UsdSceneDelegate(stage, index, time=time)
+    delegate.populate()
+    return delegate, index
+
+
+@pytest.mark.parametrize("time", [Usd.TimeCode.Default(), Usd.TimeCode(7.5)])
+def test_walked_world_transforms_are_usds(time):
+    stage, _layers = _layered_transform_stage()
+    delegate, _index = _delegate(stage, time)
+    plain = sorted(id for id, record in delegate.rprims.items() if record.group is None)
+    assert plain == ["/World/Group/Mesh", "/World/Group/OnlyReset/Mesh", "/World/Group/Reset/Mesh", "/World/Hidden/Mesh",
+                     "/World/Placed/Body", "/World/Scope/Mesh", "/World/Switch/Mesh"]
+    assert set(delegate._walked_worlds) == set(plain), "the walk computed every plain mesh's transform"
+    for id in plain:
+        walked = np.array(delegate.get_transform(id))  # the first read takes the walk's
+        assert not np.isnan(walked).any()
+        assert np.allclose(walked, _usd_world(stage, id, time), rtol=0, atol=1e-12), id
+        assert id not in delegate._walked_worlds, "used once"
+        assert np.array_equal(np.array(delegate.get_transform(id)), walked), "read again through USD: the same"
+
+
+def test_walked_world_transforms_are_dropped_by_edits_and_time():
+    """A mesh's walked transform is used only by the first sync after the walk: an edit above it, or another
+    time, before that sync (a hidden mesh waits for its first show) means reading it again."""
+    from tessera.usd import ChangeTracker
+
+    stage, _layers = _layered_transform_stage()
+    delegate, _index = _delegate(stage)
+    changes = ChangeTracker(stage)
+    UsdGeom.Xformable(stage.GetPrimAtPath("/World")).GetOrderedXformOps()[0].Set(Gf.Vec3d(0, -8, 0))
+    delegate.apply_changes(*changes.take())
+    for id in ("/World/Hidden/Mesh", "/World/Group/Mesh"):
+        assert np.allclose(delegate.get_transform(id), _usd_world(stage, id, Usd.TimeCode.Default()), atol=1e-12), id
+    delegate.set_time(Usd.TimeCode(3.0))  # re-walked prims then a new time: the walk's time no longer applies
+    assert np.allclose(delegate.get_transform("/World/Placed/Body"), _usd_world(stage, "/World/Placed/Body", Usd.TimeCode(3.0)),
+                       atol=1e-12)
+    # A re-walked subtree (a variant switch) notes fresh transforms.
+    stage.GetPrimAtPath("/World/Switch").GetVariantSets().SetSelection("place", "near")
+    delegate.apply_changes(*changes.take())
+    assert "/World/Switch/Mesh" in delegate._walked_worlds
+    assert np.allclose(delegate.get_transform("/World/Switch/Mesh"), _usd_world(stage, "/World/Switch/Mesh", Usd.TimeCode(3.0)),
+                       atol=1e-12)
+
+
+@pytest.mark.parametrize("orientation, double_sided, scheme", [
+    (None, None, None), (UsdGeom.Tokens.leftHanded, None, "none"), (UsdGeom.Tokens.leftHanded, True, "none"),
+    (UsdGeom.Tokens.rightHanded, False, "catmullClark"), (None, True, "loop")])
+def test_the_short_mesh_read_matches_the_full_one(orientation, double_sided, scheme):
+    """A mesh that authors no primvars, normals or holes is read by a short path (_plain_mesh_source); an empty
+    holeIndices sends the same mesh through the full reader: both render the same."""
+    images = []
+    for full in (False, True):
+        stage, quad = _stage()
+        quad.GetPointsAttr().Set([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0), (0, 0, 0.5)])
+        quad.GetFaceVertexCountsAttr().Set([3, 3, 3, 3])
+        quad.GetFaceVertexIndicesAttr().Set([0, 1, 4, 1, 2, 4, 2, 3, 4, 3, 0, 4])
+        quad.GetPrim().RemoveProperty("subdivisionScheme")  # unauthored unless the case authors it
+        for attribute, value in ((quad.GetOrientationAttr(), orientation), (quad.GetDoubleSidedAttr(), double_sided),
+                                 (quad.GetSubdivisionSchemeAttr(), scheme)):
+            if value is not None:
+                attribute.Set(value)
+        if full:
+            quad.GetHoleIndicesAttr().Set([])
+        result = tessera.Session(stage, validation=True).render(camera="/Camera", resolution=(64, 32), aovs=("primId", "normal"))
+        images.append((result["primId"].ids(), result["normal"].pixels))
+    (ids, normals), (full_ids, full_normals) = images
+    assert (ids != NO_HIT).any() or orientation == UsdGeom.Tokens.leftHanded, "the pyramid shows"
+    assert np.array_equal(ids, full_ids)
+    assert np.array_equal(normals, full_normals)
+
+
+def test_a_transform_usd_rejects_is_left_to_the_sync():
+    """Ops USD cannot evaluate (a scale of one double) stop the walk's transforms below that prim, and only there:
+    the meshes under it read theirs in their sync, which reports the prim by name (test_render.py); a reset below
+    it starts afresh."""
+    stage, _ = _stage()
+    bad = UsdGeom.Xform.Define(stage, "/Bad")
+    bad.GetPrim().CreateAttribute("xformOp:scale", Sdf.ValueTypeNames.Double).Set(2.0)
+    bad.GetPrim().CreateAttribute("xformOpOrder", Sdf.ValueTypeNames.TokenArray).Set(["xformOp:scale"])
+    _cube(stage, "/Bad/Mesh")
+    reset = UsdGeom.Xform.Define(stage, "/Bad/Reset")
+    reset.SetResetXformStack(True)
+    reset.AddTranslateOp().Set(Gf.Vec3d(0, 2, 0))
+    _cube(stage, "/Bad/Reset/Mesh")
+    _cube(stage, "/Good/Mesh").AddTranslateOp().Set(Gf.Vec3d(1, 0, 0))
+    delegate, _index = _delegate(stage)
+    assert set(delegate._walked_worlds) == {"/Quad", "/Bad/Reset/Mesh", "/Good/Mesh"}
+    for id in ("/Bad/Reset/Mesh", "/Good/Mesh"):
+        assert np.allclose(delegate.get_transform(id), _usd_world(stage, id, Usd.TimeCode.Default()), atol=1e-12)
+    with pytest.raises(Exception, match="opType"):
+        delegate.get_transform("/Bad/Mesh")
+    # A subtree walked again under the rejected ops (a prim added there) is left to the sync the same way.
+    from tessera.usd import ChangeTracker
+
+    changes = ChangeTracker(stage)
+    _cube(stage, "/Bad/Added")
+    delegate.apply_changes(*changes.take())
+    assert "/Bad/Added" in delegate.rprims and "/Bad/Added" not in delegate._walked_worlds

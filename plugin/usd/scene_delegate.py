@@ -21,7 +21,7 @@ import gc
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
 from . import change_tracker, implicit, lights, materials, mesh_settings, point_instancer
@@ -32,9 +32,10 @@ _LIGHT_TYPES = lights.SPRIM_TYPES
 _PROTOTYPE_PREDICATE = Usd.PrimIsActive & Usd.PrimIsLoaded & ~Usd.PrimIsAbstract  # PointInstancer prototypes: `over` too
 
 
-def to_column_major(gf_matrix) -> list[float]:
-    """Gf (row vectors) -> the C++ convention (row-major, column vectors)."""
-    return np.asarray(gf_matrix, dtype=np.float64).T.ravel().tolist()
+def to_column_major(gf_matrix: Gf.Matrix4d) -> list[float]:
+    """Gf (row vectors) -> the C++ convention (row-major, column vectors). Through the matrix's own buffer: once per
+    mesh on a first sync, where numpy's view, transpose and copy cost 1.5x as much."""
+    return memoryview(gf_matrix.GetTranspose()).cast("B").cast("d").tolist()
 
 
 @dataclass(slots=True)  # one per rprim: 100 k of them on big stages
@@ -53,7 +54,7 @@ class _Rprim:
     subset_materials: tuple = ()  # the materials of its materialBind GeomSubsets (slots 1, 2, ...), "" for the mesh's own
     # What the last walk found (None once read): the first sync after a walk need not ask USD again.
     walked_visible: bool | None = None
-    walked_authored: list | None = None  # its authored property names
+    walked_authored: _AuthoredNames | None = None
 
 
 @dataclass
@@ -69,24 +70,98 @@ class _Group:
     order: list[str] = field(default_factory=list)
 
 
+class _AuthoredNames(frozenset):
+    """A mesh's authored property names, one shared object per distinct set (100 k meshes that author the same
+    names hold one), with what the mesh reader asks of them worked out once."""
+
+    __slots__ = ("tessera", "plain")
+
+    # Read by name when authored; anything else a mesh reader reads (normals, primvars, holes) makes it not plain.
+    _PLAIN = frozenset({"points", "faceVertexCounts", "faceVertexIndices", "subdivisionScheme", "orientation",
+                        "doubleSided"})
+    _OTHER_READS = ("normals", "primvars:", "holeIndices")
+
+    def __new__(cls, names):
+        self = super().__new__(cls, names)
+        self.tessera = any(name.startswith("tessera:") for name in names)  # TesseraMeshAPI settings authored
+        self.plain = not any(name.startswith(cls._OTHER_READS) for name in names)
+        return self
+
+
 class _Purposes:
     """Computed purposes along a depth-first walk, by UsdGeom's rule: a prim's authored purpose, else its nearest
     ancestor's (`inherited` above the walk's root)."""
 
     def __init__(self, inherited: str = UsdGeom.Tokens.default_):
         self.inherited = inherited
-        self._authored: list[tuple] = []  # (path, purpose) of the ancestors that author one, outermost first
+        # (path, purpose) of the ancestors that author one, outermost first; while empty, a prim that authors no
+        # purpose has `inherited` (the walk then need not call `of`).
+        self.authored: list[tuple] = []
 
     def of(self, prim: Usd.Prim, path, authored=None) -> str:
         """`authored`: the prim's authored property names, when known (purpose is then read only where authored)."""
-        while self._authored and not path.HasPrefix(self._authored[-1][0]):
-            self._authored.pop()
+        while self.authored and not path.HasPrefix(self.authored[-1][0]):
+            self.authored.pop()
         if authored is None or "purpose" in authored:
             attribute = UsdGeom.Imageable(prim).GetPurposeAttr()
             if attribute.HasAuthoredValue():
-                self._authored.append((path, attribute.Get()))
-                return self._authored[-1][1]
-        return self._authored[-1][1] if self._authored else self.inherited
+                self.authored.append((path, attribute.Get()))
+                return self.authored[-1][1]
+        return self.authored[-1][1] if self.authored else self.inherited
+
+
+_UNKNOWN = object()  # a world transform the walk could not compute (USD rejected an ancestor's ops)
+
+
+class _WorldTransforms:
+    """World transforms along a depth-first walk, by UsdGeom's rule (a prim's local transform times its parent's
+    world, unless its xformOpOrder resets the stack). Only prims that author xformOpOrder have a local transform
+    other than the identity, so only those are read, each once: a mesh's world transform then costs no USD call of
+    its own, where an XformCache look-up per mesh cost ~10 us and kept ~450 bytes per prim it passed."""
+
+    # Local transforms are read through an XformCache, emptied now and then: its entries are never asked for again.
+    _CLEAR_EVERY = 1024
+
+    _IDENTITY = Gf.Matrix4d(1.0)
+
+    def __init__(self, parent_world, time: Usd.TimeCode):
+        # (path, world) of the ancestors that author ops, outermost first, above the walk's parent world (None when
+        # the identity: a product with it is skipped).
+        identity = parent_world is not _UNKNOWN and parent_world == self._IDENTITY
+        self._stack: list[tuple] = [(None, None if identity else parent_world)]
+        self._cache = UsdGeom.XformCache(time)
+        self._reads = 0
+
+    def _parent(self, path) -> Gf.Matrix4d | None:
+        stack = self._stack
+        while len(stack) > 1 and not path.HasPrefix(stack[-1][0]):
+            stack.pop()
+        return stack[-1][1]
+
+    def enter(self, prim: Usd.Prim, path) -> Gf.Matrix4d | None:
+        """A prim that authors xformOpOrder (and is Xformable): its world transform, noted for its subtree. None when
+        USD rejects its ops (a scale op of one double, say): below it, nothing is known, and the meshes' syncs read
+        their transforms through USD, which names the prim and skips it as before."""
+        parent = self._parent(path)
+        try:
+            local, resets = self._cache.GetLocalTransformation(prim)
+        except Tf.ErrorException:
+            self._stack.append((path, _UNKNOWN))
+            return None
+        self._reads += 1
+        if self._reads % self._CLEAR_EVERY == 0:
+            self._cache.Clear()
+        if parent is _UNKNOWN and not resets:
+            world = _UNKNOWN
+        else:
+            world = local if resets or parent is None else local * parent
+        self._stack.append((path, world))
+        return None if world is _UNKNOWN else world
+
+    def world(self, path) -> Gf.Matrix4d | None:
+        """The world transform of a prim that authors no ops (its nearest ancestor's that does), None if unknown."""
+        world = self._parent(path)
+        return self._IDENTITY if world is None else None if world is _UNKNOWN else world
 
 
 def inherited_purpose(prim: Usd.Prim) -> str:
@@ -104,7 +179,8 @@ class _Found:
     """What a walk of part of the stage found outside instancing contexts."""
     rprims: dict[str, Usd.Prim] = field(default_factory=dict)
     hidden: set[str] = field(default_factory=set)  # rprims found under (or at) an invisible prim
-    authored: dict[str, list] = field(default_factory=dict)  # rprim -> its authored property names
+    authored: dict[str, _AuthoredNames] = field(default_factory=dict)  # rprim -> its authored property names
+    worlds: dict[str, Gf.Matrix4d] = field(default_factory=dict)  # rprim -> its world transform
     sprims: dict[str, str] = field(default_factory=dict)  # cameras and lights: path -> type
     natives: dict[str, list[str]] = field(default_factory=dict)  # prototype path -> instance prim paths
     instancers: list[str] = field(default_factory=list)
@@ -138,7 +214,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         self._watch = PathIndex()  # prim path -> keys of the instancing groups that read its subtree
         self._material_users: dict[str, set[str]] = {}  # material path -> ids of the rprims bound to it
         self._time_varying: dict[str, set[str]] | None = None  # prim path -> time-varying attributes (on first need)
-        self._kinds: dict[str, tuple[bool, str | None]] = {}  # prim type name -> (imageable, role)
+        self._kinds: dict[str, tuple[bool, str | None, bool]] = {}  # prim type name -> (imageable, role, xformable)
+        self._authored_sets: dict[tuple, _AuthoredNames] = {}  # one shared set per distinct list of names
+        # World transforms (row vectors) of gprims drawn once that a walk computed and no sync has used yet.
+        self._walked_worlds: dict[str, Gf.Matrix4d] = {}
 
     @property
     def materials(self) -> set[str]:
@@ -182,33 +261,64 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         Geometry and instancing of a purpose not rendered is not read (its descendants may author another purpose);
         cameras and lights are used whatever their purpose, as Hydra's render tags apply to geometry."""
         hidden_under = root.GetPath() if hidden else None
-        purposes = _Purposes(inherited_purpose(root.GetParent()) if not root.IsPseudoRoot() else UsdGeom.Tokens.default_)
+        at_top = root.IsPseudoRoot()
+        purposes = _Purposes(inherited_purpose(root.GetParent()) if not at_top else UsdGeom.Tokens.default_)
+        parent_world = Gf.Matrix4d(1.0)
+        if not at_top:
+            try:
+                parent_world = self.xform_cache.GetLocalToWorldTransform(root.GetParent())
+            except Tf.ErrorException:  # ops USD rejects above: the meshes' syncs read (and report) their transforms
+                parent_world = _UNKNOWN
+        worlds = _WorldTransforms(parent_world, self.time)
+        # Without prototypes there are no instances: the per-prim instance test is skipped.
+        may_instance = bool(self.stage.GetPrototypes())
+        kinds, drawn_purposes, authored_sets = self._kinds, self.purposes, self._authored_sets
         it = iter(Usd.PrimRange(root))
+        if at_top:
+            next(it)
         for prim in it:
-            if prim.IsPseudoRoot():
-                continue
             path = prim.GetPath()
             if hidden_under is not None and not path.HasPrefix(hidden_under):
                 hidden_under = None
-            imageable, role = self._kind(prim)
-            authored = None
+            imageable, role, xformable = kinds.get(prim.GetTypeName()) or self._kind(prim)
+            authored = world = None
+            entered = False
+            instance = may_instance and prim.IsInstance()
             drawn = True
             if imageable:
                 # One call lists what the prim authors; purpose and visibility are read only where authored (their
                 # fallbacks are inherited): three times faster than reading both on every prim.
                 authored = prim.GetAuthoredPropertyNames()
-                drawn = purposes.of(prim, path, authored) in self.purposes
+                if "purpose" in authored or purposes.authored:
+                    drawn = purposes.of(prim, path, authored) in drawn_purposes
+                else:
+                    drawn = purposes.inherited in drawn_purposes
                 if hidden_under is None and "visibility" in authored and \
                         prim.GetAttribute("visibility").Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
-            if prim.IsInstance():  # also a PointInstancer prototype root that is itself instanceable
+                # Instances and PointInstancers place their copies themselves (_visit): the walk stops there.
+                entered = xformable and "xformOpOrder" in authored and not instance and role != "pointInstancer"
+                if entered:
+                    world = worlds.enter(prim, path)
+            if instance:  # also a PointInstancer prototype root that is itself instanceable
                 if hidden_under is None and drawn:
                     found.natives.setdefault(str(prim.GetPrototype().GetPath()), []).append(str(path))
                 it.PruneChildren()
                 continue
             if role is None:
                 continue
-            if role == "pointInstancer":
+            if role == "mesh" and drawn:
+                key = str(path)
+                found.rprims[key] = prim
+                names = authored_sets.get(tuple(authored))
+                found.authored[key] = names if names is not None else self._authored_names(authored)
+                if world is None and not entered:
+                    world = worlds.world(path)
+                if world is not None:
+                    found.worlds[key] = world
+                if hidden_under is not None:
+                    found.hidden.add(key)
+            elif role == "pointInstancer":
                 if hidden_under is None and drawn:
                     found.instancers.append(str(path))
                 it.PruneChildren()
@@ -219,18 +329,13 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                     found.sprims[str(path)] = role
             elif not drawn:
                 continue  # geometry of a purpose not rendered: not read
-            elif role == "mesh":
-                key = str(path)
-                found.rprims[key] = prim
-                found.authored[key] = authored
-                if hidden_under is not None:
-                    found.hidden.add(key)
-            else:
+            elif role != "mesh":
                 self.warnings.append(f"{path}: {prim.GetTypeName()} is not drawn (not supported yet)")
 
-    def _kind(self, prim: Usd.Prim) -> tuple[bool, str | None]:
-        """(imageable, role) of a prim's type, found once per type name (IsA depends on the type alone). Roles:
-        pointInstancer, camera, the light sprim types, mesh (drawn), unsupported (a gprim or light not drawn), None."""
+    def _kind(self, prim: Usd.Prim) -> tuple[bool, str | None, bool]:
+        """(imageable, role, xformable) of a prim's type, found once per type name (IsA depends on the type alone).
+        Roles: pointInstancer, camera, the light sprim types, mesh (drawn), unsupported (a gprim or light not drawn),
+        None."""
         type_name = prim.GetTypeName()
         kind = self._kinds.get(type_name)
         if kind is None:
@@ -245,7 +350,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 role = "unsupported"  # disk, cylinder, portal and geometry lights
             elif prim.IsA(UsdGeom.Gprim):
                 role = "mesh" if prim.IsA(UsdGeom.Mesh) or implicit.supported(prim) else "unsupported"
-            kind = self._kinds[type_name] = (prim.IsA(UsdGeom.Imageable), role)
+            kind = self._kinds[type_name] = (prim.IsA(UsdGeom.Imageable), role, prim.IsA(UsdGeom.Xformable))
         return kind
 
     def _visit(self, root: Usd.Prim, copies: np.ndarray, frame: Usd.Prim | None, context: str,
@@ -353,6 +458,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if hidden is not None:
             self._walk(prim, hidden, found)
         resync = survivor_bits == _dirty.ALL
+        self._walked_worlds.update(found.worlds)
 
         # Gprims drawn once, cameras and lights: ids are prim paths.
         for id in self._paths.under(path):
@@ -361,10 +467,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 self._remove_rprim(id)
             elif self.sprims.get(id, "material") != "material" and id not in found.sprims:
                 self._remove_sprim(id)
+        new = []
         for id, found_prim in found.rprims.items():
             record = self.rprims.get(id)
             if record is None:
-                self._insert_rprim(id, _Rprim(found_prim, walked_visible=id not in found.hidden, walked_authored=found.authored[id]))
+                new.append(id)
                 continue
             record.walked_visible, record.walked_authored = id not in found.hidden, found.authored[id]
             if resync:
@@ -373,6 +480,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 self.index.mark_dirty(id, survivor_bits)
             elif survivor_bits:
                 self.index.mark_dirty(id, survivor_bits)
+        self._insert_walked(new, found)
         for id, kind in found.sprims.items():
             if self.sprims.get(id) not in (None, kind):
                 self._remove_sprim(id)
@@ -489,6 +597,15 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         group.order = anchors
         return group.copies
 
+    def _insert_walked(self, ids: list[str], found: _Found) -> None:
+        """Gprims drawn once that a walk found and the index lacks, inserted into the index in one call."""
+        for id in ids:
+            record = self.rprims[id] = _Rprim(found.rprims[id], walked_visible=id not in found.hidden,
+                                              walked_authored=found.authored[id])
+            self._paths.add(id, id)
+            self._rebind(id, record)
+        self.index.insert_rprims("mesh", ids)
+
     def _insert_rprim(self, id: str, record: _Rprim) -> None:
         self.rprims[id] = record
         self._paths.add(id if record.group is None else str(record.prim.GetPath()), id)  # a plain rprim's id is its path
@@ -544,6 +661,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _rebind(self, id: str, record: _Rprim, mark: bool = False) -> bool:
         """Resolves the rprim's material binding (inserting the material's sprim when it is new); True if it changed."""
+        if not record.material and not record.subset_materials and not self._stage_has("Material") and \
+                not self._stage_has("GeomSubset"):
+            return False  # nothing bound and nothing to bind: what the resolution below would find
         material = self._bound_material(record.prim)
         subsets = tuple(self._bound_material(s.GetPrim()) for s in self._material_subsets(record.prim))
         if (material, subsets) == (record.material, record.subset_materials) and \
@@ -585,6 +705,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 record = self.rprims.get(id)
                 if record is not None:
                     record.walked_visible = record.walked_authored = None
+        self._forget_walked_worlds()  # an edit above a prim moves it: walked transforms not yet synced are read afresh
         roots = _outermost(resynced)
         if roots:
             self._time_varying = None  # recomposed: what varies in time is looked up again when next needed
@@ -654,6 +775,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         self.xform_cache.SetTime(time)
         self.apply_changes(set(), changed)
 
+    def _forget_walked_worlds(self) -> None:
+        """Drops the world transforms that walks noted and no sync used yet (a hidden mesh keeps its own until it
+        shows): an edit or a new time may have moved them."""
+        self._walked_worlds.clear()
+
     def _find_time_varying(self) -> dict[str, set[str]]:
         """Every authored attribute whose value may change with time, on the stage and in its prototypes."""
         varying: dict[str, set[str]] = {}
@@ -667,21 +793,51 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     # -- SceneDelegate ----------------------------------------------------------------------------------
 
+    def _authored_names(self, names: list[str]) -> _AuthoredNames:
+        key = tuple(names)
+        shared = self._authored_sets.get(key)
+        if shared is None:
+            shared = self._authored_sets[key] = _AuthoredNames(key)
+        return shared
+
     def get_mesh(self, id: str):
         record = self.rprims[id]
         prim = record.prim
         # One call says which properties carry opinions: the reads below skip the others (a mesh authors a few of the
         # dozen attributes a mesh may have; each read is a round trip through usd-core).
         authored, record.walked_authored = record.walked_authored, None
-        authored = set(authored if authored is not None else prim.GetAuthoredPropertyNames())
-        source = self._mesh_source(prim, authored, record.material, id if record.group is None else str(prim.GetPath()))
-        if any(name.startswith("tessera:") for name in authored):
+        if authored is None:
+            authored = self._authored_names(prim.GetAuthoredPropertyNames())
+        name = id if record.group is None else str(prim.GetPath())
+        if authored.plain and "points" in authored and not self._stage_has("GeomSubset"):
+            source = self._plain_mesh_source(prim, authored, name)
+        else:
+            source = self._mesh_source(prim, authored, record.material, name)
+        if authored.tessera:
             source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
         else:  # nothing of TesseraMeshAPI authored: the render's defaults, applied or not
             source.settings = self.build_settings
         return source
 
-    def _mesh_source(self, prim: Usd.Prim, authored: set[str], material: str, name: str):
+    def _plain_mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, name: str):
+        """The common mesh, read in as few steps as can be: no primvars, normals or holes authored, no GeomSubsets on
+        the stage (what _mesh_source makes of it, with less Python per mesh)."""
+        t = self.time
+        attribute = prim.GetAttribute
+        points = attribute("points").Get(t)
+        counts = attribute("faceVertexCounts").Get(t) if "faceVertexCounts" in authored else None
+        indices = attribute("faceVertexIndices").Get(t) if "faceVertexIndices" in authored else None
+        if points is None or counts is None or indices is None:
+            return self._mesh_source(prim, authored, "", name)  # a Cube or Sphere, or the error named there
+        scheme = attribute("subdivisionScheme").Get(t) if "subdivisionScheme" in authored else None
+        left_handed = "orientation" in authored and attribute("orientation").Get(t) == UsdGeom.Tokens.leftHanded
+        double_sided = "doubleSided" in authored and bool(attribute("doubleSided").Get(t))
+        return _tessera.mesh_source(
+            name, np.asarray(points, np.float32).reshape(-1), np.asarray(counts, np.int32), np.asarray(indices, np.int32),
+            None, left_handed, double_sided, None, "vertex", None, None, "constant", None, None, "faceVarying", None, None,
+            scheme or "catmullClark", self.refine_level)
+
+    def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, material: str, name: str):
         if not prim.IsA(UsdGeom.Mesh):
             return implicit.mesh_source(prim, self.time)
         t = self.time
@@ -760,7 +916,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return self._material_uv_primvar(str(material.GetPath())) if material else "st"
 
     def get_transform(self, id: str):
-        return to_column_major(self.xform_cache.GetLocalToWorldTransform(self.rprims[id].prim))
+        world = self._walked_worlds.pop(id, None)
+        if world is None:
+            world = self.xform_cache.GetLocalToWorldTransform(self.rprims[id].prim)
+        return to_column_major(world)
 
     def get_visible(self, id: str) -> bool:
         record = self.rprims[id]

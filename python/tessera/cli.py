@@ -263,6 +263,9 @@ class _Collector:
     def insert_rprim(self, kind, prim_id, instancer_id=""):
         self.meshes.append(prim_id)
 
+    def insert_rprims(self, kind, prim_ids):
+        self.meshes.extend(prim_ids)
+
     def insert_sprim(self, kind, prim_id):
         pass
 
