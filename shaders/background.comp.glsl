@@ -33,7 +33,7 @@ vec3 dome_background(GpuFrame frame, GpuLight light, vec2 pixel) {
 }
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     uvec2 pixel = gl_GlobalInvocationID.xy;
     if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
     uint index = pixel.y * frame.viewport.x + pixel.x;

@@ -4,7 +4,6 @@
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #include "shared.h"
 
-layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer FrameRef { GpuFrame f; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceRef { GpuInstance data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceBatchRef { GpuInstanceBatch data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MeshRef { GpuMesh data[]; };
@@ -27,9 +26,14 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchRef { 
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchDrawRef { uvec4 data[]; };  // VkDrawIndirectCommand
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer PatchPointRef { float data[]; };
 
-// layout: renderer.cpp PushConstants. `step`: the cull step (TS_CULL_*) or the HZB level being built; `hzb`: the
-// HZB that step tests against or builds.
-layout(push_constant) uniform Push { FrameRef frame; uint aov; uint step; HzbRef hzb; } push;
+// The frame's constants (renderer.cpp: frameSet). A uniform block rather than a buffer reference: a CPU device
+// (lavapipe) loads it once per SIMD batch, where it loads through an address lane by lane.
+layout(set = 0, binding = 0, std140) uniform FrameBlock { GpuFrame frameConstants; };
+
+// layout: renderer.cpp PushConstants (and ResolvePushConstants). `step`: the cull step (TS_CULL_*), the HZB level being
+// built or resolve's material; `hzb`: the HZB that step tests against or builds; `material`: resolve's, GpuMaterial
+// data[step] (only resolve's dispatches push it).
+layout(push_constant) uniform Push { uint aov; uint step; HzbRef hzb; GpuMaterial material; } push;
 
 // Nearest and farthest view depth of a sphere (camera-relative world).
 vec2 depth_range(GpuFrame frame, vec3 center, float radius) {

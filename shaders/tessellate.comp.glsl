@@ -40,7 +40,7 @@ bool dice_in_compute(GpuFrame frame, vec3 p[3], float reach) {
 }
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
     if (k >= draw.state.tessClusters) return;
