@@ -27,7 +27,9 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchDrawRe
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer PatchPointRef { float data[]; };
 
 // The frame's constants (renderer.cpp: frameSet). A uniform block rather than a buffer reference: a CPU device
-// (lavapipe) loads it once per SIMD batch, where it loads through an address lane by lane.
+// (lavapipe) loads it once per SIMD batch, where it loads through an address lane by lane. Passes copy it into a local
+// `frame`; arrays indexed by a variable (lights, frustum planes) are read from frameConstants itself (see lights in
+// resolve.comp.glsl).
 layout(set = 0, binding = 0, std140) uniform FrameBlock { GpuFrame frameConstants; };
 
 // layout: renderer.cpp PushConstants (and ResolvePushConstants). `step`: the cull step (TS_CULL_*), the HZB level being
@@ -108,9 +110,11 @@ float instance_scale(Instance instance) {
     return sqrt(max(largest, 0.0)) * 1.000002;  // a hair above: float rounding must not shrink bounds
 }
 
+// The planes are read from the uniform block, not from the caller's copy `frame`: a copy's array indexed by a
+// variable is copied whole into scratch memory for each invocation (on lavapipe, lane by lane).
 bool sphere_in_frustum(GpuFrame frame, vec3 center, float radius) {
     for (int i = 0; i < 6; ++i)
-        if (dot(frame.frustumPlanes[i].xyz, center) + frame.frustumPlanes[i].w < -radius) return false;
+        if (dot(frameConstants.frustumPlanes[i].xyz, center) + frameConstants.frustumPlanes[i].w < -radius) return false;
     return true;
 }
 

@@ -202,8 +202,10 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     }
     vec3 toEye = -direction;
     vec3 color = emission;
+    // Each light read from the uniform block itself: indexing the local copy `frame` by a variable made the compiler
+    // copy every light of it for each pixel (on lavapipe half of resolve's time, with two lights).
     for (uint i = 0u; i < frame.viewport.w; ++i)  // no shadowing yet
-        color += light_contribution(frame, frame.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
+        color += light_contribution(frame, frameConstants.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }
 
