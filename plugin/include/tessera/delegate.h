@@ -199,12 +199,12 @@ private:
     CameraDesc desc_;
 };
 
-// Bprim: an AOV's image, written by execute().
+// Bprim: an AOV's image, written by execute() (shared with what execute() returns: not a copy per frame).
 class RenderBuffer : public Prim {
 public:
     using Prim::Prim;
     void sync(SceneDelegate&, RenderParam&, uint32_t) override {}
-    Image image;
+    std::shared_ptr<const Image> image;
 };
 
 // Creates prims of the types it supports and owns the device, renderer and GPU scene they feed.
@@ -259,7 +259,7 @@ public:
     // Syncs every dirty prim (sprims first: rprims refer to materials), then commits to the GPU scene.
     void sync_all(SceneDelegate& scene);
     // Renders the synced scene; the images also land in the render buffers named "aov:<name>".
-    std::vector<Image> execute(const RenderPassSettings& settings, FrameStats* stats = nullptr);
+    std::vector<std::shared_ptr<const Image>> execute(const RenderPassSettings& settings, FrameStats* stats = nullptr);
 
     // Path of the prim whose primId AOV value is `primId` ("" if none).
     PrimId prim_path(uint32_t primId) const;
