@@ -273,7 +273,7 @@ void RenderIndex::commit_resources() {
     if (!same_instances(instances, scene.instances())) scene.set_instances(std::move(instances));
 }
 
-std::vector<Image> RenderIndex::execute(const RenderPassSettings& settings, FrameStats* stats) {
+std::vector<std::shared_ptr<const Image>> RenderIndex::execute(const RenderPassSettings& settings, FrameStats* stats) {
     CameraDesc camera = settings.camera;
     if (!settings.cameraId.empty()) {
         auto it = sprims_.find(settings.cameraId);
@@ -318,11 +318,12 @@ std::vector<Image> RenderIndex::execute(const RenderPassSettings& settings, Fram
             break;
         }
     delegate_.scene().set_lights(std::move(lights));
-    std::vector<Image> images = delegate_.renderer().render(delegate_.scene(), camera, render, settings.aovs, stats);
-    for (const Image& image : images) {
-        const PrimId bufferId = std::string("aov:") + aov_name(image.aov);
+    std::vector<std::shared_ptr<const Image>> images;
+    for (Image& image : delegate_.renderer().render(delegate_.scene(), camera, render, settings.aovs, stats)) {
+        images.push_back(std::make_shared<const Image>(std::move(image)));
+        const PrimId bufferId = std::string("aov:") + aov_name(images.back()->aov);
         if (!bprims_.count(bufferId)) insert_bprim("renderBuffer", bufferId);
-        static_cast<RenderBuffer&>(*bprims_[bufferId].prim).image = image;
+        static_cast<RenderBuffer&>(*bprims_[bufferId].prim).image = images.back();
     }
     return images;
 }

@@ -550,8 +550,8 @@ NB_MODULE(_tessera, m) {
                 settings.aovs.clear();
                 for (auto& a : aovs) settings.aovs.push_back(aov_from(a));
                 FrameStats stats;
-                std::vector<Image> images = index.execute(settings, &stats);
-                return std::make_pair(images, stats_dict(stats));
+                std::vector<std::shared_ptr<const Image>> images = index.execute(settings, &stats);  // shared with the render buffers
+                return std::make_pair(std::move(images), stats_dict(stats));
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
             "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f)

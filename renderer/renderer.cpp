@@ -79,11 +79,18 @@ bool aov_is_id(Aov aov) { return aov == Aov::PrimId || aov == Aov::InstanceId ||
 namespace {
 
 struct PushConstants {  // matches `Push` in shaders/frame.h
-    gpu::address frame;
     uint32_t aov;
     uint32_t step;       // cull step (TS_CULL_*) or HZB level
     gpu::address hzb;    // the HZB the step tests against or builds
 };
+
+// Resolve's: the same, then its bin's material (a constant for all the dispatch's pixels, which a CPU device would
+// otherwise load pixel by pixel).
+struct ResolvePushConstants {
+    PushConstants pass;
+    gpu::GpuMaterial material;
+};
+static_assert(offsetof(ResolvePushConstants, material) == 16 && sizeof(ResolvePushConstants) == 112, "layout of Push in shaders/frame.h");
 
 // HZB level sizes (shaders/frame.h hzb_level_size): level l has a texel per 2^(l+1) pixels, down to 1x1.
 std::vector<std::array<uint32_t, 2>> hzb_levels(uint32_t width, uint32_t height) {
@@ -342,6 +349,12 @@ bool ViewFrustum::touches_box(const Matrix4d& transform, const std::array<double
 struct Renderer::Impl {
     Device& device;
     VkPipelineLayout layout = VK_NULL_HANDLE;
+    // The frame's constants (GpuFrame) as a uniform buffer, set 0 binding 0 of every pipeline: a CPU device (lavapipe)
+    // loads a uniform block once for all of a SIMD batch's invocations, where a load through a buffer device address
+    // goes lane by lane; on a GPU it is the usual path for constants. Everything else is reached by address.
+    VkDescriptorSetLayout frameSetLayout = VK_NULL_HANDLE;
+    VkDescriptorPool framePool = VK_NULL_HANDLE;
+    VkDescriptorSet frameSet = VK_NULL_HANDLE;
     VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, rasterSoftware = VK_NULL_HANDLE;
     VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
     // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
@@ -349,9 +362,10 @@ struct Renderer::Impl {
     VkPipeline rasterMasked = VK_NULL_HANDLE, rasterSoftwareMasked = VK_NULL_HANDLE;
     VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
     // Resolve's variants, made when a frame first needs them, by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 |
-    // TS_SPEC_AREA_LIGHTS << 2 (textured materials, displaced materials, frames with area lights or a textured dome): on
-    // lavapipe each one's code, present but not run, cost every pixel of the frames that do not need it.
-    std::array<VkPipeline, 8> resolveVariants{};
+    // TS_SPEC_AREA_LIGHTS << 2 (textured materials, displaced materials, frames with area lights or a textured dome) and
+    // TS_SPEC_OUTPUT (what it writes) * 8: on lavapipe each one's code, present but not run, cost every pixel of the
+    // frames that do not need it.
+    std::array<VkPipeline, 8 * TS_OUTPUT_KINDS> resolveVariants{};
     // Runtime tessellation, made when a scene first displaces: the tessellate pass and the patch raster (and its mask
     // variant).
     VkPipeline tessellate = VK_NULL_HANDLE, dice = VK_NULL_HANDLE, diceMasked = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE,
@@ -383,6 +397,7 @@ struct Renderer::Impl {
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
     uint32_t materialCount = 1;
+    std::vector<gpu::GpuMaterial> materialRecords;  // as uploaded: resolve pushes its bin's
     // Textures: the slots of textured materials, and the pool of the images they read (both empty without textures).
     Buffer textureSlots, texturePool;
     std::vector<std::shared_ptr<const TextureImage>> poolImages;  // the materials' images, then the dome lights'
@@ -433,26 +448,29 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, backgroundTextured, nullptr);
         for (VkPipeline variant : resolveVariants) vkDestroyPipeline(vk, variant, nullptr);
         vkDestroyPipelineLayout(vk, layout, nullptr);
+        vkDestroyDescriptorPool(vk, framePool, nullptr);
+        vkDestroyDescriptorSetLayout(vk, frameSetLayout, nullptr);
         vkDestroyQueryPool(vk, timestamps, nullptr);
     }
 
-    // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES, TS_SPEC_DISPLACEMENT, TS_SPEC_AREA_LIGHTS.
+    // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES, TS_SPEC_DISPLACEMENT, TS_SPEC_AREA_LIGHTS
+    // (booleans) and TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*).
     struct Variant {
-        VkBool32 values[3];
-        VkSpecializationMapEntry entries[3] = {{TS_SPEC_TEXTURES, 0, sizeof(VkBool32)},
-                                               {TS_SPEC_DISPLACEMENT, sizeof(VkBool32), sizeof(VkBool32)},
-                                               {TS_SPEC_AREA_LIGHTS, 2 * sizeof(VkBool32), sizeof(VkBool32)}};
-        VkSpecializationInfo info{3, entries, sizeof(values), values};
-        Variant(bool textures, bool displacement, bool areaLights) : values{VkBool32(textures), VkBool32(displacement), VkBool32(areaLights)} {}
+        uint32_t values[4];
+        VkSpecializationMapEntry entries[4] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4}};
+        VkSpecializationInfo info{4, entries, sizeof(values), values};
+        Variant(bool textures, bool displacement, bool areaLights, uint32_t output = TS_OUTPUT_SHADE)
+            : values{VkBool32(textures), VkBool32(displacement), VkBool32(areaLights), output} {}
         Variant(const Variant&) = delete;
     };
 
-    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, bool displacement = false, bool areaLights = false) {
+    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, bool displacement = false, bool areaLights = false,
+                                uint32_t output = TS_OUTPUT_SHADE) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, displacement, areaLights);
+        const Variant variant(textures, displacement, areaLights, output);
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
-                      textures || displacement || areaLights ? &variant.info : nullptr};
+                      textures || displacement || areaLights || output != TS_OUTPUT_SHADE ? &variant.info : nullptr};
         info.layout = layout;
         VkPipeline pipeline;
         const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
@@ -462,8 +480,35 @@ struct Renderer::Impl {
     }
 
     void create_pipelines() {
-        VkPushConstantRange range{VK_SHADER_STAGE_ALL, 0, sizeof(PushConstants)};
+        VkPushConstantRange range{VK_SHADER_STAGE_ALL, 0, sizeof(ResolvePushConstants)};
+        VkDescriptorSetLayoutBinding frameBinding{0, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
+        VkDescriptorSetLayoutCreateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
+        setInfo.bindingCount = 1;
+        setInfo.pBindings = &frameBinding;
+        check_vk(vkCreateDescriptorSetLayout(device.handle(), &setInfo, nullptr, &frameSetLayout), "vkCreateDescriptorSetLayout");
+        VkDescriptorPoolSize poolSize{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1};
+        VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
+        poolInfo.maxSets = 1;
+        poolInfo.poolSizeCount = 1;
+        poolInfo.pPoolSizes = &poolSize;
+        check_vk(vkCreateDescriptorPool(device.handle(), &poolInfo, nullptr, &framePool), "vkCreateDescriptorPool");
+        VkDescriptorSetAllocateInfo allocateInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
+        allocateInfo.descriptorPool = framePool;
+        allocateInfo.descriptorSetCount = 1;
+        allocateInfo.pSetLayouts = &frameSetLayout;
+        check_vk(vkAllocateDescriptorSets(device.handle(), &allocateInfo, &frameSet), "vkAllocateDescriptorSets");
+        frame = device.create_buffer(sizeof(gpu::GpuFrame), MemoryUse::Upload, VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT);
+        VkDescriptorBufferInfo frameInfo{frame.handle, 0, sizeof(gpu::GpuFrame)};
+        VkWriteDescriptorSet write{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
+        write.dstSet = frameSet;
+        write.descriptorCount = 1;
+        write.descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER;
+        write.pBufferInfo = &frameInfo;
+        vkUpdateDescriptorSets(device.handle(), 1, &write, 0, nullptr);
+
         VkPipelineLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
+        layoutInfo.setLayoutCount = 1;
+        layoutInfo.pSetLayouts = &frameSetLayout;
         layoutInfo.pushConstantRangeCount = 1;
         layoutInfo.pPushConstantRanges = &range;
         check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
@@ -486,7 +531,7 @@ struct Renderer::Impl {
     void ensure_texture_pipelines(bool textured, bool masks, bool texturedDome, bool areaLights) {
         for (bool displaced : {false, anyDisplaced})  // every resolve variant this scene's bins can ask for
             for (bool light : {false, areaLights})
-                resolve_variant(textured, displaced, light);
+                resolve_variant(textured, displaced, light, TS_OUTPUT_SHADE);
         if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
         if (masks && !rasterMasked) {
             rasterMasked = graphics_pipeline(false, true);
@@ -494,10 +539,11 @@ struct Renderer::Impl {
         }
     }
 
-    // Resolve's variant for a bin, made on first use.
-    VkPipeline resolve_variant(bool textured, bool displaced, bool areaLights) {
-        VkPipeline& variant = resolveVariants[size_t(textured) | size_t(displaced) << 1 | size_t(areaLights) << 2];
-        if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, displaced, areaLights);
+    // Resolve's variant for a bin, made on first use. Textures and area lights only matter to shading.
+    VkPipeline resolve_variant(bool textured, bool displaced, bool areaLights, uint32_t output) {
+        if (output != TS_OUTPUT_SHADE) textured = areaLights = false;
+        VkPipeline& variant = resolveVariants[size_t(textured) | size_t(displaced) << 1 | size_t(areaLights) << 2 | size_t(output) << 3];
+        if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, displaced, areaLights, output);
         return variant;
     }
 
@@ -922,6 +968,7 @@ struct Renderer::Impl {
         }
         upload_vector(device, materials, gpuMaterials);
         materialCount = uint32_t(gpuMaterials.size());
+        materialRecords = gpuMaterials;
         // Tables: entries clamped to the materials there are; each header holds the table's largest displacement.
         std::vector<uint32_t> tables = scene.materialTables_;
         tableDisplacement.clear();
@@ -963,7 +1010,6 @@ struct Renderer::Impl {
     }
 
     void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount) {
-        if (!frame.handle) frame = device.create_buffer(sizeof(gpu::GpuFrame), MemoryUse::Upload);
         if (!drawState.handle) drawState = device.create_buffer(sizeof(gpu::GpuDrawState), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) {
             visibleClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
@@ -1019,7 +1065,7 @@ struct Renderer::Impl {
         vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, hzb);
         const auto levels = hzb_levels(width, height);
         for (uint32_t l = 0; l < levels.size(); ++l) {
-            PushConstants push{frame.address, 0, l, target.address};
+            PushConstants push{0, l, target.address};
             vkCmdPushConstants(cmd, layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
             vkCmdDispatch(cmd, (levels[l][0] + TS_HZB_TILE - 1) / TS_HZB_TILE, (levels[l][1] + TS_HZB_TILE - 1) / TS_HZB_TILE, 1);
             barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
@@ -1200,6 +1246,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
         device_.run([&](VkCommandBuffer cmd) {
             vkCmdResetQueryPool(cmd, s.timestamps, 0, Impl::kTimestamps);
+            for (VkPipelineBindPoint point : {VK_PIPELINE_BIND_POINT_COMPUTE, VK_PIPELINE_BIND_POINT_GRAPHICS})
+                vkCmdBindDescriptorSets(cmd, point, s.layout, 0, 1, &s.frameSet, 0, nullptr);
             // Every mark waits for all the work before it. Lavapipe defers draws, so its figures per pass are rough;
             // their sum is right.
             uint32_t timestamp = 0;
@@ -1256,7 +1304,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                     if (post) {  // the patches the main pass deferred, against this frame's HZB
                         barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                                 VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                        PushConstants push{s.frame.address, 0, TS_TESS_DEFERRED_PATCHES, s.hzbCurrent.address};
+                        PushConstants push{0, TS_TESS_DEFERRED_PATCHES, s.hzbCurrent.address};
                         vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
                         vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, deferredPatchGroupsX));
                         push.step = TS_CULL_POST;
@@ -1287,7 +1335,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
             // Main pass: instances one per thread, then a workgroup per instance they listed.
             auto cull_step = [&](uint32_t step, const Buffer& hzb) {
-                PushConstants push{s.frame.address, 0, step, hzb.address};
+                PushConstants push{0, step, hzb.address};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
             };
             auto compute_to_indirect = [&]() {
@@ -1348,7 +1396,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             };
             const uint32_t tilesX = (settings.width + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE, tilesY = (settings.height + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE;
             for (uint32_t step : {TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
-                PushConstants classifyPush{s.frame.address, 0, step, 0};
+                PushConstants classifyPush{0, step, 0};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(classifyPush), &classifyPush);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.classify);
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
@@ -1365,19 +1413,23 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 if (i > 0)  // the previous copy must finish reading before the next resolve overwrites
                     barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                PushConstants background{s.frame.address, uint32_t(aovs[i]), 0, 0};
+                PushConstants background{uint32_t(aovs[i]), 0, 0};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, texturedDome && aovs[i] == Aov::Color ? s.backgroundTextured : s.background);
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
+                const uint32_t output = aovs[i] == Aov::Color ? (settings.visualize == Visualize::None ? TS_OUTPUT_SHADE : TS_OUTPUT_VISUALIZE)
+                                      : aovs[i] == Aov::Depth  ? TS_OUTPUT_DEPTH
+                                      : aovs[i] == Aov::Normal ? TS_OUTPUT_NORMAL
+                                                               : TS_OUTPUT_ID;
                 VkPipeline bound = VK_NULL_HANDLE;
                 for (uint32_t m = 0; m < s.materialCount; ++m) {
                     // Materials with textures through the variant that samples them; only the colour AOV shades.
                     const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
                     // Displaced materials' pixels may show micro-triangles: the variant that rebuilds them.
                     const bool displaced = !aov_is_id(aovs[i]) && s.material_displaced(m);
-                    const VkPipeline pipeline = s.resolve_variant(textured, displaced, areaLights);
+                    const VkPipeline pipeline = s.resolve_variant(textured, displaced, areaLights, output);
                     if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
-                    PushConstants shade{s.frame.address, uint32_t(aovs[i]), m, 0};
+                    ResolvePushConstants shade{{uint32_t(aovs[i]), m, 0}, s.materialRecords[m]};
                     vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
                     vkCmdDispatchIndirect(cmd, s.shadingBins.handle, m * sizeof(gpu::GpuBin));
                 }

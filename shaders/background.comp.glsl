@@ -33,7 +33,7 @@ vec3 dome_background(GpuFrame frame, GpuLight light, vec2 pixel) {
 }
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     uvec2 pixel = gl_GlobalInvocationID.xy;
     if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
     uint index = pixel.y * frame.viewport.x + pixel.x;
@@ -44,8 +44,8 @@ void main() {
         vec4 color = frame.background;
         if (TEXTURED)
             for (uint i = 0u; i < frame.viewport.w; ++i)
-                if (uint(frame.lights[i].directionType.w) == TS_LIGHT_DOME && frame.lights[i].texture != TS_NO_TEXTURE) {
-                    color = vec4(dome_background(frame, frame.lights[i], vec2(pixel)), 1.0);
+                if (uint(frameConstants.lights[i].directionType.w) == TS_LIGHT_DOME && frameConstants.lights[i].texture != TS_NO_TEXTURE) {
+                    color = vec4(dome_background(frame, frameConstants.lights[i], vec2(pixel)), 1.0);  // not frame.lights[i]: resolve.comp.glsl
                     break;
                 }
         OutputRef(frame.aovOutput).data[index] = color;

@@ -7,7 +7,7 @@
 layout(local_size_x = 1) in;
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     BinRef bins = BinRef(frame.bins);
     uint offset = 0u, used = 0u;
     for (uint m = 0u; m < frame.viewport.z; ++m) {

@@ -7,7 +7,7 @@
 layout(local_size_x = TS_PIXEL_TILE, local_size_y = TS_PIXEL_TILE) in;
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     uvec2 pixel = gl_GlobalInvocationID.xy;
     if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
     uint index = pixel.y * frame.viewport.x + pixel.x;

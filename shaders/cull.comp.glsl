@@ -264,7 +264,7 @@ void post_pass(GpuFrame frame) {
 }
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     if (push.step == TS_CULL_MAIN) main_pass(frame);
     else if (push.step == TS_CULL_POST) post_pass(frame);
     else test_instances(frame, push.step);

@@ -20,7 +20,7 @@ shared ivec2 screen[TS_DICE_MAX_POINTS];  // sub-pixel position
 shared float depth[TS_DICE_MAX_POINTS];   // reversed-Z depth
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     DrawStateRef draw = DrawStateRef(frame.drawState);
     // One workgroup per patch over a 2D grid, no loop (as the cluster rasterizer: lavapipe runs a loop around it masked).
     uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;

@@ -4,7 +4,6 @@
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #include "shared.h"
 
-layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer FrameRef { GpuFrame f; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceRef { GpuInstance data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceBatchRef { GpuInstanceBatch data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MeshRef { GpuMesh data[]; };
@@ -27,9 +26,16 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchRef { 
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchDrawRef { uvec4 data[]; };  // VkDrawIndirectCommand
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer PatchPointRef { float data[]; };
 
-// layout: renderer.cpp PushConstants. `step`: the cull step (TS_CULL_*) or the HZB level being built; `hzb`: the
-// HZB that step tests against or builds.
-layout(push_constant) uniform Push { FrameRef frame; uint aov; uint step; HzbRef hzb; } push;
+// The frame's constants (renderer.cpp: frameSet). A uniform block rather than a buffer reference: a CPU device
+// (lavapipe) loads it once per SIMD batch, where it loads through an address lane by lane. Passes copy it into a local
+// `frame`; arrays indexed by a variable (lights, frustum planes) are read from frameConstants itself (see lights in
+// resolve.comp.glsl).
+layout(set = 0, binding = 0, std140) uniform FrameBlock { GpuFrame frameConstants; };
+
+// layout: renderer.cpp PushConstants (and ResolvePushConstants). `step`: the cull step (TS_CULL_*), the HZB level being
+// built or resolve's material; `hzb`: the HZB that step tests against or builds; `material`: resolve's, GpuMaterial
+// data[step] (only resolve's dispatches push it).
+layout(push_constant) uniform Push { uint aov; uint step; HzbRef hzb; GpuMaterial material; } push;
 
 // Nearest and farthest view depth of a sphere (camera-relative world).
 vec2 depth_range(GpuFrame frame, vec3 center, float radius) {
@@ -106,9 +112,11 @@ float instance_scale(Instance instance) {
     return sqrt(max(largest, 0.0)) * 1.000002;  // a hair above: float rounding must not shrink bounds
 }
 
+// The planes are read from the uniform block, not from the caller's copy `frame`: a copy's array indexed by a
+// variable is copied whole into scratch memory for each invocation (on lavapipe, lane by lane).
 bool sphere_in_frustum(GpuFrame frame, vec3 center, float radius) {
     for (int i = 0; i < 6; ++i)
-        if (dot(frame.frustumPlanes[i].xyz, center) + frame.frustumPlanes[i].w < -radius) return false;
+        if (dot(frameConstants.frustumPlanes[i].xyz, center) + frameConstants.frustumPlanes[i].w < -radius) return false;
     return true;
 }
 

@@ -8,7 +8,7 @@
 layout(local_size_x = TS_HZB_TILE, local_size_y = TS_HZB_TILE) in;
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     uint level = push.step;
     uvec2 size = hzb_level_size(frame, level);
     uvec2 texel = gl_GlobalInvocationID.xy;

@@ -11,7 +11,7 @@ layout(location = 0) flat out uint outPayload;  // TS_VIS_TESSELLATED | patch <<
 layout(location = 1) flat out uint outFlags;
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     uint patchIndex = uint(gl_InstanceIndex);
     uint micro = uint(gl_VertexIndex) / 3u;
     DicedPatch d = load_patch(frame, patchIndex);

@@ -8,7 +8,7 @@ layout(location = 0) flat out uint outPayload;  // visible cluster << 7 | triang
 layout(location = 1) flat out uint outFlags;
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     uint slot = SlotListRef(frame.hardwareList).data[gl_InstanceIndex];
     uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];

@@ -12,7 +12,7 @@ layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
 
 void main() {
     if (!gl_FrontFacing && (inFlags & TS_INSTANCE_DOUBLE_SIDED) == 0u) return;  // single-sided: back faces are culled
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     // A textured opacity mask may cut the pixel away.
     if (MASKS && (inFlags & TS_INSTANCE_MASKED) != 0u && PIXEL_MASKED_OUT(frame, inPayload, uvec2(gl_FragCoord.xy))) return;
     uint pixel = uint(gl_FragCoord.y) * frame.viewport.x + uint(gl_FragCoord.x);

@@ -19,7 +19,7 @@ shared ivec2 screen[TS_CLUSTER_MAX_VERTICES];  // sub-pixel position
 shared float depth[TS_CLUSTER_MAX_VERTICES];   // reversed-Z depth (z / w)
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint count = draw.state.swClusters;
     // One workgroup per cluster over a 2D grid, no loop: on lavapipe a loop around this code runs it masked.

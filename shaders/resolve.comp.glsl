@@ -16,6 +16,8 @@ layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
 layout(constant_id = TS_SPEC_DISPLACEMENT) const bool DISPLACED = false;
 // The variant for frames with area lights or a textured dome (lights.h).
 layout(constant_id = TS_SPEC_AREA_LIGHTS) const bool AREA_LIGHTS = false;
+// What this variant writes (TS_OUTPUT_*): only that AOV's code is compiled in.
+layout(constant_id = TS_SPEC_OUTPUT) const uint OUTPUT = TS_OUTPUT_SHADE;
 
 vec3 vertex_color(GpuFrame frame, GpuMesh mesh, uint vertex) {
     uint i = vertex - mesh.vertexOffset + mesh.colorOffset;
@@ -60,8 +62,7 @@ vec3 visualize(GpuFrame frame, uint mode, Instance instance, uvec2 visible, GpuC
 // One covered pixel (visibility buffer value `value`, non-zero).
 void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     uvec2 pixel = uvec2(index % frame.viewport.x, index / frame.viewport.x);
-    bool idAov = aov >= TS_AOV_PRIM_ID;
-    if (frame.counts.w == TS_VIS_OVERDRAW && aov == TS_AOV_COLOR) {
+    if (OUTPUT == TS_OUTPUT_VISUALIZE && frame.counts.w == TS_VIS_OVERDRAW) {
         uint fragments = CounterRef(frame.overdraw).data[index];
         OutputRef(frame.aovOutput).data[index] = vec4(level_color(max(fragments, 1u) - 1u), 1.0);
         return;
@@ -74,7 +75,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     visible.x &= ~TS_VISIBLE_SOFTWARE;
     Instance instance = load_instance(frame, visible.x);
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
-    if (idAov) {
+    if (OUTPUT == TS_OUTPUT_ID) {
         uint id = aov == TS_AOV_PRIM_ID ? instance.primId
                 : aov == TS_AOV_INSTANCE_ID ? visible.x
                 : aov == TS_AOV_CLUSTER_ID ? visible.y
@@ -94,7 +95,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     if (diced) {
         // The points the compute patch rasterizer kept, unless vertex colours need the corners' weights (or none were
         // kept): then the micro-triangle is diced again, as the rasterizer diced it.
-        bool weights = (MaterialRef(frame.materials).data[push.step].flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM;
+        bool weights = (push.material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM;
         MicroTriangle m;
         if (weights || !kept_micro_triangle(frame, payload.patchIndex, payload.micro, pixel, m)) {
             m = pixel_micro_triangle(frame, payload.patchIndex, payload.micro, pixel);
@@ -118,7 +119,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     if (!(t > 0.0) || isinf(t)) t = 0.0;  // edge-on triangle: the plane test is meaningless
     vec3 hit = origin + t * direction;
 
-    if (aov == TS_AOV_DEPTH) {
+    if (OUTPUT == TS_OUTPUT_DEPTH) {
         OutputRef(frame.aovOutput).data[index] = vec4(dot(hit, frame.cameraForward.xyz));
         return;
     }
@@ -138,12 +139,12 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
         n = -n;
     }
     if (dot(n, geometric) < 0.0) n = geometric;  // an interpolated normal facing away would shade black
-    if (aov == TS_AOV_NORMAL) {
+    if (OUTPUT == TS_OUTPUT_NORMAL) {
         OutputRef(frame.aovOutput).data[index] = vec4(n, 1.0);
         return;
     }
 
-    if (frame.counts.w != TS_VIS_NONE) {  // flat id colours, lit from the eye so that shapes stay readable
+    if (OUTPUT == TS_OUTPUT_VISUALIZE) {  // flat id colours, lit from the eye so that shapes stay readable
         if (frame.counts.w == TS_VIS_UV) {  // data, not a picture: unlit
             vec3 uvColor = vec3(1.0, 0.0, 1.0);
             if (mesh.uvOffset != TS_NO_STREAM) {
@@ -159,7 +160,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
         return;
     }
 
-    GpuMaterial material = MaterialRef(frame.materials).data[push.step];  // this dispatch's bin is one material
+    GpuMaterial material = push.material;  // this dispatch's bin is one material
     vec3 albedo = material.diffuseColor.rgb;
     if ((material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
         albedo = sourceBary.x * vertex_color(frame, mesh, v0) + sourceBary.y * vertex_color(frame, mesh, v1) + sourceBary.z * vertex_color(frame, mesh, v2);
@@ -201,13 +202,15 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     }
     vec3 toEye = -direction;
     vec3 color = emission;
+    // Each light read from the uniform block itself: indexing the local copy `frame` by a variable made the compiler
+    // copy every light of it for each pixel (on lavapipe half of resolve's time, with two lights).
     for (uint i = 0u; i < frame.viewport.w; ++i)  // no shadowing yet
-        color += light_contribution(frame, frame.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
+        color += light_contribution(frame, frameConstants.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     uint aov = push.aov;
     // One thread per pixel of the bin, no loop: on lavapipe a loop around the shading code runs it masked.
     GpuBin bin = BinRef(frame.bins).data[push.step];

@@ -173,6 +173,16 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Specialization constant of resolve's variant for frames with area lights (rect, sphere) or a textured dome: their
 // shading code, present but not run, made the frames without them 3x slower to resolve on lavapipe.
 #define TS_SPEC_AREA_LIGHTS 2
+// Specialization constant of resolve: what its variant writes (TS_OUTPUT_*). On lavapipe every branch of a shader runs,
+// masked, for every pixel: the colour of shaded frames cost 25 % more with the other AOVs' and the debug views' code
+// beside it.
+#define TS_SPEC_OUTPUT 3
+#define TS_OUTPUT_SHADE 0u      // the colour AOV, shaded
+#define TS_OUTPUT_VISUALIZE 1u  // the colour AOV under --vis
+#define TS_OUTPUT_DEPTH 2u
+#define TS_OUTPUT_NORMAL 3u
+#define TS_OUTPUT_ID 4u         // primId, instanceId, clusterId, triangleId (push.aov says which)
+#define TS_OUTPUT_KINDS 5u
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64

@@ -189,7 +189,7 @@ void tessellate_triangle(GpuFrame frame) {
 }
 
 void main() {
-    GpuFrame frame = push.frame.f;
+    GpuFrame frame = frameConstants;
     if (push.step == TS_TESS_DEFERRED_PATCHES) route_deferred_patch(frame);
     else tessellate_triangle(frame);
 }

@@ -217,12 +217,12 @@ private:
     CameraDesc desc_;
 };
 
-// Bprim: an AOV's image, written by execute().
+// Bprim: an AOV's image, written by execute() (shared with what execute() returns: not a copy per frame).
 class RenderBuffer : public Prim {
 public:
     using Prim::Prim;
     void sync(SceneDelegate&, RenderParam&, uint32_t) override {}
-    Image image;
+    std::shared_ptr<const Image> image;
 };
 
 // Creates prims of the types it supports and owns the device, renderer and GPU scene they feed.
@@ -281,7 +281,7 @@ public:
     // Meshes waiting for a view to see them (not built).
     size_t meshes_out_of_view() const { return awaitingView_.size(); }
     // Renders the synced scene; the images also land in the render buffers named "aov:<name>".
-    std::vector<Image> execute(const RenderPassSettings& settings, FrameStats* stats = nullptr);
+    std::vector<std::shared_ptr<const Image>> execute(const RenderPassSettings& settings, FrameStats* stats = nullptr);
 
     // Path of the prim whose primId AOV value is `primId` ("" if none).
     PrimId prim_path(uint32_t primId) const;
