@@ -16,6 +16,31 @@ import time
 import numpy as np
 
 
+
+def _in_child(target, *args):
+    """Runs target(queue, *args) in a fresh process and returns what it puts on the queue (a result or an Exception).
+    The process is spawned, not forked: the parent has used USD, whose TBB worker threads do not survive a fork (a
+    forked child could hang in them). A child that dies without answering comes back as an Exception, never a wait."""
+    import queue as queues
+
+    context = multiprocessing.get_context("spawn")
+    channel = context.Queue()
+    process = context.Process(target=target, args=(channel, *args))
+    process.start()
+    while True:
+        try:
+            outcome = channel.get(timeout=1.0)
+            break
+        except queues.Empty:
+            if not process.is_alive():
+                try:
+                    outcome = channel.get(timeout=1.0)  # it may have answered just before exiting
+                except queues.Empty:
+                    outcome = RuntimeError(f"the benchmark's child process exited with code {process.exitcode} without a result")
+                break
+    process.join()
+    return outcome
+
 def displaced_sphere(n: int):
     """A closed sphere of 4 n^2 triangles with a few octaves of bumps: a stand-in for a dense scan."""
     theta, phi = np.meshgrid(np.linspace(0, np.pi, n + 1), np.linspace(0, 2 * np.pi, 2 * n, endpoint=False), indexing="ij")
@@ -350,14 +375,9 @@ def render(args) -> int:
         cases.append(("displacement", (str(directory / "runtime.usda"), str(directory / "reference.usda"))))
     rows = []
     print(" | ".join(title for _, title in RENDER_COLUMNS))
-    context = multiprocessing.get_context("fork")
     failed = 0
     for case, stage in cases:
-        queue = context.Queue()
-        process = context.Process(target=_render_case, args=(queue, case, stage, (width, height), args.frames, args.device))
-        process.start()
-        outcome = queue.get()
-        process.join()
+        outcome = _in_child(_render_case, case, stage, (width, height), args.frames, args.device)
         if isinstance(outcome, Exception):
             print(f"tessera: error: {case} ({stage}): {outcome}", flush=True)
             failed += 1
@@ -461,12 +481,7 @@ def raster(args) -> int:
             _write_grid_stage(temporary, width, height, area)
             temporary.rename(path)
         stages.append((area, str(path)))
-    context = multiprocessing.get_context("fork")
-    queue = context.Queue()
-    process = context.Process(target=_raster_case, args=(queue, stages, (width, height), args.frames, args.device))
-    process.start()
-    outcome = queue.get()
-    process.join()
+    outcome = _in_child(_raster_case, stages, (width, height), args.frames, args.device)
     if isinstance(outcome, Exception):
         print(f"tessera: error: {outcome}", flush=True)
         return 1
@@ -761,11 +776,7 @@ def usd(args) -> int:
         stage = directory / f"usd_{case}_{count}.usdc"
         if not stage.exists():
             _write_usd_stage(stage, case, count)
-        queue = multiprocessing.get_context("fork").Queue()
-        process = multiprocessing.get_context("fork").Process(target=_usd_case, args=(queue, case, str(stage), count, args.edits, args.device))
-        process.start()
-        row = queue.get()
-        process.join()
+        row = _in_child(_usd_case, case, str(stage), count, args.edits, args.device)
         if isinstance(row, Exception):
             print(f"tessera: error: {case}: {row}")
             continue
@@ -778,12 +789,7 @@ def usd(args) -> int:
         for path, count in ((stage, args.point_instances), (warm, 4)):
             if not path.exists():
                 _write_point_instancer_stage(path, count, n)
-        queue = multiprocessing.get_context("fork").Queue()
-        process = multiprocessing.get_context("fork").Process(
-            target=_point_instancer_case, args=(queue, str(stage), str(warm), args.point_instances, (640, 360), args.device))
-        process.start()
-        row = queue.get()
-        process.join()
+        row = _in_child(_point_instancer_case, str(stage), str(warm), args.point_instances, (640, 360), args.device)
         if isinstance(row, Exception):
             print(f"tessera: error: point instancer: {row}")
         else:
