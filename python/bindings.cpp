@@ -120,6 +120,8 @@ nb::dict stats_dict(const FrameStats& s) {
     d["compute_patches"] = s.computePatches;
     d["deferred_patches"] = s.deferredPatches;
     d["occluded_patches"] = s.occludedPatches;
+    d["kept_micro_pixels"] = s.keptMicroPixels;
+    d["diced_micro_pixels"] = s.dicedMicroPixels;
     d["micro_triangles"] = s.microTriangles;
     d["tessellation_bytes"] = s.tessellationBytes;
     nb::dict gpuMs;
@@ -506,6 +508,7 @@ NB_MODULE(_tessera, m) {
         .def_prop_ro("cache_directory", [](RenderDelegate& d) { return d.cache().directory(); })
         .def("set_visible_cluster_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_visible_cluster_capacity(c); })
         .def("set_patch_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_patch_capacity(c); })
+        .def("set_point_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_point_capacity(c); })
         .def_static("supported_rprim_types", &RenderDelegate::supported_rprim_types)
         .def_static("supported_sprim_types", &RenderDelegate::supported_sprim_types)
         .def_static("supported_bprim_types", &RenderDelegate::supported_bprim_types);

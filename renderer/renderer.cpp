@@ -365,7 +365,7 @@ struct Renderer::Impl {
     // TS_SPEC_AREA_LIGHTS << 2 (textured materials, displaced materials, frames with area lights or a textured dome) and
     // TS_SPEC_OUTPUT (what it writes) * 8: on lavapipe each one's code, present but not run, cost every pixel of the
     // frames that do not need it.
-    std::array<VkPipeline, 8 * TS_OUTPUT_KINDS> resolveVariants{};
+    std::array<VkPipeline, 16 * TS_OUTPUT_KINDS> resolveVariants{};
     // Runtime tessellation, made when a scene first displaces: the tessellate pass and the patch raster (and its mask
     // variant).
     VkPipeline tessellate = VK_NULL_HANDLE, dice = VK_NULL_HANDLE, diceMasked = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE,
@@ -453,24 +453,24 @@ struct Renderer::Impl {
         vkDestroyQueryPool(vk, timestamps, nullptr);
     }
 
-    // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES, TS_SPEC_DISPLACEMENT, TS_SPEC_AREA_LIGHTS
-    // (booleans) and TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*).
+    // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES and TS_SPEC_AREA_LIGHTS (booleans),
+    // TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*) and TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*).
     struct Variant {
         uint32_t values[4];
         VkSpecializationMapEntry entries[4] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4}};
         VkSpecializationInfo info{4, entries, sizeof(values), values};
-        Variant(bool textures, bool displacement, bool areaLights, uint32_t output = TS_OUTPUT_SHADE)
-            : values{VkBool32(textures), VkBool32(displacement), VkBool32(areaLights), output} {}
+        Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE)
+            : values{VkBool32(textures), pixels, VkBool32(areaLights), output} {}
         Variant(const Variant&) = delete;
     };
 
-    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, bool displacement = false, bool areaLights = false,
-                                uint32_t output = TS_OUTPUT_SHADE) {
+    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, uint32_t pixels = TS_BIN_TRIANGLES,
+                                bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, displacement, areaLights, output);
+        const Variant variant(textures, pixels, areaLights, output);
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
-                      textures || displacement || areaLights || output != TS_OUTPUT_SHADE ? &variant.info : nullptr};
+                      textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE ? &variant.info : nullptr};
         info.layout = layout;
         VkPipeline pipeline;
         const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
@@ -529,9 +529,9 @@ struct Renderer::Impl {
 
     // The variants a scene's materials need, made once (a few tens of ms each on lavapipe, cold).
     void ensure_texture_pipelines(bool textured, bool masks, bool texturedDome, bool areaLights) {
-        for (bool displaced : {false, anyDisplaced})  // every resolve variant this scene's bins can ask for
+        for (uint32_t pixels = 0; pixels < bin_kinds(); ++pixels)  // every resolve variant this scene's bins can ask for
             for (bool light : {false, areaLights})
-                resolve_variant(textured, displaced, light, TS_OUTPUT_SHADE);
+                resolve_variant(textured, pixels, light, TS_OUTPUT_SHADE);
         if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
         if (masks && !rasterMasked) {
             rasterMasked = graphics_pipeline(false, true);
@@ -540,12 +540,16 @@ struct Renderer::Impl {
     }
 
     // Resolve's variant for a bin, made on first use. Textures and area lights only matter to shading.
-    VkPipeline resolve_variant(bool textured, bool displaced, bool areaLights, uint32_t output) {
+    VkPipeline resolve_variant(bool textured, uint32_t pixels, bool areaLights, uint32_t output) {
         if (output != TS_OUTPUT_SHADE) textured = areaLights = false;
-        VkPipeline& variant = resolveVariants[size_t(textured) | size_t(displaced) << 1 | size_t(areaLights) << 2 | size_t(output) << 3];
-        if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, displaced, areaLights, output);
+        if (output == TS_OUTPUT_ID) pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
+        VkPipeline& variant = resolveVariants[size_t(textured) | size_t(pixels) << 1 | size_t(areaLights) << 3 | size_t(output) << 4];
+        if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, pixels, areaLights, output);
         return variant;
     }
+
+    // Kinds of material bins (TS_BIN_*): micro-triangles have bins of their own only in scenes with displacement.
+    uint32_t bin_kinds() const { return anyDisplaced ? TS_BIN_KINDS : 1u; }
 
     void ensure_tessellation_pipelines(bool masks) {
         if (!tessellate) {
@@ -982,8 +986,10 @@ struct Renderer::Impl {
             tableDisplacement[first] = largest;
         }
         upload_vector(device, materialTables, tables);
-        if (shadingBins.size < uint64_t(materialCount) * sizeof(gpu::GpuBin))
-            shadingBins = device.create_buffer(uint64_t(materialCount) * sizeof(gpu::GpuBin), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
+        // Room for every kind of bin (TS_BIN_*), a few bytes a material, whether or not displacement comes later.
+        if (shadingBins.size < uint64_t(materialCount) * TS_BIN_KINDS * sizeof(gpu::GpuBin))
+            shadingBins = device.create_buffer(uint64_t(materialCount) * TS_BIN_KINDS * sizeof(gpu::GpuBin), MemoryUse::Device,
+                                               VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         // No textures, no texture memory.
         if (slots.empty()) textureSlots = Buffer{};
         else upload_vector(device, textureSlots, slots);
@@ -1084,6 +1090,10 @@ void Renderer::set_visible_cluster_capacity(uint32_t capacity) {
 
 void Renderer::set_patch_capacity(uint32_t capacity) {
     impl_->patchCapacity = std::clamp<uint32_t>(capacity, 1u, TS_VIS_MAX_PATCHES);
+}
+
+void Renderer::set_point_capacity(uint32_t points) {
+    impl_->pointCapacity = std::clamp<uint32_t>(points, 1u, 1u << 24);
 }
 
 std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs, FrameStats* stats) {
@@ -1195,7 +1205,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const bool postPass = occlusion, previous = occlusion && s.previousValid;
         if (occlusion) s.ensure_occlusion_buffers();
         f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags | (previous ? TS_FRAME_PREVIOUS_HZB : 0u) |
-                        (occlusion ? TS_FRAME_OCCLUSION : 0u),
+                        (occlusion ? TS_FRAME_OCCLUSION : 0u) | (s.anyDisplaced ? TS_FRAME_MICRO_BINS : 0u),
                     uint32_t(settings.visualize)};
         if (previous) {
             // The previous camera saw positions relative to itself: shift this frame's camera-relative positions back.
@@ -1265,7 +1275,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
             if (countOverdraw) vkCmdFillBuffer(cmd, s.overdraw.handle, 0, pixels * 4, 0);
-            vkCmdFillBuffer(cmd, s.shadingBins.handle, 0, uint64_t(s.materialCount) * sizeof(gpu::GpuBin), 0);
+            vkCmdFillBuffer(cmd, s.shadingBins.handle, 0, uint64_t(s.materialCount) * s.bin_kinds() * sizeof(gpu::GpuBin), 0);
             barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
                     VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
                     VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
@@ -1422,17 +1432,18 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                                       : aovs[i] == Aov::Normal ? TS_OUTPUT_NORMAL
                                                                : TS_OUTPUT_ID;
                 VkPipeline bound = VK_NULL_HANDLE;
-                for (uint32_t m = 0; m < s.materialCount; ++m) {
-                    // Materials with textures through the variant that samples them; only the colour AOV shades.
-                    const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
-                    // Displaced materials' pixels may show micro-triangles: the variant that rebuilds them.
-                    const bool displaced = !aov_is_id(aovs[i]) && s.material_displaced(m);
-                    const VkPipeline pipeline = s.resolve_variant(textured, displaced, areaLights, output);
-                    if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
-                    ResolvePushConstants shade{{uint32_t(aovs[i]), m, 0}, s.materialRecords[m]};
-                    vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
-                    vkCmdDispatchIndirect(cmd, s.shadingBins.handle, m * sizeof(gpu::GpuBin));
-                }
+                for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
+                    for (uint32_t m = 0; m < s.materialCount; ++m) {
+                        if (pixels != TS_BIN_TRIANGLES && !s.material_displaced(m)) continue;  // micro-triangles: displaced only
+                        // Materials with textures through the variant that samples them; only the colour AOV shades.
+                        const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
+                        const VkPipeline pipeline = s.resolve_variant(textured, pixels, areaLights, output);
+                        if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
+                        const uint32_t bin = pixels * s.materialCount + m;
+                        ResolvePushConstants shade{{uint32_t(aovs[i]), bin, 0}, s.materialRecords[m]};
+                        vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
+                        vkCmdDispatchIndirect(cmd, s.shadingBins.handle, bin * sizeof(gpu::GpuBin));
+                    }
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
                         VK_ACCESS_2_TRANSFER_READ_BIT);
                 VkBufferCopy region{0, sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
@@ -1500,6 +1511,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.computePatches = state.dicePatchesDrawn;
         frameStats.deferredPatches = state.deferredPatches;
         frameStats.occludedPatches = state.occludedPatches;
+        frameStats.keptMicroPixels = state.keptMicroPixels;
+        frameStats.dicedMicroPixels = state.dicedMicroPixels;
         if (state.patchPoints > s.pointCapacity)  // the next frame keeps them all (no redraw: resolve dices the rest again)
             s.pointCapacity = std::min<uint32_t>(1u << 24, std::max(s.pointCapacity * 2, state.patchPoints + state.patchPoints / 4));
         // Memory follows the view down too: a pool or a patch list four times larger than this frame needed drops to

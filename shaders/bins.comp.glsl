@@ -1,5 +1,6 @@
 // Material bins, one workgroup: each bin's range in the pixel list (an exclusive prefix sum of the counts, by one
-// thread: there are as many bins as materials, few next to pixels) and the indirect dispatch that shades it.
+// thread: there are as many bins as materials, three times as many with displacement, few next to pixels) and the
+// indirect dispatch that shades it.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
@@ -9,8 +10,9 @@ layout(local_size_x = 1) in;
 void main() {
     GpuFrame frame = frameConstants;
     BinRef bins = BinRef(frame.bins);
-    uint offset = 0u, used = 0u;
-    for (uint m = 0u; m < frame.viewport.z; ++m) {
+    uint offset = 0u, used = 0u, micro[TS_BIN_KINDS] = uint[TS_BIN_KINDS](0u, 0u, 0u);
+    uint binCount = frame.viewport.z * ((frame.counts.z & TS_FRAME_MICRO_BINS) != 0u ? TS_BIN_KINDS : 1u);
+    for (uint m = 0u; m < binCount; ++m) {
         uint count = bins.data[m].count;
         bins.data[m].offset = offset;
         bins.data[m].cursor = 0u;
@@ -20,6 +22,10 @@ void main() {
         bins.data[m].groupsZ = 1u;
         offset += count;
         used += count > 0u ? 1u : 0u;
+        micro[m / frame.viewport.z] += count;
     }
-    DrawStateRef(frame.drawState).state.shadingBins = used;
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    draw.state.shadingBins = used;
+    draw.state.keptMicroPixels = micro[TS_BIN_KEPT_MICRO];
+    draw.state.dicedMicroPixels = micro[TS_BIN_DICED_MICRO];
 }

@@ -1,4 +1,4 @@
-// Resolve, one dispatch per material bin (push.step: the material): one thread per covered pixel of the bin reads
+// Resolve, one dispatch per bin (push.step: the bin, push.material: its material): one thread per covered pixel of the bin reads
 // the visibility buffer, refetches its triangle, finds the barycentrics where the pixel's ray meets it, and writes
 // the requested AOV. Every visible pixel is shaded exactly once, whatever the overdraw. background.comp.glsl writes
 // the pixels nothing covers.
@@ -11,9 +11,10 @@
 
 layout(local_size_x = TS_SHADE_GROUP_SIZE) in;
 
-// The pipeline variants for materials with textures and for displaced ones (the renderer picks them per bin).
+// The pipeline variants for materials with textures and for each kind of pixels (TS_BIN_*: clusters' triangles,
+// micro-triangles read from their kept points, micro-triangles diced again); the renderer picks them per bin.
 layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
-layout(constant_id = TS_SPEC_DISPLACEMENT) const bool DISPLACED = false;
+layout(constant_id = TS_SPEC_DISPLACEMENT) const uint PIXELS = TS_BIN_TRIANGLES;
 // The variant for frames with area lights or a textured dome (lights.h).
 layout(constant_id = TS_SPEC_AREA_LIGHTS) const bool AREA_LIGHTS = false;
 // What this variant writes (TS_OUTPUT_*): only that AOV's code is compiled in.
@@ -90,17 +91,17 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     PixelTriangle hitTriangle;
     vec3 sourceBary;     // barycentrics on the cluster's triangle: colours and normals are interpolated with them
     vec2 cornerUv[3];    // texture coordinates at the corners of the triangle hit (micro or not)
-    bool diced = DISPLACED && payload.patchIndex != 0xffffffffu;
+    const bool diced = PIXELS != TS_BIN_TRIANGLES;  // classify sent this bin micro-triangles only, or none
     uint largestFactor = 1u;
     if (diced) {
-        // The points the compute patch rasterizer kept, unless vertex colours need the corners' weights (or none were
-        // kept): then the micro-triangle is diced again, as the rasterizer diced it.
-        bool weights = (push.material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM;
+        // The points the compute patch rasterizer kept (it keeps none where vertex colours need the corners' weights),
+        // else the micro-triangle diced again, as the patch rasterizer diced it.
         MicroTriangle m;
-        if (weights || !kept_micro_triangle(frame, payload.patchIndex, payload.micro, pixel, m)) {
-            m = pixel_micro_triangle(frame, payload.patchIndex, payload.micro, pixel);
-        } else {
+        if (PIXELS == TS_BIN_KEPT_MICRO) {
+            kept_micro_triangle(frame, payload.patchIndex, payload.micro, pixel, m);
             m.t.v0 = m.t.v1 = m.t.v2 = 0u;  // not read: no vertex colours, and the normal is the micro-triangle's own
+        } else {
+            m = pixel_micro_triangle(frame, payload.patchIndex, payload.micro, pixel);
         }
         hitTriangle = m.t;
         largestFactor = m.largestFactor;
@@ -162,7 +163,7 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
 
     GpuMaterial material = push.material;  // this dispatch's bin is one material
     vec3 albedo = material.diffuseColor.rgb;
-    if ((material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
+    if (PIXELS != TS_BIN_KEPT_MICRO && (material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
         albedo = sourceBary.x * vertex_color(frame, mesh, v0) + sourceBary.y * vertex_color(frame, mesh, v1) + sourceBary.z * vertex_color(frame, mesh, v2);
     vec3 emission = material.emissiveColor.rgb, f0 = material.specular.rgb;
     float occlusion = material.emissiveColor.a, roughness = material.specular.a, metallic = material.metallic;

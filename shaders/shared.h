@@ -128,6 +128,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_FRAME_SOFTWARE_FIRST 4u // every cluster the compute rasterizer can take goes there (tests, measurements)
 #define TS_FRAME_PREVIOUS_HZB 8u   // two-pass occlusion: the main pass tests against the previous frame's HZB
 #define TS_FRAME_OCCLUSION 16u     // occlusion culling on: HZB passes, and clusters facing away (normal cones) culled
+#define TS_FRAME_MICRO_BINS 32u    // displaced materials drawn: the material bins come in TS_BIN_KINDS kinds
 
 // Cull steps (push constant `step`). Two-pass occlusion culling: the main pass draws what the previous frame's HZB
 // does not hide and defers the rest; the post pass tests the deferred instances and clusters against an HZB of
@@ -168,8 +169,15 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // materials with textures, the rasterizers' for frames with opacity masks. On lavapipe the texture code merely present
 // in a shader, its branch never taken, made every pixel of every material 5x slower to resolve (docs/benchmarks.md).
 #define TS_SPEC_TEXTURES 0
-// The same for displacement: resolve's variant for displaced materials rebuilds micro-triangles.
+// The same for micro-triangles: which kind of pixels (TS_BIN_*) a resolve variant takes. Each kind is a bin of its own
+// with a variant of its own, since on lavapipe the code to dice a micro-triangle again, present beside the cheap read of
+// its kept points, ran masked for every pixel and made displaced bins 2.5x as dear to resolve.
 #define TS_SPEC_DISPLACEMENT 1
+#define TS_BIN_TRIANGLES 0u      // clusters' own triangles (every material)
+#define TS_BIN_KEPT_MICRO 1u     // micro-triangles whose displaced points the compute patch rasterizer kept
+#define TS_BIN_DICED_MICRO 2u    // micro-triangles resolve dices again (hardware-rastered patch, full point pool, or
+                                 // vertex colours, which need the corners' weights)
+#define TS_BIN_KINDS 3u          // bins: kind * material count + material (kinds 1 and 2 only in frames with displacement)
 // Specialization constant of resolve's variant for frames with area lights (rect, sphere) or a textured dome: their
 // shading code, present but not run, made the frames without them 3x slower to resolve on lavapipe.
 #define TS_SPEC_AREA_LIGHTS 2
@@ -389,8 +397,10 @@ struct GpuDrawState {
     uint deferredPatchGroupsZ;
     uint deferredPatches;  // patches the main pass deferred (hidden by the previous frame's HZB)
     uint occludedPatches;  // patches the post pass found hidden
+    uint keptMicroPixels;  // covered pixels resolve read from kept points (bin kind TS_BIN_KEPT_MICRO)
+    uint dicedMicroPixels; // covered pixels whose micro-triangle resolve diced again (TS_BIN_DICED_MICRO)
 };
-TS_CHECK_SIZE(GpuDrawState, 208);
+TS_CHECK_SIZE(GpuDrawState, 216);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.
@@ -400,8 +410,8 @@ struct GpuPatch {
     uint factors;          // the triangle's edge factors (corner 0-1, 1-2, 2-0), TS_TESS_FACTOR_BITS each
     uint patchFactors;     // this patch's edge factors (its corners 0-1, 1-2, 2-0), 5 bits each (0 to 16)
     // The compute patch rasterizer keeps its diced points for resolve: TS_PATCH_POINT_FLOATS floats each from float
-    // points * TS_PATCH_POINT_FLOATS of frame.patchPoints (lattice order), or TS_NO_STREAM (hardware raster, or the
-    // point pool was full: resolve dices again).
+    // points * TS_PATCH_POINT_FLOATS of frame.patchPoints (lattice order), or TS_NO_STREAM (hardware raster, vertex
+    // colours, or the point pool was full: resolve dices again).
     uint points;
     uint pad0, pad1, pad2;
 };
@@ -413,7 +423,7 @@ struct GpuBin {
     uint groupsX;          // VkDispatchIndirectCommand: ceil(count / TS_SHADE_GROUP_SIZE) workgroups, as X (at most
     uint groupsY;          // 65535) times Y
     uint groupsZ;
-    uint count;            // covered pixels of this material
+    uint count;            // covered pixels of this material and kind (TS_BIN_*)
     uint offset;           // first entry in the bin pixel list
     uint cursor;           // entries scattered so far
     uint pad0, pad1;

@@ -51,13 +51,17 @@ vec4 displaced_sphere(vec3 p[3], float reach) {
 bool occlusion_culling(GpuFrame frame) { return (frame.counts.z & TS_FRAME_OCCLUSION) != 0u; }
 
 // Sends a stored patch to a patch rasterizer: the compute one (with room in the point pool for its diced points, if
-// any is left) or an indirect draw of its own. Returns its micro-triangles.
-uint route_patch(GpuFrame frame, uint index, vec3 p[3], float reach, uint n) {
+// any is left and resolve can use them) or an indirect draw of its own. Returns its micro-triangles.
+uint route_patch(GpuFrame frame, uint index, vec3 p[3], float reach, uint n, Instance instance, GpuMaterial material) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     if (dice_in_compute(frame, p, reach)) {
-        uint count = (n + 1u) * (n + 2u) / 2u;
+        // Vertex colours are blended with the micro-triangle's corner weights, which the pool does not hold: resolve
+        // dices such patches again (TS_BIN_DICED_MICRO), so their points are not kept.
+        bool weights = (material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u &&
+                       MeshRef(frame.meshes).data[instance.meshIndex].colorOffset != TS_NO_STREAM;
+        uint count = weights ? 0u : (n + 1u) * (n + 2u) / 2u;
         uint at = atomicAdd(draw.state.patchPoints, count);
-        if (at + count <= uint(frame.tessellation.z)) PatchRef(frame.patches).data[index].points = at;
+        if (!weights && at + count <= uint(frame.tessellation.z)) PatchRef(frame.patches).data[index].points = at;
         uint k = atomicAdd(draw.state.dicePatches, 1u);
         atomicAdd(draw.state.dicePatchesDrawn, 1u);
         SlotListRef(frame.dicePatches).data[k] = index;
@@ -96,7 +100,7 @@ void route_deferred_patch(GpuFrame frame) {
         atomicAdd(draw.state.occludedPatches, 1u);
         return;
     }
-    atomicAdd(draw.state.microTriangles, route_patch(frame, index, p, reach, d.n));
+    atomicAdd(draw.state.microTriangles, route_patch(frame, index, p, reach, d.n, d.instance, d.material));
 }
 
 // Steps TS_CULL_MAIN and TS_CULL_POST: a workgroup per listed cluster, a thread per triangle.
@@ -183,7 +187,7 @@ void tessellate_triangle(GpuFrame frame) {
             atomicMax(draw.state.deferredPatchGroupsY, d / TS_TESS_GROUP_SIZE / 65535u + 1u);
             continue;
         }
-        microTriangles += route_patch(frame, index, p, reach, n);
+        microTriangles += route_patch(frame, index, p, reach, n, instance, material);
     }
     atomicAdd(draw.state.microTriangles, microTriangles);
 }

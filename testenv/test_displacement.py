@@ -245,6 +245,49 @@ def test_a_patch_list_overflow_redraws_the_same_image(tmp_path):
     assert np.array_equal(tight["color"].pixels, roomy["color"].pixels)
 
 
+def test_micro_triangles_resolve_alike_from_kept_points_and_diced_again(tmp_path):
+    """Resolve reads a micro-triangle from the points the compute patch rasterizer kept (a bin and a shader variant of
+    their own), or, where the pool had no room, dices it again: the same micro-triangles, the same pixels."""
+    runtime_stage, _ = write_stages(tmp_path, n=1)
+    aovs = ("color", "depth", "normal", "primId")
+    kept = session_render(runtime_stage, aovs=aovs, dicing_rate=2.0)
+    session = tessera.Session(str(runtime_stage), validation=True)
+    session.delegate.set_point_capacity(1)  # no patch's points fit: every micro-triangle is diced again
+    diced = session.render(camera="/Camera", resolution=(256, 256), aovs=aovs, dicing_rate=2.0)
+    assert not diced.errors
+    assert kept.stats["kept_micro_pixels"] > 1000 and kept.stats["diced_micro_pixels"] == 0
+    assert diced.stats["kept_micro_pixels"] == 0 and diced.stats["diced_micro_pixels"] == kept.stats["kept_micro_pixels"]
+    assert np.array_equal(diced["primId"].ids(), kept["primId"].ids())
+    for aov in ("color", "depth", "normal"):
+        np.testing.assert_allclose(diced[aov].pixels, kept[aov].pixels, atol=1e-5, err_msg=aov)
+
+
+def test_vertex_colours_on_micro_triangles_blend_with_their_corner_weights(tmp_path):
+    """Vertex colours need each micro-triangle's corner weights on its source triangle, which kept points do not hold:
+    their patches keep no points and resolve dices them again. The sphere is red at the top, blue at the bottom."""
+    runtime_stage, _ = write_stages(tmp_path, n=1)
+    stage = Usd.Stage.Open(str(runtime_stage))
+    sphere = UsdGeom.Mesh(stage.GetPrimAtPath("/Sphere"))
+    heights = np.asarray(sphere.GetPointsAttr().Get())[:, 1]
+    colours = np.where(heights[:, None] > 0, [1.0, 0.05, 0.05], [0.05, 0.05, 1.0]).astype(np.float32)
+    sphere.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex).Set(colours)
+    surface = UsdShade.Shader(stage.GetPrimAtPath("/Looks/Bumps/Surface"))
+    reader = UsdShade.Shader.Define(stage, "/Looks/Bumps/DisplayColor")
+    reader.CreateIdAttr("UsdPrimvarReader_float3")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("displayColor")
+    surface.GetInput("diffuseColor").ConnectToSource(reader.ConnectableAPI(), "result")
+    stage.GetRootLayer().Save()
+
+    result = session_render(runtime_stage, dicing_rate=2.0)
+    assert result.stats["diced_micro_pixels"] > 1000 and result.stats["kept_micro_pixels"] == 0
+    rows = np.nonzero(covered(result).any(axis=1))[0]
+    top, bottom = rows[0] + (rows[-1] - rows[0]) // 5, rows[-1] - (rows[-1] - rows[0]) // 10  # the view is from above
+    colour = result["color"].pixels[..., :3]
+    upper, lower = colour[rows[0]:top][covered(result)[rows[0]:top]], colour[bottom:rows[-1]][covered(result)[bottom:rows[-1]]]
+    assert (upper[:, 0] > 2 * upper[:, 2]).mean() > 0.95, "the top is red"
+    assert (lower[:, 2] > 2 * lower[:, 0]).mean() > 0.9, "the bottom is blue"
+
+
 def test_patches_hidden_by_the_previous_frame_are_deferred_and_tested_again(tmp_path):
     """Occlusion culling of patches: in a second frame the previous frame's HZB hides the back of the sphere, whose
     patches the main pass defers and the post pass drops; after the camera orbits to the other side, the deferred

@@ -189,7 +189,8 @@ struct FrameStats {
     uint32_t occludedInstances = 0, occludedClusters = 0;  // found hidden by the post pass
     uint32_t postPassClusters = 0;      // clusters drawn by the post pass (hidden last frame, visible now)
     uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
-    uint32_t shadingBins = 0;           // materials with visible pixels (each shaded by a dispatch of its own)
+    uint32_t shadingBins = 0;           // bins with visible pixels, each shaded by a dispatch of its own: one a material, or
+                                        // up to three for a displaced one (its triangles, kept and diced micro-triangles)
     uint32_t textures = 0;              // images in the texture pool
     uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, vertex streams, triangles
     uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
@@ -199,6 +200,9 @@ struct FrameStats {
     uint32_t computePatches = 0;  // of the patches, those the compute rasterizer drew (the rest: hardware raster)
     uint32_t deferredPatches = 0; // patches the previous frame's HZB hid, left to the post pass
     uint32_t occludedPatches = 0; // patches the post pass found hidden (not drawn)
+    uint32_t keptMicroPixels = 0;  // pixels of micro-triangles resolve read from the points the patch rasterizer kept
+    uint32_t dicedMicroPixels = 0; // pixels of micro-triangles resolve diced again (hardware-rastered patch, vertex
+                                   // colours, or a full point pool)
     uint64_t tessellatedTriangles = 0, microTriangles = 0;
     uint64_t tessellationBytes = 0;
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.
@@ -258,6 +262,9 @@ public:
     void set_visible_cluster_capacity(uint32_t capacity);
     // The same for the patch list of runtime tessellation (by default 64 K patches to start).
     void set_patch_capacity(uint32_t capacity);
+    // The kept-point pool's size for the next frame (by default 256 K points to start): patches beyond it are diced
+    // again by resolve. Tests use tiny values to force that path.
+    void set_point_capacity(uint32_t points);
 
     Device& device() { return device_; }
 
