@@ -1,5 +1,5 @@
 // Patch rasterizer in compute: one workgroup per patch of the compute list (tessellate.comp.glsl sends it the patches
-// beyond the near plane that stay small on screen), one thread per lattice point, then one per micro-triangle. Each
+// beyond the near plane that stay small on screen), its threads over its lattice points, then its micro-triangles. Each
 // point is diced and displaced once (tessellation.h, the same code as the patch raster's vertex stage) and snapped to
 // the hardware's sub-pixel grid in shared memory; the micro-triangles are scanned like the cluster rasterizer's
 // (raster.h) into the visibility buffer with their payload, TS_VIS_TESSELLATED | patch << 8 | micro-triangle.
@@ -29,8 +29,11 @@ void main() {
     DicedPatch d = load_patch(frame, index);
     uint n = d.n;
 
-    uint v = gl_LocalInvocationIndex;
-    if (v < (n + 1u) * (n + 2u) / 2u) {
+    // 64 threads, each taking every 64th point and then micro-triangle: a workgroup of 256 (one thread per micro-triangle
+    // of the largest patch) cost lavapipe, which runs a workgroup 8 lanes at a time, masked or not, 4x as much for the
+    // typical patch of far fewer.
+    uint points = PatchRef(frame.patches).data[index].points;
+    for (uint v = gl_LocalInvocationIndex; v < (n + 1u) * (n + 2u) / 2u; v += TS_DICE_GROUP_SIZE) {
         uint b = 0u, first = 0u;
         while (first + n + 1u - b <= v) {
             first += n + 1u - b;
@@ -39,7 +42,6 @@ void main() {
         vec2 st;
         vec3 p = displaced_point(frame, d, micro_point(d, uvec2(v - first, b)), st);
         snap_vertex(frame, frame.viewProjection * vec4(p, 1.0), screen[v], depth[v]);
-        uint points = PatchRef(frame.patches).data[index].points;
         if (points != TS_NO_STREAM) {  // kept for resolve, which then need not dice again
             PatchPointRef pool = PatchPointRef(frame.patchPoints);
             uint at = (points + v) * TS_PATCH_POINT_FLOATS;
@@ -52,8 +54,7 @@ void main() {
     }
     barrier();
 
-    uint micro = gl_LocalInvocationIndex;
-    if (micro < n * n) {
+    for (uint micro = gl_LocalInvocationIndex; micro < n * n; micro += TS_DICE_GROUP_SIZE) {
         uvec2 a, b, c;
         lattice_cell(micro, n, a, b, c);
         uint ia = lattice_index(a, n), ib = lattice_index(b, n), ic = lattice_index(c, n);

@@ -203,7 +203,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_SHADE_GROUP_SIZE 64  // resolve: a material bin's pixels per workgroup
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
 #define TS_TESS_GROUP_SIZE 128       // tessellate: one workgroup per cluster, one thread per triangle
-#define TS_DICE_GROUP_SIZE 256       // dice: one workgroup per patch, a thread per lattice point (<= 153), then per micro-triangle (<= 256)
+#define TS_DICE_GROUP_SIZE 64        // dice: one workgroup per patch, its lattice points (<= 153), then its micro-triangles
+                                     // (<= 256), 64 at a time
 #define TS_DICE_MAX_POINTS 153       // (16 + 1)(16 + 2) / 2
 #define TS_HZB_TILE 8
 
