@@ -337,6 +337,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // Preserve Area adds moved vertices later: the welder gives them ids too.
     PositionWelder welder;
     std::vector<uint32_t> positionId = weld_equal_positions(local.data(), vertexCount, &welder);
+    if (!settings.preserveArea) welder = PositionWelder{};  // its table (16 bytes a slot) is not needed again
 
     // Texture coordinates on their grid (BuiltMesh::uvPrecision): at most 2^-16, and coarse enough that float holds
     // every grid point of the mesh's range exactly.

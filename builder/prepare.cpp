@@ -415,6 +415,12 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         }
         if (nonFinite) warnings.push_back(name + ": " + std::to_string(nonFinite) + " texture coordinate(s) are NaN or infinite; set to 0");
     }
+    // Arrays that grew by doubling would hold up to twice their size through the whole build.
+    out.positions.shrink_to_fit();
+    out.normals.shrink_to_fit();
+    out.indices.shrink_to_fit();
+    out.triangleMaterials.shrink_to_fit();
+    out.sourceFaces.shrink_to_fit();
     return out;
 }
 
