@@ -180,7 +180,7 @@ def test_matches_storm(render, tmp_path, stage, baseline, min_iou, colours, came
     elif camera is not None:
         match_vertically(opened, camera)
     result = render(opened, camera=camera, resolution=(640, 480), aovs=("color", "primId", "instanceId"),
-                    refine_level=refine_level)
+                    complexity=1 + refine_level / 10)
     result.write(tmp_path / "ours.png")  # kept for a look when the test fails
     ours_covered = np.asarray(result["primId"].ids()) != 0xFFFFFFFF
     iou = intersection_over_union(ours_covered, storm_covered)
@@ -196,7 +196,7 @@ def test_matches_storm(render, tmp_path, stage, baseline, min_iou, colours, came
 ], ids=["pi_basic", "pi_masking"])
 def test_time_samples_match_storm(stage, baseline, frames):
     """Animated prototypes and invisibleIds over time, one session moved from frame to frame (Storm's -times)."""
-    session = tessera.Session(shared_asset(f"{IMAGING}{stage}"), frame=frames[0], validation=True, refine_level=0)
+    session = tessera.Session(shared_asset(f"{IMAGING}{stage}"), frame=frames[0], validation=True, complexity=1.0)
     for frame in frames:
         session.set_time(frame)
         result = session.render(camera=None, resolution=(640, 480), aovs=("primId",))
@@ -208,8 +208,8 @@ def test_time_samples_match_storm(stage, baseline, frames):
 
 def test_teapot_renders_as_a_refined_subdivision_surface(render):
     teapot = shared_asset("usd-wg/full_assets/Teapot/Teapot.usd")
-    cage = render(teapot, camera=None, resolution=(320, 240), aovs=("primId",), refine_level=0)
-    refined = render(teapot, camera=None, resolution=(320, 240), aovs=("primId",), refine_level=2)
+    cage = render(teapot, camera=None, resolution=(320, 240), aovs=("primId",), complexity=1.0)
+    refined = render(teapot, camera=None, resolution=(320, 240), aovs=("primId",), complexity=1.2)
     assert refined.stats["source_triangles"] > 10 * cage.stats["source_triangles"], "catmullClark refined twice: about 16x"
     coverage = float((refined["primId"].ids() != 0xFFFFFFFF).mean())
     assert 0.05 < coverage < 0.6, f"the framed teapot covers {coverage:.2%} of the image"
