@@ -99,8 +99,21 @@ std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) 
     h.span(mesh.faceVertexIndices);
     h.span(mesh.holeIndices);
     h.word(mesh.leftHanded);
-    h.word(uint64_t(mesh.subdivisionScheme));
-    h.word(uint64_t(mesh.refineLevel));
+    // Refinement and its tags only where the mesh is refined: an unrefined subdivision surface builds (and shares)
+    // as the same polygons without a scheme.
+    if (mesh.subdivisionScheme != SubdivisionScheme::None && mesh.refineLevel > 0) {
+        const SubdivisionTags& tags = mesh.subdivisionTags;
+        h.word(uint64_t(mesh.subdivisionScheme));
+        h.word(uint64_t(mesh.refineLevel));
+        h.word(uint64_t(tags.interpolateBoundary));
+        h.word(uint64_t(tags.faceVaryingLinearInterpolation));
+        h.word(uint64_t(tags.triangleSubdivisionRule));
+        h.span(tags.creaseIndices);
+        h.span(tags.creaseLengths);
+        h.span(tags.creaseSharpnesses);
+        h.span(tags.cornerIndices);
+        h.span(tags.cornerSharpnesses);
+    }
     hash_primvar(h, mesh.normals);
     hash_primvar(h, mesh.displayColor);
     hash_primvar(h, mesh.uvs);

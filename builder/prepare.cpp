@@ -211,7 +211,9 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         RefinedMesh refined;
         std::string problem;
         const FaceVaryingUvs uvs{refineUvs ? mesh.uvs.values : std::span<const float>(), uvIndices};
-        if (refine_subdivision(mesh, counts, indices, holes, uniform ? uniformColors.data() : nullptr, uvs, keptMaterials, refined, problem)) {
+        std::vector<std::string> tagNotes;
+        if (refine_subdivision(mesh, counts, indices, holes, uniform ? uniformColors.data() : nullptr, uvs, keptMaterials, refined, problem,
+                               tagNotes)) {
             MeshView view;
             view.name = name;
             view.points = refined.points;
@@ -229,6 +231,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             if (mesh.displayColor.interpolation == Interpolation::FaceVarying)
                 notes.push_back(name + ": face-varying displayColor is not refined yet; the subdivided mesh is drawn without it");
             notes.insert(notes.end(), uvNotes.begin(), uvNotes.end());
+            notes.insert(notes.end(), tagNotes.begin(), tagNotes.end());
             if (mesh.uvs.interpolation == Interpolation::Uniform && uvSource.active())
                 notes.push_back(name + ": uniform texture coordinates are not refined; the subdivided mesh is drawn without them");
             result.warnings.insert(result.warnings.begin(), notes.begin(), notes.end());

@@ -5,8 +5,11 @@
 #include <opensubdiv/far/primvarRefiner.h>
 #include <opensubdiv/far/topologyDescriptor.h>
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
+#include <string>
+#include <unordered_set>
 
 namespace tessera {
 namespace {
@@ -35,11 +38,100 @@ Sdc::SchemeType scheme_type(SubdivisionScheme scheme) {
     }
 }
 
+Sdc::Options::VtxBoundaryInterpolation boundary_interpolation(BoundaryInterpolation b) {
+    switch (b) {
+        case BoundaryInterpolation::None: return Sdc::Options::VTX_BOUNDARY_NONE;
+        case BoundaryInterpolation::EdgeOnly: return Sdc::Options::VTX_BOUNDARY_EDGE_ONLY;
+        default: return Sdc::Options::VTX_BOUNDARY_EDGE_AND_CORNER;
+    }
+}
+
+Sdc::Options::FVarLinearInterpolation fvar_interpolation(FaceVaryingLinear f) {
+    switch (f) {
+        case FaceVaryingLinear::None: return Sdc::Options::FVAR_LINEAR_NONE;
+        case FaceVaryingLinear::CornersOnly: return Sdc::Options::FVAR_LINEAR_CORNERS_ONLY;
+        case FaceVaryingLinear::CornersPlus2: return Sdc::Options::FVAR_LINEAR_CORNERS_PLUS2;
+        case FaceVaryingLinear::Boundaries: return Sdc::Options::FVAR_LINEAR_BOUNDARIES;
+        case FaceVaryingLinear::All: return Sdc::Options::FVAR_LINEAR_ALL;
+        default: return Sdc::Options::FVAR_LINEAR_CORNERS_PLUS1;
+    }
+}
+
+uint64_t edge_key(int32_t a, int32_t b) {
+    return (uint64_t(uint32_t(std::min(a, b))) << 32) | uint32_t(std::max(a, b));
+}
+
+// USD's crease chains as OpenSubdiv's sharp edges (vertex pairs, one weight each). Tags that do not fit together
+// (lengths that do not sum to the indices, a chain of fewer than 2 points, an index outside the points, a count of
+// sharpnesses that is neither one per crease nor one per edge, a non-finite sharpness) are a warning and all creases
+// are ignored; a pair of points that is not an edge of the mesh is a warning and that edge alone is ignored.
+void crease_edges(const MeshView& mesh, std::span<const int32_t> counts, std::span<const int32_t> indices, int pointCount,
+                  std::vector<int32_t>& pairs, std::vector<float>& weights, std::vector<std::string>& warnings) {
+    const SubdivisionTags& tags = mesh.subdivisionTags;
+    if (tags.creaseIndices.empty() && tags.creaseLengths.empty() && tags.creaseSharpnesses.empty()) return;
+    auto ignore = [&](const std::string& why) { warnings.push_back(mesh.name + ": creases ignored: " + why); };
+    size_t points = 0, edges = 0;
+    for (int32_t length : tags.creaseLengths) {
+        if (length < 2) return ignore("a crease of " + std::to_string(length) + " point(s) in creaseLengths (at least 2)");
+        points += size_t(length);
+        edges += size_t(length) - 1;
+    }
+    if (points != tags.creaseIndices.size())
+        return ignore("creaseLengths sum to " + std::to_string(points) + " but creaseIndices has " + std::to_string(tags.creaseIndices.size()) +
+                      " entries");
+    const bool perCrease = tags.creaseSharpnesses.size() == tags.creaseLengths.size();
+    if (!perCrease && tags.creaseSharpnesses.size() != edges)
+        return ignore(std::to_string(tags.creaseSharpnesses.size()) + " creaseSharpnesses for " + std::to_string(tags.creaseLengths.size()) +
+                      " crease(s) of " + std::to_string(edges) + " edge(s) (one per crease or one per edge)");
+    for (int32_t p : tags.creaseIndices)
+        if (p < 0 || p >= pointCount)
+            return ignore("creaseIndices has " + std::to_string(p) + ", outside the points 0.." + std::to_string(pointCount - 1));
+    for (float sharpness : tags.creaseSharpnesses)
+        if (!std::isfinite(sharpness)) return ignore("a creaseSharpnesses value is not finite");
+
+    std::unordered_set<uint64_t> meshEdges;
+    for (size_t f = 0, start = 0; f < counts.size(); start += size_t(counts[f]), ++f)
+        for (int32_t c = 0; c < counts[f]; ++c) meshEdges.insert(edge_key(indices[start + c], indices[start + (c + 1) % counts[f]]));
+    size_t missing = 0, at = 0, edge = 0;
+    std::string firstMissing;
+    for (size_t crease = 0; crease < tags.creaseLengths.size(); at += size_t(tags.creaseLengths[crease]), ++crease)
+        for (int32_t k = 0; k + 1 < tags.creaseLengths[crease]; ++k, ++edge) {
+            const int32_t a = tags.creaseIndices[at + k], b = tags.creaseIndices[at + k + 1];
+            if (!meshEdges.count(edge_key(a, b))) {
+                if (missing++ == 0) firstMissing = "(" + std::to_string(a) + ", " + std::to_string(b) + ")";
+                continue;
+            }
+            pairs.insert(pairs.end(), {a, b});
+            weights.push_back(tags.creaseSharpnesses[perCrease ? crease : edge]);
+        }
+    if (missing)
+        warnings.push_back(mesh.name + ": " + std::to_string(missing) + " crease edge(s) are not edges of the mesh, first " + firstMissing +
+                           "; those are ignored");
+}
+
+// USD's corners, or none with a warning when the tags do not fit together.
+bool corners_usable(const MeshView& mesh, int pointCount, std::vector<std::string>& warnings) {
+    const SubdivisionTags& tags = mesh.subdivisionTags;
+    auto ignore = [&](const std::string& why) {
+        warnings.push_back(mesh.name + ": corners ignored: " + why);
+        return false;
+    };
+    if (tags.cornerIndices.size() != tags.cornerSharpnesses.size())
+        return ignore(std::to_string(tags.cornerIndices.size()) + " cornerIndices but " + std::to_string(tags.cornerSharpnesses.size()) +
+                      " cornerSharpnesses");
+    for (int32_t p : tags.cornerIndices)
+        if (p < 0 || p >= pointCount)
+            return ignore("cornerIndices has " + std::to_string(p) + ", outside the points 0.." + std::to_string(pointCount - 1));
+    for (float sharpness : tags.cornerSharpnesses)
+        if (!std::isfinite(sharpness)) return ignore("a cornerSharpnesses value is not finite");
+    return !tags.cornerIndices.empty();
+}
+
 }  // namespace
 
 bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, std::span<const int32_t> indices, std::span<const int32_t> holes,
                         const float* uniformColors, const FaceVaryingUvs& uvs, std::span<const int32_t> faceMaterials, RefinedMesh& out,
-                        std::string& problem) {
+                        std::string& problem, std::vector<std::string>& warnings) {
     const int pointCount = int(mesh.points.size() / 3);
     if (mesh.subdivisionScheme == SubdivisionScheme::Loop)
         for (int32_t c : counts)
@@ -63,9 +155,24 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
         descriptor.numFVarChannels = 1;
         descriptor.fvarChannels = &uvChannel;
     }
+    // Subdivision tags (UsdGeomMesh's, USD's fallbacks by default), as Storm hands them to OpenSubdiv.
+    const SubdivisionTags& tags = mesh.subdivisionTags;
+    std::vector<int32_t> creasePairs;
+    std::vector<float> creaseWeights;
+    crease_edges(mesh, counts, indices, pointCount, creasePairs, creaseWeights, warnings);
+    descriptor.numCreases = int(creaseWeights.size());
+    descriptor.creaseVertexIndexPairs = creasePairs.data();
+    descriptor.creaseWeights = creaseWeights.data();
+    if (corners_usable(mesh, pointCount, warnings)) {
+        descriptor.numCorners = int(tags.cornerIndices.size());
+        descriptor.cornerVertexIndices = tags.cornerIndices.data();
+        descriptor.cornerWeights = tags.cornerSharpnesses.data();
+    }
     Sdc::Options options;
-    options.SetVtxBoundaryInterpolation(Sdc::Options::VTX_BOUNDARY_EDGE_AND_CORNER);  // USD's defaults
-    options.SetFVarLinearInterpolation(Sdc::Options::FVAR_LINEAR_CORNERS_PLUS1);
+    options.SetVtxBoundaryInterpolation(boundary_interpolation(tags.interpolateBoundary));
+    options.SetFVarLinearInterpolation(fvar_interpolation(tags.faceVaryingLinearInterpolation));
+    options.SetTriangleSubdivision(tags.triangleSubdivisionRule == TriangleSubdivision::Smooth ? Sdc::Options::TRI_SUB_SMOOTH
+                                                                                               : Sdc::Options::TRI_SUB_CATMARK);
     using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
     std::unique_ptr<Far::TopologyRefiner> refiner(Factory::Create(descriptor, Factory::Options(scheme_type(mesh.subdivisionScheme), options)));
     if (!refiner) {

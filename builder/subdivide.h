@@ -24,10 +24,11 @@ struct FaceVaryingUvs {
 
 // Refines `mesh.refineLevel` times with `mesh.subdivisionScheme`, from the valid faces given (`counts`/`indices`,
 // `holes` indexing them; `uniformColors` one colour per given face, or null; `uvs` empty or one value index per
-// corner; `faceMaterials` empty or one slot per given face). Texture coordinates are interpolated with USD's default faceVaryingLinearInterpolation, cornersPlus1.
+// corner; `faceMaterials` empty or one slot per given face), with `mesh.subdivisionTags` (texture coordinates by its
+// faceVaryingLinearInterpolation). Tags that cannot be used are reported in `warnings` and ignored.
 // False, with `problem` set, when OpenSubdiv cannot refine the topology.
 bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, std::span<const int32_t> indices, std::span<const int32_t> holes,
                         const float* uniformColors, const FaceVaryingUvs& uvs, std::span<const int32_t> faceMaterials, RefinedMesh& out,
-                        std::string& problem);
+                        std::string& problem, std::vector<std::string>& warnings);
 
 }  // namespace tessera

@@ -55,6 +55,36 @@ Interpolation interpolation_from(const std::string& name) {
     return Interpolation::None;
 }
 
+// UsdGeomMesh's subdivision tag tokens; an unknown one is an error naming it and the choices.
+template <typename Enum>
+Enum token_from(const char* attribute, const std::string& token, std::initializer_list<std::pair<const char*, Enum>> choices) {
+    std::string names;
+    for (const auto& [name, value] : choices) {
+        if (token == name) return value;
+        names += (names.empty() ? "" : ", ") + std::string(name);
+    }
+    throw std::invalid_argument(std::string(attribute) + " '" + token + "' is not one of " + names);
+}
+BoundaryInterpolation boundary_interpolation_from(const std::string& token) {
+    return token_from<BoundaryInterpolation>("interpolateBoundary", token,
+                                             {{"none", BoundaryInterpolation::None},
+                                              {"edgeOnly", BoundaryInterpolation::EdgeOnly},
+                                              {"edgeAndCorner", BoundaryInterpolation::EdgeAndCorner}});
+}
+FaceVaryingLinear face_varying_linear_from(const std::string& token) {
+    return token_from<FaceVaryingLinear>("faceVaryingLinearInterpolation", token,
+                                         {{"none", FaceVaryingLinear::None},
+                                          {"cornersOnly", FaceVaryingLinear::CornersOnly},
+                                          {"cornersPlus1", FaceVaryingLinear::CornersPlus1},
+                                          {"cornersPlus2", FaceVaryingLinear::CornersPlus2},
+                                          {"boundaries", FaceVaryingLinear::Boundaries},
+                                          {"all", FaceVaryingLinear::All}});
+}
+TriangleSubdivision triangle_subdivision_from(const std::string& token) {
+    return token_from<TriangleSubdivision>("triangleSubdivisionRule", token,
+                                           {{"catmullClark", TriangleSubdivision::CatmullClark}, {"smooth", TriangleSubdivision::Smooth}});
+}
+
 Aov aov_from(const std::string& name) {
     static const std::map<std::string, Aov> names{{"color", Aov::Color},           {"depth", Aov::Depth},
                                                   {"normal", Aov::Normal},         {"primId", Aov::PrimId},
@@ -235,8 +265,19 @@ NB_MODULE(_tessera, m) {
            const std::string& normalsInterpolation, std::optional<Array1<int32_t>> normalsIndices, std::optional<Array1<float>> displayColor,
            const std::string& displayColorInterpolation, std::optional<Array1<int32_t>> displayColorIndices, std::optional<Array1<float>> uvs,
            const std::string& uvsInterpolation, std::optional<Array1<int32_t>> uvsIndices, std::optional<Array1<int32_t>> faceMaterials,
-           const std::string& scheme, int refineLevel) {
+           const std::string& scheme, int refineLevel, const std::string& interpolateBoundary, const std::string& faceVaryingLinearInterpolation,
+           const std::string& triangleSubdivisionRule, std::optional<Array1<int32_t>> creaseIndices, std::optional<Array1<int32_t>> creaseLengths,
+           std::optional<Array1<float>> creaseSharpnesses, std::optional<Array1<int32_t>> cornerIndices, std::optional<Array1<float>> cornerSharpnesses) {
             MeshSource source;
+            SubdivisionTags& tags = source.view.subdivisionTags;
+            tags.interpolateBoundary = boundary_interpolation_from(interpolateBoundary);
+            tags.faceVaryingLinearInterpolation = face_varying_linear_from(faceVaryingLinearInterpolation);
+            tags.triangleSubdivisionRule = triangle_subdivision_from(triangleSubdivisionRule);
+            tags.creaseIndices = span_of(creaseIndices);
+            tags.creaseLengths = span_of(creaseLengths);
+            tags.creaseSharpnesses = span_of(creaseSharpnesses);
+            tags.cornerIndices = span_of(cornerIndices);
+            tags.cornerSharpnesses = span_of(cornerSharpnesses);
             source.view.subdivisionScheme = scheme == "catmullClark" ? SubdivisionScheme::CatmullClark
                                             : scheme == "loop"       ? SubdivisionScheme::Loop
                                             : scheme == "bilinear"   ? SubdivisionScheme::Bilinear
@@ -256,9 +297,9 @@ NB_MODULE(_tessera, m) {
             source.view.faceMaterials = span_of(faceMaterials);
             nb::list owners;
             for (nb::handle h : {nb::cast(points), nb::cast(counts), nb::cast(indices)}) owners.append(h);
-            for (auto* o : {&holes, &normalsIndices, &displayColorIndices, &uvsIndices, &faceMaterials})
+            for (auto* o : {&holes, &normalsIndices, &displayColorIndices, &uvsIndices, &faceMaterials, &creaseIndices, &creaseLengths, &cornerIndices})
                 if (*o) owners.append(nb::cast(**o));
-            for (auto* o : {&normals, &displayColor, &uvs})
+            for (auto* o : {&normals, &displayColor, &uvs, &creaseSharpnesses, &cornerSharpnesses})
                 if (*o) owners.append(nb::cast(**o));
             source.keepAlive = keep_alive(owners);
             return source;
@@ -268,8 +309,12 @@ NB_MODULE(_tessera, m) {
         "display_color"_a = nb::none(), "display_color_interpolation"_a = "constant", "display_color_indices"_a = nb::none(),
         "uvs"_a = nb::none(), "uvs_interpolation"_a = "faceVarying", "uvs_indices"_a = nb::none(), "face_materials"_a = nb::none(),
         "subdivision_scheme"_a = "none",
-        "refine_level"_a = 0,
-        "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples; uvs: float32 pairs).");
+        "refine_level"_a = 0, "interpolate_boundary"_a = "edgeAndCorner", "face_varying_linear_interpolation"_a = "cornersPlus1",
+        "triangle_subdivision_rule"_a = "catmullClark", "crease_indices"_a = nb::none(), "crease_lengths"_a = nb::none(),
+        "crease_sharpnesses"_a = nb::none(), "corner_indices"_a = nb::none(), "corner_sharpnesses"_a = nb::none(),
+        "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples; uvs: float32 pairs). "
+        "Subdivision tags take UsdGeomMesh's tokens and arrays (int32 indices and lengths, float32 sharpnesses); an unknown "
+        "token is a ValueError.");
 
     nb::class_<MatrixArray>(m, "MatrixArray").def_prop_ro("size", &MatrixArray::size);
     m.def(

@@ -62,8 +62,8 @@ def hard_cube(stage, path, half=0.5):
     return mesh
 
 
-def session_render(stage_path, *, resolution=(256, 256), aovs=("color", "primId"), **kwargs):
-    session = tessera.Session(str(stage_path), validation=True)
+def session_render(stage_path, *, resolution=(256, 256), aovs=("color", "primId"), complexity=1.0, **kwargs):
+    session = tessera.Session(str(stage_path), validation=True, complexity=complexity)
     result = session.render(camera="/Camera", resolution=resolution, aovs=aovs, **kwargs)
     assert not result.errors, "\n".join(result.errors)
     result.session = session
@@ -344,7 +344,8 @@ def test_tessellation_memory_follows_the_view_down_as_well_as_up(tmp_path):
 def test_openusd_displacement_scene(tmp_path, vis):
     """OpenUSD's testUsdImagingGLDisplacement: subdivided quad and triangle meshes displaced by a height map."""
     stage = shared_asset("openusd-testenv/testUsdImagingGLDisplacement/testUsdImagingGLDisplacement.usda")
-    result = session_render(stage, resolution=(320, 240), aovs=("color",), vis=vis, dicing_rate=2.0)
+    # Refined twice (Storm's baselines are at usdview's Very High, 1.3; ours were made at 1.2).
+    result = session_render(stage, resolution=(320, 240), aovs=("color",), vis=vis, dicing_rate=2.0, complexity=1.2)
     assert result.stats["micro_triangles"] > 0
     name = "displacement" if vis is None else f"displacement_vis_{vis}"
     result.write(tmp_path / f"{name}.png")

@@ -236,7 +236,7 @@ def test_preview_surface_inputs(render):
 def test_texture_coordinates(tmp_path):
     """primvars:st of each interpolation reaches the resolve pass (--vis uv: red fract(u), green fract(v)); subdivided
     meshes carry their UV islands through OpenSubdiv; a wrongly typed st is a warning naming the prim."""
-    session = tessera.Session(TESTENV / "testUvs" / "uvs.usda", validation=True)
+    session = tessera.Session(TESTENV / "testUvs" / "uvs.usda", validation=True, complexity=1.2)  # the cube refined twice
     result = session.render(camera="/Camera", resolution=(480, 320), vis="uv", aovs=("color", "primId"))
     assert not result.errors, "\n".join(result.errors)
     assert any("/WrongType: primvars:st is float3[]" in w for w in result.warnings)

@@ -64,7 +64,7 @@ def test_too_late_a_registration_is_reported_and_the_values_still_read():
         stage = Usd.Stage.CreateInMemory()
         stage.DefinePrim("/M", "Mesh").ApplyAPI("MaterialBindingAPI")  # USD's schema registry is in use
         import tessera
-        session = tessera.Session("{EXAMPLE}", refine_level=4)
+        session = tessera.Session("{EXAMPLE}", complexity=1.4)
         print(session.scene.get_mesh("/Reduced").settings.as_dict()["keep_triangle_percent"])
         print(session.scene.warnings)
     """)
@@ -87,7 +87,7 @@ def _render(session):
 
 
 def test_a_mesh_with_keep_triangle_percent_stores_fewer_triangles():
-    session = tessera.Session(EXAMPLE, refine_level=4, validation=True)
+    session = tessera.Session(EXAMPLE, complexity=1.4, validation=True)
     reduced = _render(session)
     assert reduced.stats["source_triangles"] == 2 * SUBDIVIDED_CUBE, "the source is the same"
     # --no-lod draws every stored leaf: the full cube's and at most 10 % of the other's.
@@ -125,7 +125,7 @@ def test_unauthored_attributes_take_the_render_defaults_not_the_fallbacks():
 def test_an_invalid_value_warns_and_the_mesh_uses_the_default(attribute, value, message):
     stage = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(EXAMPLE)))  # a copy: the example file stays as it is
     stage.GetPrimAtPath("/Reduced").GetAttribute(attribute).Set(value)
-    session = tessera.Session(stage, refine_level=4, validation=True)
+    session = tessera.Session(stage, complexity=1.4, validation=True)
     result = _render(session)
     warnings = [w for w in result.warnings if w.startswith("/Reduced: ")]
     assert len(warnings) == 1 and message in warnings[0] and "the mesh is built with the default" in warnings[0], result.warnings

@@ -48,7 +48,7 @@ def test_transform_matches_its_card(render, name):
     from pxr import Usd
 
     stage = Usd.Stage.Open(str(shared_asset(f"{TRANSFORMS}/{name}.usda")))
-    result = render(stage, camera=look_down_z(stage), resolution=(256, 256), aovs=("primId",), refine_level=0)
+    result = render(stage, camera=look_down_z(stage), resolution=(256, 256), aovs=("primId",), complexity=1.0)
     assert any("axis.usda" in w for w in result.warnings), "the missing gizmo is reported"
     ours = np.asarray(result["primId"].ids()) != 0xFFFFFFFF
     card = np.asarray(tessera.read_image(str(shared_asset(f"{TRANSFORMS}/cards/{name}_ZPos.png"))))
@@ -67,7 +67,7 @@ def test_vehicle_variants_switch_live():
         assert not result.errors and not result.warnings, "\n".join(result.errors + result.warnings)
         return np.asarray(result["primId"].ids()) != 0xFFFFFFFF
 
-    session = tessera.Session(shared_asset(VEHICLES), validation=True, refine_level=0)
+    session = tessera.Session(shared_asset(VEHICLES), validation=True, complexity=1.0)
     tractor = drawn(session.render(camera=None, resolution=(160, 120), aovs=("primId",)))
     vehicle = session.stage.GetPrimAtPath("/vehicleVariant").GetVariantSet("wheels")
     assert "formula" in vehicle.GetVariantNames()
@@ -77,7 +77,7 @@ def test_vehicle_variants_switch_live():
 
     fresh_stage = Usd.Stage.Open(str(shared_asset(VEHICLES)))
     fresh_stage.GetPrimAtPath("/vehicleVariant").GetVariantSet("wheels").SetVariantSelection("formula")
-    fresh = drawn(tessera.Session(fresh_stage, validation=True, refine_level=0).render(camera=None, resolution=(160, 120),
+    fresh = drawn(tessera.Session(fresh_stage, validation=True, complexity=1.0).render(camera=None, resolution=(160, 120),
                                                                                         aovs=("primId",)))
     assert intersection_over_union(formula, fresh) > 0.99, "a live switch draws what a fresh stage does"
 

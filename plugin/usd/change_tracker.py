@@ -22,7 +22,8 @@ property dirties:
 | anything on a camera or a light                                  | SPRIM DirtyParams on it                                  |
 | gprim `points`, implicit shapes' `size`, `radius`                | GPRIM DirtyPoints on the meshes read from it             |
 | `faceVertexCounts`, `faceVertexIndices`, `holeIndices`,          | GPRIM DirtyTopology                                      |
-| `orientation`, `subdivisionScheme`                               |                                                          |
+| `orientation`, `subdivisionScheme`, subdivision tags             |                                                          |
+| (`interpolateBoundary`, `crease*`, `corner*`, ...)               |                                                          |
 | `normals`, `primvars:*`                                          | GPRIM DirtyPrimvar                                       |
 | `doubleSided`                                                    | GPRIM DirtyDoubleSided                                   |
 | `tessera:*` (TesseraMeshAPI build settings)                      | GPRIM DirtyTopology (the mesh is built again)            |
@@ -40,6 +41,7 @@ from typing import NamedTuple
 from pxr import Tf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
+from . import subdivision
 
 _dirty = _tessera.dirty
 
@@ -61,7 +63,8 @@ class Effect(NamedTuple):
 _INSTANCER_ATTRIBUTES = {"positions", "orientations", "orientationsf", "scales", "protoIndices", "ids", "invisibleIds",
                          "prototypes"}  # ids: invisibleIds name instances by id
 _POINTS = {"points", "size", "radius"}  # implicit gprims' shape attributes are their points
-_TOPOLOGY = {"faceVertexCounts", "faceVertexIndices", "holeIndices", "orientation", "subdivisionScheme"}
+_TOPOLOGY = {"faceVertexCounts", "faceVertexIndices", "holeIndices", "orientation", "subdivisionScheme",
+             *subdivision.TAG_ATTRIBUTES}  # interpolateBoundary, creases, corners, ...
 
 
 def classify(prim: Usd.Prim, name: str) -> Effect | None:

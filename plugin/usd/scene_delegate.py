@@ -24,7 +24,7 @@ import numpy as np
 from pxr import Gf, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import change_tracker, implicit, lights, materials, mesh_settings, point_instancer
+from . import change_tracker, implicit, lights, materials, mesh_settings, point_instancer, subdivision
 from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
@@ -51,6 +51,7 @@ class _Rprim:
     group: str | None = None  # key of the instancing group that made it; None for a gprim drawn once (id = path)
     instancer_id: str = ""
     material: str = ""  # the bound material's path, "" for none
+    subdivided: bool = False  # read with a subdivision scheme other than none: a new refine level rebuilds it
     subset_materials: tuple = ()  # the materials of its materialBind GeomSubsets (slots 1, 2, ...), "" for the mesh's own
     # What the last walk found (None once read): the first sync after a walk need not ask USD again.
     walked_visible: bool | None = None
@@ -79,7 +80,7 @@ class _AuthoredNames(frozenset):
     # Read by name when authored; anything else a mesh reader reads (normals, primvars, holes) makes it not plain.
     _PLAIN = frozenset({"points", "faceVertexCounts", "faceVertexIndices", "subdivisionScheme", "orientation",
                         "doubleSided"})
-    _OTHER_READS = ("normals", "primvars:", "holeIndices")
+    _OTHER_READS = ("normals", "primvars:", "holeIndices", *sorted(subdivision.TAG_ATTRIBUTES))
 
     def __new__(cls, names):
         self = super().__new__(cls, names)
@@ -187,12 +188,15 @@ class _Found:
 
 
 class UsdSceneDelegate(_tessera.SceneDelegate):
-    def __init__(self, stage: Usd.Stage, render_index, time: Usd.TimeCode = Usd.TimeCode.Default(), refine_level: int = 2,
-                 build_settings: _tessera.BuildSettings | None = None, purposes=(UsdGeom.Tokens.render,)):
+    def __init__(self, stage: Usd.Stage, render_index, time: Usd.TimeCode = Usd.TimeCode.Default(),
+                 complexity: float = subdivision.DEFAULT_COMPLEXITY, build_settings: _tessera.BuildSettings | None = None,
+                 purposes=(UsdGeom.Tokens.render,)):
         super().__init__()
         # Geometry of these purposes is drawn, besides `default` (Hydra's render tags); the others' is not read.
         self.purposes = {UsdGeom.Tokens.default_, *purposes}
-        self.refine_level = refine_level  # uniform refinements of subdivision surfaces (catmullClark, loop, bilinear)
+        # Uniform refinements of subdivision surfaces (catmullClark, loop, bilinear), from the render's complexity.
+        self.complexity = float(complexity)
+        self.refine_level = subdivision.refine_level(complexity)
         # The render-wide build settings; a mesh's authored TesseraMeshAPI attributes override them (mesh_settings.py).
         self.build_settings = build_settings or _tessera.BuildSettings()
         self._mesh_settings = mesh_settings.SettingsReader()
@@ -793,6 +797,18 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     # -- SceneDelegate ----------------------------------------------------------------------------------
 
+    def set_complexity(self, complexity: float) -> None:
+        """Refines subdivision surfaces at `complexity`'s refine level (Hydra's convention: subdivision.refine_level)
+        from the next sync. A new level re-syncs the meshes that have a subdivision scheme (and were read), no others."""
+        level = subdivision.refine_level(complexity)
+        self.complexity = float(complexity)
+        if level == self.refine_level:
+            return
+        self.refine_level = level
+        for id, record in self.rprims.items():
+            if record.subdivided:
+                self.index.mark_dirty(id, _dirty.TOPOLOGY)
+
     def _authored_names(self, names: list[str]) -> _AuthoredNames:
         key = tuple(names)
         shared = self._authored_sets.get(key)
@@ -810,16 +826,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             authored = self._authored_names(prim.GetAuthoredPropertyNames())
         name = id if record.group is None else str(prim.GetPath())
         if authored.plain and "points" in authored and not self._stage_has("GeomSubset"):
-            source = self._plain_mesh_source(prim, authored, name)
+            source = self._plain_mesh_source(prim, authored, name, record)
         else:
-            source = self._mesh_source(prim, authored, record.material, name)
+            source = self._mesh_source(prim, authored, record.material, name, record)
         if authored.tessera:
             source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
         else:  # nothing of TesseraMeshAPI authored: the render's defaults, applied or not
             source.settings = self.build_settings
         return source
 
-    def _plain_mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, name: str):
+    def _plain_mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, name: str, record: _Rprim):
         """The common mesh, read in as few steps as can be: no primvars, normals or holes authored, no GeomSubsets on
         the stage (what _mesh_source makes of it, with less Python per mesh)."""
         t = self.time
@@ -828,16 +844,18 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         counts = attribute("faceVertexCounts").Get(t) if "faceVertexCounts" in authored else None
         indices = attribute("faceVertexIndices").Get(t) if "faceVertexIndices" in authored else None
         if points is None or counts is None or indices is None:
-            return self._mesh_source(prim, authored, "", name)  # a Cube or Sphere, or the error named there
-        scheme = attribute("subdivisionScheme").Get(t) if "subdivisionScheme" in authored else None
+            return self._mesh_source(prim, authored, "", name, record)  # a Cube or Sphere, or the error named there
+        scheme = (attribute("subdivisionScheme").Get(t) if "subdivisionScheme" in authored else None) or "catmullClark"
+        record.subdivided = scheme != UsdGeom.Tokens.none
         left_handed = "orientation" in authored and attribute("orientation").Get(t) == UsdGeom.Tokens.leftHanded
         double_sided = "doubleSided" in authored and bool(attribute("doubleSided").Get(t))
         return _tessera.mesh_source(
             name, np.asarray(points, np.float32).reshape(-1), np.asarray(counts, np.int32), np.asarray(indices, np.int32),
             None, left_handed, double_sided, None, "vertex", None, None, "constant", None, None, "faceVarying", None, None,
-            scheme or "catmullClark", self.refine_level)
+            scheme, self.refine_level)
 
-    def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, material: str, name: str):
+    def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, material: str, name: str, record: _Rprim):
+        record.subdivided = False
         if not prim.IsA(UsdGeom.Mesh):
             return implicit.mesh_source(prim, self.time)
         t = self.time
@@ -895,6 +913,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if bad.any():
                     self.warnings.append(f"{subset.GetPath()}: {int(bad.sum())} face indices outside 0..{len(counts) - 1}; ignored")
                 face_materials[faces[~bad]] = slot
+        scheme = value("subdivisionScheme", "") or "catmullClark"
+        record.subdivided = scheme != UsdGeom.Tokens.none
+        # Subdivision tags matter only to a refined mesh: read then alone.
+        tags = (subdivision.tags(prim, authored, t, name, self.warnings)
+                if record.subdivided and self.refine_level > 0 and not authored.isdisjoint(subdivision.TAG_ATTRIBUTES) else {})
         return _tessera.mesh_source(
             name, points, counts, indices,
             hole_indices=holes,
@@ -903,7 +926,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             normals=normals, normals_interpolation=normals_interp, normals_indices=normals_idx,
             display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx,
             uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx, face_materials=face_materials,
-            subdivision_scheme=value("subdivisionScheme", "") or "catmullClark", refine_level=self.refine_level)
+            subdivision_scheme=scheme, refine_level=self.refine_level, **tags)
 
     def _material_uv_primvar(self, material: str) -> str:
         """The primvar the bound material's texture readers read (its UsdPrimvarReader_float2's varname), else "st"."""

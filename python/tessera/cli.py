@@ -21,6 +21,31 @@ def _purposes(text: str) -> tuple[str, ...]:
     return names
 
 
+def _complexity(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value >= 1.0:
+        raise argparse.ArgumentTypeError(f"'{text}': complexity is a number from 1.0 (the control cage) to 2.0 (usdview's "
+                                         "levels: 1.0, 1.1, 1.2, 1.3)")
+    return value
+
+
+def _add_complexity(parser) -> None:
+    """--complexity, and --refine-level N as its alias (complexity 1.N, Hydra's convention)."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--complexity", type=_complexity, default=1.0, metavar="C",
+                       help="refines subdivision surfaces as usdview's complexity does: 1.0 the control cage (default), "
+                            "1.1, 1.2, 1.3 refine 1, 2, 3 times, ... 1.8 to 2.0 8 times; meshes with subdivisionScheme none never")
+    group.add_argument("--refine-level", type=int, choices=range(0, 9), metavar="N",
+                       help="the same as --complexity 1.N (0 to 8)")
+
+
+def _complexity_of(args) -> float:
+    return 1.0 + args.refine_level / 10 if args.refine_level is not None else args.complexity
+
+
 def _resolution(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -98,8 +123,7 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--no-occlusion", action="store_true",
                         help="no two-pass HZB occlusion culling (a first frame tests small instances against the large ones; later frames test against the frame before)")
     render.add_argument("--stats", help="write frame statistics to this JSON file (with --frames: {\"frames\": [one per frame]})")
-    render.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N",
-                        help="uniform refinements of subdivision surfaces before the DAG (default 2; 0 draws the cage)")
+    _add_complexity(render)
     render.add_argument("--purposes", type=_purposes, metavar="render,proxy,guide",
                         help="UsdGeom purposes drawn besides default (default: the render settings' includedPurposes, else "
                              "render); the others are not read")
@@ -109,7 +133,7 @@ def _parser() -> argparse.ArgumentParser:
     build_cmd = commands.add_parser("build", help="build every mesh of a stage into the mesh cache ($TESSERA_CACHE)")
     build_cmd.add_argument("stage", help="USD stage")
     build_cmd.add_argument("--frame", type=float, help="time code (default: the stage's default time)")
-    build_cmd.add_argument("--refine-level", type=int, default=2, choices=range(0, 9), metavar="N", help="as for render (default 2)")
+    _add_complexity(build_cmd)
     build_cmd.add_argument("--purposes", type=_purposes, default=("render",), metavar="render,proxy,guide", help="as for render (default render)")
     bench = commands.add_parser("bench", help="benchmarks: tables of speed, memory and error")
     benches = bench.add_subparsers(dest="bench", required=True)
@@ -198,7 +222,7 @@ def _render(args) -> int:
             if frames is not None:
                 frame_path(output, frames[0])
     purposes = args.purposes or (settings.purposes if settings else ("render",))
-    session = Session(stage, frame=frames[0] if frames else args.frame, device=args.device, refine_level=args.refine_level,
+    session = Session(stage, frame=frames[0] if frames else args.frame, device=args.device, complexity=_complexity_of(args),
                       purposes=purposes)
     loaded = time.perf_counter()
     first_camera = session.camera_paths()[0] if session.camera_paths() else None
@@ -283,7 +307,7 @@ def _build(args) -> int:
     stage = _open_stage(args.stage)
     collector = _Collector()
     scene = UsdSceneDelegate(stage, collector, Usd.TimeCode(args.frame) if args.frame is not None else Usd.TimeCode.Default(),
-                             args.refine_level, purposes=args.purposes)
+                             _complexity_of(args), purposes=args.purposes)
     scene.populate()
     total, done, cached, triangles, failed = len(collector.meshes), 0, 0, 0, 0
     started = time.perf_counter()

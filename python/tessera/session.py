@@ -63,6 +63,16 @@ def _open_stage(stage):
     return opened
 
 
+def _checked_complexity(complexity) -> float:
+    from .usd import subdivision
+
+    try:
+        subdivision.refine_level(complexity)
+    except (TypeError, ValueError) as error:
+        raise StageError(str(error)) from None
+    return float(complexity)
+
+
 class Session:
     """Opens a stage and renders it; the render delegate and the GPU scene live as long as the session.
 
@@ -72,11 +82,13 @@ class Session:
     """
 
     def __init__(self, stage, *, frame: float | None = None, device: str | None = None, validation: bool | None = None,
-                 refine_level: int = 2, build_settings: _tessera.BuildSettings | dict | None = None,
+                 complexity: float = 1.0, build_settings: _tessera.BuildSettings | dict | None = None,
                  purposes=("render",)):
-        """`build_settings` (a BuildSettings or a dict of tessera.build_mesh's keywords) applies to every mesh.
-        `purposes`: the UsdGeom purposes drawn besides `default` (PURPOSES; `render` by default, as usdview's
-        render mode and husk); geometry of the others is not read."""
+        """`complexity`: the render setting that refines subdivision surfaces, Hydra's convention (1.0 the control
+        cage, as usdview's default; 1.1, 1.2, 1.3 refine 1, 2, 3 times; up to 2.0, 8 times): the session's default,
+        which render() may override. `build_settings` (a BuildSettings or a dict of tessera.build_mesh's keywords)
+        applies to every mesh. `purposes`: the UsdGeom purposes drawn besides `default` (PURPOSES; `render` by
+        default, as usdview's render mode and husk); geometry of the others is not read."""
         from pxr import Usd
 
         from .usd import ChangeTracker, UsdSceneDelegate
@@ -91,7 +103,8 @@ class Session:
         unknown = [p for p in self.purposes if p not in PURPOSES]
         if unknown:
             raise StageError(f"unknown purpose {', '.join(map(repr, unknown))} (choose from {', '.join(PURPOSES)}; default is always drawn)")
-        self.scene = UsdSceneDelegate(self.stage, self.index, self.time, refine_level, build_settings, self.purposes)
+        self.complexity = _checked_complexity(complexity)
+        self.scene = UsdSceneDelegate(self.stage, self.index, self.time, self.complexity, build_settings, self.purposes)
         self.scene.populate()
         self._changes = ChangeTracker(self.stage)  # edits from here on re-sync what they touch
 
@@ -129,13 +142,16 @@ class Session:
 
     def render(self, *, camera: str | None = None, resolution: tuple[int, int] = (960, 540),
                aovs=("color",), background=(0.0, 0.0, 0.0, 0.0), pixel_error: float = 1.0, lod: bool = True,
-               vis: str | None = None, raster: str = "auto", occlusion: bool = True, dicing_rate: float = 1.0) -> RenderResult:
+               vis: str | None = None, raster: str = "auto", occlusion: bool = True, dicing_rate: float = 1.0,
+               complexity: float | None = None) -> RenderResult:
         """Renders the stage at the session's time. `pixel_error` is the DAG cut's screen-space error bound in
         pixels; `lod=False` draws every source triangle (the full-detail reference); `vis` replaces shading in
         the color AOV by a debug view (VISUALIZATIONS); `raster` forces one rasterizer (RASTER_MODES); `occlusion`
         culls what the previous render of this session hid (two-pass HZB occlusion: counts change, the image does
         not; a session's first render, or one after instances moved, has nothing to test against); `dicing_rate`:
-        displaced surfaces are diced into micro-triangles whose edges project to about this many pixels."""
+        displaced surfaces are diced into micro-triangles whose edges project to about this many pixels;
+        `complexity` (None: the session's) refines subdivision surfaces (see Session): a render at another refine
+        level than the last rebuilds the meshes that have a subdivision scheme, and no others."""
         from .usd import framing_camera
 
         width, height = resolution
@@ -151,7 +167,9 @@ class Session:
             raise StageError(f"pixel error must be a number >= 0, not {pixel_error}")
         if not (dicing_rate > 0.0):
             raise StageError(f"dicing rate must be a number of pixels > 0, not {dicing_rate}")
+        complexity = self.complexity if complexity is None else _checked_complexity(complexity)
         self._apply_edits()
+        self.scene.set_complexity(complexity)
         camera_id = ""
         if camera:
             if camera not in self.scene.cameras:
@@ -178,6 +196,8 @@ class Session:
         stats["device"] = self.delegate.device_name
         stats["pixel_error"] = float(pixel_error) if lod else 0.0
         stats["lod"] = lod
+        stats["complexity"] = complexity
+        stats["refine_level"] = self.scene.refine_level  # of subdivision surfaces
         stats["rprims"] = self.index.rprim_count
         stats["meshes_built"] = diagnostics["meshes_built"]
         stats["meshes_cached"] = diagnostics["meshes_cached"]

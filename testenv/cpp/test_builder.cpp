@@ -252,6 +252,200 @@ TEST(Subdivision, CatmullClarkRefinesTowardsTheLimitSurface) {
     EXPECT_EQ(prepare_mesh(v).indices.size() / 3, 5u * 16u * 2u);
 }
 
+namespace {
+std::vector<std::array<float, 3>> points_of(const PreparedMesh& m) {
+    std::vector<std::array<float, 3>> out;
+    for (size_t i = 0; i < m.positions.size(); i += 3) out.push_back({m.positions[i], m.positions[i + 1], m.positions[i + 2]});
+    return out;
+}
+bool has_point(const PreparedMesh& m, std::array<float, 3> p, float tolerance = 1e-6f) {
+    for (const auto& q : points_of(m))
+        if (std::fabs(q[0] - p[0]) <= tolerance && std::fabs(q[1] - p[1]) <= tolerance && std::fabs(q[2] - p[2]) <= tolerance) return true;
+    return false;
+}
+// An open grid of n x n unit quads in the XY plane, from (0, 0) to (n, n).
+struct OpenGrid {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    explicit OpenGrid(int n) {
+        for (int y = 0; y <= n; ++y)
+            for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x), float(y), 0.0f});
+        for (int y = 0; y < n; ++y)
+            for (int x = 0; x < n; ++x) {
+                const int a = y * (n + 1) + x;
+                counts.push_back(4);
+                indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+            }
+    }
+    MeshView view() {
+        MeshView v = polygon_view("/Grid", points, counts, indices);
+        v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+        v.refineLevel = 2;
+        return v;
+    }
+};
+}  // namespace
+
+TEST(SubdivisionTags, InfinitelySharpCreaseKeepsTheCageEdge) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    MeshView v = cube_cage(points, counts, indices);
+    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    v.refineLevel = 2;
+    auto on_edge = [](const PreparedMesh& m) {  // refined points on the cage's edge from (-1, -1, 1) to (1, -1, 1)
+        std::set<float> xs;
+        for (const auto& p : points_of(m))
+            if (std::fabs(p[1] + 1.0f) < 1e-6f && std::fabs(p[2] - 1.0f) < 1e-6f) xs.insert(p[0]);
+        return xs;
+    };
+    EXPECT_TRUE(on_edge(prepare_mesh(v)).empty()) << "smooth: the edge is rounded away";
+    // The edge 0-1 creased infinitely (USD: 10) with its two ends as infinitely sharp corners: the refined edge is
+    // the cage's edge, its points evenly spaced along it.
+    std::vector<int32_t> crease{0, 1}, lengths{2}, corners{0, 1};
+    std::vector<float> sharpness{10.0f}, cornerSharpness{10.0f, 10.0f};
+    v.subdivisionTags.creaseIndices = crease;
+    v.subdivisionTags.creaseLengths = lengths;
+    v.subdivisionTags.creaseSharpnesses = sharpness;
+    v.subdivisionTags.cornerIndices = corners;
+    v.subdivisionTags.cornerSharpnesses = cornerSharpness;
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_TRUE(m.warnings.empty()) << m.warnings[0];
+    EXPECT_EQ(on_edge(m), (std::set<float>{-1.0f, -0.5f, 0.0f, 0.5f, 1.0f}));
+    // A closed crease loop around the top face (one sharpness per edge), no corners: the loop is a crease curve,
+    // smoothed along itself but kept in the top face's plane; without the crease the top is rounded below it.
+    std::vector<int32_t> loop{0, 1, 3, 2, 0}, loopLength{5};
+    std::vector<float> perEdge{10.0f, 10.0f, 10.0f, 10.0f};
+    v.subdivisionTags = {};
+    v.subdivisionTags.creaseIndices = loop;
+    v.subdivisionTags.creaseLengths = loopLength;
+    v.subdivisionTags.creaseSharpnesses = perEdge;
+    auto at_top = [](const PreparedMesh& m) {
+        size_t n = 0;
+        for (const auto& p : points_of(m)) n += std::fabs(p[2] - 1.0f) < 1e-6f;
+        return n;
+    };
+    m = prepare_mesh(v);
+    EXPECT_TRUE(m.warnings.empty()) << m.warnings[0];
+    EXPECT_GE(at_top(m), 16u) << "the 16 refined crease edges' points lie in the plane z = 1";
+    v.subdivisionTags = {};
+    EXPECT_EQ(at_top(prepare_mesh(v)), 0u);
+}
+
+TEST(SubdivisionTags, SharpCornerKeepsTheCornerPoint) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    MeshView v = cube_cage(points, counts, indices);
+    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    v.refineLevel = 2;
+    EXPECT_FALSE(has_point(prepare_mesh(v), {-1, -1, 1}));
+    std::vector<int32_t> corner{0};
+    std::vector<float> sharpness{10.0f};
+    v.subdivisionTags.cornerIndices = corner;
+    v.subdivisionTags.cornerSharpnesses = sharpness;
+    PreparedMesh m = prepare_mesh(v);
+    EXPECT_TRUE(m.warnings.empty()) << m.warnings[0];
+    EXPECT_TRUE(has_point(m, {-1, -1, 1}));
+    EXPECT_FALSE(has_point(m, {1, -1, 1})) << "only the corner given is kept";
+}
+
+TEST(SubdivisionTags, InterpolateBoundaryShapesAnOpenGrid) {
+    OpenGrid grid(3);
+    MeshView v = grid.view();  // USD's default: edgeAndCorner
+    PreparedMesh edgeAndCorner = prepare_mesh(v);
+    EXPECT_TRUE(has_point(edgeAndCorner, {0, 0, 0})) << "the grid's corners are kept";
+    EXPECT_TRUE(has_point(edgeAndCorner, {1.5f, 0, 0})) << "boundary edges are interpolated (straight here)";
+    v.subdivisionTags.interpolateBoundary = BoundaryInterpolation::EdgeOnly;
+    PreparedMesh edgeOnly = prepare_mesh(v);
+    EXPECT_FALSE(has_point(edgeOnly, {0, 0, 0})) << "edgeOnly rounds the corners";
+    EXPECT_TRUE(has_point(edgeOnly, {0, 1.5f, 0})) << "boundary edges are still interpolated";
+    v.subdivisionTags.interpolateBoundary = BoundaryInterpolation::None;
+    PreparedMesh none = prepare_mesh(v);
+    EXPECT_LT(none.indices.size(), edgeAndCorner.indices.size()) << "boundary faces are holes, as OpenSubdiv and Storm draw them";
+    float minX = 3;
+    for (const auto& p : points_of(none)) minX = std::min(minX, p[0]);
+    EXPECT_GT(minX, 0.5f) << "no surface reaches the boundary";
+    EXPECT_EQ(edgeAndCorner.indices.size(), edgeOnly.indices.size());
+}
+
+TEST(SubdivisionTags, TriangleRuleAndFaceVaryingInterpolationAreApplied) {
+    // A tetrahedron under Catmull-Clark: the smooth triangle rule moves the refined points.
+    std::vector<float> points{1, 1, 1, -1, -1, 1, -1, 1, -1, 1, -1, -1};
+    std::vector<int32_t> counts{3, 3, 3, 3}, indices{0, 1, 2, 0, 3, 1, 0, 2, 3, 1, 3, 2};
+    MeshView v = polygon_view("/Tetra", points, counts, indices);
+    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    v.refineLevel = 1;
+    const PreparedMesh catmark = prepare_mesh(v);
+    v.subdivisionTags.triangleSubdivisionRule = TriangleSubdivision::Smooth;
+    const PreparedMesh smooth = prepare_mesh(v);
+    ASSERT_EQ(catmark.positions.size(), smooth.positions.size());
+    EXPECT_NE(catmark.positions, smooth.positions);
+    // Texture coordinates of an open grid, u = x^2 / 9 (not reproduced by smooth subdivision): `all` interpolates
+    // them linearly, so a control point keeps its UV; `none` smooths them in the interior.
+    OpenGrid grid(3);
+    std::vector<float> uvs;
+    for (size_t i = 0; i < grid.points.size(); i += 3) uvs.insert(uvs.end(), {grid.points[i] * grid.points[i] / 9, grid.points[i + 1] / 3});
+    MeshView g = grid.view();
+    g.uvs = {Interpolation::Vertex, 2, uvs, {}};
+    auto has_uv = [](const PreparedMesh& m, float u, float w) {
+        for (size_t i = 0; i < m.uvs.size(); i += 2)
+            if (std::fabs(m.uvs[i] - u) < 1e-6f && std::fabs(m.uvs[i + 1] - w) < 1e-6f) return true;
+        return false;
+    };
+    g.subdivisionTags.faceVaryingLinearInterpolation = FaceVaryingLinear::All;
+    EXPECT_TRUE(has_uv(prepare_mesh(g), 1.0f / 9, 1.0f / 3));
+    g.subdivisionTags.faceVaryingLinearInterpolation = FaceVaryingLinear::None;
+    EXPECT_FALSE(has_uv(prepare_mesh(g), 1.0f / 9, 1.0f / 3)) << "smooth: the interior control point's UV moves";
+}
+
+TEST(SubdivisionTags, BadTagsAreReportedAndIgnored) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    MeshView v = cube_cage(points, counts, indices);
+    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    v.refineLevel = 1;
+    const PreparedMesh plain = prepare_mesh(v);
+    auto expect_ignored = [&](const MeshView& bad, const char* message) {
+        PreparedMesh m = prepare_mesh(bad);
+        EXPECT_EQ(m.positions, plain.positions) << message;
+        ASSERT_EQ(m.warnings.size(), 1u) << message;
+        EXPECT_NE(m.warnings[0].find(message), std::string::npos) << m.warnings[0];
+        EXPECT_EQ(m.warnings[0].rfind("/Cage: ", 0), 0u) << "names the prim: " << m.warnings[0];
+    };
+    std::vector<int32_t> crease{0, 1, 3}, two{2}, three{3}, outside{0, 99}, one{1}, corner{0}, badCorner{-1};
+    std::vector<float> sharp{10.0f}, sharpTwo{10.0f, 10.0f}, sharpThree{1, 2, 3}, nan{std::nanf("")};
+    MeshView bad = v;
+    bad.subdivisionTags.creaseIndices = crease;
+    bad.subdivisionTags.creaseLengths = two;
+    bad.subdivisionTags.creaseSharpnesses = sharp;
+    expect_ignored(bad, "creases ignored: creaseLengths sum to 2 but creaseIndices has 3 entries");
+    bad.subdivisionTags.creaseLengths = three;
+    bad.subdivisionTags.creaseSharpnesses = sharpThree;
+    expect_ignored(bad, "creases ignored: 3 creaseSharpnesses for 1 crease(s) of 2 edge(s)");
+    bad.subdivisionTags.creaseIndices = outside;
+    bad.subdivisionTags.creaseLengths = two;
+    bad.subdivisionTags.creaseSharpnesses = sharp;
+    expect_ignored(bad, "creases ignored: creaseIndices has 99, outside the points 0..7");
+    bad.subdivisionTags.creaseIndices = std::span<const int32_t>(crease).first(1);
+    bad.subdivisionTags.creaseLengths = one;
+    expect_ignored(bad, "creases ignored: a crease of 1 point(s)");
+    bad.subdivisionTags.creaseIndices = crease;
+    bad.subdivisionTags.creaseLengths = three;
+    bad.subdivisionTags.creaseSharpnesses = nan;
+    expect_ignored(bad, "creases ignored: a creaseSharpnesses value is not finite");
+    std::vector<int32_t> diagonal{0, 3};  // across a face: not an edge
+    bad.subdivisionTags.creaseIndices = diagonal;
+    bad.subdivisionTags.creaseLengths = two;
+    bad.subdivisionTags.creaseSharpnesses = sharp;
+    expect_ignored(bad, "1 crease edge(s) are not edges of the mesh, first (0, 3)");
+    bad = v;
+    bad.subdivisionTags.cornerIndices = corner;
+    bad.subdivisionTags.cornerSharpnesses = sharpTwo;
+    expect_ignored(bad, "corners ignored: 1 cornerIndices but 2 cornerSharpnesses");
+    bad.subdivisionTags.cornerIndices = badCorner;
+    bad.subdivisionTags.cornerSharpnesses = sharp;
+    expect_ignored(bad, "corners ignored: cornerIndices has -1, outside the points 0..7");
+}
+
 TEST(Subdivision, LoopNeedsTrianglesElseTheCageIsDrawnWithAWarning) {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;

@@ -55,6 +55,42 @@ TEST(Cache, KeyFollowsContentAndSettings) {
     EXPECT_EQ(MeshCache::key(a.view(), {}).size(), 32u);
 }
 
+TEST(Cache, SubdivisionTagsChangeTheKeyOfARefinedMeshOnly) {
+    Quads q(4);
+    MeshView refined = q.view();
+    refined.subdivisionScheme = SubdivisionScheme::CatmullClark;
+    refined.refineLevel = 2;
+    const std::string plain = MeshCache::key(refined, {});
+    std::vector<int32_t> crease{0, 1, 2}, lengths{3};
+    std::vector<float> sharp{10.0f}, softer{2.0f};
+    MeshView creased = refined;
+    creased.subdivisionTags.creaseIndices = crease;
+    creased.subdivisionTags.creaseLengths = lengths;
+    creased.subdivisionTags.creaseSharpnesses = sharp;
+    const std::string creasedKey = MeshCache::key(creased, {});
+    EXPECT_NE(creasedKey, plain);
+    creased.subdivisionTags.creaseSharpnesses = softer;
+    EXPECT_NE(MeshCache::key(creased, {}), creasedKey) << "an edit of a crease's sharpness rebuilds";
+    std::vector<int32_t> corner{5};
+    MeshView cornered = refined;
+    cornered.subdivisionTags.cornerIndices = corner;
+    cornered.subdivisionTags.cornerSharpnesses = sharp;
+    EXPECT_NE(MeshCache::key(cornered, {}), plain);
+    MeshView open = refined;
+    open.subdivisionTags.interpolateBoundary = BoundaryInterpolation::EdgeOnly;
+    EXPECT_NE(MeshCache::key(open, {}), plain);
+    MeshView fvar = refined;
+    fvar.subdivisionTags.faceVaryingLinearInterpolation = FaceVaryingLinear::All;
+    EXPECT_NE(MeshCache::key(fvar, {}), plain);
+    MeshView smooth = refined;
+    smooth.subdivisionTags.triangleSubdivisionRule = TriangleSubdivision::Smooth;
+    EXPECT_NE(MeshCache::key(smooth, {}), plain);
+    // Unrefined (refine level 0), a subdivision surface builds the polygons as authored: one key with or without tags.
+    creased.refineLevel = 0;
+    MeshView polygons = q.view();
+    EXPECT_EQ(MeshCache::key(creased, {}), MeshCache::key(polygons, {}));
+}
+
 TEST(Cache, EverySettingChangesTheKey) {
     Quads q(20);
     std::vector<BuildSettings> variants(7);

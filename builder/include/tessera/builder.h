@@ -20,6 +20,25 @@ constexpr uint32_t kClusterMaxVertices = 256;
 // USD's subdivisionScheme.
 enum class SubdivisionScheme { None, CatmullClark, Loop, Bilinear };
 
+// USD's subdivision tags (UsdGeomMesh), as OpenSubdiv's Sdc options and tags take them. The defaults are USD's
+// fallbacks. Creases and corners are borrowed, like the rest of a MeshView; bad ones are a warning and ignored.
+enum class BoundaryInterpolation { None, EdgeOnly, EdgeAndCorner };  // interpolateBoundary
+// faceVaryingLinearInterpolation: none (smooth everywhere), cornersOnly, cornersPlus1, cornersPlus2, boundaries, all.
+enum class FaceVaryingLinear { None, CornersOnly, CornersPlus1, CornersPlus2, Boundaries, All };
+enum class TriangleSubdivision { CatmullClark, Smooth };  // triangleSubdivisionRule
+struct SubdivisionTags {
+    BoundaryInterpolation interpolateBoundary = BoundaryInterpolation::EdgeAndCorner;
+    FaceVaryingLinear faceVaryingLinearInterpolation = FaceVaryingLinear::CornersPlus1;
+    TriangleSubdivision triangleSubdivisionRule = TriangleSubdivision::CatmullClark;
+    // Creases: chains of points (creaseLengths points each, >= 2, their indices in creaseIndices), with one
+    // sharpness per chain or one per edge of the chains. Corners: one sharpness per point. 10 or more is infinitely sharp.
+    std::span<const int32_t> creaseIndices;
+    std::span<const int32_t> creaseLengths;
+    std::span<const float> creaseSharpnesses;
+    std::span<const int32_t> cornerIndices;
+    std::span<const float> cornerSharpnesses;
+};
+
 // How a primvar's values map onto the mesh (USD's interpolation names).
 enum class Interpolation { None, Constant, Uniform, Vertex, Varying, FaceVarying };
 
@@ -48,11 +67,12 @@ struct MeshView {
     // Per authored face, its material slot (0-255: USD's GeomSubsets of family materialBind, slot 0 the faces in no
     // subset), or empty: one material. Faces of different slots meet at split vertices, like a seam.
     std::span<const int32_t> faceMaterials;
-    // Subdivision surfaces are refined uniformly this many times (OpenSubdiv) before triangulation. Authored
-    // normals do not describe the refined surface and are recomputed; face-varying colours and UVs are refined
-    // linearly (as Storm's default face-varying interpolation of "cornersPlus1" does on the interior).
+    // Subdivision surfaces are refined uniformly this many times (OpenSubdiv) before triangulation, with the
+    // mesh's subdivision tags. Authored normals do not describe the refined surface and are recomputed; texture
+    // coordinates are refined as a face-varying channel (faceVaryingLinearInterpolation), vertex colours linearly.
     SubdivisionScheme subdivisionScheme = SubdivisionScheme::None;
     int refineLevel = 0;
+    SubdivisionTags subdivisionTags;  // read only when the mesh is refined
     // Static displacement: when set, the prepared mesh is diced and displaced before its DAG is built
     // (bake_displacement), and the bake's key joins the cache key.
     const DisplacementBake* bake = nullptr;
