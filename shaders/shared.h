@@ -198,6 +198,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_DICE_GROUP_SIZE 256       // dice: one workgroup per patch, a thread per lattice point (<= 153), then per micro-triangle (<= 256)
 #define TS_DICE_MAX_POINTS 153       // (16 + 1)(16 + 2) / 2
 #define TS_HZB_TILE 8
+// hzb.comp.glsl's steps besides the levels it builds: write the dispatch arguments of the build after the main pass
+// (needed iff the main pass deferred anything) or of the frame's final build (needed unless the post pass drew nothing).
+#define TS_HZB_AFTER_MAIN 0x100u
+#define TS_HZB_FINAL 0x101u
 
 // One cluster of a built mesh's DAG: at most 128 triangles over at most 256 cluster-local vertices. The cut
 // draws it iff its own LOD error, projected from its LOD sphere, is within the pixel threshold while its
@@ -389,8 +393,10 @@ struct GpuDrawState {
     uint deferredPatchGroupsZ;
     uint deferredPatches;  // patches the main pass deferred (hidden by the previous frame's HZB)
     uint occludedPatches;  // patches the post pass found hidden
+    uint hzbBuilds;        // HZB builds the frame needed (hzb.comp.glsl: after the main pass, final)
+    uint pad0, pad1, pad2;
 };
-TS_CHECK_SIZE(GpuDrawState, 208);
+TS_CHECK_SIZE(GpuDrawState, 224);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.
