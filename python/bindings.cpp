@@ -139,6 +139,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["occluded_instances"] = s.occludedInstances;
     d["occluded_clusters"] = s.occludedClusters;
     d["post_pass_clusters"] = s.postPassClusters;
+    d["hzb_builds"] = s.hzbBuilds;
     d["backface_clusters"] = s.backfaceClusters;
     d["shading_bins"] = s.shadingBins;
     d["textures"] = s.textures;

@@ -2,8 +2,8 @@
 // visibility buffer, resolve each requested AOV, read back. The visible-cluster list is fixed-size: when the
 // cull pass counts more clusters than fit, the list grows and the frame is drawn again.
 // Two-pass occlusion culling: the main pass draws what the previous frame's HZB does not hide; an HZB of that is
-// built; the post pass tests what the main pass deferred against it and draws the rest; a last HZB of the whole
-// frame is kept for the next frame.
+// built; the post pass tests what the main pass deferred against it and draws the rest; the HZB of the whole frame is
+// kept for the next frame (rebuilt only where the post pass drew something: the GPU decides, hzb.comp.glsl).
 #include "tessera/renderer.h"
 
 #include "displacement.h"
@@ -416,9 +416,11 @@ struct Renderer::Impl {
     // last frame asked for, up to 2^24 points; patches it cannot hold are diced again by resolve.
     Buffer patchPoints;
     uint32_t pointCapacity = kFirstPointCapacity;
-    // Two-pass occlusion: the HZB of the last frame drawn (with the camera that drew it) and this frame's, built from
-    // the main pass. The previous one is forgotten when what it shows may have moved (instances, meshes, size).
-    Buffer hzbPrevious, hzbCurrent;
+    // Two-pass occlusion: one HZB, of the last frame drawn (with the camera that drew it) until the main pass has
+    // culled, then of what the main pass drew, then of the whole frame (each build only when the GPU finds it needed:
+    // `hzbDispatch` holds both builds' per-level dispatch arguments, written by the GPU). The previous frame's is
+    // forgotten when what it shows may have moved (instances, meshes, size).
+    Buffer hzbLevels, hzbDispatch;
     bool previousValid = false;
     Matrix4d previousViewProjection{};
     std::array<double, 3> previousCamera{};
@@ -1029,8 +1031,7 @@ struct Renderer::Impl {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
             aovOutput = device.create_buffer(pixels * 16, MemoryUse::Device);
             binPixels = device.create_buffer(pixels * 4, MemoryUse::Device);
-            hzbPrevious = Buffer{};
-            hzbCurrent = Buffer{};
+            hzbLevels = Buffer{};
             previousValid = false;
             width = w;
             height = h;
@@ -1056,24 +1057,33 @@ struct Renderer::Impl {
 
     // Occlusion culling's buffers, allocated only when a frame uses it.
     void ensure_occlusion_buffers() {
-        if (!hzbPrevious.handle) {
+        if (!hzbLevels.handle) {
             uint64_t texels = 0;
             for (const auto& level : hzb_levels(width, height)) texels += uint64_t(level[0]) * level[1];
-            hzbPrevious = device.create_buffer(texels * 4, MemoryUse::Device);
-            hzbCurrent = device.create_buffer(texels * 4, MemoryUse::Device);
+            hzbLevels = device.create_buffer(texels * 4, MemoryUse::Device);
         }
+        if (!hzbDispatch.handle)  // two builds of at most 32 levels
+            hzbDispatch = device.create_buffer(2 * 32 * sizeof(VkDispatchIndirectCommand), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         if (!deferredClusters.handle) deferredClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
         if (deferredInstances.size < uint64_t(deferredCapacity) * 4) deferredInstances = device.create_buffer(uint64_t(deferredCapacity) * 4, MemoryUse::Device);
     }
 
-    // Builds every HZB level from the visibility buffer into `target`, one dispatch per level.
-    void build_hzb(VkCommandBuffer cmd, const Buffer& target) {
+    // Builds every HZB level from the visibility buffer, one dispatch per level, if the GPU finds the build needed:
+    // `when` (TS_HZB_AFTER_MAIN, TS_HZB_FINAL) names the build, whose dispatch arguments a first one-workgroup step writes
+    // from the draw state (no workgroups for a build that would change nothing; hzb.comp.glsl).
+    void build_hzb(VkCommandBuffer cmd, uint32_t when) {
         vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, hzb);
+        PushConstants decide{0, when, hzbDispatch.address};
+        vkCmdPushConstants(cmd, layout, VK_SHADER_STAGE_ALL, 0, sizeof(decide), &decide);
+        vkCmdDispatch(cmd, 1, 1, 1);
+        barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
+                VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
         const auto levels = hzb_levels(width, height);
+        const uint64_t first = (when == TS_HZB_FINAL ? 32 : 0) * sizeof(VkDispatchIndirectCommand);
         for (uint32_t l = 0; l < levels.size(); ++l) {
-            PushConstants push{0, l, target.address};
+            PushConstants push{0, l, hzbLevels.address};
             vkCmdPushConstants(cmd, layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
-            vkCmdDispatch(cmd, (levels[l][0] + TS_HZB_TILE - 1) / TS_HZB_TILE, (levels[l][1] + TS_HZB_TILE - 1) / TS_HZB_TILE, 1);
+            vkCmdDispatchIndirect(cmd, hzbDispatch.handle, first + l * sizeof(VkDispatchIndirectCommand));
             barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                     VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
         }
@@ -1314,7 +1324,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                     if (post) {  // the patches the main pass deferred, against this frame's HZB
                         barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                                 VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                        PushConstants push{0, TS_TESS_DEFERRED_PATCHES, s.hzbCurrent.address};
+                        PushConstants push{0, TS_TESS_DEFERRED_PATCHES, s.hzbLevels.address};
                         vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
                         vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, deferredPatchGroupsX));
                         push.step = TS_CULL_POST;
@@ -1354,14 +1364,14 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
             };
             vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
-            cull_step(TS_CULL_MAIN_INSTANCES, s.hzbPrevious);
+            cull_step(TS_CULL_MAIN_INSTANCES, s.hzbLevels);
             if (s.instanceCount) {
                 const uint32_t groups = (s.instanceCount + TS_CULL_INSTANCES_PER_GROUP - 1) / TS_CULL_INSTANCES_PER_GROUP;
                 const uint32_t groupsX = std::min(groups, 65535u);
                 vkCmdDispatch(cmd, groupsX, (groups + groupsX - 1) / groupsX, 1);
             }
             compute_to_indirect();
-            cull_step(TS_CULL_MAIN, s.hzbPrevious);
+            cull_step(TS_CULL_MAIN, s.hzbLevels);
             vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, cutGroupsX));
             mark();
             rasterize(false);
@@ -1378,24 +1388,25 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, patchDraws), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatchGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatches), 4, 0);
-                s.build_hzb(cmd, s.hzbCurrent);
+                s.build_hzb(cmd, TS_HZB_AFTER_MAIN);
                 barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 mark();
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
                 compute_to_indirect();
-                cull_step(TS_CULL_POST_INSTANCES, s.hzbCurrent);
+                cull_step(TS_CULL_POST_INSTANCES, s.hzbLevels);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postInstanceGroupsX));
                 compute_to_indirect();
-                cull_step(TS_CULL_POST, s.hzbCurrent);
+                cull_step(TS_CULL_POST, s.hzbLevels);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postGroupsX));
                 mark();
                 rasterize(true);
             } else {
                 for (int i = 0; i < 5; ++i) mark();
             }
-            // The whole frame's HZB, for the next frame's main pass.
-            if (occlusion) s.build_hzb(cmd, s.hzbPrevious);
+            // The whole frame's HZB, for the next frame's main pass: unless the HZB of the main pass already is that (the
+            // post pass drew nothing).
+            if (occlusion) s.build_hzb(cmd, TS_HZB_FINAL);
             mark();
 
             // Material bins: count covered pixels per material, give each bin its range and dispatch arguments, scatter.
@@ -1502,6 +1513,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.occludedInstances = state.occludedInstances;
         frameStats.occludedClusters = state.occludedClusters;
         frameStats.postPassClusters = state.postClusters;
+        frameStats.hzbBuilds = state.hzbBuilds;
         frameStats.backfaceClusters = state.backfaceClusters;
         frameStats.shadingBins = state.shadingBins;
         frameStats.tessellatedClusters = state.tessClustersDrawn;

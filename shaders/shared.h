@@ -207,6 +207,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
                                      // (<= 256), 64 at a time
 #define TS_DICE_MAX_POINTS 153       // (16 + 1)(16 + 2) / 2
 #define TS_HZB_TILE 8
+// hzb.comp.glsl's steps besides the levels it builds: write the dispatch arguments of the build after the main pass
+// (needed iff the main pass deferred anything) or of the frame's final build (needed unless the post pass drew nothing).
+#define TS_HZB_AFTER_MAIN 0x100u
+#define TS_HZB_FINAL 0x101u
 
 // One cluster of a built mesh's DAG: at most 128 triangles over at most 256 cluster-local vertices. The cut
 // draws it iff its own LOD error, projected from its LOD sphere, is within the pixel threshold while its
@@ -400,8 +404,10 @@ struct GpuDrawState {
     uint occludedPatches;  // patches the post pass found hidden
     uint keptMicroPixels;  // covered pixels resolve read from kept points (bin kind TS_BIN_KEPT_MICRO)
     uint dicedMicroPixels; // covered pixels whose micro-triangle resolve diced again (TS_BIN_DICED_MICRO)
+    uint hzbBuilds;        // HZB builds the frame needed (hzb.comp.glsl: after the main pass, final)
+    uint pad0;
 };
-TS_CHECK_SIZE(GpuDrawState, 216);
+TS_CHECK_SIZE(GpuDrawState, 224);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.

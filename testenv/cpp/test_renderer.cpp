@@ -364,10 +364,15 @@ TEST_F(RendererTest, OcclusionCullingChangesCountsNotTheImage) {
     EXPECT_FALSE(first.occlusionTested) << "a first frame has no previous HZB";
     EXPECT_GT(first.backfaceClusters, 0u) << "the spheres' far sides face away";
     EXPECT_EQ(first.occludedInstances, 9u) << "a first frame draws the wall first (large on screen), then tests the spheres against it";
+    EXPECT_GT(first.postPassClusters, 0u) << "the spheres beside the wall";
+    EXPECT_EQ(first.hzbBuilds, 2u) << "after the main pass (the wall), and again with what the post pass drew";
+    EXPECT_EQ(reference.hzbBuilds, 0u) << "no occlusion culling, no HZB";
 
     expect_same_images(culling.render(scene, front, on, aovs, &second), expected, "second frame");
     EXPECT_TRUE(second.occlusionTested);
     EXPECT_EQ(second.occludedInstances, 9u) << "the spheres behind the wall";
+    EXPECT_EQ(second.postPassClusters, 0u) << "what the first frame drew in its post pass is in the HZB it kept";
+    EXPECT_EQ(second.hzbBuilds, 1u) << "the HZB of the main pass is the frame's: the post pass drew nothing";
     EXPECT_LT(second.visibleClusters, first.visibleClusters);
     EXPECT_LT(first.visibleClusters, reference.visibleClusters);
     EXPECT_EQ(reference.backfaceClusters + reference.occludedInstances + reference.occludedClusters, 0u);
@@ -395,6 +400,13 @@ TEST_F(RendererTest, ThePostPassDrawsWhatTheLastFrameHid) {
     expect_same_images(culling.render(scene, behind, on, aovs, &stats), plain.render(scene, behind, off, aovs), "view from behind");
     EXPECT_TRUE(stats.occlusionTested);
     EXPECT_GT(stats.postPassClusters, 0u) << "the spheres hidden last frame come back in the post pass";
+    EXPECT_EQ(stats.hzbBuilds, 2u) << "after the main pass, and again with what the post pass drew";
+    // The same view again: the HZB kept holds what the post pass drew, so nothing visible is deferred, and the main pass
+    // needs no HZB of its own (one build, the frame's).
+    FrameStats again;
+    expect_same_images(culling.render(scene, behind, on, aovs, &again), plain.render(scene, behind, off, aovs), "view from behind, again");
+    EXPECT_EQ(again.postPassClusters, 0u) << "last frame's HZB held the spheres it drew in its post pass";
+    EXPECT_EQ(again.hzbBuilds, 1u);
 }
 
 TEST_F(RendererTest, HugeTrianglesThroughTheNearPlaneAreClippedNotDroppedOrSmeared) {

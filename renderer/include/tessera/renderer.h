@@ -188,6 +188,8 @@ struct FrameStats {
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
     uint32_t occludedInstances = 0, occludedClusters = 0;  // found hidden by the post pass
     uint32_t postPassClusters = 0;      // clusters drawn by the post pass (hidden last frame, visible now)
+    uint32_t hzbBuilds = 0;             // HZB builds: after the main pass if it deferred anything, and at the end unless
+                                        // the post pass drew nothing (the HZB after the main pass is then the frame's)
     uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
     uint32_t shadingBins = 0;           // bins with visible pixels, each shaded by a dispatch of its own: one a material, or
                                         // up to three for a displaced one (its triangles, kept and diced micro-triangles)
