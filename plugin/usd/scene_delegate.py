@@ -51,6 +51,9 @@ class _Rprim:
     group: str | None = None  # key of the instancing group that made it; None for a gprim drawn once (id = path)
     instancer_id: str = ""
     material: str = ""  # the bound material's path, "" for none
+    # Inside a native prototype: the instance proxy path whose binding it draws with (one instance of those it draws,
+    # all of which resolve alike: _instance_binding_key), so bindings on or above the instance reach it; None: its own.
+    binding: str | None = None
     subset_materials: tuple = ()  # the materials of its materialBind GeomSubsets (slots 1, 2, ...), "" for the mesh's own
     # What the last walk found (None once read): the first sync after a walk need not ask USD again.
     walked_visible: bool | None = None
@@ -68,6 +71,8 @@ class _Group:
     # the instances it moved.
     copies: np.ndarray | None = None
     order: list[str] = field(default_factory=list)
+    # Native: each instance's binding key (_instance_binding_key), kept until an edit at or above the instance.
+    binding_keys: dict[str, tuple] = field(default_factory=dict)
 
 
 class _AuthoredNames(frozenset):
@@ -354,14 +359,24 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return kind
 
     def _visit(self, root: Usd.Prim, copies: np.ndarray, frame: Usd.Prim | None, context: str,
-               records: dict[str, _Rprim], watched: set[str], points: tuple | None = None) -> None:
+               records: dict[str, _Rprim], watched: set[str], points: tuple | None = None,
+               proxy: tuple[str, str] | None = None) -> None:
         """Walks an instanced subtree. `copies` (N, 4, 4) are the world transforms of `frame` (row vectors);
         transforms inside are taken relative to `frame` (`root` itself when None). `context` names this copy set
         uniquely (it becomes the instancer id); the rprims made go into `records`, the prims read into `watched`.
         `points`: (PointArrays, prototype index) when `root` is a PointInstancer prototype: `copies` are then the
-        instancer's world transforms and its arrays place the prototype's instances in them, kept as arrays."""
+        instancer's world transforms and its arrays place the prototype's instances in them, kept as arrays.
+        `proxy`: (prototype path, instance path) when `root` is in a native prototype: prims under the prototype path
+        resolve their material bindings as the instance proxies under the instance path (that instance's bindings on
+        and above it count, as UsdShade resolves them through instance proxies)."""
         if frame is None:
             frame = root
+
+        def proxy_path(prim: Usd.Prim) -> str | None:
+            if proxy is None:
+                return None
+            path, (prefix, instance) = str(prim.GetPath()), proxy
+            return instance + path[len(prefix):] if is_at_or_under(path, prefix) else None
         # A PointInstancer's prototypes are drawn even when defined under an `over` (a common way to keep them out of
         # ordinary traversals), as UsdImaging does: its prototype walk does not ask for defined prims.
         it = iter(Usd.PrimRange(root, _PROTOTYPE_PREDICATE) if points is not None else Usd.PrimRange(root))
@@ -386,12 +401,14 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 prototype = prim.GetPrototype()
                 watched.add(str(prototype.GetPath()))
                 world = self._relative(prim, frame)
-                self._visit(prototype, world[None] @ copies, None, f"{context};{prim.GetPath()}", records, watched)
+                inner = (str(prototype.GetPath()), proxy_path(prim) or str(prim.GetPath()))
+                self._visit(prototype, world[None] @ copies, None, f"{context};{prim.GetPath()}", records, watched,
+                            proxy=inner)
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdGeom.PointInstancer):
                 self._visit_point_instancer(UsdGeom.PointInstancer(prim), copies, frame, f"{context};{prim.GetPath()}",
-                                            records, watched)
+                                            records, watched, proxy)
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdGeom.Gprim):
@@ -405,9 +422,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 else:
                     records[id] = _Rprim(prim, np.ascontiguousarray(np.swapaxes(copies, 1, 2)), points=points[0], prototype=points[1],
                                          local=np.ascontiguousarray(local.T), instancer_id=context)
+                records[id].binding = proxy_path(prim)
 
     def _visit_point_instancer(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
-                               context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
+                               context: str, records: dict[str, _Rprim], watched: set[str],
+                               proxy: tuple[str, str] | None = None) -> None:
         prim = instancer.GetPrim()
         path = prim.GetPath()
         if str(path) in self._instancer_chain:  # a prototype instances an instancer that instances it: no end
@@ -419,12 +438,13 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             return
         self._instancer_chain.append(str(path))
         try:
-            self._visit_point_instancer_body(instancer, copies, frame, context, records, watched)
+            self._visit_point_instancer_body(instancer, copies, frame, context, records, watched, proxy)
         finally:
             self._instancer_chain.pop()
 
     def _visit_point_instancer_body(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
-                                    context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
+                                    context: str, records: dict[str, _Rprim], watched: set[str],
+                                    proxy: tuple[str, str] | None) -> None:
         prim = instancer.GetPrim()
         path = prim.GetPath()
         watched.add(str(path))
@@ -444,7 +464,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 self.warnings.append(f"{path}: prototype {target} does not exist")
                 continue
             # The prototype's root transform counts (ExcludeProtoXform with the prototype visited from its parent).
-            self._visit(proto, world, proto.GetParent(), f"{context}[{index}]", records, watched, points=(arrays, index))
+            self._visit(proto, world, proto.GetParent(), f"{context}[{index}]", records, watched, points=(arrays, index),
+                        proxy=proxy)
 
     # -- the index made to match the stage ----------------------------------------------------------
 
@@ -510,6 +531,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         for key in sorted(touched):
             self._remake_group(key, path if resync else None, moved=path)
         if self._stage_has("Material") and not had_materials:  # the first material: bindings were not resolved before
+            for key in sorted(k for k, group in self.groups.items() if group.kind == "native"):
+                self._remake_group(key, None, rebound="/")
             for id, record in self.rprims.items():
                 self._rebind(id, record, mark=True)
 
@@ -538,10 +561,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             keys.update(self._watch.at(ancestor))
         return keys
 
-    def _remake_group(self, key: str, resynced: str | None, moved: str | None = None) -> None:
+    def _remake_group(self, key: str, resynced: str | None, moved: str | None = None, rebound: str | None = None) -> None:
         """Visits an instancing group again and makes its rprims match: new ones inserted, gone ones removed, the
         others dirtied with what changed (their copies' transforms, their material; everything where they were
-        read from the resynced path). `moved`: a path whose transforms changed (instances under it are re-read)."""
+        read from the resynced path). `moved`: a path whose transforms changed (instances under it are re-read);
+        `rebound`: a path whose material bindings changed (instances under it resolve theirs again)."""
         group = self.groups[key]
         records: dict[str, _Rprim] = {}
         watched = set(group.anchors)
@@ -549,7 +573,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             prim = self.stage.GetPrimAtPath(key)
             if group.kind == "native" and prim:
                 watched.add(key)
-                self._visit(prim, self._instance_copies(group, moved or resynced), None, key, records, watched)
+                copies = self._instance_copies(group, moved or resynced)
+                for context, rows, instance in self._binding_partitions(key, group, rebound or resynced):
+                    self._visit(prim, copies if rows is None else copies[rows], None, context, records, watched,
+                                proxy=(key, instance))
             elif group.kind == "pointInstancer" and prim:
                 self._visit_point_instancer(UsdGeom.PointInstancer(prim), None, None, key, records, watched)
         for id in group.rprims - records.keys():
@@ -566,6 +593,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             if not _same_copies(old, record):
                 bits |= _dirty.INSTANCER
             old.prim, old.frames, old.points, old.prototype, old.local = record.prim, record.frames, record.points, record.prototype, record.local
+            old.binding = record.binding
             if self._rebind(id, old):
                 bits |= _dirty.MATERIAL_ID
             if bits:
@@ -579,6 +607,38 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for path in group.watched:
                 self._watch.discard(path, key)
             del self.groups[key]
+
+    def _binding_partitions(self, key: str, group: _Group, rebound: str | None) -> list[tuple]:
+        """A native group's instances split by what they inherit of material bindings from outside the prototype, as
+        UsdImaging groups them: (context, rows of the group's copies or None for all, one instance of those). One
+        prototype is visited per part: its meshes are built once (the same cache key), only their material differs.
+        The part without an outside binding keeps the group's key as its context."""
+        anchors = list(group.anchors)
+        if not self._stage_has("Material"):
+            return [(key, None, anchors[0])]
+        keys = group.binding_keys
+        for anchor in [a for a in keys if a not in group.anchors]:
+            del keys[anchor]
+        rows: dict[tuple, list[int]] = {}
+        for row, anchor in enumerate(anchors):
+            if anchor not in keys or (rebound is not None and is_at_or_under(anchor, rebound)):
+                keys[anchor] = self._instance_binding_key(anchor)
+            rows.setdefault(keys[anchor], []).append(row)
+        if len(rows) == 1 and ("", False) in rows:
+            return [(key, None, anchors[0])]
+        return [(key if binding == ("", False) else f"{key}<{binding[0]}{'!' if binding[1] else ''}>",
+                 np.asarray(part), anchors[part[0]]) for binding, part in rows.items()]
+
+    def _instance_binding_key(self, anchor: str) -> tuple[str, bool]:
+        """(material, strong) an instance prim resolves: what decides the binding of every gprim of its prototype
+        (the outside binding, unless weaker than the prototype's own). Collection bindings that name prims inside the
+        instance (not the instance or its ancestors) are not told apart."""
+        binding = UsdShade.MaterialBindingAPI(self.stage.GetPrimAtPath(anchor))
+        material, relationship = binding.ComputeBoundMaterial()
+        if not material:
+            return ("", False)
+        strength = UsdShade.MaterialBindingAPI.GetMaterialBindingStrength(relationship)
+        return (str(material.GetPath()), strength == UsdShade.Tokens.strongerThanDescendants)
 
     def _instance_copies(self, group: _Group, moved: str | None) -> np.ndarray:
         """A native group's instance world transforms: those kept, except under `moved` and for new instances."""
@@ -664,8 +724,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if not record.material and not record.subset_materials and not self._stage_has("Material") and \
                 not self._stage_has("GeomSubset"):
             return False  # nothing bound and nothing to bind: what the resolution below would find
-        material = self._bound_material(record.prim)
-        subsets = tuple(self._bound_material(s.GetPrim()) for s in self._material_subsets(record.prim))
+        prim = record.prim if record.binding is None else self.stage.GetPrimAtPath(record.binding)
+        material = self._bound_material(prim)
+        subsets = tuple(self._bound_material(s.GetPrim()) for s in self._material_subsets(prim))
         if (material, subsets) == (record.material, record.subset_materials) and \
                 all(id in self._material_users.get(m, ()) for m in (material, *subsets) if m):
             return False
@@ -740,8 +801,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 elif record is None and self.sprims.get(id) in _LIGHT_TYPES | {"camera"} and bits & _dirty.TRANSFORM:
                     self.index.mark_dirty(id, _dirty.PARAMS)
             for key in sorted(self._groups_touching(path)):
-                self._remake_group(key, None, path if bits & _dirty.TRANSFORM else None)
+                self._remake_group(key, None, path if bits & _dirty.TRANSFORM else None,
+                                   path if bits & _dirty.MATERIAL_ID else None)
         elif scope == change_tracker.EVERY_MESH:
+            for key in sorted(k for k, group in self.groups.items() if group.kind == "native"):
+                self._remake_group(key, None, rebound="/")  # a collection may name any instance
             for id, record in self.rprims.items():
                 self._rebind(id, record, mark=True)
         elif scope == change_tracker.INSTANCER:
