@@ -14,8 +14,8 @@ Differences that remain, and why (also in docs/overview.md):
 * Tiny objects (ni_pi's 40 spheres of ~6 px) lose about a fifth of their IoU to edge pixels alone.
 * BasisCurves and Points are not drawn (instance.usda: IoU 0.77, with a warning naming each prim).
 * Subdivision tags (interpolateBoundary, creases, corners) are not read: subdivMesh's outer corners stay sharp.
-* UsdPrimvarReader inputs are not evaluated (a warning names each): the shader input's own value is used, so
-  PreviewSurface scenes whose colour comes from a primvar reader differ (expected to fail their colour check).
+* Only diffuseColor evaluates a UsdPrimvarReader (the mesh's colour channel carries the primvar); a reader feeding
+  another input is a warning and the input's own value is used (no scene here does that).
 """
 
 import math
@@ -40,7 +40,6 @@ def case(stage, baseline, min_iou, *, colours=False, camera=None, refine_level=0
     return pytest.param(stage, baseline, min_iou, colours, camera, refine_level, id=name, marks=marks)
 
 
-PRIMVAR_READERS = "UsdPrimvarReader is not evaluated: the input's own value is drawn"
 CASES = [
     # PointInstancer: nesting either way, prototypes at the root, siblings, which orientations win, materials.
     case("PointInstancer/pi.usda", "PointInstancer/baseline/pi.png", 0.95),
@@ -85,16 +84,16 @@ CASES = [
          "PreviewSurface/baseline/testPreviewSurfaceTextureFallback.png", 0.98, colours=True),
     case("PreviewSurface/testPreviewSurfaceTextureNoFile.usda",
          "PreviewSurface/baseline/testPreviewSurfaceTextureNoFile.png", 0.98, colours=True),
-    # Storm draws it black (a primvar reader without its primvar or a fallback reads 0); Tessera red, the input's
-    # value. Black is what the colour check cannot tell from an unlit face, so only the silhouette is compared.
+    # Storm draws it black (a primvar reader without its primvar or a fallback reads 0), as Tessera does. Black is what
+    # the colour check cannot tell from an unlit face, so only the silhouette is compared.
     case("PreviewSurface/testPreviewSurfaceFallbackPrimvar.usda",
          "PreviewSurface/baseline/testPreviewSurfaceFallbackPrimvar.png", 0.98),
     case("PreviewSurface/testPreviewSurfacePrimvarFallback.usda",
-         "PreviewSurface/baseline/testPreviewSurfacePrimvarFallback.png", 0.98, colours=True, xfail_colours=PRIMVAR_READERS),
+         "PreviewSurface/baseline/testPreviewSurfacePrimvarFallback.png", 0.98, colours=True),
     case("PreviewSurface/testPreviewSurfaceMaterialInterface.usda",
-         "PreviewSurface/baseline/testPreviewSurfaceMaterialInterface.png", 0.93, colours=True, xfail_colours=PRIMVAR_READERS),
+         "PreviewSurface/baseline/testPreviewSurfaceMaterialInterface.png", 0.93, colours=True),
     case("PreviewSurface/testPreviewSurfaceInstancedMaterial.usda",
-         "PreviewSurface/baseline/testPreviewSurfaceInstancedMaterial.png", 0.95, colours=True, xfail_colours=PRIMVAR_READERS),
+         "PreviewSurface/baseline/testPreviewSurfaceInstancedMaterial.png", 0.95, colours=True),
     # Subdivision (creases, corners, holes; a left-handed mesh) at -complexity 1.1 to 1.3.
     # subdivMesh's tags (interpolateBoundary edgeOnly, creases, corners) are not read yet: Tessera refines with USD's
     # default boundary rule (edgeAndCorner), so its outer corners stay sharp where Storm's are rounded (IoU ~0.87).

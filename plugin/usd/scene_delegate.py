@@ -30,6 +30,9 @@ from .path_index import PathIndex, ancestors, is_at_or_under
 _dirty = _tessera.dirty
 _LIGHT_TYPES = lights.SPRIM_TYPES
 _PROTOTYPE_PREDICATE = Usd.PrimIsActive & Usd.PrimIsLoaded & ~Usd.PrimIsAbstract  # PointInstancer prototypes: `over` too
+# Bindings are resolved for the preview purpose, as Storm resolves them: a `preview` binding wins, else the
+# all-purpose one (UsdShade's fallback); `full` bindings are for final-quality renderers.
+_MATERIAL_PURPOSE = UsdShade.Tokens.preview
 
 
 def to_column_major(gf_matrix: Gf.Matrix4d) -> list[float]:
@@ -634,7 +637,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         (the outside binding, unless weaker than the prototype's own). Collection bindings that name prims inside the
         instance (not the instance or its ancestors) are not told apart."""
         binding = UsdShade.MaterialBindingAPI(self.stage.GetPrimAtPath(anchor))
-        material, relationship = binding.ComputeBoundMaterial()
+        material, relationship = binding.ComputeBoundMaterial(_MATERIAL_PURPOSE)
         if not material:
             return ("", False)
         strength = UsdShade.MaterialBindingAPI.GetMaterialBindingStrength(relationship)
@@ -716,7 +719,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     def _bound_material(self, prim: Usd.Prim) -> str:
         if not self._stage_has("Material"):
             return ""  # nothing to bind to: the binding need not be resolved
-        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial(_MATERIAL_PURPOSE)
         return str(material.GetPath()) if material else ""
 
     def _rebind(self, id: str, record: _Rprim, mark: bool = False) -> bool:
@@ -873,10 +876,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if authored is None:
             authored = self._authored_names(prim.GetAuthoredPropertyNames())
         name = id if record.group is None else str(prim.GetPath())
-        if authored.plain and "points" in authored and not self._stage_has("GeomSubset"):
+        needs = self._primvar_needs(record)
+        # A plain mesh authors no primvars: only a material's primvar reader fallback would need the full path.
+        if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and needs.color_fallback is None:
             source = self._plain_mesh_source(prim, authored, name)
         else:
-            source = self._mesh_source(prim, authored, record.material, name)
+            source = self._mesh_source(prim, authored, needs, name)
         if authored.tessera:
             source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
         else:  # nothing of TesseraMeshAPI authored: the render's defaults, applied or not
@@ -892,7 +897,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         counts = attribute("faceVertexCounts").Get(t) if "faceVertexCounts" in authored else None
         indices = attribute("faceVertexIndices").Get(t) if "faceVertexIndices" in authored else None
         if points is None or counts is None or indices is None:
-            return self._mesh_source(prim, authored, "", name)  # a Cube or Sphere, or the error named there
+            return self._mesh_source(prim, authored, materials.NO_MATERIAL, name)  # a Cube or Sphere, or the error
         scheme = attribute("subdivisionScheme").Get(t) if "subdivisionScheme" in authored else None
         left_handed = "orientation" in authored and attribute("orientation").Get(t) == UsdGeom.Tokens.leftHanded
         double_sided = "doubleSided" in authored and bool(attribute("doubleSided").Get(t))
@@ -901,9 +906,46 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             None, left_handed, double_sided, None, "vertex", None, None, "constant", None, None, "faceVarying", None, None,
             scheme or "catmullClark", self.refine_level)
 
-    def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, material: str, name: str):
+    def _primvar_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
+        """What the rprim's materials read of its primvars (its own and its GeomSubsets'): the first UV set and the
+        first colour primvar any of them reads."""
+        bound = [m for m in (record.material, *record.subset_materials) if m]
+        if not bound:
+            return materials.NO_MATERIAL
+        if record.subset_materials and not record.material:
+            bound.append("")  # faces in no subset: no material, the fallback surface
+        found = [materials.primvar_needs(self.stage.GetPrimAtPath(m), self.time) if m else materials.NO_MATERIAL
+                 for m in bound]
+        uv = next((n.uv for n in found if n.uv), None)
+        color = next((n for n in found if n.color), materials.PrimvarNeeds())
+        return materials.PrimvarNeeds(uv=uv, color=color.color, color_fallback=color.color_fallback)
+
+    def _color_primvar(self, prim: Usd.Prim, needs: materials.PrimvarNeeds, name: str):
+        """(values, interpolation, indices) of the primvar the materials route into the mesh's colour channel, as 3
+        floats per element: on the mesh, else a constant one inherited from an ancestor (UsdGeomPrimvarsAPI's
+        FindPrimvarWithInheritance, as UsdImaging reads them), else the reader's fallback (constant)."""
+        fallback = (np.asarray(needs.color_fallback, np.float32), "constant", None) if needs.color_fallback else (None, "constant", None)
+        if not needs.color:
+            return fallback
+        pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(needs.color)
+        values = pv.Get(self.time) if pv and pv.HasAuthoredValue() else None
+        if values is None:
+            return fallback
+        a = np.asarray(values, np.float32)
+        if a.ndim == 1:
+            a = a[:, None]
+        if a.ndim != 2 or a.shape[1] not in (1, 2, 3, 4) or not len(a):
+            self.warnings.append(f"{name}: primvars:{needs.color} is {pv.GetTypeName()}, not a number or vector; ignored")
+            return fallback
+        a = np.repeat(a, 3, axis=1) if a.shape[1] == 1 else np.pad(a, ((0, 0), (0, max(0, 3 - a.shape[1]))))[:, :3]
+        idx = pv.GetIndices(self.time)
+        idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
+        return np.ascontiguousarray(a.reshape(-1)), pv.GetInterpolation(), idx
+
+    def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str):
         if not prim.IsA(UsdGeom.Mesh):
-            return implicit.mesh_source(prim, self.time)
+            color, interpolation, _ = self._color_primvar(prim, needs, name)
+            return implicit.mesh_source(prim, self.time, color, interpolation)
         t = self.time
 
         def array(attribute_name, dtype, width=None):
@@ -946,9 +988,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         normals, normals_interp, normals_idx = primvar("normals", "vertex")
         if normals is None and "normals" in authored and prim.GetAttribute("normals").HasAuthoredValue():
             normals, normals_interp = array("normals", np.float32, 3), UsdGeom.Mesh(prim).GetNormalsInterpolation()
-        color, color_interp, color_idx = primvar("displayColor", "constant")
-        uv_name = self._material_uv_primvar(material) if material else "st"
-        uvs, uvs_interp, uvs_idx = primvar(uv_name, "faceVarying", width=2)
+        # Only what the materials read: the colour primvar one routes into diffuseColor, the UV set textures read.
+        color, color_interp, color_idx = self._color_primvar(prim, needs, name)
+        uvs, uvs_interp, uvs_idx = primvar(needs.uv, "faceVarying", width=2) if needs.uv else (None, "faceVarying", None)
         face_materials = None
         subsets = self._material_subsets(prim)
         if subsets:  # faces in no subset keep slot 0 (the mesh's own material); a face in several takes the last
@@ -969,15 +1011,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx, face_materials=face_materials,
             subdivision_scheme=value("subdivisionScheme", "") or "catmullClark", refine_level=self.refine_level)
 
-    def _material_uv_primvar(self, material: str) -> str:
-        """The primvar the bound material's texture readers read (its UsdPrimvarReader_float2's varname), else "st"."""
-        return materials.material_desc(self.stage.GetPrimAtPath(material), self.time, []).uv_primvar or "st"
-
-    def uv_primvar(self, prim: Usd.Prim) -> str:
+    def uv_primvar(self, prim: Usd.Prim) -> str | None:
         """The texture coordinate set a mesh is built with: the primvar its bound material's texture readers read
-        (a UsdPrimvarReader_float2's varname), else "st", the convention of UsdPreviewSurface materials."""
-        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
-        return self._material_uv_primvar(str(material.GetPath())) if material else "st"
+        (a UsdPrimvarReader_float2's varname, else "st", the convention of UsdPreviewSurface materials); None when
+        no texture of it reads coordinates (none are read or uploaded)."""
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial(_MATERIAL_PURPOSE)
+        return materials.primvar_needs(material.GetPrim(), self.time).uv if material else None
 
     def get_transform(self, id: str):
         world = self._walked_worlds.pop(id, None)
