@@ -9,6 +9,7 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 import tessera
+from tessera import _tessera
 
 RESOLUTION = (200, 100)  # the camera sees x in [-4, 4], y in [-2, 2]: 25 pixels per unit
 
@@ -194,3 +195,23 @@ def test_uvs_are_uploaded_only_for_a_texture_that_reads_them(material):
         assert sizes[True] > sizes[False] and not magenta[True], (sizes, magenta)
     else:
         assert sizes[True] == sizes[False] and magenta[True], (sizes, magenta)
+
+
+def test_an_edit_of_what_a_material_reads_re_reads_its_meshes_primvars():
+    stage = _stage()
+    material = _reader_material(stage, "/Looks/Tint", interface=True)
+    quad = _quad(stage, "/World/Quad", 0.0)
+    for name, colour in (("tint", (0, 0, 1)), ("other", (1, 0, 0))):
+        UsdGeom.PrimvarsAPI(quad).CreatePrimvar(name, Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.constant).Set([colour])
+    UsdShade.MaterialBindingAPI(quad.GetPrim()).Bind(material)
+    session = tessera.Session(stage, validation=True)
+    render = lambda: session.render(camera="/Camera", resolution=RESOLUTION)
+    assert _is(_rgb(render(), 0.0), (0, 0, 1))
+    material.GetInput("primvarName").Set("other")  # the Material's interface input names another primvar
+    result = render()
+    assert dict(session.index.last_synced) == {"/Looks/Tint": _tessera.dirty.PARAMS, "/World/Quad": _tessera.dirty.PRIMVAR}
+    assert _is(_rgb(result, 0.0), (1, 0, 0))
+    material.GetInput("roughness") or UsdShade.Shader(stage.GetPrimAtPath("/Looks/Tint/Surface")).CreateInput(
+        "roughness", Sdf.ValueTypeNames.Float).Set(0.2)  # reads nothing new: the material alone
+    render()
+    assert dict(session.index.last_synced) == {"/Looks/Tint": _tessera.dirty.PARAMS}

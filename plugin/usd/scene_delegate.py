@@ -226,6 +226,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         self._authored_sets: dict[tuple, _AuthoredNames] = {}  # one shared set per distinct list of names
         # World transforms (row vectors) of gprims drawn once that a walk computed and no sync has used yet.
         self._walked_worlds: dict[str, Gf.Matrix4d] = {}
+        # What each material needs its meshes to read (materials.PrimvarNeeds): 100 k meshes bound to one material read
+        # its network once. An edit of the material that changes it dirties the meshes' primvars (_renew_needs).
+        self._needs: dict[str, materials.PrimvarNeeds] = {}
 
     @property
     def materials(self) -> set[str]:
@@ -516,6 +519,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for id in self._paths.under(path):
                 if self.sprims.get(id) == "material":
                     self.index.mark_dirty(id, _dirty.ALL)
+                    self._renew_needs(id)
                     for user in list(self._material_users.get(id, ())):
                         self._rebind(user, self.rprims[user], mark=True)
 
@@ -754,6 +758,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         users.discard(id)
         if not users:  # no mesh binds it any more
             del self._material_users[material]
+            self._needs.pop(material, None)
             self._remove_sprim(material)
 
     # -- edits and time ---------------------------------------------------------------------------------
@@ -818,6 +823,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for candidate in (path, *ancestors(path)):  # the light or camera itself, or the material a shader is in
                 if candidate in self.sprims:
                     self.index.mark_dirty(candidate, bits)
+                    if self.sprims[candidate] == "material":
+                        self._renew_needs(candidate)
                     break
         elif scope == change_tracker.GPRIM:
             for id in self._paths.at(path):
@@ -914,11 +921,24 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             return materials.NO_MATERIAL
         if record.subset_materials and not record.material:
             bound.append("")  # faces in no subset: no material, the fallback surface
-        found = [materials.primvar_needs(self.stage.GetPrimAtPath(m), self.time) if m else materials.NO_MATERIAL
-                 for m in bound]
+        found = [self._material_needs(m) if m else materials.NO_MATERIAL for m in bound]
         uv = next((n.uv for n in found if n.uv), None)
         color = next((n for n in found if n.color), materials.PrimvarNeeds())
         return materials.PrimvarNeeds(uv=uv, color=color.color, color_fallback=color.color_fallback)
+
+    def _material_needs(self, material: str) -> materials.PrimvarNeeds:
+        needs = self._needs.get(material)
+        if needs is None:
+            needs = self._needs[material] = materials.primvar_needs(self.stage.GetPrimAtPath(material), self.time)
+        return needs
+
+    def _renew_needs(self, material: str) -> None:
+        """A material was edited: if what its meshes must read changed (a texture now reads UVs, a reader another
+        primvar), they read their primvars again."""
+        old = self._needs.pop(material, None)
+        if old is not None and material in self._material_users and self._material_needs(material) != old:
+            for user in self._material_users[material]:
+                self.index.mark_dirty(user, _dirty.PRIMVAR)
 
     def _color_primvar(self, prim: Usd.Prim, needs: materials.PrimvarNeeds, name: str):
         """(values, interpolation, indices) of the primvar the materials route into the mesh's colour channel, as 3
