@@ -940,14 +940,21 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for user in self._material_users[material]:
                 self.index.mark_dirty(user, _dirty.PRIMVAR)
 
-    def _color_primvar(self, prim: Usd.Prim, needs: materials.PrimvarNeeds, name: str):
+    def _color_primvar(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str):
         """(values, interpolation, indices) of the primvar the materials route into the mesh's colour channel, as 3
-        floats per element: on the mesh, else a constant one inherited from an ancestor (UsdGeomPrimvarsAPI's
-        FindPrimvarWithInheritance, as UsdImaging reads them), else the reader's fallback (constant)."""
+        floats per element: on the mesh, else, for a primvar reader, a constant one inherited from an ancestor
+        (UsdGeomPrimvarsAPI's FindPrimvarWithInheritance, as UsdImaging reads them; the fallback surface's displayColor
+        is not looked for above the mesh: an ancestor walk per mesh), else the reader's fallback (constant)."""
         fallback = (np.asarray(needs.color_fallback, np.float32), "constant", None) if needs.color_fallback else (None, "constant", None)
         if not needs.color:
             return fallback
-        pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(needs.color)
+        primvars = UsdGeom.PrimvarsAPI(prim)
+        if f"primvars:{needs.color}" in authored:
+            pv = primvars.GetPrimvar(needs.color)
+        elif needs.color_fallback is not None:
+            pv = primvars.FindPrimvarWithInheritance(needs.color)
+        else:
+            return fallback
         values = pv.Get(self.time) if pv and pv.HasAuthoredValue() else None
         if values is None:
             return fallback
@@ -964,7 +971,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str):
         if not prim.IsA(UsdGeom.Mesh):
-            color, interpolation, _ = self._color_primvar(prim, needs, name)
+            color, interpolation, _ = self._color_primvar(prim, authored, needs, name)
             return implicit.mesh_source(prim, self.time, color, interpolation)
         t = self.time
 
@@ -1009,7 +1016,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if normals is None and "normals" in authored and prim.GetAttribute("normals").HasAuthoredValue():
             normals, normals_interp = array("normals", np.float32, 3), UsdGeom.Mesh(prim).GetNormalsInterpolation()
         # Only what the materials read: the colour primvar one routes into diffuseColor, the UV set textures read.
-        color, color_interp, color_idx = self._color_primvar(prim, needs, name)
+        color, color_interp, color_idx = self._color_primvar(prim, authored, needs, name)
         uvs, uvs_interp, uvs_idx = primvar(needs.uv, "faceVarying", width=2) if needs.uv else (None, "faceVarying", None)
         face_materials = None
         subsets = self._material_subsets(prim)
