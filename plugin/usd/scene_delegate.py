@@ -229,6 +229,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         # What each material needs its meshes to read (materials.PrimvarNeeds): 100 k meshes bound to one material read
         # its network once. An edit of the material that changes it dirties the meshes' primvars (_renew_needs).
         self._needs: dict[str, materials.PrimvarNeeds] = {}
+        self._all_uvs = False  # read_all_uvs(): every mesh reads its st, textured or not (the `uv` debug view)
 
     @property
     def materials(self) -> set[str]:
@@ -916,6 +917,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     def _primvar_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
         """What the rprim's materials read of its primvars (its own and its GeomSubsets'): the first UV set and the
         first colour primvar any of them reads."""
+        needs = self._textured_needs(record)
+        if self._all_uvs and needs.uv is None:
+            return materials.PrimvarNeeds(uv="st", color=needs.color, color_fallback=needs.color_fallback)
+        return needs
+
+    def _textured_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
         bound = [m for m in (record.material, *record.subset_materials) if m]
         if not bound:
             return materials.NO_MATERIAL
@@ -925,6 +932,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         uv = next((n.uv for n in found if n.uv), None)
         color = next((n for n in found if n.color), materials.PrimvarNeeds())
         return materials.PrimvarNeeds(uv=uv, color=color.color, color_fallback=color.color_fallback)
+
+    def read_all_uvs(self) -> None:
+        """From now on every mesh reads texture coordinates (its material's UV set, else st), as the `uv` debug view
+        shows them; those that read none so far read their primvars again."""
+        if self._all_uvs:
+            return
+        self._all_uvs = True
+        for id, record in self.rprims.items():
+            if self._textured_needs(record).uv is None:
+                self.index.mark_dirty(id, _dirty.PRIMVAR)
 
     def _material_needs(self, material: str) -> materials.PrimvarNeeds:
         needs = self._needs.get(material)

@@ -152,6 +152,8 @@ class Session:
         if not (dicing_rate > 0.0):
             raise StageError(f"dicing rate must be a number of pixels > 0, not {dicing_rate}")
         self._apply_edits()
+        if vis == "uv":  # the UV view shows every mesh's st, where shading reads only what a texture reads
+            self.scene.read_all_uvs()
         camera_id = ""
         if camera:
             if camera not in self.scene.cameras:
