@@ -213,8 +213,15 @@ void RenderIndex::commit_resources() {
     GpuScene& scene = delegate_.scene();
     scene.clear_materials();
     std::unordered_map<PrimId, uint32_t> materialHandles;
+    std::unordered_map<PrimId, const MaterialDesc*> materialDescs;
     for (auto& [id, entry] : sprims_)
-        if (entry.type == "material") materialHandles[id] = scene.add_material(static_cast<Material&>(*entry.prim).desc());
+        if (entry.type == "material") {
+            materialDescs[id] = &static_cast<Material&>(*entry.prim).desc();
+            materialHandles[id] = scene.add_material(*materialDescs[id]);
+        }
+    // A material whose diffuseColor comes from the mesh's colour channel (a primvar reader), on a mesh whose colour is
+    // one constant (a constant primvar, or the reader's fallback): that colour folded in, one material per pair.
+    std::map<std::tuple<PrimId, float, float, float>, uint32_t> foldedHandles;
     // Meshes without a material share one fallback per colour: their displayColor (constant, or per vertex), else
     // Hydra's grey, diffuse only like Hydra's fallback surface.
     std::map<std::tuple<float, float, float, bool>, uint32_t> fallbackHandles;
@@ -232,7 +239,19 @@ void RenderIndex::commit_resources() {
         const BuiltMesh* built = mesh.built();
         auto handle_of = [&](const PrimId& materialId) {
             auto material = materialHandles.find(materialId);
-            if (material != materialHandles.end()) return material->second;
+            if (material != materialHandles.end()) {
+                const MaterialDesc& desc = *materialDescs.at(materialId);
+                if (!desc.useDisplayColor || !built->hasConstantColor) return material->second;
+                const auto& c = built->constantColor;
+                auto [it, added] = foldedHandles.try_emplace(std::make_tuple(materialId, c[0], c[1], c[2]), 0);
+                if (added) {
+                    MaterialDesc folded = desc;
+                    folded.diffuseColor = c;
+                    folded.useDisplayColor = false;
+                    it->second = scene.add_material(folded);
+                }
+                return it->second;
+            }
             // No bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey; one per colour.
             const auto color = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
             const auto key = std::make_tuple(color[0], color[1], color[2], !built->colors.empty());

@@ -13,14 +13,10 @@ Differences that remain, and why (also in docs/overview.md):
 * Storm tessellates implicit spheres coarsely (10 segments) where Tessera's are round: IoU ~0.89-0.96 on spheres.
 * Tiny objects (ni_pi's 40 spheres of ~6 px) lose about a fifth of their IoU to edge pixels alone.
 * BasisCurves and Points are not drawn (instance.usda: IoU 0.77, with a warning naming each prim).
-* Material bindings authored on or above a native instance (outside its prototype) do not reach the prototype's
-  gprims: one prototype is drawn with one material, resolved inside the prototype (pi_ni_material,
-  ni_2instances_per_instance_overrides_noshading, ni_ni_material_binding_resolution: expected to fail their colour
-  check). Bindings inside the prototype, and instance bindings weaker than those, match Storm.
 * Subdivision tags are read (interpolateBoundary, creases, corners, holes): subdivMesh agrees at IoU ~0.98, the
   pixels that differ lie along its outline.
-* UsdPrimvarReader inputs are not evaluated (a warning names each): the shader input's own value is used, so
-  PreviewSurface scenes whose colour comes from a primvar reader differ (expected to fail their colour check).
+* Only diffuseColor evaluates a UsdPrimvarReader (the mesh's colour channel carries the primvar); a reader feeding
+  another input is a warning and the input's own value is used (no scene here does that).
 """
 
 import math
@@ -45,8 +41,6 @@ def case(stage, baseline, min_iou, *, colours=False, camera=None, complexity=1.0
     return pytest.param(stage, baseline, min_iou, colours, camera, complexity, id=name, marks=marks)
 
 
-PRIMVAR_READERS = "UsdPrimvarReader is not evaluated: the input's own value is drawn"
-INSTANCE_BINDINGS = "bindings authored on or above a native instance do not reach its prototype's gprims"
 CASES = [
     # PointInstancer: nesting either way, prototypes at the root, siblings, which orientations win, materials.
     case("PointInstancer/pi.usda", "PointInstancer/baseline/pi.png", 0.95),
@@ -57,8 +51,7 @@ CASES = [
     case("PointInstancer/pi_pi_which_rot.usda", "PointInstancer/baseline/pi_pi_which_rot.png", 0.95, colours=True),
     case("PointInstancer/pi_root_prototype.usda", "PointInstancer/baseline/pi_root_prototype.png", 0.94),
     case("PointInstancer/pi_sibling_pi.usda", "PointInstancer/baseline/pi_sibling_pi.png", 0.96),
-    case("PointInstancer/pi_ni_material.usda", "PointInstancer/baseline/pi_ni_material.png", 0.95, colours=True,
-         xfail_colours=INSTANCE_BINDINGS),
+    case("PointInstancer/pi_ni_material.usda", "PointInstancer/baseline/pi_ni_material.png", 0.95, colours=True),
     # Native instancing.
     case("Instancing/instancedCubes.usda", "Instancing/baseline/testUsdImagingGLInstancing_instancedCubes.png", 0.95),
     case("Instancing/nestedInstancedCubes.usda", "Instancing/baseline/testUsdImagingGLInstancing_nestedInstancedCubes.png", 0.94),
@@ -66,12 +59,12 @@ CASES = [
     case("Instancing/ni_pi.usda", "Instancing/baseline/testUsdImagingGLInstancing_ni_pi.png", 0.78),
     case("Instancing/pi_ni_xform.usda", "Instancing/baseline/testUsdImagingGLInstancing_pi_ni_xform.png", 0.97,
          camera="/main_cam"),
-    # Materials on native instances: the prototype's, the instance's inherited down, strength.
+    # Materials on native instances: the prototype's, the instance's (and its ancestors') inherited down, strength.
     case("InstancingWithMaterials/ni_2instances.usda",
          "InstancingWithMaterials/baseline/testUsdImagingGLInstancingWithMaterials_ni_2instances.png", 0.95, colours=True),
     case("InstancingWithMaterials/ni_2instances_per_instance_overrides_noshading.usda",
          "InstancingWithMaterials/baseline/testUsdImagingGLInstancingWithMaterials_ni_2instances_per_instance_overrides_noshading.png",
-         0.95, colours=True, xfail_colours=INSTANCE_BINDINGS),
+         0.95, colours=True),
     case("InstancingWithMaterials/ni_2instances_shaded.usda",
          "InstancingWithMaterials/baseline/testUsdImagingGLInstancingWithMaterials_ni_2instances_shaded.png", 0.95, colours=True),
     case("InstancingWithMaterials/ni_2instances_shaded_overrides.usda",
@@ -82,8 +75,7 @@ CASES = [
          0.93, colours=True, camera="/main_cam"),
     case("InstancingWithMaterials/ni_ni_material_binding_resolution.usda",
          "InstancingWithMaterials/baseline/testUsdImagingGLInstancingWithMaterials_ni_ni_material_binding_resolution.png",
-         0.93, colours=True,
-         xfail_colours=INSTANCE_BINDINGS),
+         0.93, colours=True),
     # PreviewSurface: fallbacks and primvar-driven colours.
     case("PreviewSurface/testPreviewSurfaceFallback.usda", "PreviewSurface/baseline/testPreviewSurfaceFallback.png", 0.91),
     case("PreviewSurface/testPreviewSurfaceSpecular.usda", "PreviewSurface/baseline/testPreviewSurfaceSpecular.png", 0.93),
@@ -93,16 +85,16 @@ CASES = [
          "PreviewSurface/baseline/testPreviewSurfaceTextureFallback.png", 0.98, colours=True),
     case("PreviewSurface/testPreviewSurfaceTextureNoFile.usda",
          "PreviewSurface/baseline/testPreviewSurfaceTextureNoFile.png", 0.98, colours=True),
-    # Storm draws it black (a primvar reader without its primvar or a fallback reads 0); Tessera red, the input's
-    # value. Black is what the colour check cannot tell from an unlit face, so only the silhouette is compared.
+    # Storm draws it black (a primvar reader without its primvar or a fallback reads 0), as Tessera does. Black is what
+    # the colour check cannot tell from an unlit face, so only the silhouette is compared.
     case("PreviewSurface/testPreviewSurfaceFallbackPrimvar.usda",
          "PreviewSurface/baseline/testPreviewSurfaceFallbackPrimvar.png", 0.98),
     case("PreviewSurface/testPreviewSurfacePrimvarFallback.usda",
-         "PreviewSurface/baseline/testPreviewSurfacePrimvarFallback.png", 0.98, colours=True, xfail_colours=PRIMVAR_READERS),
+         "PreviewSurface/baseline/testPreviewSurfacePrimvarFallback.png", 0.98, colours=True),
     case("PreviewSurface/testPreviewSurfaceMaterialInterface.usda",
-         "PreviewSurface/baseline/testPreviewSurfaceMaterialInterface.png", 0.93, colours=True, xfail_colours=PRIMVAR_READERS),
+         "PreviewSurface/baseline/testPreviewSurfaceMaterialInterface.png", 0.93, colours=True),
     case("PreviewSurface/testPreviewSurfaceInstancedMaterial.usda",
-         "PreviewSurface/baseline/testPreviewSurfaceInstancedMaterial.png", 0.95, colours=True, xfail_colours=PRIMVAR_READERS),
+         "PreviewSurface/baseline/testPreviewSurfaceInstancedMaterial.png", 0.95, colours=True),
     # Subdivision (creases, corners, holes; a left-handed mesh) at -complexity 1.1 to 1.3. subdivMesh's tags
     # (interpolateBoundary edgeOnly, creases, corners) round its outer corners as Storm does: IoU 0.98 (0.87 without
     # the tags, which kept those corners sharp).

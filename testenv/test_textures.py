@@ -114,7 +114,7 @@ def test_a_uv_texture_network_becomes_a_texture_slot(tmp_path):
     assert desc.uv_primvar == "st1", "the reader's varname, through the material's interface input"
     assert delegate.uv_primvar(stage.GetPrimAtPath("/Quad")) == "st1", "the UV set the quad is built with"
     _quad(stage, "/Unbound", 2.0)
-    assert delegate.uv_primvar(stage.GetPrimAtPath("/Unbound")) == "st"
+    assert delegate.uv_primvar(stage.GetPrimAtPath("/Unbound")) is None, "no texture reads its UVs: none are read"
     # A file the resolver cannot find is still named by its path next to the layer that authored it.
     (broken,) = delegate.get_material("/Looks/Broken").textures
     assert broken.file == str(tmp_path / "asset" / "tex" / "missing.png")

@@ -111,7 +111,8 @@ def test_frames_resync_only_what_varies(animated):
     second, synced = frames[2]
     assert synced == {"/Mover/Quad": DIRTY.TRANSFORM, "/Morph": DIRTY.POINTS, "/Blink": DIRTY.VISIBILITY,
                       "/Looks/Pulse": DIRTY.PARAMS}
-    assert second.stats["meshes_built"] == 1, "only the mesh whose points move is built again"
+    # (Built, or loaded: another test's mesh may have the same content, in the test run's shared mesh cache.)
+    assert second.stats["meshes_built"] + second.stats["meshes_cached"] == 1, "only the mesh whose points move is built again"
     assert second.stats["synced"] == {"mesh": 3, "material": 1}
     third, synced = frames[3]
     assert synced == {"/Mover/Quad": DIRTY.TRANSFORM, "/Morph": DIRTY.POINTS, "/Blink": DIRTY.VISIBILITY,

@@ -12,15 +12,6 @@ def supported(prim: Usd.Prim) -> bool:
     return prim.IsA(UsdGeom.Cube) or prim.IsA(UsdGeom.Sphere)
 
 
-def _display_color(prim: Usd.Prim, time):
-    primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
-    if primvar and primvar.HasAuthoredValue():
-        value = primvar.Get(time)
-        if value is not None and len(value):
-            return np.ascontiguousarray(np.asarray(value, np.float32).reshape(-1)[:3]), "constant"
-    return None, "constant"
-
-
 def _cube(size: float):
     h = size / 2.0
     corners = np.array([[x, y, z] for z in (-h, h) for y in (-h, h) for x in (-h, h)], np.float32)
@@ -57,16 +48,18 @@ def _sphere(radius: float, slices: int = 24, stacks: int = 12):
     return points, np.array(counts, np.int32), np.array(indices, np.int32), None
 
 
-def mesh_source(prim: Usd.Prim, time):
+def mesh_source(prim: Usd.Prim, time, color=None, color_interpolation="constant"):
+    """`color`: what the scene delegate read for the colour channel (3 floats per element); a tessellated implicit
+    shape has no elements of its own, so it takes the first (a constant)."""
     if prim.IsA(UsdGeom.Cube):
         points, counts, indices, normals = _cube(UsdGeom.Cube(prim).GetSizeAttr().Get(time) or 2.0)
     else:
         points, counts, indices, normals = _sphere(UsdGeom.Sphere(prim).GetRadiusAttr().Get(time) or 1.0)
-    color, interpolation = _display_color(prim, time)
+    color = None if color is None or len(color) < 3 else np.ascontiguousarray(color[:3])
     gprim = UsdGeom.Gprim(prim)
     return _tessera.mesh_source(
         str(prim.GetPath()), np.ascontiguousarray(points.reshape(-1)), counts, indices,
         left_handed=gprim.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded,
         double_sided=bool(gprim.GetDoubleSidedAttr().Get(time)),
         normals=None if normals is None else np.ascontiguousarray(normals.reshape(-1)), normals_interpolation="uniform",
-        display_color=color, display_color_interpolation=interpolation)
+        display_color=color, display_color_interpolation="constant")

@@ -8,6 +8,8 @@ paths are resolved relative to the layer that authored them; the C++ side loads 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from pxr import Sdf, UsdShade
 
 from tessera import _tessera
@@ -40,6 +42,24 @@ _COLOR_SPACES = {"auto": _tessera.ColorSpace.auto, "sRGB": _tessera.ColorSpace.s
 _CHANNELS = {"r": _tessera.TextureChannel.r, "g": _tessera.TextureChannel.g, "b": _tessera.TextureChannel.b,
              "a": _tessera.TextureChannel.a, "rgb": _tessera.TextureChannel.rgb}
 _IDENTITY_2X3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+# UsdPrimvarReader outputs that can drive diffuseColor: components read from the primvar (int and float read as grey).
+_READER_TYPES = {"UsdPrimvarReader_float": 1, "UsdPrimvarReader_int": 1, "UsdPrimvarReader_float2": 2,
+                 "UsdPrimvarReader_float3": 3, "UsdPrimvarReader_float4": 4, "UsdPrimvarReader_normal": 3,
+                 "UsdPrimvarReader_point": 3, "UsdPrimvarReader_vector": 3}
+
+
+@dataclass(frozen=True)
+class PrimvarNeeds:
+    """What a mesh must read for its materials: nothing else is read or uploaded.
+    `uv`: the UV set its textures read (None: no texture reads coordinates). `color`: the primvar routed into the
+    mesh's colour channel, which drives diffuseColor (displayColor for a surface that is not a preview surface or reads
+    it; None: the colour is not read), with `color_fallback` (3 floats) where the mesh lacks it (None: no colour)."""
+    uv: str | None = None
+    color: str | None = None
+    color_fallback: tuple | None = None
+
+
+NO_MATERIAL = PrimvarNeeds(color="displayColor")  # Hydra's fallback surface: displayColor, else grey
 
 
 def _producer(shader_input):
@@ -53,6 +73,12 @@ def _producer(shader_input):
 
 def _is_output(attribute) -> bool:
     return UsdShade.Utils.GetType(attribute.GetName()) == UsdShade.AttributeType.Output
+
+
+def _four(value, default: tuple) -> tuple:
+    """A float4 input as 4 floats: missing components (a float3 authored) from the default."""
+    values = [float(x) for x in value][:4] if value is not None else []
+    return tuple(values + list(default[len(values):]))
 
 
 def _compose(outer, inner):
@@ -98,9 +124,10 @@ class _Reader:
         if space not in _COLOR_SPACES:
             self.warnings.append(f"{where}: sourceColorSpace '{space}' is not auto, sRGB or raw; auto is used")
         slot.color_space = _COLOR_SPACES.get(space, _tessera.ColorSpace.auto)
-        slot.scale = tuple(float(x) for x in self.value(texture, "scale", (1.0, 1.0, 1.0, 1.0)))
-        slot.bias = tuple(float(x) for x in self.value(texture, "bias", (0.0, 0.0, 0.0, 0.0)))
-        slot.fallback = tuple(float(x) for x in self.value(texture, "fallback", (0.0, 0.0, 0.0, 1.0)))
+        # float4 in the spec; a float3 (a common authoring) keeps the default's fourth component.
+        slot.scale = _four(self.value(texture, "scale", None), (1.0, 1.0, 1.0, 1.0))
+        slot.bias = _four(self.value(texture, "bias", None), (0.0, 0.0, 0.0, 0.0))
+        slot.fallback = _four(self.value(texture, "fallback", None), (0.0, 0.0, 0.0, 1.0))
         slot.transform, primvar = self.st(texture.GetInput("st"), where)
         return slot, primvar
 
@@ -149,6 +176,16 @@ class _Reader:
 def material_desc(material_prim, time, warnings: list[str]):
     """The MaterialDesc of a material prim's UsdPreviewSurface (its textures not loaded yet: the material's sync
     loads them). Not a preview surface: the mesh's displayColor, diffuse only."""
+    return read_material(material_prim, time, warnings)[0]
+
+
+def primvar_needs(material_prim, time) -> PrimvarNeeds:
+    """The primvars a mesh bound to this material must read (warnings are the material's sync's to give)."""
+    return read_material(material_prim, time, [])[1]
+
+
+def read_material(material_prim, time, warnings: list[str]):
+    """(MaterialDesc, PrimvarNeeds) of a material prim."""
     desc = _tessera.MaterialDesc()
     material = UsdShade.Material(material_prim)
     shader = material.ComputeSurfaceSource()[0] if material else None
@@ -156,10 +193,11 @@ def material_desc(material_prim, time, warnings: list[str]):
         desc.use_display_color = True  # not a preview surface: fall back to the mesh's displayColor, diffuse only
         desc.diffuse_color = (0.5, 0.5, 0.5)
         desc.ior = 1.0
-        return desc
+        return desc, NO_MATERIAL
     path = str(material_prim.GetPath())
     reader = _Reader(path, time, warnings)
     slots, primvars = [], []
+    color = {}  # the primvar reader driving diffuseColor: name, fallback
 
     def value(name, default, source=shader):
         producer = _producer(source.GetInput(name))
@@ -176,8 +214,16 @@ def material_desc(material_prim, time, warnings: list[str]):
             slots.append(slot)
             if primvar:
                 primvars.append(primvar)
-        elif name == "diffuseColor" and kind == "UsdPrimvarReader_float3" and reader.value(upstream, "varname", "") == "displayColor":
+        elif name == "diffuseColor" and kind in _READER_TYPES:
+            # Routed into the mesh's colour channel (any interpolation); where the mesh lacks the primvar, the reader's
+            # fallback (the spec's default: zeros), as Storm draws it.
+            width = _READER_TYPES[kind]
+            fallback = reader.value(upstream, "fallback", None)
+            fallback = [float(fallback)] if isinstance(fallback, (int, float)) else list(fallback or [])
+            fallback = (fallback + [0.0] * 3)[:3] if width > 1 else (fallback[:1] or [0.0]) * 3
+            varname = str(reader.value(upstream, "varname", "") or "")
             desc.use_display_color = True
+            color.update(name=varname or None, fallback=tuple(fallback))
         else:
             warnings.append(f"{path}: {name} is connected to {upstream.GetPath()} ({kind or 'no info:id'}), which Tessera does not "
                             "evaluate; its default is used")
@@ -196,13 +242,20 @@ def material_desc(material_prim, time, warnings: list[str]):
     value("normal", (0.0, 0.0, 1.0))
     _read_displacement(material, desc, value, path, time, warnings)
     desc.textures = slots
+    uv = (primvars[0] if primvars else "st") if any(_reads_coordinates(slot) for slot in slots) else None
+    needs = PrimvarNeeds(uv=uv, color=color.get("name"), color_fallback=color.get("fallback"))
     if primvars:
         desc.uv_primvar = primvars[0]
         others = sorted(set(primvars) - {primvars[0]})
         if others:
             warnings.append(f"{path}: its textures read several UV sets ({', '.join([primvars[0]] + others)}); "
                             f"only {primvars[0]} is read, for all of them")
-    return desc
+    return desc, needs
+
+
+def _reads_coordinates(slot) -> bool:
+    """Whether a texture slot reads the mesh's UVs: a constant st is a matrix whose linear part is zero."""
+    return any(slot.transform[i] != 0.0 for i in (0, 1, 3, 4))
 
 
 def _read_displacement(material, desc, value, path: str, time, warnings: list[str]) -> None:

@@ -30,6 +30,9 @@ from .path_index import PathIndex, ancestors, is_at_or_under
 _dirty = _tessera.dirty
 _LIGHT_TYPES = lights.SPRIM_TYPES
 _PROTOTYPE_PREDICATE = Usd.PrimIsActive & Usd.PrimIsLoaded & ~Usd.PrimIsAbstract  # PointInstancer prototypes: `over` too
+# Bindings are resolved for the preview purpose, as Storm resolves them: a `preview` binding wins, else the
+# all-purpose one (UsdShade's fallback); `full` bindings are for final-quality renderers.
+_MATERIAL_PURPOSE = UsdShade.Tokens.preview
 
 
 def to_column_major(gf_matrix: Gf.Matrix4d) -> list[float]:
@@ -52,6 +55,9 @@ class _Rprim:
     instancer_id: str = ""
     material: str = ""  # the bound material's path, "" for none
     subdivided: bool = False  # read with a subdivision scheme other than none: a new refine level rebuilds it
+    # Inside a native prototype: the instance proxy path whose binding it draws with (one instance of those it draws,
+    # all of which resolve alike: _instance_binding_key), so bindings on or above the instance reach it; None: its own.
+    binding: str | None = None
     subset_materials: tuple = ()  # the materials of its materialBind GeomSubsets (slots 1, 2, ...), "" for the mesh's own
     # What the last walk found (None once read): the first sync after a walk need not ask USD again.
     walked_visible: bool | None = None
@@ -69,6 +75,8 @@ class _Group:
     # the instances it moved.
     copies: np.ndarray | None = None
     order: list[str] = field(default_factory=list)
+    # Native: each instance's binding key (_instance_binding_key), kept until an edit at or above the instance.
+    binding_keys: dict[str, tuple] = field(default_factory=dict)
 
 
 class _AuthoredNames(frozenset):
@@ -222,6 +230,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         self._authored_sets: dict[tuple, _AuthoredNames] = {}  # one shared set per distinct list of names
         # World transforms (row vectors) of gprims drawn once that a walk computed and no sync has used yet.
         self._walked_worlds: dict[str, Gf.Matrix4d] = {}
+        # What each material needs its meshes to read (materials.PrimvarNeeds): 100 k meshes bound to one material read
+        # its network once. An edit of the material that changes it dirties the meshes' primvars (_renew_needs).
+        self._needs: dict[str, materials.PrimvarNeeds] = {}
+        self._all_uvs = False  # read_all_uvs(): every mesh reads its st, textured or not (the `uv` debug view)
 
     @property
     def materials(self) -> set[str]:
@@ -358,14 +370,24 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return kind
 
     def _visit(self, root: Usd.Prim, copies: np.ndarray, frame: Usd.Prim | None, context: str,
-               records: dict[str, _Rprim], watched: set[str], points: tuple | None = None) -> None:
+               records: dict[str, _Rprim], watched: set[str], points: tuple | None = None,
+               proxy: tuple[str, str] | None = None) -> None:
         """Walks an instanced subtree. `copies` (N, 4, 4) are the world transforms of `frame` (row vectors);
         transforms inside are taken relative to `frame` (`root` itself when None). `context` names this copy set
         uniquely (it becomes the instancer id); the rprims made go into `records`, the prims read into `watched`.
         `points`: (PointArrays, prototype index) when `root` is a PointInstancer prototype: `copies` are then the
-        instancer's world transforms and its arrays place the prototype's instances in them, kept as arrays."""
+        instancer's world transforms and its arrays place the prototype's instances in them, kept as arrays.
+        `proxy`: (prototype path, instance path) when `root` is in a native prototype: prims under the prototype path
+        resolve their material bindings as the instance proxies under the instance path (that instance's bindings on
+        and above it count, as UsdShade resolves them through instance proxies)."""
         if frame is None:
             frame = root
+
+        def proxy_path(prim: Usd.Prim) -> str | None:
+            if proxy is None:
+                return None
+            path, (prefix, instance) = str(prim.GetPath()), proxy
+            return instance + path[len(prefix):] if is_at_or_under(path, prefix) else None
         # A PointInstancer's prototypes are drawn even when defined under an `over` (a common way to keep them out of
         # ordinary traversals), as UsdImaging does: its prototype walk does not ask for defined prims.
         it = iter(Usd.PrimRange(root, _PROTOTYPE_PREDICATE) if points is not None else Usd.PrimRange(root))
@@ -390,12 +412,14 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 prototype = prim.GetPrototype()
                 watched.add(str(prototype.GetPath()))
                 world = self._relative(prim, frame)
-                self._visit(prototype, world[None] @ copies, None, f"{context};{prim.GetPath()}", records, watched)
+                inner = (str(prototype.GetPath()), proxy_path(prim) or str(prim.GetPath()))
+                self._visit(prototype, world[None] @ copies, None, f"{context};{prim.GetPath()}", records, watched,
+                            proxy=inner)
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdGeom.PointInstancer):
                 self._visit_point_instancer(UsdGeom.PointInstancer(prim), copies, frame, f"{context};{prim.GetPath()}",
-                                            records, watched)
+                                            records, watched, proxy)
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdGeom.Gprim):
@@ -409,9 +433,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 else:
                     records[id] = _Rprim(prim, np.ascontiguousarray(np.swapaxes(copies, 1, 2)), points=points[0], prototype=points[1],
                                          local=np.ascontiguousarray(local.T), instancer_id=context)
+                records[id].binding = proxy_path(prim)
 
     def _visit_point_instancer(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
-                               context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
+                               context: str, records: dict[str, _Rprim], watched: set[str],
+                               proxy: tuple[str, str] | None = None) -> None:
         prim = instancer.GetPrim()
         path = prim.GetPath()
         if str(path) in self._instancer_chain:  # a prototype instances an instancer that instances it: no end
@@ -423,12 +449,13 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             return
         self._instancer_chain.append(str(path))
         try:
-            self._visit_point_instancer_body(instancer, copies, frame, context, records, watched)
+            self._visit_point_instancer_body(instancer, copies, frame, context, records, watched, proxy)
         finally:
             self._instancer_chain.pop()
 
     def _visit_point_instancer_body(self, instancer: UsdGeom.PointInstancer, copies: np.ndarray | None, frame: Usd.Prim | None,
-                                    context: str, records: dict[str, _Rprim], watched: set[str]) -> None:
+                                    context: str, records: dict[str, _Rprim], watched: set[str],
+                                    proxy: tuple[str, str] | None) -> None:
         prim = instancer.GetPrim()
         path = prim.GetPath()
         watched.add(str(path))
@@ -448,7 +475,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 self.warnings.append(f"{path}: prototype {target} does not exist")
                 continue
             # The prototype's root transform counts (ExcludeProtoXform with the prototype visited from its parent).
-            self._visit(proto, world, proto.GetParent(), f"{context}[{index}]", records, watched, points=(arrays, index))
+            self._visit(proto, world, proto.GetParent(), f"{context}[{index}]", records, watched, points=(arrays, index),
+                        proxy=proxy)
 
     # -- the index made to match the stage ----------------------------------------------------------
 
@@ -496,6 +524,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for id in self._paths.under(path):
                 if self.sprims.get(id) == "material":
                     self.index.mark_dirty(id, _dirty.ALL)
+                    self._renew_needs(id)
                     for user in list(self._material_users.get(id, ())):
                         self._rebind(user, self.rprims[user], mark=True)
 
@@ -514,6 +543,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         for key in sorted(touched):
             self._remake_group(key, path if resync else None, moved=path)
         if self._stage_has("Material") and not had_materials:  # the first material: bindings were not resolved before
+            for key in sorted(k for k, group in self.groups.items() if group.kind == "native"):
+                self._remake_group(key, None, rebound="/")
             for id, record in self.rprims.items():
                 self._rebind(id, record, mark=True)
 
@@ -542,10 +573,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             keys.update(self._watch.at(ancestor))
         return keys
 
-    def _remake_group(self, key: str, resynced: str | None, moved: str | None = None) -> None:
+    def _remake_group(self, key: str, resynced: str | None, moved: str | None = None, rebound: str | None = None) -> None:
         """Visits an instancing group again and makes its rprims match: new ones inserted, gone ones removed, the
         others dirtied with what changed (their copies' transforms, their material; everything where they were
-        read from the resynced path). `moved`: a path whose transforms changed (instances under it are re-read)."""
+        read from the resynced path). `moved`: a path whose transforms changed (instances under it are re-read);
+        `rebound`: a path whose material bindings changed (instances under it resolve theirs again)."""
         group = self.groups[key]
         records: dict[str, _Rprim] = {}
         watched = set(group.anchors)
@@ -553,7 +585,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             prim = self.stage.GetPrimAtPath(key)
             if group.kind == "native" and prim:
                 watched.add(key)
-                self._visit(prim, self._instance_copies(group, moved or resynced), None, key, records, watched)
+                copies = self._instance_copies(group, moved or resynced)
+                for context, rows, instance in self._binding_partitions(key, group, rebound or resynced):
+                    self._visit(prim, copies if rows is None else copies[rows], None, context, records, watched,
+                                proxy=(key, instance))
             elif group.kind == "pointInstancer" and prim:
                 self._visit_point_instancer(UsdGeom.PointInstancer(prim), None, None, key, records, watched)
         for id in group.rprims - records.keys():
@@ -570,6 +605,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             if not _same_copies(old, record):
                 bits |= _dirty.INSTANCER
             old.prim, old.frames, old.points, old.prototype, old.local = record.prim, record.frames, record.points, record.prototype, record.local
+            old.binding = record.binding
             if self._rebind(id, old):
                 bits |= _dirty.MATERIAL_ID
             if bits:
@@ -583,6 +619,38 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for path in group.watched:
                 self._watch.discard(path, key)
             del self.groups[key]
+
+    def _binding_partitions(self, key: str, group: _Group, rebound: str | None) -> list[tuple]:
+        """A native group's instances split by what they inherit of material bindings from outside the prototype, as
+        UsdImaging groups them: (context, rows of the group's copies or None for all, one instance of those). One
+        prototype is visited per part: its meshes are built once (the same cache key), only their material differs.
+        The part without an outside binding keeps the group's key as its context."""
+        anchors = list(group.anchors)
+        if not self._stage_has("Material"):
+            return [(key, None, anchors[0])]
+        keys = group.binding_keys
+        for anchor in [a for a in keys if a not in group.anchors]:
+            del keys[anchor]
+        rows: dict[tuple, list[int]] = {}
+        for row, anchor in enumerate(anchors):
+            if anchor not in keys or (rebound is not None and is_at_or_under(anchor, rebound)):
+                keys[anchor] = self._instance_binding_key(anchor)
+            rows.setdefault(keys[anchor], []).append(row)
+        if len(rows) == 1 and ("", False) in rows:
+            return [(key, None, anchors[0])]
+        return [(key if binding == ("", False) else f"{key}<{binding[0]}{'!' if binding[1] else ''}>",
+                 np.asarray(part), anchors[part[0]]) for binding, part in rows.items()]
+
+    def _instance_binding_key(self, anchor: str) -> tuple[str, bool]:
+        """(material, strong) an instance prim resolves: what decides the binding of every gprim of its prototype
+        (the outside binding, unless weaker than the prototype's own). Collection bindings that name prims inside the
+        instance (not the instance or its ancestors) are not told apart."""
+        binding = UsdShade.MaterialBindingAPI(self.stage.GetPrimAtPath(anchor))
+        material, relationship = binding.ComputeBoundMaterial(_MATERIAL_PURPOSE)
+        if not material:
+            return ("", False)
+        strength = UsdShade.MaterialBindingAPI.GetMaterialBindingStrength(relationship)
+        return (str(material.GetPath()), strength == UsdShade.Tokens.strongerThanDescendants)
 
     def _instance_copies(self, group: _Group, moved: str | None) -> np.ndarray:
         """A native group's instance world transforms: those kept, except under `moved` and for new instances."""
@@ -660,7 +728,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     def _bound_material(self, prim: Usd.Prim) -> str:
         if not self._stage_has("Material"):
             return ""  # nothing to bind to: the binding need not be resolved
-        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial(_MATERIAL_PURPOSE)
         return str(material.GetPath()) if material else ""
 
     def _rebind(self, id: str, record: _Rprim, mark: bool = False) -> bool:
@@ -668,8 +736,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if not record.material and not record.subset_materials and not self._stage_has("Material") and \
                 not self._stage_has("GeomSubset"):
             return False  # nothing bound and nothing to bind: what the resolution below would find
-        material = self._bound_material(record.prim)
-        subsets = tuple(self._bound_material(s.GetPrim()) for s in self._material_subsets(record.prim))
+        prim = record.prim if record.binding is None else self.stage.GetPrimAtPath(record.binding)
+        material = self._bound_material(prim)
+        subsets = tuple(self._bound_material(s.GetPrim()) for s in self._material_subsets(prim))
         if (material, subsets) == (record.material, record.subset_materials) and \
                 all(id in self._material_users.get(m, ()) for m in (material, *subsets) if m):
             return False
@@ -694,6 +763,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         users.discard(id)
         if not users:  # no mesh binds it any more
             del self._material_users[material]
+            self._needs.pop(material, None)
             self._remove_sprim(material)
 
     # -- edits and time ---------------------------------------------------------------------------------
@@ -744,8 +814,11 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 elif record is None and self.sprims.get(id) in _LIGHT_TYPES | {"camera"} and bits & _dirty.TRANSFORM:
                     self.index.mark_dirty(id, _dirty.PARAMS)
             for key in sorted(self._groups_touching(path)):
-                self._remake_group(key, None, path if bits & _dirty.TRANSFORM else None)
+                self._remake_group(key, None, path if bits & _dirty.TRANSFORM else None,
+                                   path if bits & _dirty.MATERIAL_ID else None)
         elif scope == change_tracker.EVERY_MESH:
+            for key in sorted(k for k, group in self.groups.items() if group.kind == "native"):
+                self._remake_group(key, None, rebound="/")  # a collection may name any instance
             for id, record in self.rprims.items():
                 self._rebind(id, record, mark=True)
         elif scope == change_tracker.INSTANCER:
@@ -755,6 +828,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for candidate in (path, *ancestors(path)):  # the light or camera itself, or the material a shader is in
                 if candidate in self.sprims:
                     self.index.mark_dirty(candidate, bits)
+                    if self.sprims[candidate] == "material":
+                        self._renew_needs(candidate)
                     break
         elif scope == change_tracker.GPRIM:
             for id in self._paths.at(path):
@@ -825,10 +900,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if authored is None:
             authored = self._authored_names(prim.GetAuthoredPropertyNames())
         name = id if record.group is None else str(prim.GetPath())
-        if authored.plain and "points" in authored and not self._stage_has("GeomSubset"):
+        needs = self._primvar_needs(record)
+        # A plain mesh authors no primvars: only a material's primvar reader fallback would need the full path.
+        if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and needs.color_fallback is None:
             source = self._plain_mesh_source(prim, authored, name, record)
         else:
-            source = self._mesh_source(prim, authored, record.material, name, record)
+            source = self._mesh_source(prim, authored, needs, name, record)
         if authored.tessera:
             source.settings = self._mesh_settings(prim, self.build_settings, self.time, self.warnings)
         else:  # nothing of TesseraMeshAPI authored: the render's defaults, applied or not
@@ -844,7 +921,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         counts = attribute("faceVertexCounts").Get(t) if "faceVertexCounts" in authored else None
         indices = attribute("faceVertexIndices").Get(t) if "faceVertexIndices" in authored else None
         if points is None or counts is None or indices is None:
-            return self._mesh_source(prim, authored, "", name, record)  # a Cube or Sphere, or the error named there
+            return self._mesh_source(prim, authored, materials.NO_MATERIAL, name, record)  # a Cube or Sphere, or the error
         scheme = (attribute("subdivisionScheme").Get(t) if "subdivisionScheme" in authored else None) or "catmullClark"
         record.subdivided = scheme != UsdGeom.Tokens.none
         left_handed = "orientation" in authored and attribute("orientation").Get(t) == UsdGeom.Tokens.leftHanded
@@ -854,10 +931,83 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             None, left_handed, double_sided, None, "vertex", None, None, "constant", None, None, "faceVarying", None, None,
             scheme, self.refine_level)
 
-    def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, material: str, name: str, record: _Rprim):
+    def _primvar_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
+        """What the rprim's materials read of its primvars (its own and its GeomSubsets'): the first UV set and the
+        first colour primvar any of them reads."""
+        needs = self._textured_needs(record)
+        if self._all_uvs and needs.uv is None:
+            return materials.PrimvarNeeds(uv="st", color=needs.color, color_fallback=needs.color_fallback)
+        return needs
+
+    def _textured_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
+        bound = [m for m in (record.material, *record.subset_materials) if m]
+        if not bound:
+            return materials.NO_MATERIAL
+        if record.subset_materials and not record.material:
+            bound.append("")  # faces in no subset: no material, the fallback surface
+        found = [self._material_needs(m) if m else materials.NO_MATERIAL for m in bound]
+        uv = next((n.uv for n in found if n.uv), None)
+        color = next((n for n in found if n.color), materials.PrimvarNeeds())
+        return materials.PrimvarNeeds(uv=uv, color=color.color, color_fallback=color.color_fallback)
+
+    def read_all_uvs(self) -> None:
+        """From now on every mesh reads texture coordinates (its material's UV set, else st), as the `uv` debug view
+        shows them; those that read none so far read their primvars again."""
+        if self._all_uvs:
+            return
+        self._all_uvs = True
+        for id, record in self.rprims.items():
+            if self._textured_needs(record).uv is None:
+                self.index.mark_dirty(id, _dirty.PRIMVAR)
+
+    def _material_needs(self, material: str) -> materials.PrimvarNeeds:
+        needs = self._needs.get(material)
+        if needs is None:
+            needs = self._needs[material] = materials.primvar_needs(self.stage.GetPrimAtPath(material), self.time)
+        return needs
+
+    def _renew_needs(self, material: str) -> None:
+        """A material was edited: if what its meshes must read changed (a texture now reads UVs, a reader another
+        primvar), they read their primvars again."""
+        old = self._needs.pop(material, None)
+        if old is not None and material in self._material_users and self._material_needs(material) != old:
+            for user in self._material_users[material]:
+                self.index.mark_dirty(user, _dirty.PRIMVAR)
+
+    def _color_primvar(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str):
+        """(values, interpolation, indices) of the primvar the materials route into the mesh's colour channel, as 3
+        floats per element: on the mesh, else, for a primvar reader, a constant one inherited from an ancestor
+        (UsdGeomPrimvarsAPI's FindPrimvarWithInheritance, as UsdImaging reads them; the fallback surface's displayColor
+        is not looked for above the mesh: an ancestor walk per mesh), else the reader's fallback (constant)."""
+        fallback = (np.asarray(needs.color_fallback, np.float32), "constant", None) if needs.color_fallback else (None, "constant", None)
+        if not needs.color:
+            return fallback
+        primvars = UsdGeom.PrimvarsAPI(prim)
+        if f"primvars:{needs.color}" in authored:
+            pv = primvars.GetPrimvar(needs.color)
+        elif needs.color_fallback is not None:
+            pv = primvars.FindPrimvarWithInheritance(needs.color)
+        else:
+            return fallback
+        values = pv.Get(self.time) if pv and pv.HasAuthoredValue() else None
+        if values is None:
+            return fallback
+        a = np.asarray(values, np.float32)
+        if a.ndim == 1:
+            a = a[:, None]
+        if a.ndim != 2 or a.shape[1] not in (1, 2, 3, 4) or not len(a):
+            self.warnings.append(f"{name}: primvars:{needs.color} is {pv.GetTypeName()}, not a number or vector; ignored")
+            return fallback
+        a = np.repeat(a, 3, axis=1) if a.shape[1] == 1 else np.pad(a, ((0, 0), (0, max(0, 3 - a.shape[1]))))[:, :3]
+        idx = pv.GetIndices(self.time)
+        idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
+        return np.ascontiguousarray(a.reshape(-1)), pv.GetInterpolation(), idx
+
+    def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str, record: _Rprim):
         record.subdivided = False
         if not prim.IsA(UsdGeom.Mesh):
-            return implicit.mesh_source(prim, self.time)
+            color, interpolation, _ = self._color_primvar(prim, authored, needs, name)
+            return implicit.mesh_source(prim, self.time, color, interpolation)
         t = self.time
 
         def array(attribute_name, dtype, width=None):
@@ -900,9 +1050,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         normals, normals_interp, normals_idx = primvar("normals", "vertex")
         if normals is None and "normals" in authored and prim.GetAttribute("normals").HasAuthoredValue():
             normals, normals_interp = array("normals", np.float32, 3), UsdGeom.Mesh(prim).GetNormalsInterpolation()
-        color, color_interp, color_idx = primvar("displayColor", "constant")
-        uv_name = self._material_uv_primvar(material) if material else "st"
-        uvs, uvs_interp, uvs_idx = primvar(uv_name, "faceVarying", width=2)
+        # Only what the materials read: the colour primvar one routes into diffuseColor, the UV set textures read.
+        color, color_interp, color_idx = self._color_primvar(prim, authored, needs, name)
+        uvs, uvs_interp, uvs_idx = primvar(needs.uv, "faceVarying", width=2) if needs.uv else (None, "faceVarying", None)
         face_materials = None
         subsets = self._material_subsets(prim)
         if subsets:  # faces in no subset keep slot 0 (the mesh's own material); a face in several takes the last
@@ -928,15 +1078,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx, face_materials=face_materials,
             subdivision_scheme=scheme, refine_level=self.refine_level, **tags)
 
-    def _material_uv_primvar(self, material: str) -> str:
-        """The primvar the bound material's texture readers read (its UsdPrimvarReader_float2's varname), else "st"."""
-        return materials.material_desc(self.stage.GetPrimAtPath(material), self.time, []).uv_primvar or "st"
-
-    def uv_primvar(self, prim: Usd.Prim) -> str:
+    def uv_primvar(self, prim: Usd.Prim) -> str | None:
         """The texture coordinate set a mesh is built with: the primvar its bound material's texture readers read
-        (a UsdPrimvarReader_float2's varname), else "st", the convention of UsdPreviewSurface materials."""
-        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
-        return self._material_uv_primvar(str(material.GetPath())) if material else "st"
+        (a UsdPrimvarReader_float2's varname, else "st", the convention of UsdPreviewSurface materials); None when
+        no texture of it reads coordinates (none are read or uploaded)."""
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial(_MATERIAL_PURPOSE)
+        return materials.primvar_needs(material.GetPrim(), self.time).uv if material else None
 
     def get_transform(self, id: str):
         world = self._walked_worlds.pop(id, None)

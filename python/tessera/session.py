@@ -170,6 +170,8 @@ class Session:
         complexity = self.complexity if complexity is None else _checked_complexity(complexity)
         self._apply_edits()
         self.scene.set_complexity(complexity)
+        if vis == "uv":  # the UV view shows every mesh's st, where shading reads only what a texture reads
+            self.scene.read_all_uvs()
         camera_id = ""
         if camera:
             if camera not in self.scene.cameras:
