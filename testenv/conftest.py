@@ -26,6 +26,18 @@ def shared_asset(relative: str) -> Path:
     return path
 
 
+def preview_material(stage, path, color):
+    """A UsdPreviewSurface material of one diffuse colour at `path`."""
+    from pxr import Gf, Sdf, UsdShade
+
+    material = UsdShade.Material.Define(stage, path)
+    shader = UsdShade.Shader.Define(stage, f"{path}/Surface")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
+    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    return material
+
+
 @pytest.fixture
 def render():
     """Renders a stage with validation on and asserts that no validation message and no error came out."""

@@ -9,20 +9,12 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 import tessera
 from tessera import _tessera
+from conftest import preview_material
 
 DIRTY = _tessera.dirty
 RESOLUTION = (200, 100)  # the camera sees x in [-4, 4], y in [-2, 2]: 25 pixels per unit
 COLUMNS = {"T0": 25, "T1": 75, "T2": 125, "T3": 175}  # pixel column of each tile's centre (x = -3, -1, 1, 3)
 COLOURS = {"red": (0.8, 0.05, 0.05), "green": (0.05, 0.8, 0.05), "blue": (0.05, 0.05, 0.8)}
-
-
-def _material(stage, path, color):
-    material = UsdShade.Material.Define(stage, path)
-    shader = UsdShade.Shader.Define(stage, f"{path}/Surface")
-    shader.CreateIdAttr("UsdPreviewSurface")
-    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
-    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
-    return material
 
 
 def _stage(inner_binding=None):
@@ -34,7 +26,7 @@ def _stage(inner_binding=None):
     camera.GetHorizontalApertureAttr().Set(40.0)
     camera.GetVerticalApertureAttr().Set(20.0)
     for name, colour in COLOURS.items():
-        _material(stage, f"/Looks/{name.capitalize()}", colour)
+        preview_material(stage, f"/Looks/{name.capitalize()}", colour)
     assets = UsdGeom.Scope.Define(stage, "/Assets")
     assets.GetVisibilityAttr().Set(UsdGeom.Tokens.invisible)
     UsdGeom.Xform.Define(stage, "/Assets/Tile")

@@ -8,6 +8,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
 import tessera
 from tessera import _tessera
+from conftest import preview_material
 
 DIRTY = _tessera.dirty
 NO_HIT = 0xFFFFFFFF
@@ -25,15 +26,6 @@ def _quad(stage, path, x, y, size=1.0, color=(1.0, 1.0, 1.0)):
     return mesh
 
 
-def _material(stage, path, color):
-    material = UsdShade.Material.Define(stage, path)
-    shader = UsdShade.Shader.Define(stage, f"{path}/Surface")
-    shader.CreateIdAttr("UsdPreviewSurface")
-    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
-    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
-    return material
-
-
 def _stage():
     """Rows of prims seen from z = 10: native instances on top, plain meshes in the middle, a variant and a
     PointInstancer below."""
@@ -47,8 +39,8 @@ def _stage():
     left.AddTranslateOp().Set(Gf.Vec3d(-2, 0, 0))
     _quad(stage, "/World/Left/Quad", 0, 0)
     right = _quad(stage, "/World/Right", 2, 0)
-    UsdShade.MaterialBindingAPI.Apply(right.GetPrim()).Bind(_material(stage, "/Looks/Red", (0.8, 0.05, 0.05)))
-    _material(stage, "/Looks/Blue", (0.05, 0.05, 0.8))
+    UsdShade.MaterialBindingAPI.Apply(right.GetPrim()).Bind(preview_material(stage, "/Looks/Red", (0.8, 0.05, 0.05)))
+    preview_material(stage, "/Looks/Blue", (0.05, 0.05, 0.8))
     UsdShade.MaterialBindingAPI.Apply(stage.GetPrimAtPath("/World/Left/Quad"))  # bound later by a test
 
     switch = UsdGeom.Xform.Define(stage, "/World/Switch").GetPrim()
