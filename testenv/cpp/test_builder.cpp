@@ -222,11 +222,15 @@ TEST(Prepare, DuplicatePositionsWeldUnlessTheirValuesDiffer) {
 }
 
 namespace {
-MeshView cube_cage(std::vector<float>& points, std::vector<int32_t>& counts, std::vector<int32_t>& indices) {
+// A cube cage from -1 to 1, refined `level` times with `scheme` (none: as authored).
+MeshView cube_cage(std::vector<float>& points, std::vector<int32_t>& counts, std::vector<int32_t>& indices,
+                   SubdivisionScheme scheme = SubdivisionScheme::None, int level = 0) {
     points = {-1, -1, 1, 1, -1, 1, -1, 1, 1, 1, 1, 1, -1, 1, -1, 1, 1, -1, -1, -1, -1, 1, -1, -1};
     counts = {4, 4, 4, 4, 4, 4};
     indices = {0, 1, 3, 2, 2, 3, 5, 4, 4, 5, 7, 6, 6, 7, 1, 0, 1, 7, 5, 3, 6, 0, 2, 4};
     MeshView v = polygon_view("/Cage", points, counts, indices);
+    v.subdivisionScheme = scheme;
+    v.refineLevel = level;
     return v;
 }
 }  // namespace
@@ -234,9 +238,7 @@ MeshView cube_cage(std::vector<float>& points, std::vector<int32_t>& counts, std
 TEST(Subdivision, CatmullClarkRefinesTowardsTheLimitSurface) {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
-    MeshView v = cube_cage(points, counts, indices);
-    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
-    v.refineLevel = 2;
+    MeshView v = cube_cage(points, counts, indices, SubdivisionScheme::CatmullClark, 2);
     PreparedMesh m = prepare_mesh(v);
     EXPECT_EQ(m.indices.size() / 3, 6u * 16u * 2u) << "two refinements: 16 quads per face, 2 triangles each";
     float maxRadius = 0;
@@ -289,9 +291,7 @@ struct OpenGrid {
 TEST(SubdivisionTags, InfinitelySharpCreaseKeepsTheCageEdge) {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
-    MeshView v = cube_cage(points, counts, indices);
-    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
-    v.refineLevel = 2;
+    MeshView v = cube_cage(points, counts, indices, SubdivisionScheme::CatmullClark, 2);
     auto on_edge = [](const PreparedMesh& m) {  // refined points on the cage's edge from (-1, -1, 1) to (1, -1, 1)
         std::set<float> xs;
         for (const auto& p : points_of(m))
@@ -334,9 +334,7 @@ TEST(SubdivisionTags, InfinitelySharpCreaseKeepsTheCageEdge) {
 TEST(SubdivisionTags, SharpCornerKeepsTheCornerPoint) {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
-    MeshView v = cube_cage(points, counts, indices);
-    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
-    v.refineLevel = 2;
+    MeshView v = cube_cage(points, counts, indices, SubdivisionScheme::CatmullClark, 2);
     EXPECT_FALSE(has_point(prepare_mesh(v), {-1, -1, 1}));
     std::vector<int32_t> corner{0};
     std::vector<float> sharpness{10.0f};
@@ -400,9 +398,7 @@ TEST(SubdivisionTags, TriangleRuleAndFaceVaryingInterpolationAreApplied) {
 TEST(SubdivisionTags, BadTagsAreReportedAndIgnored) {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
-    MeshView v = cube_cage(points, counts, indices);
-    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
-    v.refineLevel = 1;
+    MeshView v = cube_cage(points, counts, indices, SubdivisionScheme::CatmullClark, 1);
     const PreparedMesh plain = prepare_mesh(v);
     auto expect_ignored = [&](const MeshView& bad, const char* message) {
         PreparedMesh m = prepare_mesh(bad);
@@ -449,9 +445,7 @@ TEST(SubdivisionTags, BadTagsAreReportedAndIgnored) {
 TEST(Subdivision, LoopNeedsTrianglesElseTheCageIsDrawnWithAWarning) {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
-    MeshView v = cube_cage(points, counts, indices);
-    v.subdivisionScheme = SubdivisionScheme::Loop;
-    v.refineLevel = 1;
+    MeshView v = cube_cage(points, counts, indices, SubdivisionScheme::Loop, 1);
     PreparedMesh m = prepare_mesh(v);
     EXPECT_EQ(m.indices.size() / 3, 12u);
     ASSERT_FALSE(m.warnings.empty());
@@ -515,9 +509,7 @@ TEST(Prepare, TextureCoordinateSeamsSplitVerticesAndAreKept) {
 TEST(Subdivision, FaceVaryingTextureCoordinatesAreRefinedPerIsland) {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
-    MeshView v = cube_cage(points, counts, indices);
-    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
-    v.refineLevel = 2;
+    MeshView v = cube_cage(points, counts, indices, SubdivisionScheme::CatmullClark, 2);
     // Face f is the island (f, 0)-(f + 1, 1): seams on every cube edge.
     std::vector<float> islands;
     std::vector<int32_t> islandIndices;
@@ -570,9 +562,7 @@ TEST(Prepare, MaterialSlotsSplitVerticesAndFollowTheirFaces) {
 TEST(Subdivision, MaterialSlotsFollowRefinedFaces) {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
-    MeshView v = cube_cage(points, counts, indices);
-    v.subdivisionScheme = SubdivisionScheme::CatmullClark;
-    v.refineLevel = 2;
+    MeshView v = cube_cage(points, counts, indices, SubdivisionScheme::CatmullClark, 2);
     std::vector<int32_t> slots{0, 1, 2, 3, 4, 5};
     v.faceMaterials = slots;
     PreparedMesh m = prepare_mesh(v);
