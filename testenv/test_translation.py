@@ -297,3 +297,43 @@ def test_a_transform_usd_rejects_is_left_to_the_sync():
     _cube(stage, "/Bad/Added")
     delegate.apply_changes(*changes.take())
     assert "/Bad/Added" in delegate.rprims and "/Bad/Added" not in delegate._walked_worlds
+
+
+def test_builds_on_the_worker_report_by_prim_and_draw_every_mesh():
+    """Meshes are built on a worker thread while the stage is read (plugin/mesh_table.cpp). Whatever the batching, every
+    mesh is drawn, identical meshes are built once, and a build's warning or error names each prim that authored it:
+    here 150 distinct quads (several batches), two identical meshes that lose a face (a warning each) and two identical
+    meshes with no face left (an error each; the rest renders)."""
+    stage, _ = _stage()
+    stage.RemovePrim("/Quad")
+    UsdGeom.Xformable(stage.GetPrimAtPath("/Camera")).GetOrderedXformOps()[0].Set(Gf.Vec3d(0, 0, 50))  # sees 40 x 20
+
+    def mesh(path, x, y, size, counts, indices):
+        m = UsdGeom.Mesh.Define(stage, path)
+        m.GetPointsAttr().Set([(x, y, 0), (x + size, y, 0), (x + size, y + size, 0), (x, y + size, 0)])
+        m.GetFaceVertexCountsAttr().Set(counts)
+        m.GetFaceVertexIndicesAttr().Set(indices)
+        m.CreateSubdivisionSchemeAttr("none")
+
+    for i in range(150):  # a 15 x 10 grid of quads, each a little larger than the last: 150 builds
+        mesh(f"/Quads/Q{i}", -15 + 2 * (i % 15), -8 + 1.6 * (i // 15), 1.2 + 1e-4 * i, [4], [0, 1, 2, 3])
+    for name, x in (("LossyA", -4), ("LossyB", 4)):  # one good triangle, one with an index past the points
+        UsdGeom.Xform.Define(stage, f"/{name}").AddTranslateOp().Set(Gf.Vec3d(x, 0, 0))
+        mesh(f"/{name}/Mesh", 0, -9.5, 1.0, [3, 3], [0, 1, 2, 0, 2, 7])
+    for name in ("BrokenA", "BrokenB"):
+        mesh(f"/{name}", 0, 9, 1.0, [3], [0, 1, 9])
+    session = tessera.Session(stage, validation=True)
+    result = session.render(camera="/Camera", resolution=(400, 200), aovs=("primId",))
+
+    assert sorted(e.split(":")[0] for e in result.errors) == ["/BrokenA", "/BrokenB"], result.errors
+    assert all(e.endswith("; the mesh is skipped") for e in result.errors), result.errors
+    lossy = [w for w in result.warnings if "/Lossy" in w]
+    assert sorted(w.split(":")[0] for w in lossy) == ["/LossyA/Mesh", "/LossyB/Mesh"], result.warnings
+    assert result.stats["meshes_built"] + result.stats["meshes_cached"] == 151, "150 quads and one lossy mesh"
+    drawn = {result.prim_path(int(i)) for i in set(result["primId"].ids().ravel()) if i != NO_HIT}
+    assert drawn == {f"/Quads/Q{i}" for i in range(150)} | {"/LossyA/Mesh", "/LossyB/Mesh"}
+
+    # The broken mesh's build is not tried again for an identical one, and the error still names the new prim.
+    mesh("/BrokenC", 0, 9, 1.0, [3], [0, 1, 9])
+    again = session.render(camera="/Camera", resolution=(400, 200), aovs=("primId",))
+    assert [e.split(":")[0] for e in again.errors] == ["/BrokenC"], again.errors
