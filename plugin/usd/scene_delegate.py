@@ -24,7 +24,7 @@ import numpy as np
 from pxr import Gf, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import change_tracker, implicit, lights, materials, mesh_settings, point_instancer, subdivision
+from . import change_tracker, implicit, lights, materials, mesh_settings, point_instancer, subdivision, vertex_channel
 from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
@@ -902,7 +902,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         name = id if record.group is None else str(prim.GetPath())
         needs = self._primvar_needs(record)
         # A plain mesh authors no primvars: only a material's primvar reader fallback would need the full path.
-        if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and needs.color_fallback is None:
+        if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and all(r.fallback is None for r in needs.channel):
             source = self._plain_mesh_source(prim, authored, name, record)
         else:
             source = self._mesh_source(prim, authored, needs, name, record)
@@ -933,10 +933,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _primvar_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
         """What the rprim's materials read of its primvars (its own and its GeomSubsets'): the first UV set and the
-        first colour primvar any of them reads."""
+        first vertex channel any of them reads."""
         needs = self._textured_needs(record)
         if self._all_uvs and needs.uv is None:
-            return materials.PrimvarNeeds(uv="st", color=needs.color, color_fallback=needs.color_fallback)
+            return materials.PrimvarNeeds(uv="st", channel=needs.channel)
         return needs
 
     def _textured_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
@@ -947,8 +947,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             bound.append("")  # faces in no subset: no material, the fallback surface
         found = [self._material_needs(m) if m else materials.NO_MATERIAL for m in bound]
         uv = next((n.uv for n in found if n.uv), None)
-        color = next((n for n in found if n.color), materials.PrimvarNeeds())
-        return materials.PrimvarNeeds(uv=uv, color=color.color, color_fallback=color.color_fallback)
+        channel = next((n.channel for n in found if n.channel), ())
+        return materials.PrimvarNeeds(uv=uv, channel=channel)
 
     def read_all_uvs(self) -> None:
         """From now on every mesh reads texture coordinates (its material's UV set, else st), as the `uv` debug view
@@ -974,40 +974,56 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for user in self._material_users[material]:
                 self.index.mark_dirty(user, _dirty.PRIMVAR)
 
-    def _color_primvar(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str):
-        """(values, interpolation, indices) of the primvar the materials route into the mesh's colour channel, as 3
-        floats per element: on the mesh, else, for a primvar reader, a constant one inherited from an ancestor
-        (UsdGeomPrimvarsAPI's FindPrimvarWithInheritance, as UsdImaging reads them; the fallback surface's displayColor
-        is not looked for above the mesh: an ancestor walk per mesh), else the reader's fallback (constant)."""
-        fallback = (np.asarray(needs.color_fallback, np.float32), "constant", None) if needs.color_fallback else (None, "constant", None)
-        if not needs.color:
-            return fallback
+    def _vertex_channel(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str, topology=None):
+        """(values, interpolation, indices, components) of the mesh's vertex channel (vertex_channel.pack), or
+        (None, "constant", None, 3) when its materials read none. `topology`: (point count, faceVertexCounts,
+        faceVertexIndices); None for an implicit shape, which takes each primvar's first element (a constant)."""
+        if not needs.channel:
+            return None, "constant", None, 3
+        found = [self._channel_primvar(prim, authored, read, name) for read in needs.channel]
+        return vertex_channel.pack(needs.channel, found, topology, name, self.warnings)
+
+    def _channel_primvar(self, prim: Usd.Prim, authored: _AuthoredNames, read: materials.ChannelRead, name: str):
+        """(values as `read.components` columns, interpolation, indices) of one primvar of the vertex channel: on the mesh,
+        else, for a primvar reader, a constant one inherited from an ancestor (UsdGeomPrimvarsAPI's
+        FindPrimvarWithInheritance, as UsdImaging reads them; the fallback surface's displayColor is not looked for above
+        the mesh: an ancestor walk per mesh); None where the mesh lacks it (the reader's fallback then)."""
+        if not read.primvar:
+            return None
         primvars = UsdGeom.PrimvarsAPI(prim)
-        if f"primvars:{needs.color}" in authored:
-            pv = primvars.GetPrimvar(needs.color)
-        elif needs.color_fallback is not None:
-            pv = primvars.FindPrimvarWithInheritance(needs.color)
+        if f"primvars:{read.primvar}" in authored:
+            pv = primvars.GetPrimvar(read.primvar)
+        elif read.fallback is not None:
+            pv = primvars.FindPrimvarWithInheritance(read.primvar)
         else:
-            return fallback
+            return None
         values = pv.Get(self.time) if pv and pv.HasAuthoredValue() else None
         if values is None:
-            return fallback
-        a = np.asarray(values, np.float32)
-        if a.ndim == 1:
+            return None
+        try:
+            a = np.asarray(values, np.float32)
+        except (TypeError, ValueError):
+            a = np.zeros((0,), np.float32)
+        if not pv.GetTypeName().isArray:  # a single value (a float or a colour), as a constant primvar often is
+            a = a.reshape(1, -1)
+        elif a.ndim == 1:
             a = a[:, None]
         if a.ndim != 2 or a.shape[1] not in (1, 2, 3, 4) or not len(a):
-            self.warnings.append(f"{name}: primvars:{needs.color} is {pv.GetTypeName()}, not a number or vector; ignored")
-            return fallback
-        a = np.repeat(a, 3, axis=1) if a.shape[1] == 1 else np.pad(a, ((0, 0), (0, max(0, 3 - a.shape[1]))))[:, :3]
+            self.warnings.append(f"{name}: primvars:{read.primvar} is {pv.GetTypeName()}, not a number or vector; ignored")
+            return None
+        if read.components == 1:
+            a = a[:, :1]
+        else:  # a colour: grey from one component, (x, y, 0) from two
+            a = np.repeat(a, 3, axis=1) if a.shape[1] == 1 else np.pad(a, ((0, 0), (0, max(0, 3 - a.shape[1]))))[:, :3]
         idx = pv.GetIndices(self.time)
-        idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
-        return np.ascontiguousarray(a.reshape(-1)), pv.GetInterpolation(), idx
+        idx = np.asarray(idx, np.int32) if idx is not None and len(idx) else None
+        return a, str(pv.GetInterpolation()), idx
 
     def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str, record: _Rprim):
         record.subdivided = False
         if not prim.IsA(UsdGeom.Mesh):
-            color, interpolation, _ = self._color_primvar(prim, authored, needs, name)
-            return implicit.mesh_source(prim, self.time, color, interpolation)
+            color, _, _, components = self._vertex_channel(prim, authored, needs, name)
+            return implicit.mesh_source(prim, self.time, color, components)
         t = self.time
 
         def array(attribute_name, dtype, width=None):
@@ -1051,7 +1067,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if normals is None and "normals" in authored and prim.GetAttribute("normals").HasAuthoredValue():
             normals, normals_interp = array("normals", np.float32, 3), UsdGeom.Mesh(prim).GetNormalsInterpolation()
         # Only what the materials read: the colour primvar one routes into diffuseColor, the UV set textures read.
-        color, color_interp, color_idx = self._color_primvar(prim, authored, needs, name)
+        color, color_interp, color_idx, color_components = self._vertex_channel(prim, authored, needs, name, (len(points) // 3, counts, indices))
         uvs, uvs_interp, uvs_idx = primvar(needs.uv, "faceVarying", width=2) if needs.uv else (None, "faceVarying", None)
         face_materials = None
         subsets = self._material_subsets(prim)
@@ -1075,6 +1091,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             double_sided=bool(value("doubleSided", False)),
             normals=normals, normals_interpolation=normals_interp, normals_indices=normals_idx,
             display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx,
+            display_color_components=color_components,
             uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx, face_materials=face_materials,
             subdivision_scheme=scheme, refine_level=self.refine_level, **tags)
 

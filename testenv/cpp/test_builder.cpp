@@ -101,7 +101,7 @@ TEST(Prepare, FaceVaryingSeamsSplitVertices) {
     v.displayColor = {Interpolation::Uniform, 3, colors, {}};
     PreparedMesh m = prepare_mesh(v);
     EXPECT_EQ(m.positions.size() / 3, 8u) << "the two shared points are split by the colour seam";
-    ASSERT_EQ(m.colors.size(), 24u);
+    ASSERT_EQ(m.colors.size(), 32u);  // 4 per vertex: alpha 1
     // Vertex-interpolated colours need no split.
     std::vector<float> perPoint(18, 0.5f);
     v.displayColor = {Interpolation::Vertex, 3, perPoint, {}};
