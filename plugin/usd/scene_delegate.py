@@ -77,6 +77,8 @@ class _Group:
     order: list[str] = field(default_factory=list)
     # Native: each instance's binding key (_instance_binding_key), kept until an edit at or above the instance.
     binding_keys: dict[str, tuple] = field(default_factory=dict)
+    # Native: each instance's purpose (what its prototype's prims inherit), as the walk that found it computed it.
+    purposes: dict[str, str] = field(default_factory=dict)
 
 
 class _AuthoredNames(frozenset):
@@ -192,6 +194,8 @@ class _Found:
     worlds: dict[str, Gf.Matrix4d] = field(default_factory=dict)  # rprim -> its world transform
     sprims: dict[str, str] = field(default_factory=dict)  # cameras and lights: path -> type
     natives: dict[str, list[str]] = field(default_factory=dict)  # prototype path -> instance prim paths
+    # Instance prim path -> its purpose, which its prototype's prims inherit unless they author their own.
+    instance_purposes: dict[str, str] = field(default_factory=dict)
     instancers: list[str] = field(default_factory=list)
 
 
@@ -301,14 +305,13 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             entered = False
             instance = may_instance and prim.IsInstance()
             drawn = True
+            purpose = None
             if imageable:
                 # One call lists what the prim authors; purpose and visibility are read only where authored (their
                 # fallbacks are inherited): three times faster than reading both on every prim.
                 authored = prim.GetAuthoredPropertyNames()
-                if "purpose" in authored or purposes.authored:
-                    drawn = purposes.of(prim, path, authored) in drawn_purposes
-                else:
-                    drawn = purposes.inherited in drawn_purposes
+                purpose = purposes.of(prim, path, authored) if "purpose" in authored or purposes.authored else purposes.inherited
+                drawn = purpose in drawn_purposes
                 if hidden_under is None and "visibility" in authored and \
                         prim.GetAttribute("visibility").Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
@@ -317,8 +320,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if entered:
                     world = worlds.enter(prim, path)
             if instance:  # also a PointInstancer prototype root that is itself instanceable
-                if hidden_under is None and drawn:
+                # An instance of a purpose not drawn is kept, as UsdImaging keeps it: its prototype's prims inherit that
+                # purpose (and are not drawn) unless they author one that is drawn. Visibility has no such exception.
+                if hidden_under is None:
                     found.natives.setdefault(str(prim.GetPrototype().GetPath()), []).append(str(path))
+                    found.instance_purposes[str(path)] = purpose if purpose is not None else \
+                        purposes.of(prim, path, ()) if purposes.authored else purposes.inherited
                 it.PruneChildren()
                 continue
             if role is None:
@@ -371,7 +378,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _visit(self, root: Usd.Prim, copies: np.ndarray, frame: Usd.Prim | None, context: str,
                records: dict[str, _Rprim], watched: set[str], points: tuple | None = None,
-               proxy: tuple[str, str] | None = None) -> None:
+               proxy: tuple[str, str] | None = None, purpose: str | None = None) -> None:
         """Walks an instanced subtree. `copies` (N, 4, 4) are the world transforms of `frame` (row vectors);
         transforms inside are taken relative to `frame` (`root` itself when None). `context` names this copy set
         uniquely (it becomes the instancer id); the rprims made go into `records`, the prims read into `watched`.
@@ -379,7 +386,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         instancer's world transforms and its arrays place the prototype's instances in them, kept as arrays.
         `proxy`: (prototype path, instance path) when `root` is in a native prototype: prims under the prototype path
         resolve their material bindings as the instance proxies under the instance path (that instance's bindings on
-        and above it count, as UsdShade resolves them through instance proxies)."""
+        and above it count, as UsdShade resolves them through instance proxies). `purpose`: what prims inside inherit
+        where they author none (a native instance's purpose); None: what `root`'s parent passes down."""
         if frame is None:
             frame = root
 
@@ -391,7 +399,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         # A PointInstancer's prototypes are drawn even when defined under an `over` (a common way to keep them out of
         # ordinary traversals), as UsdImaging does: its prototype walk does not ask for defined prims.
         it = iter(Usd.PrimRange(root, _PROTOTYPE_PREDICATE) if points is not None else Usd.PrimRange(root))
-        purposes = _Purposes(inherited_purpose(root.GetParent()) if root.GetParent() else UsdGeom.Tokens.default_)
+        purposes = _Purposes(purpose if purpose is not None else
+                             inherited_purpose(root.GetParent()) if root.GetParent() else UsdGeom.Tokens.default_)
         for prim in it:
             self._kind(prim)  # notes its type (_stage_has)
             imageable = UsdGeom.Imageable(prim)
@@ -399,8 +408,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                     it.PruneChildren()
                     continue
-                if purposes.of(prim, prim.GetPath()) not in self.purposes:
-                    if prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer):
+                # A nested native instance of a purpose not drawn goes on: its prototype's prims may author one.
+                if purposes.of(prim, prim.GetPath()) not in self.purposes and not prim.IsInstance():
+                    if prim.IsA(UsdGeom.PointInstancer):
                         it.PruneChildren()
                     continue  # not read; its descendants may author a purpose that is drawn
             if points is not None and (prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer)):
@@ -414,7 +424,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 world = self._relative(prim, frame)
                 inner = (str(prototype.GetPath()), proxy_path(prim) or str(prim.GetPath()))
                 self._visit(prototype, world[None] @ copies, None, f"{context};{prim.GetPath()}", records, watched,
-                            proxy=inner)
+                            proxy=inner, purpose=purposes.of(prim, prim.GetPath(), ()))
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdGeom.PointInstancer):
@@ -536,6 +546,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         for prototype, instances in found.natives.items():
             group = self.groups.setdefault(prototype, _Group("native"))
             group.anchors.update(dict.fromkeys(instances))
+            group.purposes.update((instance, found.instance_purposes[instance]) for instance in instances)
             touched.add(prototype)
         for instancer in found.instancers:
             self.groups.setdefault(instancer, _Group("pointInstancer")).anchors[instancer] = None
@@ -586,9 +597,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             if group.kind == "native" and prim:
                 watched.add(key)
                 copies = self._instance_copies(group, moved or resynced)
-                for context, rows, instance in self._binding_partitions(key, group, rebound or resynced):
+                for context, rows, instance, purpose in self._binding_partitions(key, group, rebound or resynced):
                     self._visit(prim, copies if rows is None else copies[rows], None, context, records, watched,
-                                proxy=(key, instance))
+                                proxy=(key, instance), purpose=purpose)
             elif group.kind == "pointInstancer" and prim:
                 self._visit_point_instancer(UsdGeom.PointInstancer(prim), None, None, key, records, watched)
         for id in group.rprims - records.keys():
@@ -621,25 +632,35 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             del self.groups[key]
 
     def _binding_partitions(self, key: str, group: _Group, rebound: str | None) -> list[tuple]:
-        """A native group's instances split by what they inherit of material bindings from outside the prototype, as
-        UsdImaging groups them: (context, rows of the group's copies or None for all, one instance of those). One
-        prototype is visited per part: its meshes are built once (the same cache key), only their material differs.
-        The part without an outside binding keeps the group's key as its context."""
+        """A native group's instances split by what they inherit from outside the prototype, as UsdImaging groups
+        them: the material bindings and the purpose. (context, rows of the group's copies or None for all, one instance
+        of those, their purpose). One prototype is visited per part: its meshes are built once (the same cache key),
+        only their material differs, and a prim inside draws where its purpose (its own, else the instance's) is drawn.
+        The part without an outside binding and of the default purpose keeps the group's key as its context; others
+        add `<MATERIAL>` (`!` after a strong binding) and `(PURPOSE)`."""
+        for anchor in [a for a in group.purposes if a not in group.anchors]:
+            del group.purposes[anchor]
         anchors = list(group.anchors)
+        default = UsdGeom.Tokens.default_
+        purpose_of = [group.purposes.get(anchor, default) for anchor in anchors]
         if not self._stage_has("Material"):
-            return [(key, None, anchors[0])]
-        keys = group.binding_keys
-        for anchor in [a for a in keys if a not in group.anchors]:
-            del keys[anchor]
+            bindings = [("", False)] * len(anchors)
+        else:
+            keys = group.binding_keys
+            for anchor in [a for a in keys if a not in group.anchors]:
+                del keys[anchor]
+            for anchor in anchors:
+                if anchor not in keys or (rebound is not None and is_at_or_under(anchor, rebound)):
+                    keys[anchor] = self._instance_binding_key(anchor)
+            bindings = [keys[anchor] for anchor in anchors]
         rows: dict[tuple, list[int]] = {}
-        for row, anchor in enumerate(anchors):
-            if anchor not in keys or (rebound is not None and is_at_or_under(anchor, rebound)):
-                keys[anchor] = self._instance_binding_key(anchor)
-            rows.setdefault(keys[anchor], []).append(row)
-        if len(rows) == 1 and ("", False) in rows:
-            return [(key, None, anchors[0])]
-        return [(key if binding == ("", False) else f"{key}<{binding[0]}{'!' if binding[1] else ''}>",
-                 np.asarray(part), anchors[part[0]]) for binding, part in rows.items()]
+        for row, part in enumerate(zip(bindings, purpose_of)):
+            rows.setdefault(part, []).append(row)
+        if len(rows) == 1 and (("", False), default) in rows:
+            return [(key, None, anchors[0], default)]
+        return [(key + (f"<{binding[0]}{'!' if binding[1] else ''}>" if binding != ("", False) else "") +
+                 (f"({purpose})" if purpose != default else ""),
+                 np.asarray(part), anchors[part[0]], purpose) for (binding, purpose), part in rows.items()]
 
     def _instance_binding_key(self, anchor: str) -> tuple[str, bool]:
         """(material, strong) an instance prim resolves: what decides the binding of every gprim of its prototype
