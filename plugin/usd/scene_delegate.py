@@ -1083,10 +1083,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
             return np.ascontiguousarray(np.asarray(values, np.float32).reshape(-1)), pv.GetInterpolation(), idx
 
-        # primvars:normals wins over the normals attribute, as in UsdImaging.
-        normals, normals_interp, normals_idx = primvar("normals", "vertex")
-        if normals is None and "normals" in authored and prim.GetAttribute("normals").HasAuthoredValue():
-            normals, normals_interp = array("normals", np.float32, 3), UsdGeom.Mesh(prim).GetNormalsInterpolation()
+        scheme = value("subdivisionScheme", "") or "catmullClark"
+        record.subdivided = scheme != UsdGeom.Tokens.none
+        # primvars:normals wins over the normals attribute, as in UsdImaging. Like UsdImaging (its mesh adapter reads
+        # normals only when subdivisionScheme is none), a subdivision surface's authored normals are not read, at any
+        # refine level: its normals are smooth ones from its geometry.
+        normals, normals_interp, normals_idx = None, "vertex", None
+        if not record.subdivided:
+            normals, normals_interp, normals_idx = primvar("normals", "vertex")
+            if normals is None and "normals" in authored and prim.GetAttribute("normals").HasAuthoredValue():
+                normals, normals_interp = array("normals", np.float32, 3), UsdGeom.Mesh(prim).GetNormalsInterpolation()
         # Only what the materials read: the colour primvar one routes into diffuseColor, the UV set textures read.
         color, color_interp, color_idx, color_components = self._vertex_channel(prim, authored, needs, name, (len(points) // 3, counts, indices))
         uvs, uvs_interp, uvs_idx = primvar(needs.uv, "faceVarying", width=2) if needs.uv else (None, "faceVarying", None)
@@ -1100,8 +1106,6 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if bad.any():
                     self.warnings.append(f"{subset.GetPath()}: {int(bad.sum())} face indices outside 0..{len(counts) - 1}; ignored")
                 face_materials[faces[~bad]] = slot
-        scheme = value("subdivisionScheme", "") or "catmullClark"
-        record.subdivided = scheme != UsdGeom.Tokens.none
         # Subdivision tags matter only to a refined mesh: read then alone.
         tags = (subdivision.tags(prim, authored, t, name, self.warnings)
                 if record.subdivided and self.refine_level > 0 and not authored.isdisjoint(subdivision.TAG_ATTRIBUTES) else {})

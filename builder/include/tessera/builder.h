@@ -73,7 +73,8 @@ struct MeshView {
     // subset), or empty: one material. Faces of different slots meet at split vertices, like a seam.
     std::span<const int32_t> faceMaterials;
     // Subdivision surfaces are refined uniformly this many times (OpenSubdiv) before triangulation, with the
-    // mesh's subdivision tags. Authored normals do not describe the refined surface and are recomputed; texture
+    // mesh's subdivision tags. Authored normals do not describe the refined surface and are recomputed (the USD scene
+    // delegate does not even read them for a scheme other than none, as UsdImaging does not); texture
     // coordinates are refined as a face-varying channel (faceVaryingLinearInterpolation), vertex colours linearly.
     SubdivisionScheme subdivisionScheme = SubdivisionScheme::None;
     int refineLevel = 0;
