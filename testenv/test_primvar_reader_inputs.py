@@ -135,17 +135,25 @@ def test_a_constant_primvar_and_a_missing_one_fold_into_the_material_at_no_cost_
     assert result.stats["geometry_bytes"] == _render(plain).stats["geometry_bytes"], "no vertex channel uploaded"
 
 
-def test_opacity_per_vertex_under_a_threshold_cuts_the_surface():
+@pytest.mark.parametrize("raster,displaced", [("software", False), ("hardware", False), ("software", True)])
+def test_opacity_per_vertex_under_a_threshold_cuts_the_surface(raster, displaced):
+    """Both cluster rasterizers and, on a displaced surface, the patch rasterizers test the interpolated opacity."""
     stage = _stage()
     look = _material(stage, "/Looks/Cut", {"diffuseColor": (0.8, 0.8, 0.8), "opacityThreshold": 0.5},
                      {"opacity": ("alpha", 1, None)})
+    if displaced:  # a constant offset towards the camera: every cluster is diced
+        surface = UsdShade.Shader(stage.GetPrimAtPath("/Looks/Cut/Surface"))
+        surface.CreateInput("displacement", Sdf.ValueTypeNames.Float).Set(0.05)
+        look.CreateDisplacementOutput().ConnectToSource(surface.ConnectableAPI(), "displacement")
     quad = _quad(stage, "/World/Quad", material=look)
     _primvar(quad, "alpha", [0.0, 1.0, 1.0, 0.0])  # below the threshold on the left half
-    result = _render(stage, aovs=("color", "primId"))
+    result = _render(stage, aovs=("color", "primId"), raster=raster)  # both rasterizers run the mask test
     ids = np.asarray(result["primId"].pixels)[50, :, 0]
     covered = np.flatnonzero(~np.isnan(ids))  # NaN: background
     assert len(covered), "the right half is drawn"
     assert abs(covered.min() - 100) <= 2 and abs(covered.max() - 137) <= 2, (covered.min(), covered.max())
+    if displaced:
+        assert result.stats["tessellation_bytes"] > 0, "the surface was diced"
 
 
 def test_several_primvars_of_different_interpolations_share_the_channel():
