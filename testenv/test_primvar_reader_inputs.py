@@ -187,3 +187,21 @@ def test_inputs_beyond_the_channel_warn_and_take_their_default():
     assert any("/Looks/Many" in w and "emissiveColor" in w and "4 components" in w for w in result.warnings), result.warnings
     c = _pixel(result, 0.0)
     assert c[0] > 0.3 and c[2] < 0.1, f"diffuseColor red from its primvar, emissiveColor its default (black), not blue: {c}"
+
+
+def test_geom_subset_materials_reading_different_primvars_are_a_warning_naming_the_mesh():
+    stage = _stage()
+    glow = _material(stage, "/Looks/Glow", {"diffuseColor": (0.0, 0.0, 0.0)}, {"emissiveColor": ("glow", 3, None)})
+    rough = _material(stage, "/Looks/Rough", {}, {"roughness": ("rough", 1, 0.5)})
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Two")
+    mesh.GetPointsAttr().Set([(-2, -1, 0), (0, -1, 0), (2, -1, 0), (2, 1, 0), (0, 1, 0), (-2, 1, 0)])
+    mesh.GetFaceVertexCountsAttr().Set([4, 4])
+    mesh.GetFaceVertexIndicesAttr().Set([0, 1, 4, 5, 1, 2, 3, 4])
+    _primvar(mesh, "glow", [(3, 0, 0)] * 6)
+    binding = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
+    for name, faces, material in (("Left", [0], glow), ("Right", [1], rough)):
+        subset = binding.CreateMaterialBindSubset(name, [faces[0]])
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
+    result = tessera.Session(stage, validation=True).render(camera="/Camera", resolution=RESOLUTION)
+    assert any(w.startswith("/World/Two:") and "/Looks/Rough" in w and "/Looks/Glow" in w for w in result.warnings), result.warnings
+    assert _pixel(result, -1.0)[0] > 2.5, "the first material's channel is read"

@@ -1,6 +1,8 @@
 """UsdPreviewSurface networks as the renderer's MaterialDesc: the surface's constant inputs, and a texture slot for
 each input driven by a UsdUVTexture (file, wrap modes, colour space, scale, bias, fallback, output channel), its st
-through UsdTransform2d nodes down to a UsdPrimvarReader_float2, whose primvar is the material's UV set.
+through UsdTransform2d nodes down to a UsdPrimvarReader_float2, whose primvar is the material's UV set; and the
+UsdPrimvarReaders driving colour and scalar inputs, whose primvars the mesh packs into its vertex channel
+(`_channel_layout`, vertex_channel.py).
 
 Values are followed through NodeGraph and Material interface inputs (UsdShade's value-producing attributes). Asset
 paths are resolved relative to the layer that authored them; the C++ side loads the files when the material syncs.

@@ -921,7 +921,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if authored is None:
             authored = self._authored_names(prim.GetAuthoredPropertyNames())
         name = id if record.group is None else str(prim.GetPath())
-        needs = self._primvar_needs(record)
+        needs = self._primvar_needs(record, name)
         # A plain mesh authors no primvars: only a material's primvar reader fallback would need the full path.
         if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and all(r.fallback is None for r in needs.channel):
             source = self._plain_mesh_source(prim, authored, name, record)
@@ -952,15 +952,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             None, left_handed, double_sided, None, "vertex", None, None, "constant", None, None, "faceVarying", None, None,
             scheme, self.refine_level)
 
-    def _primvar_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
+    def _primvar_needs(self, record: _Rprim, name: str | None = None) -> materials.PrimvarNeeds:
         """What the rprim's materials read of its primvars (its own and its GeomSubsets'): the first UV set and the
         first vertex channel any of them reads."""
-        needs = self._textured_needs(record)
+        needs = self._textured_needs(record, name)
         if self._all_uvs and needs.uv is None:
             return materials.PrimvarNeeds(uv="st", channel=needs.channel)
         return needs
 
-    def _textured_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
+    def _textured_needs(self, record: _Rprim, name: str | None = None) -> materials.PrimvarNeeds:
+        """`name`: the mesh's, to warn when its materials (its own and its GeomSubsets') read different vertex channels."""
         bound = [m for m in (record.material, *record.subset_materials) if m]
         if not bound:
             return materials.NO_MATERIAL
@@ -969,6 +970,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         found = [self._material_needs(m) if m else materials.NO_MATERIAL for m in bound]
         uv = next((n.uv for n in found if n.uv), None)
         channel = next((n.channel for n in found if n.channel), ())
+        if name is not None:
+            others = [m or "the fallback surface" for m, n in zip(bound, found) if n.channel and n.channel != channel]
+            if others:
+                first = next(m or "the fallback surface" for m, n in zip(bound, found) if n.channel == channel)
+                self.warnings.append(f"{name}: its materials read different primvars into its vertex channel; {first}'s are "
+                                     f"read, and {', '.join(others)} read(s) them in place of its own")
         return materials.PrimvarNeeds(uv=uv, channel=channel)
 
     def read_all_uvs(self) -> None:
