@@ -364,13 +364,14 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // meshoptimizer normalises positions to the group's extent before weighing, even when it reports absolute
     // errors, so the weights are relative and independent of scale.
     const bool hasColors = !mesh.colors.empty();
-    const size_t colorAttribute = 3, uvAttribute = hasColors ? 6 : 3;
+    const size_t colorAttribute = 3, uvAttribute = hasColors ? 3 + kChannelComponents : 3;
     const size_t attributeCount = uvAttribute + (hasUvs ? 2 : 0);
     std::vector<float> attributes(vertexCount * attributeCount);
     for (size_t v = 0; v < vertexCount; ++v) {
         for (int k = 0; k < 3; ++k) attributes[v * attributeCount + k] = mesh.normals[3 * v + k];
         if (hasColors)
-            for (int k = 0; k < 3; ++k) attributes[v * attributeCount + colorAttribute + k] = mesh.colors[3 * v + k];
+            for (int k = 0; k < kChannelComponents; ++k)
+                attributes[v * attributeCount + colorAttribute + k] = mesh.colors[kChannelComponents * v + k];
         if (hasUvs)
             for (int k = 0; k < 2; ++k) attributes[v * attributeCount + uvAttribute + k] = uvs[2 * v + k];
     }
@@ -380,7 +381,9 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // group, like positions, relative to the group's own UV extent (set in the loop below): UV distortion of 10 % of
     // the group's texture span counts as a geometric error of 2.5 % of the group's extent.
     constexpr float kNormalWeight = 0.1f, kColorWeight = 1.0f, kUvWeight = 0.25f;
-    float weights[8] = {kNormalWeight, kNormalWeight, kNormalWeight, kColorWeight, kColorWeight, kColorWeight, 0.0f, 0.0f};
+    constexpr int kMaxAttributes = 3 + kChannelComponents + 2;
+    float weights[kMaxAttributes] = {kNormalWeight, kNormalWeight, kNormalWeight};
+    for (size_t k = colorAttribute; hasColors && k < colorAttribute + kChannelComponents; ++k) weights[k] = kColorWeight;
 
     std::vector<WorkCluster> clusters;
     std::vector<Group> groups;
@@ -412,7 +415,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             for (uint32_t r = firstRep[p]; r != UINT32_MAX; r = nextRep[r]) {
                 const float* n = &mesh.normals[3 * v];
                 const float* m = &mesh.normals[3 * r];
-                const bool sameColor = !hasColors || std::memcmp(&mesh.colors[3 * v], &mesh.colors[3 * r], 12) == 0;
+                const bool sameColor = !hasColors || std::memcmp(&mesh.colors[kChannelComponents * v], &mesh.colors[kChannelComponents * r], 4 * kChannelComponents) == 0;
                 const bool sameUv = !hasUvs || std::memcmp(&uvs[2 * v], &uvs[2 * r], 8) == 0;
                 if (sameColor && sameUv && material_of(v) == material_of(r) && n[0] * m[0] + n[1] * m[1] + n[2] * m[2] > 0.866f) {
                     weld[v] = r;
@@ -494,8 +497,8 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             std::vector<uint32_t> simplified(merged.size());
             float error = 0;
             const size_t target = (merged.size() / 3 / 2) * 3;
-            float groupWeights[8];
-            std::copy_n(weights, 8, groupWeights);
+            float groupWeights[kMaxAttributes];
+            std::copy_n(weights, kMaxAttributes, groupWeights);
             if (hasUvs) {
                 float lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
                 for (uint32_t v : merged)
@@ -700,9 +703,9 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             std::copy_n(&local[3 * v], 3, &out.positions[3 * size_t(at)]);
             out.normals[at] = encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]);
             if (hasColors) {
-                const float* col = &mesh.colors[3 * a];
+                const float* col = &mesh.colors[kChannelComponents * a];
                 out.colors[2 * size_t(at)] = float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16);
-                out.colors[2 * size_t(at) + 1] = float_to_half(col[2]) | (uint32_t(float_to_half(1.0f)) << 16);
+                out.colors[2 * size_t(at) + 1] = float_to_half(col[2]) | (uint32_t(float_to_half(col[3])) << 16);
             }
             if (hasUvs) std::copy_n(&uvs[2 * a], 2, &out.uvs[2 * size_t(at)]);
             ++at;

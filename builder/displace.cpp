@@ -119,8 +119,9 @@ PreparedMesh bake_displacement(const PreparedMesh& mesh, const DisplacementBake&
                 if (hasUvs)
                     for (int c = 0; c < 2; ++c) out.uvs.push_back(float(w[0] * mesh.uvs[2 * v[0] + c] + w[1] * mesh.uvs[2 * v[1] + c] + w[2] * mesh.uvs[2 * v[2] + c]));
                 if (hasColors)
-                    for (int c = 0; c < 3; ++c)
-                        out.colors.push_back(float(w[0] * mesh.colors[3 * v[0] + c] + w[1] * mesh.colors[3 * v[1] + c] + w[2] * mesh.colors[3 * v[2] + c]));
+                    for (int c = 0; c < kChannelComponents; ++c)
+                        out.colors.push_back(float(w[0] * mesh.colors[kChannelComponents * v[0] + c] + w[1] * mesh.colors[kChannelComponents * v[1] + c] +
+                                                   w[2] * mesh.colors[kChannelComponents * v[2] + c]));
             }
         auto index = [&](uint32_t i, uint32_t j) { return base + j * (n + 1) - j * (j - 1) / 2 + i; };
         for (uint32_t j = 0; j < n; ++j)

@@ -86,7 +86,7 @@ private:
 struct CornerKey {
     uint32_t point;
     uint32_t normal[3];
-    uint32_t color[3];
+    uint32_t color[kChannelComponents];
     uint32_t uv[2];
     uint32_t material;
     bool operator==(const CornerKey&) const = default;
@@ -94,7 +94,7 @@ struct CornerKey {
 struct CornerKeyHash {
     size_t operator()(const CornerKey& k) const {
         uint64_t h = k.point * 0x9E3779B97F4A7C15ull;
-        for (uint32_t v : {k.normal[0], k.normal[1], k.normal[2], k.color[0], k.color[1], k.color[2], k.uv[0], k.uv[1], k.material})
+        for (uint32_t v : {k.normal[0], k.normal[1], k.normal[2], k.color[0], k.color[1], k.color[2], k.color[3], k.uv[0], k.uv[1], k.material})
             h = (h ^ v) * 0x100000001B3ull;
         return size_t(h ^ (h >> 29));
     }
@@ -106,6 +106,20 @@ void value_bits(const PrimvarLookup& primvar, int64_t index, uint32_t (&bits)[N]
         return;
     }
     std::memcpy(bits, primvar.value(index), N * sizeof(float));
+}
+// A vertex channel value as kChannelComponents floats: a 3-component displayColor gets alpha 1.
+std::array<float, kChannelComponents> channel_value(const PrimvarLookup& primvar, int64_t index) {
+    std::array<float, kChannelComponents> c{0, 0, 0, 1};
+    std::copy_n(primvar.value(index), std::min(primvar.components(), kChannelComponents), c.begin());
+    return c;
+}
+void channel_bits(const PrimvarLookup& primvar, int64_t index, uint32_t (&bits)[kChannelComponents]) {
+    if (index < 0) {
+        for (uint32_t& b : bits) b = 0xffffffffu;
+        return;
+    }
+    const auto c = channel_value(primvar, index);
+    std::memcpy(bits, c.data(), sizeof(bits));
 }
 
 }  // namespace
@@ -168,7 +182,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     if (mesh.subdivisionScheme != SubdivisionScheme::None && mesh.refineLevel > 0) {
         // Refine the valid faces (OpenSubdiv must never see a bad index), then prepare the result as polygons.
         std::vector<int32_t> counts, indices, holes;
-        std::vector<float> uniformColors;
+        std::vector<float> uniformColors;  // kChannelComponents per kept face
         std::vector<int32_t> newIndexOf(mesh.faceVertexCounts.size(), -1);
         const bool uniform = mesh.displayColor.interpolation == Interpolation::Uniform && !mesh.displayColor.values.empty();
         // Texture coordinates per point or per corner go through OpenSubdiv as one face-varying channel.
@@ -197,10 +211,11 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
                         uvIndices.push_back(int32_t(uvSource.value_index(face, c, size_t(mesh.faceVertexIndices[c]))));
                 if (uniform) {
                     const size_t slot = mesh.displayColor.indices.empty() ? face : size_t(mesh.displayColor.indices[face]);
-                    if (3 * slot + 2 < mesh.displayColor.values.size())
-                        uniformColors.insert(uniformColors.end(), &mesh.displayColor.values[3 * slot], &mesh.displayColor.values[3 * slot] + 3);
-                    else
-                        uniformColors.insert(uniformColors.end(), {0.5f, 0.5f, 0.5f});
+                    const size_t width = size_t(mesh.displayColor.components);
+                    std::array<float, kChannelComponents> c{0.5f, 0.5f, 0.5f, 1.0f};
+                    if (width * slot + width - 1 < mesh.displayColor.values.size())
+                        std::copy_n(&mesh.displayColor.values[width * slot], std::min<size_t>(width, kChannelComponents), c.begin());
+                    uniformColors.insert(uniformColors.end(), c.begin(), c.end());
                 }
             }
             start += count;
@@ -219,7 +234,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             view.points = refined.points;
             view.faceVertexCounts = refined.counts;
             view.faceVertexIndices = refined.indices;
-            if (refined.colorInterpolation != Interpolation::None) view.displayColor = {refined.colorInterpolation, 3, refined.colors, {}};
+            if (refined.colorInterpolation != Interpolation::None) view.displayColor = {refined.colorInterpolation, kChannelComponents, refined.colors, {}};
             else if (mesh.displayColor.interpolation == Interpolation::Constant) view.displayColor = mesh.displayColor;
             if (!refined.uvIndices.empty()) view.uvs = {Interpolation::FaceVarying, 2, refined.uvs, refined.uvIndices};
             else if (mesh.uvs.interpolation == Interpolation::Constant) view.uvs = mesh.uvs;
@@ -229,7 +244,8 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             if (dropped) notes.push_back(dropped_faces_warning(dropped, firstBad, firstReason));
             if (nonFinitePoints) notes.push_back(name + ": " + std::to_string(nonFinitePoints) + " point(s) are NaN or infinite");
             if (mesh.displayColor.interpolation == Interpolation::FaceVarying)
-                notes.push_back(name + ": face-varying displayColor is not refined yet; the subdivided mesh is drawn without it");
+                notes.push_back(name + ": a face-varying vertex channel (displayColor or the primvars its materials read) is not refined "
+                                       "yet; the subdivided mesh is drawn without it");
             notes.insert(notes.end(), uvNotes.begin(), uvNotes.end());
             notes.insert(notes.end(), tagNotes.begin(), tagNotes.end());
             if (mesh.uvs.interpolation == Interpolation::Uniform && uvSource.active())
@@ -255,8 +271,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     PrimvarLookup normals(mesh.normals, mesh, "normals", pointCount, warnings);
     PrimvarLookup colors(mesh.displayColor, mesh, "primvars:displayColor", pointCount, warnings);
     if (colors.active() && mesh.displayColor.interpolation == Interpolation::Constant) {
-        const float* c = colors.value(colors.value_index(0, 0, 0));
-        out.constantColor = {c[0], c[1], c[2]};
+        out.constantColor = channel_value(colors, colors.value_index(0, 0, 0));
         out.hasConstantColor = true;
     }
     const bool vertexColors = colors.active() && !out.hasConstantColor;
@@ -304,7 +319,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         const int64_t uv = uvs.value_index(face, corner, p);
         CornerKey key{canonical[p], {}, {}, {}, materialSlots ? uint32_t(faceMaterials[face]) : 0u};
         value_bits(normals, normal, key.normal);
-        value_bits(colors, color, key.color);
+        channel_bits(colors, color, key.color);
         value_bits(uvs, uv, key.uv);
         auto [it, inserted] = vertexOf.try_emplace(key, uint32_t(vertexPoint.size()));
         if (inserted) {
@@ -396,12 +411,10 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     }
 
     if (vertexColors) {
-        out.colors.resize(3 * vertexCount);
+        out.colors.resize(kChannelComponents * vertexCount);
         for (size_t v = 0; v < vertexCount; ++v) {
-            const float* c = colors.value(vertexColor[v]);
-            out.colors[3 * v] = c[0];
-            out.colors[3 * v + 1] = c[1];
-            out.colors[3 * v + 2] = c[2];
+            const auto c = channel_value(colors, vertexColor[v]);
+            std::copy(c.begin(), c.end(), &out.colors[kChannelComponents * v]);
         }
     }
 

@@ -27,6 +27,7 @@ struct Value {  // the value types OpenSubdiv's primvar refiner interpolates
     }
 };
 using Vec3 = Value<3>;
+using Channel = Value<kChannelComponents>;  // the vertex channel (colours)
 using Vec2 = Value<2>;
 using Scalar = Value<1>;
 
@@ -190,18 +191,20 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
     for (int p = 0; p < pointCount; ++p)
         for (int k = 0; k < 3; ++k) points[p].v[k] = mesh.points[3 * p + k];
     const bool vertexColors = mesh.displayColor.interpolation == Interpolation::Vertex || mesh.displayColor.interpolation == Interpolation::Varying;
-    std::vector<Vec3> colors(vertexColors ? points.size() : 0);
+    std::vector<Channel> colors(vertexColors ? points.size() : 0);
+    const int width = std::min(mesh.displayColor.components, kChannelComponents);
     if (vertexColors)
         for (int p = 0; p < pointCount; ++p) {
             const int32_t index = mesh.displayColor.indices.empty() ? p : mesh.displayColor.indices[p];
-            for (int k = 0; k < 3; ++k) colors[p].v[k] = mesh.displayColor.values[3 * index + k];
+            colors[p].v[kChannelComponents - 1] = 1.0f;  // a 3-component displayColor's alpha
+            for (int k = 0; k < width; ++k) colors[p].v[k] = mesh.displayColor.values[size_t(mesh.displayColor.components) * index + k];
         }
     size_t faceTotal = 0;
     for (int l = 0; l <= levels; ++l) faceTotal += size_t(refiner->GetLevel(l).GetNumFaces());
-    std::vector<Vec3> faceColors(uniformColors ? faceTotal : 0);
+    std::vector<Channel> faceColors(uniformColors ? faceTotal : 0);
     if (uniformColors)
         for (size_t f = 0; f < counts.size(); ++f)
-            for (int k = 0; k < 3; ++k) faceColors[f].v[k] = uniformColors[3 * f + k];
+            for (int k = 0; k < kChannelComponents; ++k) faceColors[f].v[k] = uniformColors[kChannelComponents * f + k];
 
     size_t uvTotal = 0;
     for (int l = 0; hasUvs && l <= levels; ++l) uvTotal += size_t(refiner->GetLevel(l).GetNumFVarValues(0));
@@ -215,18 +218,18 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
 
     Vec2* srcUv = uvValues.data();
     Vec3* src = points.data();
-    Vec3* srcColor = colors.data();
-    Vec3* srcFace = faceColors.data();
+    Channel* srcColor = colors.data();
+    Channel* srcFace = faceColors.data();
     for (int l = 1; l <= levels; ++l) {
         Vec3* dst = src + refiner->GetLevel(l - 1).GetNumVertices();
         primvars.Interpolate(l, src, dst);
         if (vertexColors) {
-            Vec3* dstColor = srcColor + refiner->GetLevel(l - 1).GetNumVertices();
+            Channel* dstColor = srcColor + refiner->GetLevel(l - 1).GetNumVertices();
             primvars.InterpolateVarying(l, srcColor, dstColor);
             srcColor = dstColor;
         }
         if (uniformColors) {
-            Vec3* dstFace = srcFace + refiner->GetLevel(l - 1).GetNumFaces();
+            Channel* dstFace = srcFace + refiner->GetLevel(l - 1).GetNumFaces();
             primvars.InterpolateFaceUniform(l, srcFace, dstFace);
             srcFace = dstFace;
         }
@@ -247,13 +250,13 @@ bool refine_subdivision(const MeshView& mesh, std::span<const int32_t> counts, s
     out = {};
     for (int v = 0; v < last.GetNumVertices(); ++v) out.points.insert(out.points.end(), src[v].v, src[v].v + 3);
     if (vertexColors)
-        for (int v = 0; v < last.GetNumVertices(); ++v) out.colors.insert(out.colors.end(), srcColor[v].v, srcColor[v].v + 3);
+        for (int v = 0; v < last.GetNumVertices(); ++v) out.colors.insert(out.colors.end(), srcColor[v].v, srcColor[v].v + kChannelComponents);
     for (int f = 0; f < last.GetNumFaces(); ++f) {
         if (last.IsFaceHole(f)) continue;
         const Far::ConstIndexArray face = last.GetFaceVertices(f);
         out.counts.push_back(face.size());
         for (int i = 0; i < face.size(); ++i) out.indices.push_back(face[i]);
-        if (uniformColors) out.colors.insert(out.colors.end(), srcFace[f].v, srcFace[f].v + 3);
+        if (uniformColors) out.colors.insert(out.colors.end(), srcFace[f].v, srcFace[f].v + kChannelComponents);
         if (!slots.empty()) out.faceMaterials.push_back(int32_t(srcSlot[f].v[0]));
         if (hasUvs) {
             const Far::ConstIndexArray values = last.GetFaceFVarValues(f, 0);

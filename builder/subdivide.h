@@ -8,7 +8,7 @@ namespace tessera {
 struct RefinedMesh {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
-    std::vector<float> colors;  // per point (Vertex) or per face (Uniform), 3 floats each
+    std::vector<float> colors;  // per point (Vertex) or per face (Uniform), kChannelComponents floats each
     Interpolation colorInterpolation = Interpolation::None;
     std::vector<float> uvs;          // refined texture coordinates, 2 floats each ...
     std::vector<int32_t> uvIndices;  // ... and one index into them per face corner (face-varying), or empty
@@ -23,7 +23,7 @@ struct FaceVaryingUvs {
 };
 
 // Refines `mesh.refineLevel` times with `mesh.subdivisionScheme`, from the valid faces given (`counts`/`indices`,
-// `holes` indexing them; `uniformColors` one colour per given face, or null; `uvs` empty or one value index per
+// `holes` indexing them; `uniformColors` one vertex channel value (kChannelComponents floats) per given face, or null; `uvs` empty or one value index per
 // corner; `faceMaterials` empty or one slot per given face), with `mesh.subdivisionTags` (texture coordinates by its
 // faceVaryingLinearInterpolation). Tags that cannot be used are reported in `warnings` and ignored.
 // False, with `problem` set, when OpenSubdiv cannot refine the topology.

@@ -106,6 +106,28 @@ std::string one_line(const std::string& text) {
     return out;
 }
 
+// A material whose inputs read a constant vertex channel `c`: those inputs take their values from `c`, as constants.
+MaterialDesc fold_vertex_channel(MaterialDesc desc, const std::array<float, 4>& c) {
+    auto component = [&](MaterialInput input, std::array<float, 3>* rgb, float* scalar) {
+        const uint32_t code = (desc.vertexInputs >> (4u * uint32_t(input))) & 15u;
+        if ((code & 8u) == 0) return;
+        const uint32_t first = code & 3u;
+        const bool three = (code & 4u) != 0;
+        if (rgb) *rgb = three ? std::array<float, 3>{c[first], c[std::min(first + 1, 3u)], c[std::min(first + 2, 3u)]}
+                              : std::array<float, 3>{c[first], c[first], c[first]};
+        if (scalar) *scalar = c[first];
+    };
+    component(MaterialInput::DiffuseColor, &desc.diffuseColor, nullptr);
+    component(MaterialInput::EmissiveColor, &desc.emissiveColor, nullptr);
+    component(MaterialInput::SpecularColor, &desc.specularColor, nullptr);
+    component(MaterialInput::Metallic, nullptr, &desc.metallic);
+    component(MaterialInput::Roughness, nullptr, &desc.roughness);
+    component(MaterialInput::Opacity, nullptr, &desc.opacity);
+    component(MaterialInput::Occlusion, nullptr, &desc.occlusion);
+    desc.vertexInputs = 0;
+    return desc;
+}
+
 bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<InstanceDesc>& b) {
     return std::equal(a.begin(), a.end(), b.begin(), b.end(), [](const InstanceDesc& x, const InstanceDesc& y) {
         return x.mesh == y.mesh && x.transform == y.transform && x.arrays == y.arrays && x.primId == y.primId && x.material == y.material &&
@@ -220,9 +242,9 @@ void RenderIndex::commit_resources() {
             materialDescs[id] = &static_cast<Material&>(*entry.prim).desc();
             materialHandles[id] = scene.add_material(*materialDescs[id]);
         }
-    // A material whose diffuseColor comes from the mesh's colour channel (a primvar reader), on a mesh whose colour is
-    // one constant (a constant primvar, or the reader's fallback): that colour folded in, one material per pair.
-    std::map<std::tuple<PrimId, float, float, float>, uint32_t> foldedHandles;
+    // A material whose inputs come from the mesh's vertex channel (primvar readers), on a mesh whose channel is one
+    // constant (constant primvars, or the readers' fallbacks): those values folded in, one material per pair.
+    std::map<std::tuple<PrimId, float, float, float, float>, uint32_t> foldedHandles;
     // Meshes without a material share one fallback per colour: their displayColor (constant, or per vertex), else
     // Hydra's grey, diffuse only like Hydra's fallback surface.
     std::map<std::tuple<float, float, float, bool>, uint32_t> fallbackHandles;
@@ -242,25 +264,20 @@ void RenderIndex::commit_resources() {
             auto material = materialHandles.find(materialId);
             if (material != materialHandles.end()) {
                 const MaterialDesc& desc = *materialDescs.at(materialId);
-                if (!desc.useDisplayColor || !built->hasConstantColor) return material->second;
+                if (desc.vertexInputs == 0 || !built->hasConstantColor) return material->second;
                 const auto& c = built->constantColor;
-                auto [it, added] = foldedHandles.try_emplace(std::make_tuple(materialId, c[0], c[1], c[2]), 0);
-                if (added) {
-                    MaterialDesc folded = desc;
-                    folded.diffuseColor = c;
-                    folded.useDisplayColor = false;
-                    it->second = scene.add_material(folded);
-                }
+                auto [it, added] = foldedHandles.try_emplace(std::make_tuple(materialId, c[0], c[1], c[2], c[3]), 0);
+                if (added) it->second = scene.add_material(fold_vertex_channel(desc, c));
                 return it->second;
             }
             // No bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey; one per colour.
-            const auto color = built->hasConstantColor ? built->constantColor : std::array<float, 3>{0.5f, 0.5f, 0.5f};
+            const auto color = built->hasConstantColor ? built->constantColor : std::array<float, 4>{0.5f, 0.5f, 0.5f, 1.0f};
             const auto key = std::make_tuple(color[0], color[1], color[2], !built->colors.empty());
             auto [it, added] = fallbackHandles.try_emplace(key, 0);
             if (added) {
                 MaterialDesc fallback;
-                fallback.diffuseColor = color;
-                fallback.useDisplayColor = std::get<3>(key);
+                fallback.diffuseColor = {color[0], color[1], color[2]};
+                fallback.vertexInputs = std::get<3>(key) ? kDisplayColorInputs : 0u;
                 fallback.ior = 1.0f;  // diffuse only, like Hydra's fallback surface
                 it->second = scene.add_material(fallback);
             }

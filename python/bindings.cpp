@@ -268,7 +268,11 @@ NB_MODULE(_tessera, m) {
            const std::string& uvsInterpolation, std::optional<Array1<int32_t>> uvsIndices, std::optional<Array1<int32_t>> faceMaterials,
            const std::string& scheme, int refineLevel, const std::string& interpolateBoundary, const std::string& faceVaryingLinearInterpolation,
            const std::string& triangleSubdivisionRule, std::optional<Array1<int32_t>> creaseIndices, std::optional<Array1<int32_t>> creaseLengths,
-           std::optional<Array1<float>> creaseSharpnesses, std::optional<Array1<int32_t>> cornerIndices, std::optional<Array1<float>> cornerSharpnesses) {
+           std::optional<Array1<float>> creaseSharpnesses, std::optional<Array1<int32_t>> cornerIndices, std::optional<Array1<float>> cornerSharpnesses, int displayColorComponents) {
+            if (displayColorComponents != 3 && displayColorComponents != kChannelComponents)
+                throw std::invalid_argument(name + ": display_color_components must be 3 or " + std::to_string(kChannelComponents));
+            if (displayColor && displayColor->shape(0) % size_t(displayColorComponents) != 0)
+                throw std::invalid_argument(name + ": display_color's length is not a multiple of display_color_components");
             MeshSource source;
             SubdivisionTags& tags = source.view.subdivisionTags;
             tags.interpolateBoundary = boundary_interpolation_from(interpolateBoundary);
@@ -293,7 +297,8 @@ NB_MODULE(_tessera, m) {
             source.doubleSided = doubleSided;
             if (normals) source.view.normals = {interpolation_from(normalsInterpolation), 3, span_of(normals), span_of(normalsIndices)};
             if (displayColor)
-                source.view.displayColor = {interpolation_from(displayColorInterpolation), 3, span_of(displayColor), span_of(displayColorIndices)};
+                source.view.displayColor = {interpolation_from(displayColorInterpolation), displayColorComponents, span_of(displayColor),
+                                            span_of(displayColorIndices)};
             if (uvs) source.view.uvs = {interpolation_from(uvsInterpolation), 2, span_of(uvs), span_of(uvsIndices)};
             source.view.faceMaterials = span_of(faceMaterials);
             nb::list owners;
@@ -313,7 +318,9 @@ NB_MODULE(_tessera, m) {
         "refine_level"_a = 0, "interpolate_boundary"_a = "edgeAndCorner", "face_varying_linear_interpolation"_a = "cornersPlus1",
         "triangle_subdivision_rule"_a = "catmullClark", "crease_indices"_a = nb::none(), "crease_lengths"_a = nb::none(),
         "crease_sharpnesses"_a = nb::none(), "corner_indices"_a = nb::none(), "corner_sharpnesses"_a = nb::none(),
-        "A mesh as authored, borrowing flat contiguous arrays (points and colours: float32 xyz triples; uvs: float32 pairs). "
+        "display_color_components"_a = 3,
+        "A mesh as authored, borrowing flat contiguous arrays (points: float32 xyz triples; colours: display_color_components "
+        "floats per element, 3 (displayColor) or 4 (the vertex channel as the scene delegate packs it); uvs: float32 pairs). "
         "Subdivision tags take UsdGeomMesh's tokens and arrays (int32 indices and lengths, float32 sharpnesses); an unknown "
         "token is a ValueError.");
 
@@ -448,7 +455,7 @@ NB_MODULE(_tessera, m) {
         .def_rw("specular_color", &MaterialDesc::specularColor)
         .def_rw("ior", &MaterialDesc::ior)
         .def_rw("occlusion", &MaterialDesc::occlusion)
-        .def_rw("use_display_color", &MaterialDesc::useDisplayColor)
+        .def_rw("vertex_inputs", &MaterialDesc::vertexInputs)
         // A list copied in and out: assign a whole list (appending to the copy `textures` returns changes nothing).
         .def_rw("displacement", &MaterialDesc::displacement)
         .def_rw("displacement_magnitude", &MaterialDesc::displacementMagnitude)

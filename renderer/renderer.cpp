@@ -90,7 +90,10 @@ struct ResolvePushConstants {
     PushConstants pass;
     gpu::GpuMaterial material;
 };
-static_assert(offsetof(ResolvePushConstants, material) == 16 && sizeof(ResolvePushConstants) == 112, "layout of Push in shaders/frame.h");
+static_assert(offsetof(ResolvePushConstants, material) == 16 && sizeof(ResolvePushConstants) == 128, "layout of Push in shaders/frame.h");
+static_assert(vertex_input(MaterialInput::Occlusion, 1, true) == (TS_VERTEX_INPUT_SET | TS_VERTEX_INPUT_RGB | 1u) << (TS_VERTEX_INPUT_BITS * TS_INPUT_OCCLUSION) &&
+                  int(MaterialInput::Occlusion) == TS_VERTEX_INPUT_LAST,
+              "MaterialDesc::vertexInputs is GpuMaterial::vertexInputs");
 
 // HZB level sizes (shaders/frame.h hzb_level_size): level l has a texel per 2^(l+1) pixels, down to 1x1.
 std::vector<std::array<uint32_t, 2>> hzb_levels(uint32_t width, uint32_t height) {
@@ -402,7 +405,7 @@ struct Renderer::Impl {
     Buffer textureSlots, texturePool;
     std::vector<std::shared_ptr<const TextureImage>> poolImages;  // the materials' images, then the dome lights'
     std::vector<std::shared_ptr<const TextureImage>> materialImages;
-    std::vector<bool> maskedMaterials;  // per material: a textured opacity under an opacityThreshold (TS_INSTANCE_MASKED)
+    std::vector<bool> maskedMaterials;  // per material: a textured or per-vertex opacity under an opacityThreshold (TS_INSTANCE_MASKED)
     std::vector<bool> texturedMaterials;  // per material: resolve samples textures (its bin uses a textured variant)
     bool anyMasked = false;  // an instance is flagged TS_INSTANCE_MASKED: the rasterizers' mask variants draw the frame
     // Displacement: per material, whether it displaces; per mesh, whether a displaced instance draws it (those get
@@ -897,7 +900,7 @@ struct Renderer::Impl {
             const std::array<float, 3> rgb = slot.channel == TextureChannel::Rgb ? std::array<float, 3>{f[0], f[1], f[2]}
                                                                                    : std::array<float, 3>{f[size_t(slot.channel)], f[size_t(slot.channel)], f[size_t(slot.channel)]};
             switch (slot.input) {
-                case MaterialInput::DiffuseColor: m.diffuseColor = rgb, m.useDisplayColor = false; break;
+                case MaterialInput::DiffuseColor: m.diffuseColor = rgb; break;
                 case MaterialInput::EmissiveColor: m.emissiveColor = rgb; break;
                 case MaterialInput::SpecularColor: m.specularColor = rgb; break;
                 case MaterialInput::Metallic: m.metallic = rgb[0]; break;
@@ -908,7 +911,15 @@ struct Renderer::Impl {
                 case MaterialInput::Displacement: m.displacement = rgb[0]; break;
             }
         }
+        // An input that is textured or that this material's workflow ignores reads nothing from the vertex channel (a
+        // texture slot and a primvar reader cannot both drive one input; a slot without an image keeps its fallback).
+        for (const TextureSlot& slot : m.textures)
+            if (size_t(slot.input) <= size_t(MaterialInput::Occlusion)) m.vertexInputs &= ~vertex_input(slot.input, 3, true);
+        m.vertexInputs &= ~vertex_input(m.useSpecularWorkflow ? MaterialInput::Metallic : MaterialInput::SpecularColor, 3, true);
+        if (!(m.opacityThreshold > 0)) m.vertexInputs &= ~vertex_input(MaterialInput::Opacity, 3, true);  // no blending
+        const bool vertexOpacity = (m.vertexInputs & vertex_input(MaterialInput::Opacity, 3, true)) != 0;
         gpu::GpuMaterial g{};
+        g.vertexInputs = m.vertexInputs;
         g.diffuseColor = {m.diffuseColor[0], m.diffuseColor[1], m.diffuseColor[2], m.opacity};
         g.emissiveColor = {m.emissiveColor[0], m.emissiveColor[1], m.emissiveColor[2], std::clamp(m.occlusion, 0.0f, 1.0f)};
         // UsdPreviewSurface: reflectance at normal incidence from the index of refraction, ((ior - 1) / (ior + 1))^2.
@@ -916,10 +927,11 @@ struct Renderer::Impl {
         const std::array<float, 3> f0 = m.useSpecularWorkflow ? m.specularColor : std::array<float, 3>{fromIor, fromIor, fromIor};
         g.specular = {f0[0], f0[1], f0[2], std::clamp(m.roughness, 0.0f, 1.0f)};
         g.metallic = std::clamp(m.metallic, 0.0f, 1.0f);
-        const bool texturedDiffuse = textured[TS_INPUT_DIFFUSE_COLOR] != nullptr, texturedOpacity = textured[TS_INPUT_OPACITY] != nullptr;
-        g.flags = (m.useDisplayColor && !texturedDiffuse ? TS_MATERIAL_USE_DISPLAY_COLOR : 0u) | (m.useSpecularWorkflow ? 0u : TS_MATERIAL_METALLIC) |
-                  (!texturedOpacity && m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
-        if (texturedOpacity) g.diffuseColor.w = m.opacityThreshold;  // masked per pixel: the threshold takes opacity's place
+        const bool texturedOpacity = textured[TS_INPUT_OPACITY] != nullptr;
+        g.flags = (m.vertexInputs != 0 ? TS_MATERIAL_VERTEX_CHANNEL : 0u) | (m.useSpecularWorkflow ? 0u : TS_MATERIAL_METALLIC) |
+                  (!texturedOpacity && !vertexOpacity && m.opacityThreshold > 0 && m.opacity < m.opacityThreshold ? TS_MATERIAL_CUT_OUT : 0u);
+        // Masked per pixel (a textured or per-vertex opacity): the threshold takes opacity's place.
+        if (texturedOpacity || vertexOpacity) g.diffuseColor.w = m.opacityThreshold;
         // Displacement: offset = (value - center) * magnitude; its bound from the value's range (the texture's level 0
         // through scale, bias and the output channel, or the constant). 0 for a baked one: it is in the mesh.
         const float bound = material_displacement_bound(m);
@@ -960,7 +972,8 @@ struct Renderer::Impl {
         for (const MaterialDesc& m : scene.materials_) {
             gpuMaterials.push_back(gpu_material(m, slots, images));
             const gpu::GpuMaterial& g = gpuMaterials.back();
-            maskedMaterials.push_back((g.textureInputs & (1u << TS_INPUT_OPACITY)) != 0);
+            maskedMaterials.push_back((g.textureInputs & (1u << TS_INPUT_OPACITY)) != 0 ||
+                                      ((g.vertexInputs >> (TS_VERTEX_INPUT_BITS * TS_INPUT_OPACITY)) & TS_VERTEX_INPUT_SET) != 0);
             texturedMaterials.push_back((g.textureInputs & ~(1u << TS_INPUT_OPACITY | 1u << TS_INPUT_DISPLACEMENT)) != 0);
             displacedMaterials.push_back((g.flags & TS_MATERIAL_DISPLACED) != 0);
         }
@@ -969,7 +982,8 @@ struct Renderer::Impl {
             fallback.diffuseColor = {0.18f, 0.18f, 0.18f, 1};
             fallback.emissiveColor = {0, 0, 0, 1};
             fallback.specular = {0, 0, 0, 0.5f};
-            fallback.flags = TS_MATERIAL_USE_DISPLAY_COLOR;
+            fallback.flags = TS_MATERIAL_VERTEX_CHANNEL;
+            fallback.vertexInputs = kDisplayColorInputs;
             gpuMaterials.push_back(fallback);
         }
         upload_vector(device, materials, gpuMaterials);

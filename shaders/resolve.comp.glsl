@@ -20,12 +20,6 @@ layout(constant_id = TS_SPEC_AREA_LIGHTS) const bool AREA_LIGHTS = false;
 // What this variant writes (TS_OUTPUT_*): only that AOV's code is compiled in.
 layout(constant_id = TS_SPEC_OUTPUT) const uint OUTPUT = TS_OUTPUT_SHADE;
 
-vec3 vertex_color(GpuFrame frame, GpuMesh mesh, uint vertex) {
-    uint i = vertex - mesh.vertexOffset + mesh.colorOffset;
-    UintRef colors = UintRef(frame.colors);
-    return vec3(unpackHalf2x16(colors.data[2u * i]), unpackHalf2x16(colors.data[2u * i + 1u]).x);
-}
-
 // A well-spread colour for an id (integer hash, then three 8-bit channels lifted away from black).
 vec3 id_color(uint id) {
     id ^= id >> 16; id *= 0x7feb352du; id ^= id >> 15; id *= 0x846ca68bu; id ^= id >> 16;
@@ -163,10 +157,19 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
 
     GpuMaterial material = push.material;  // this dispatch's bin is one material
     vec3 albedo = material.diffuseColor.rgb;
-    if (PIXELS != TS_BIN_KEPT_MICRO && (material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u && mesh.colorOffset != TS_NO_STREAM)
-        albedo = sourceBary.x * vertex_color(frame, mesh, v0) + sourceBary.y * vertex_color(frame, mesh, v1) + sourceBary.z * vertex_color(frame, mesh, v2);
     vec3 emission = material.emissiveColor.rgb, f0 = material.specular.rgb;
     float occlusion = material.emissiveColor.a, roughness = material.specular.a, metallic = material.metallic;
+    // Inputs the mesh's vertex channel drives (displayColor, primvar readers), interpolated over the surface.
+    if (PIXELS != TS_BIN_KEPT_MICRO && material.vertexInputs != 0u && mesh.colorOffset != TS_NO_STREAM) {
+        vec4 channel = interpolated_channel(frame, mesh, sourceBary, v0, v1, v2);
+        uint inputs = material.vertexInputs;
+        albedo = vertex_input(inputs, TS_INPUT_DIFFUSE_COLOR, channel, albedo);
+        emission = vertex_input(inputs, TS_INPUT_EMISSIVE_COLOR, channel, emission);
+        f0 = vertex_input(inputs, TS_INPUT_SPECULAR_COLOR, channel, f0);  // mapped in the specular workflow only
+        metallic = clamp(vertex_input(inputs, TS_INPUT_METALLIC, channel, vec3(metallic)).x, 0.0, 1.0);
+        roughness = clamp(vertex_input(inputs, TS_INPUT_ROUGHNESS, channel, vec3(roughness)).x, 0.0, 1.0);
+        occlusion = clamp(vertex_input(inputs, TS_INPUT_OCCLUSION, channel, vec3(occlusion)).x, 0.0, 1.0);
+    }
 
     // Textured inputs replace their constants (only in the textured variant: no texture code at all for the others).
     // Opacity is not among them here: masks are cut by the rasterizers.

@@ -55,7 +55,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_INSTANCE_DISPLACED 32u    // a material of it displaces: bounds widen, clusters near enough are tessellated
 
 // Material flags.
-#define TS_MATERIAL_USE_DISPLAY_COLOR 1u  // diffuse comes from the mesh's displayColor primvar
+#define TS_MATERIAL_VERTEX_CHANNEL 1u     // some input comes from the mesh's vertex channel (vertexInputs)
 #define TS_MATERIAL_METALLIC 2u           // metallic workflow: reflectance blends towards the albedo with `metallic`
 #define TS_MATERIAL_CUT_OUT 4u            // masked and below its opacity threshold everywhere: never drawn
 #define TS_MATERIAL_DISPLACED 8u          // its displacement moves the surface (GpuMaterial.displacement.w > 0)
@@ -94,6 +94,15 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_INPUT_NORMAL 7u
 #define TS_INPUT_DISPLACEMENT 8u  // read where the surface is diced (tessellation.h), not by resolve
 #define TS_INPUT_COUNT 9u
+
+// GpuMaterial.vertexInputs: which components of the mesh's vertex channel (its colour stream: 4 components per vertex,
+// displayColor or the primvars the material's UsdPrimvarReaders read) drive an input, 4 bits per input TS_INPUT_DIFFUSE_COLOR
+// to TS_INPUT_OCCLUSION at bit 4 * input: 0 none, else TS_VERTEX_INPUT_SET | the first component (bits 0-1), with
+// TS_VERTEX_INPUT_RGB three components from there (else one: a colour input reads it as grey).
+#define TS_VERTEX_INPUT_BITS 4u
+#define TS_VERTEX_INPUT_RGB 4u
+#define TS_VERTEX_INPUT_SET 8u
+#define TS_VERTEX_INPUT_LAST TS_INPUT_OCCLUSION
 
 // Mesh vertex streams.
 #define TS_NO_STREAM 0xffffffffu
@@ -310,8 +319,10 @@ struct GpuMaterial {
     vec4 displacement;     // x: constant value; y: magnitude; z: center; w: bound, the largest |offset| (mesh units)
     vec4 displacementFade; // x: full displacement while the bound projects to at least this many pixels; y: none
                            // below this many; z: the displacement texture's level-0 size in texels (for its footprint)
+    uint vertexInputs;     // TS_VERTEX_INPUT_* per input: the inputs the mesh's vertex channel drives (0: none)
+    uint unused0, unused1, unused2;
 };
-TS_CHECK_SIZE(GpuMaterial, 96);
+TS_CHECK_SIZE(GpuMaterial, 112);
 
 // One image in the texture pool: its mip levels follow one another from `offset`, each starting on a word.
 struct GpuTexture {

@@ -65,6 +65,32 @@ vec4 material_texture(GpuFrame frame, GpuMaterial material, uint materialInput, 
     return texture_slot_value(frame.textures, TextureSlotRef(frame.textureSlots).data[slot], uv.uv, uv.dx, uv.dy);
 }
 
+// The mesh's vertex channel at a vertex: 4 components (rgba16f), displayColor or the primvars its materials read.
+vec4 vertex_channel(GpuFrame frame, GpuMesh mesh, uint vertex) {
+    uint i = vertex - mesh.vertexOffset + mesh.colorOffset;
+    UintRef colors = UintRef(frame.colors);
+    return vec4(unpackHalf2x16(colors.data[2u * i]), unpackHalf2x16(colors.data[2u * i + 1u]));
+}
+
+// The channel interpolated with barycentrics over a triangle's vertices.
+vec4 interpolated_channel(GpuFrame frame, GpuMesh mesh, vec3 bary, uint v0, uint v1, uint v2) {
+    return bary.x * vertex_channel(frame, mesh, v0) + bary.y * vertex_channel(frame, mesh, v1) + bary.z * vertex_channel(frame, mesh, v2);
+}
+
+// A material input (TS_INPUT_*) from the vertex channel where the material's vertexInputs map it there, else `value`.
+// A scalar input reads x.
+vec3 vertex_input(uint vertexInputs, uint materialInput, vec4 channel, vec3 value) {
+    uint code = (vertexInputs >> (TS_VERTEX_INPUT_BITS * materialInput)) & ((1u << TS_VERTEX_INPUT_BITS) - 1u);
+    if ((code & TS_VERTEX_INPUT_SET) == 0u) return value;
+    uint first = code & 3u;
+    return (code & TS_VERTEX_INPUT_RGB) != 0u ? vec3(channel[first], channel[min(first + 1u, 3u)], channel[min(first + 2u, 3u)])
+                                               : vec3(channel[first]);
+}
+
+bool vertex_opacity(GpuMaterial material) {
+    return ((material.vertexInputs >> (TS_VERTEX_INPUT_BITS * TS_INPUT_OPACITY)) & TS_VERTEX_INPUT_SET) != 0u;
+}
+
 // A visible triangle seen through a pixel: its vertices, its first corner and edges relative to the camera, the
 // pixel's ray and the unclamped barycentrics where that ray meets the triangle's plane.
 struct PixelTriangle {
@@ -89,7 +115,7 @@ PixelTriangle pixel_triangle(GpuFrame frame, Instance instance, GpuCluster clust
     return t;
 }
 
-// UsdPreviewSurface opacityThreshold over a textured opacity (instances flagged TS_INSTANCE_MASKED): true where the
+// UsdPreviewSurface opacityThreshold over a textured or per-vertex opacity (instances flagged TS_INSTANCE_MASKED): true where the
 // opacity at this pixel is below the threshold, so that the rasterizer leaves the pixel to what lies behind. Both
 // rasterizers call this same code for a pixel with the payload they write (visible cluster << 7 | triangle), so they
 // cut the same pixels. Micro-triangles are masked by micro_masked_out (tessellation.h), which the patch rasterizers
@@ -100,9 +126,15 @@ bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
     GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
-    if ((material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;  // another slot of the mesh's materials
+    bool textured = (material.textureInputs & (1u << TS_INPUT_OPACITY)) != 0u;
+    if (!textured && !vertex_opacity(material)) return false;  // another slot of the mesh's materials
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     PixelTriangle t = pixel_triangle(frame, instance, cluster, triangle, pixel);
+    if (!textured) {  // a primvar reader's opacity, per vertex
+        if (mesh.colorOffset == TS_NO_STREAM) return false;
+        vec4 channel = interpolated_channel(frame, mesh, t.bary, t.v0, t.v1, t.v2);
+        return vertex_input(material.vertexInputs, TS_INPUT_OPACITY, channel, vec3(1.0)).x < material.diffuseColor.a;
+    }
     PixelUv uv = triangle_pixel_uv(frame, mesh, vec2(pixel), t.bary, t.p0, t.e1, t.e2, t.v0, t.v1, t.v2);
     return material_texture(frame, material, TS_INPUT_OPACITY, uv).x < material.diffuseColor.a;  // a: the threshold
 }

@@ -55,9 +55,9 @@ bool occlusion_culling(GpuFrame frame) { return (frame.counts.z & TS_FRAME_OCCLU
 uint route_patch(GpuFrame frame, uint index, vec3 p[3], float reach, uint n, Instance instance, GpuMaterial material) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     if (dice_in_compute(frame, p, reach)) {
-        // Vertex colours are blended with the micro-triangle's corner weights, which the pool does not hold: resolve
+        // The vertex channel (colours, primvar readers) is blended with the micro-triangle's corner weights, which the pool does not hold: resolve
         // dices such patches again (TS_BIN_DICED_MICRO), so their points are not kept.
-        bool weights = (material.flags & TS_MATERIAL_USE_DISPLAY_COLOR) != 0u &&
+        bool weights = (material.flags & TS_MATERIAL_VERTEX_CHANNEL) != 0u &&
                        MeshRef(frame.meshes).data[instance.meshIndex].colorOffset != TS_NO_STREAM;
         uint count = weights ? 0u : (n + 1u) * (n + 2u) / 2u;
         uint at = atomicAdd(draw.state.patchPoints, count);

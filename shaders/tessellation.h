@@ -299,6 +299,7 @@ struct MicroTriangle {
     vec2 uv[3];
     GpuMaterial material;
     uint largestFactor;  // the triangle's largest edge factor (--vis tessellation)
+    uint meshIndex;      // set by pixel_micro_triangle
 };
 
 // A micro-triangle's camera-relative corners as the pixel sees them: its first corner and edges, the pixel's ray and the
@@ -315,6 +316,7 @@ MicroTriangle pixel_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, 
     MicroTriangle m;
     DicedPatch d = load_patch(frame, patchIndex);
     m.material = d.material;
+    m.meshIndex = d.instance.meshIndex;
     m.largestFactor = max(d.factors.x, max(d.factors.y, d.factors.z));
     uvec2 lattice[3];
     lattice_cell(micro, d.n, lattice[0], lattice[1], lattice[2]);
@@ -357,7 +359,14 @@ bool kept_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, uvec2 pixe
 bool micro_masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
     Payload p = decode_payload(frame, payload);
     MicroTriangle m = pixel_micro_triangle(frame, p.patchIndex, p.micro, pixel);
-    if ((m.material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) return false;
+    if ((m.material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) {
+        if (!vertex_opacity(m.material)) return false;
+        GpuMesh mesh = MeshRef(frame.meshes).data[m.meshIndex];
+        if (mesh.colorOffset == TS_NO_STREAM) return false;
+        vec3 bary = m.t.bary.x * m.w[0] + m.t.bary.y * m.w[1] + m.t.bary.z * m.w[2];  // on the cluster's triangle
+        vec4 channel = interpolated_channel(frame, mesh, bary, m.t.v0, m.t.v1, m.t.v2);
+        return vertex_input(m.material.vertexInputs, TS_INPUT_OPACITY, channel, vec3(1.0)).x < m.material.diffuseColor.a;
+    }
     PixelUv uv = pixel_uv(frame, vec2(pixel), m.t.bary, m.t.p0, m.t.e1, m.t.e2, m.uv[0], m.uv[1], m.uv[2]);
     return material_texture(frame, m.material, TS_INPUT_OPACITY, uv).x < m.material.diffuseColor.a;  // a: the threshold
 }

@@ -1,5 +1,5 @@
 """UsdPrimvarReader nodes and the primvars a mesh reads for its materials (plugin/usd/materials.py `PrimvarNeeds`,
-scene_delegate.py `_color_primvar`): a reader driving diffuseColor routes its primvar into the mesh's colour channel
+scene_delegate.py `_vertex_channel`): a reader driving diffuseColor routes its primvar into the mesh's vertex channel
 (any interpolation, through material interface inputs, inherited constant primvars included), the reader's fallback
 where the gprim lacks it; primvars no bound material reads (UVs without a texture that reads them, displayColor when
 something else drives diffuseColor) are neither read nor uploaded."""

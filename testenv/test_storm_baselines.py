@@ -15,8 +15,10 @@ Differences that remain, and why (also in docs/overview.md):
 * BasisCurves and Points are not drawn (instance.usda: IoU 0.77, with a warning naming each prim).
 * Subdivision tags are read (interpolateBoundary, creases, corners, holes): subdivMesh agrees at IoU ~0.98, the
   pixels that differ lie along its outline.
-* Only diffuseColor evaluates a UsdPrimvarReader (the mesh's colour channel carries the primvar); a reader feeding
-  another input is a warning and the input's own value is used (no scene here does that).
+* UsdPrimvarReaders drive every colour and scalar input of UsdPreviewSurface (the mesh's vertex channel carries the
+  primvars; constant ones fold into the material): testPreviewSurfaceConnectedScalar's roughness per sphere is
+  checked by its highlights below. testPreviewSurfacePrimvarReaderOpacity (an opacity reader without a threshold:
+  Storm blends it) is not compared: Tessera has no translucency.
 """
 
 import math
@@ -206,3 +208,27 @@ def test_teapot_renders_as_a_refined_subdivision_surface(render):
     assert refined.stats["source_triangles"] > 10 * cage.stats["source_triangles"], "catmullClark refined twice: about 16x"
     coverage = float((refined["primId"].ids() != 0xFFFFFFFF).mean())
     assert 0.05 < coverage < 0.6, f"the framed teapot covers {coverage:.2%} of the image"
+
+
+def test_connected_scalar_roughness_comes_from_each_spheres_primvar(render):
+    """testPreviewSurfaceConnectedScalar: a UsdPrimvarReader_float drives roughness from a constant primvar per sphere
+    (0, 0.2, ... 1). Each is folded into its own copy of the material: the sharper the highlight, the brighter."""
+    from pxr import Usd
+
+    opened = Usd.Stage.Open(str(shared_asset(f"{IMAGING}PreviewSurface/testPreviewSurfaceConnectedScalar.usda")))
+    result = render(opened, camera=None, resolution=(640, 480), aovs=("color", "primId"))
+    assert not [w for w in result.warnings if "roughness" in w], result.warnings
+    colour = np.asarray(result["color"].pixels)[..., :3].max(axis=2)
+    prims = np.asarray(result["primId"].ids())
+    peaks = {}
+    for prim in np.unique(prims[prims != 0xFFFFFFFF]):
+        path = result.prim_path(int(prim))
+        roughness = opened.GetPrimAtPath(path.rsplit("/", 1)[0] if "pSphere" not in path.rsplit("/", 1)[-1] else path)
+        value = roughness.GetAttribute("primvars:roughness").Get() if roughness.GetAttribute("primvars:roughness") else None
+        if value is not None:
+            peaks[float(value)] = float(colour[prims == prim].max())
+    assert len(peaks) == 6, peaks
+    # Roughness 0 is a mirror whose highlight (the key light's small disk) may fall between pixels: from 0.2 on, the
+    # rougher the dimmer.
+    ordered = [peaks[r] for r in sorted(peaks)][1:]
+    assert all(a >= b * 0.98 for a, b in zip(ordered, ordered[1:])) and ordered[0] > 2 * ordered[-1], peaks

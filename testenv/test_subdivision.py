@@ -162,3 +162,29 @@ def test_cli_complexity_and_refine_level_alias(tmp_path):
     assert medium["source_triangles"] == alias["source_triangles"] == 12 * 4 + 24
     bad, _ = run("--complexity", "0.5")
     assert bad.returncode != 0 and "complexity" in bad.stderr
+
+
+@pytest.mark.parametrize("complexity", [1.0, 1.1])
+def test_authored_normals_of_a_subdivision_surface_are_ignored_as_storm_ignores_them(complexity):
+    """UsdImaging's mesh adapter reads normals only where subdivisionScheme is none: a subdivision surface shades with
+    smooth normals from its geometry, at the control cage as at any refine level. Two quads facing the camera author
+    normals tilted 37 degrees towards +X: the `none` one shows them, the catmullClark one faces the camera."""
+    stage = Usd.Stage.CreateInMemory()
+    camera = UsdGeom.Camera.Define(stage, "/Camera")
+    camera.AddTranslateOp().Set(Gf.Vec3d(0, 0, 20))
+    camera.GetHorizontalApertureAttr().Set(40.0)
+    camera.GetVerticalApertureAttr().Set(20.0)
+    for name, x, scheme in (("Subdiv", -4, "catmullClark"), ("Polygons", 4, "none")):
+        mesh = UsdGeom.Mesh.Define(stage, f"/World/{name}")
+        mesh.GetPointsAttr().Set([(x - 3, -3, 0), (x + 3, -3, 0), (x + 3, 3, 0), (x - 3, 3, 0)])
+        mesh.GetFaceVertexCountsAttr().Set([4])
+        mesh.GetFaceVertexIndicesAttr().Set([0, 1, 2, 3])
+        mesh.GetSubdivisionSchemeAttr().Set(scheme)
+        mesh.GetNormalsAttr().Set([(0.6, 0, 0.8)] * 4)
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    result = tessera.Session(stage, validation=True).render(camera="/Camera", resolution=(200, 100), aovs=("normal",),
+                                                            complexity=complexity)
+    assert not result.errors, result.errors
+    normals = np.asarray(result["normal"].pixels)[..., :3]
+    assert np.allclose(normals[50, 100 - 40], (0, 0, 1), atol=0.01), f"catmullClark: smooth normals, {normals[50, 60]}"
+    assert np.allclose(normals[50, 100 + 40], (0.6, 0, 0.8), atol=0.01), f"none: the authored normals, {normals[50, 140]}"

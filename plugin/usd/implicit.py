@@ -48,18 +48,18 @@ def _sphere(radius: float, slices: int = 24, stacks: int = 12):
     return points, np.array(counts, np.int32), np.array(indices, np.int32), None
 
 
-def mesh_source(prim: Usd.Prim, time, color=None, color_interpolation="constant"):
-    """`color`: what the scene delegate read for the colour channel (3 floats per element); a tessellated implicit
-    shape has no elements of its own, so it takes the first (a constant)."""
+def mesh_source(prim: Usd.Prim, time, color=None, components=3):
+    """`color`: what the scene delegate read for the vertex channel (`components` floats per element); a tessellated
+    implicit shape has no elements of its own, so it takes the first (a constant)."""
     if prim.IsA(UsdGeom.Cube):
         points, counts, indices, normals = _cube(UsdGeom.Cube(prim).GetSizeAttr().Get(time) or 2.0)
     else:
         points, counts, indices, normals = _sphere(UsdGeom.Sphere(prim).GetRadiusAttr().Get(time) or 1.0)
-    color = None if color is None or len(color) < 3 else np.ascontiguousarray(color[:3])
+    color = None if color is None or len(color) < components else np.ascontiguousarray(color[:components])
     gprim = UsdGeom.Gprim(prim)
     return _tessera.mesh_source(
         str(prim.GetPath()), np.ascontiguousarray(points.reshape(-1)), counts, indices,
         left_handed=gprim.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded,
         double_sided=bool(gprim.GetDoubleSidedAttr().Get(time)),
         normals=None if normals is None else np.ascontiguousarray(normals.reshape(-1)), normals_interpolation="uniform",
-        display_color=color, display_color_interpolation="constant")
+        display_color=color, display_color_interpolation="constant", display_color_components=components)

@@ -1,6 +1,8 @@
 """UsdPreviewSurface networks as the renderer's MaterialDesc: the surface's constant inputs, and a texture slot for
 each input driven by a UsdUVTexture (file, wrap modes, colour space, scale, bias, fallback, output channel), its st
-through UsdTransform2d nodes down to a UsdPrimvarReader_float2, whose primvar is the material's UV set.
+through UsdTransform2d nodes down to a UsdPrimvarReader_float2, whose primvar is the material's UV set; and the
+UsdPrimvarReaders driving colour and scalar inputs, whose primvars the mesh packs into its vertex channel
+(`_channel_layout`, vertex_channel.py).
 
 Values are followed through NodeGraph and Material interface inputs (UsdShade's value-producing attributes). Asset
 paths are resolved relative to the layer that authored them; the C++ side loads the files when the material syncs.
@@ -42,24 +44,48 @@ _COLOR_SPACES = {"auto": _tessera.ColorSpace.auto, "sRGB": _tessera.ColorSpace.s
 _CHANNELS = {"r": _tessera.TextureChannel.r, "g": _tessera.TextureChannel.g, "b": _tessera.TextureChannel.b,
              "a": _tessera.TextureChannel.a, "rgb": _tessera.TextureChannel.rgb}
 _IDENTITY_2X3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
-# UsdPrimvarReader outputs that can drive diffuseColor: components read from the primvar (int and float read as grey).
+# UsdPrimvarReader outputs: components read from the primvar (int and float read as grey by a colour input).
 _READER_TYPES = {"UsdPrimvarReader_float": 1, "UsdPrimvarReader_int": 1, "UsdPrimvarReader_float2": 2,
                  "UsdPrimvarReader_float3": 3, "UsdPrimvarReader_float4": 4, "UsdPrimvarReader_normal": 3,
                  "UsdPrimvarReader_point": 3, "UsdPrimvarReader_vector": 3}
 
 
+# UsdPreviewSurface inputs a UsdPrimvarReader may drive, through the mesh's vertex channel: their index in
+# MaterialInput's order (the 4-bit field of MaterialDesc.vertex_inputs) and whether they are colours (3 components).
+_READER_INPUTS = {"diffuseColor": (0, True), "emissiveColor": (1, True), "specularColor": (2, True), "metallic": (3, False),
+                  "roughness": (4, False), "opacity": (5, False), "occlusion": (6, False)}
+CHANNEL_COMPONENTS = 4  # the vertex channel: 4 components per vertex (rgba16f on the GPU)
+
+
+def vertex_input(input_index: int, offset: int, rgb: bool) -> int:
+    """MaterialDesc.vertex_inputs bits (TS_VERTEX_INPUT_* in shaders/shared.h): the input reads the vertex channel from
+    component `offset`, 3 components (rgb) or one."""
+    return (8 | (4 if rgb else 0) | offset) << (4 * input_index)
+
+
+@dataclass(frozen=True)
+class ChannelRead:
+    """One primvar a material reads into the mesh's vertex channel: `components` (3 for a colour input, else 1) from
+    component `offset`. `fallback`: the reader's, where the mesh lacks the primvar (found on the gprim, else a constant
+    one inherited from an ancestor); None for the fallback surface's displayColor, read on the gprim alone (missing: no
+    channel, Hydra's grey)."""
+    primvar: str | None
+    components: int
+    offset: int
+    fallback: tuple | None
+
+
 @dataclass(frozen=True)
 class PrimvarNeeds:
     """What a mesh must read for its materials: nothing else is read or uploaded.
-    `uv`: the UV set its textures read (None: no texture reads coordinates). `color`: the primvar routed into the
-    mesh's colour channel, which drives diffuseColor (displayColor for a surface that is not a preview surface or reads
-    it; None: the colour is not read), with `color_fallback` (3 floats) where the mesh lacks it (None: no colour)."""
+    `uv`: the UV set its textures read (None: no texture reads coordinates). `channel`: the primvars packed into the
+    mesh's vertex channel (displayColor for a surface that is not a preview surface; the primvar readers of a preview
+    surface's inputs); empty: no channel."""
     uv: str | None = None
-    color: str | None = None
-    color_fallback: tuple | None = None
+    channel: tuple = ()
 
 
-NO_MATERIAL = PrimvarNeeds(color="displayColor")  # Hydra's fallback surface: displayColor, else grey
+NO_MATERIAL = PrimvarNeeds(channel=(ChannelRead("displayColor", 3, 0, None),))  # Hydra's fallback surface: displayColor, else grey
 
 
 def _producer(shader_input):
@@ -190,14 +216,14 @@ def read_material(material_prim, time, warnings: list[str]):
     material = UsdShade.Material(material_prim)
     shader = material.ComputeSurfaceSource()[0] if material else None
     if not shader or shader.GetShaderId() != "UsdPreviewSurface":
-        desc.use_display_color = True  # not a preview surface: fall back to the mesh's displayColor, diffuse only
+        desc.vertex_inputs = vertex_input(0, 0, True)  # not a preview surface: the mesh's displayColor, diffuse only
         desc.diffuse_color = (0.5, 0.5, 0.5)
         desc.ior = 1.0
         return desc, NO_MATERIAL
     path = str(material_prim.GetPath())
     reader = _Reader(path, time, warnings)
     slots, primvars = [], []
-    color = {}  # the primvar reader driving diffuseColor: name, fallback
+    readers = {}  # input -> (primvar or None, components, fallback) of the primvar reader driving it
 
     def value(name, default, source=shader):
         producer = _producer(source.GetInput(name))
@@ -214,16 +240,18 @@ def read_material(material_prim, time, warnings: list[str]):
             slots.append(slot)
             if primvar:
                 primvars.append(primvar)
-        elif name == "diffuseColor" and kind in _READER_TYPES:
-            # Routed into the mesh's colour channel (any interpolation); where the mesh lacks the primvar, the reader's
-            # fallback (the spec's default: zeros), as Storm draws it.
+        elif name in _READER_INPUTS and kind in _READER_TYPES:
+            # Routed into the mesh's vertex channel (any interpolation, interpolated over the surface); where the mesh
+            # lacks the primvar, the reader's fallback (the spec's default: zeros), as Storm draws it. A colour input
+            # takes 3 components ((x, y, 0) from a float2; a float or int is one component, read as grey); a scalar
+            # input the first.
             width = _READER_TYPES[kind]
+            components = 3 if _READER_INPUTS[name][1] and width > 1 else 1
             fallback = reader.value(upstream, "fallback", None)
-            fallback = [float(fallback)] if isinstance(fallback, (int, float)) else list(fallback or [])
-            fallback = (fallback + [0.0] * 3)[:3] if width > 1 else (fallback[:1] or [0.0]) * 3
+            fallback = [float(fallback)] if isinstance(fallback, (int, float)) else [float(x) for x in (fallback or [])]
+            fallback = (fallback + [0.0] * 3)[:components]
             varname = str(reader.value(upstream, "varname", "") or "")
-            desc.use_display_color = True
-            color.update(name=varname or None, fallback=tuple(fallback))
+            readers[name] = (varname or None, components, tuple(fallback))
         else:
             warnings.append(f"{path}: {name} is connected to {upstream.GetPath()} ({kind or 'no info:id'}), which Tessera does not "
                             "evaluate; its default is used")
@@ -243,7 +271,7 @@ def read_material(material_prim, time, warnings: list[str]):
     _read_displacement(material, desc, value, path, time, warnings)
     desc.textures = slots
     uv = (primvars[0] if primvars else "st") if any(_reads_coordinates(slot) for slot in slots) else None
-    needs = PrimvarNeeds(uv=uv, color=color.get("name"), color_fallback=color.get("fallback"))
+    needs = PrimvarNeeds(uv=uv, channel=_channel_layout(desc, readers, path, warnings))
     if primvars:
         desc.uv_primvar = primvars[0]
         others = sorted(set(primvars) - {primvars[0]})
@@ -251,6 +279,32 @@ def read_material(material_prim, time, warnings: list[str]):
             warnings.append(f"{path}: its textures read several UV sets ({', '.join([primvars[0]] + others)}); "
                             f"only {primvars[0]} is read, for all of them")
     return desc, needs
+
+
+def _channel_layout(desc, readers: dict, path: str, warnings: list[str]) -> tuple:
+    """The material's vertex channel: each distinct (primvar, components, fallback) its readers read gets components of
+    the channel, in input order, while they fit (CHANNEL_COMPONENTS); desc.vertex_inputs says which input reads which.
+    Inputs the material ignores read nothing: metallic or specularColor by the workflow, opacity without a threshold
+    (there is no blending)."""
+    ignored = {"specularColor" if not desc.use_specular_workflow else "metallic"}
+    if not desc.opacity_threshold > 0:
+        ignored.add("opacity")
+    reads, placed, used = [], {}, 0
+    for name in _READER_INPUTS:  # input order: diffuseColor first
+        if name not in readers or name in ignored:
+            continue
+        primvar, components, fallback = readers[name]
+        key = (primvar, components, fallback)
+        if key not in placed:
+            if used + components > CHANNEL_COMPONENTS:
+                warnings.append(f"{path}: {name} is read from primvar {primvar} but the mesh's vertex channel holds "
+                                f"{CHANNEL_COMPONENTS} components, which earlier inputs fill; its default is used")
+                continue
+            placed[key] = used
+            reads.append(ChannelRead(primvar, components, used, fallback))
+            used += components
+        desc.vertex_inputs |= vertex_input(_READER_INPUTS[name][0], placed[key], components == 3)
+    return tuple(reads)
 
 
 def _reads_coordinates(slot) -> bool:

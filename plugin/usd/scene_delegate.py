@@ -24,7 +24,7 @@ import numpy as np
 from pxr import Gf, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
 from tessera import _tessera
-from . import change_tracker, implicit, lights, materials, mesh_settings, point_instancer, subdivision
+from . import change_tracker, implicit, lights, materials, mesh_settings, point_instancer, subdivision, vertex_channel
 from .path_index import PathIndex, ancestors, is_at_or_under
 
 _dirty = _tessera.dirty
@@ -77,6 +77,8 @@ class _Group:
     order: list[str] = field(default_factory=list)
     # Native: each instance's binding key (_instance_binding_key), kept until an edit at or above the instance.
     binding_keys: dict[str, tuple] = field(default_factory=dict)
+    # Native: each instance's purpose (what its prototype's prims inherit), as the walk that found it computed it.
+    purposes: dict[str, str] = field(default_factory=dict)
 
 
 class _AuthoredNames(frozenset):
@@ -192,6 +194,8 @@ class _Found:
     worlds: dict[str, Gf.Matrix4d] = field(default_factory=dict)  # rprim -> its world transform
     sprims: dict[str, str] = field(default_factory=dict)  # cameras and lights: path -> type
     natives: dict[str, list[str]] = field(default_factory=dict)  # prototype path -> instance prim paths
+    # Instance prim path -> its purpose, which its prototype's prims inherit unless they author their own.
+    instance_purposes: dict[str, str] = field(default_factory=dict)
     instancers: list[str] = field(default_factory=list)
 
 
@@ -301,14 +305,13 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             entered = False
             instance = may_instance and prim.IsInstance()
             drawn = True
+            purpose = None
             if imageable:
                 # One call lists what the prim authors; purpose and visibility are read only where authored (their
                 # fallbacks are inherited): three times faster than reading both on every prim.
                 authored = prim.GetAuthoredPropertyNames()
-                if "purpose" in authored or purposes.authored:
-                    drawn = purposes.of(prim, path, authored) in drawn_purposes
-                else:
-                    drawn = purposes.inherited in drawn_purposes
+                purpose = purposes.of(prim, path, authored) if "purpose" in authored or purposes.authored else purposes.inherited
+                drawn = purpose in drawn_purposes
                 if hidden_under is None and "visibility" in authored and \
                         prim.GetAttribute("visibility").Get(self.time) == UsdGeom.Tokens.invisible:
                     hidden_under = path
@@ -317,8 +320,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if entered:
                     world = worlds.enter(prim, path)
             if instance:  # also a PointInstancer prototype root that is itself instanceable
-                if hidden_under is None and drawn:
+                # An instance of a purpose not drawn is kept, as UsdImaging keeps it: its prototype's prims inherit that
+                # purpose (and are not drawn) unless they author one that is drawn. Visibility has no such exception.
+                if hidden_under is None:
                     found.natives.setdefault(str(prim.GetPrototype().GetPath()), []).append(str(path))
+                    found.instance_purposes[str(path)] = purpose if purpose is not None else \
+                        purposes.of(prim, path, ()) if purposes.authored else purposes.inherited
                 it.PruneChildren()
                 continue
             if role is None:
@@ -371,7 +378,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _visit(self, root: Usd.Prim, copies: np.ndarray, frame: Usd.Prim | None, context: str,
                records: dict[str, _Rprim], watched: set[str], points: tuple | None = None,
-               proxy: tuple[str, str] | None = None) -> None:
+               proxy: tuple[str, str] | None = None, purpose: str | None = None) -> None:
         """Walks an instanced subtree. `copies` (N, 4, 4) are the world transforms of `frame` (row vectors);
         transforms inside are taken relative to `frame` (`root` itself when None). `context` names this copy set
         uniquely (it becomes the instancer id); the rprims made go into `records`, the prims read into `watched`.
@@ -379,7 +386,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         instancer's world transforms and its arrays place the prototype's instances in them, kept as arrays.
         `proxy`: (prototype path, instance path) when `root` is in a native prototype: prims under the prototype path
         resolve their material bindings as the instance proxies under the instance path (that instance's bindings on
-        and above it count, as UsdShade resolves them through instance proxies)."""
+        and above it count, as UsdShade resolves them through instance proxies). `purpose`: what prims inside inherit
+        where they author none (a native instance's purpose); None: what `root`'s parent passes down."""
         if frame is None:
             frame = root
 
@@ -391,7 +399,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         # A PointInstancer's prototypes are drawn even when defined under an `over` (a common way to keep them out of
         # ordinary traversals), as UsdImaging does: its prototype walk does not ask for defined prims.
         it = iter(Usd.PrimRange(root, _PROTOTYPE_PREDICATE) if points is not None else Usd.PrimRange(root))
-        purposes = _Purposes(inherited_purpose(root.GetParent()) if root.GetParent() else UsdGeom.Tokens.default_)
+        purposes = _Purposes(purpose if purpose is not None else
+                             inherited_purpose(root.GetParent()) if root.GetParent() else UsdGeom.Tokens.default_)
         for prim in it:
             self._kind(prim)  # notes its type (_stage_has)
             imageable = UsdGeom.Imageable(prim)
@@ -399,8 +408,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if imageable.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                     it.PruneChildren()
                     continue
-                if purposes.of(prim, prim.GetPath()) not in self.purposes:
-                    if prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer):
+                # A nested native instance of a purpose not drawn goes on: its prototype's prims may author one.
+                if purposes.of(prim, prim.GetPath()) not in self.purposes and not prim.IsInstance():
+                    if prim.IsA(UsdGeom.PointInstancer):
                         it.PruneChildren()
                     continue  # not read; its descendants may author a purpose that is drawn
             if points is not None and (prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer)):
@@ -414,7 +424,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 world = self._relative(prim, frame)
                 inner = (str(prototype.GetPath()), proxy_path(prim) or str(prim.GetPath()))
                 self._visit(prototype, world[None] @ copies, None, f"{context};{prim.GetPath()}", records, watched,
-                            proxy=inner)
+                            proxy=inner, purpose=purposes.of(prim, prim.GetPath(), ()))
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdGeom.PointInstancer):
@@ -536,6 +546,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         for prototype, instances in found.natives.items():
             group = self.groups.setdefault(prototype, _Group("native"))
             group.anchors.update(dict.fromkeys(instances))
+            group.purposes.update((instance, found.instance_purposes[instance]) for instance in instances)
             touched.add(prototype)
         for instancer in found.instancers:
             self.groups.setdefault(instancer, _Group("pointInstancer")).anchors[instancer] = None
@@ -586,9 +597,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             if group.kind == "native" and prim:
                 watched.add(key)
                 copies = self._instance_copies(group, moved or resynced)
-                for context, rows, instance in self._binding_partitions(key, group, rebound or resynced):
+                for context, rows, instance, purpose in self._binding_partitions(key, group, rebound or resynced):
                     self._visit(prim, copies if rows is None else copies[rows], None, context, records, watched,
-                                proxy=(key, instance))
+                                proxy=(key, instance), purpose=purpose)
             elif group.kind == "pointInstancer" and prim:
                 self._visit_point_instancer(UsdGeom.PointInstancer(prim), None, None, key, records, watched)
         for id in group.rprims - records.keys():
@@ -621,25 +632,35 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             del self.groups[key]
 
     def _binding_partitions(self, key: str, group: _Group, rebound: str | None) -> list[tuple]:
-        """A native group's instances split by what they inherit of material bindings from outside the prototype, as
-        UsdImaging groups them: (context, rows of the group's copies or None for all, one instance of those). One
-        prototype is visited per part: its meshes are built once (the same cache key), only their material differs.
-        The part without an outside binding keeps the group's key as its context."""
+        """A native group's instances split by what they inherit from outside the prototype, as UsdImaging groups
+        them: the material bindings and the purpose. (context, rows of the group's copies or None for all, one instance
+        of those, their purpose). One prototype is visited per part: its meshes are built once (the same cache key),
+        only their material differs, and a prim inside draws where its purpose (its own, else the instance's) is drawn.
+        The part without an outside binding and of the default purpose keeps the group's key as its context; others
+        add `<MATERIAL>` (`!` after a strong binding) and `(PURPOSE)`."""
+        for anchor in [a for a in group.purposes if a not in group.anchors]:
+            del group.purposes[anchor]
         anchors = list(group.anchors)
+        default = UsdGeom.Tokens.default_
+        purpose_of = [group.purposes.get(anchor, default) for anchor in anchors]
         if not self._stage_has("Material"):
-            return [(key, None, anchors[0])]
-        keys = group.binding_keys
-        for anchor in [a for a in keys if a not in group.anchors]:
-            del keys[anchor]
+            bindings = [("", False)] * len(anchors)
+        else:
+            keys = group.binding_keys
+            for anchor in [a for a in keys if a not in group.anchors]:
+                del keys[anchor]
+            for anchor in anchors:
+                if anchor not in keys or (rebound is not None and is_at_or_under(anchor, rebound)):
+                    keys[anchor] = self._instance_binding_key(anchor)
+            bindings = [keys[anchor] for anchor in anchors]
         rows: dict[tuple, list[int]] = {}
-        for row, anchor in enumerate(anchors):
-            if anchor not in keys or (rebound is not None and is_at_or_under(anchor, rebound)):
-                keys[anchor] = self._instance_binding_key(anchor)
-            rows.setdefault(keys[anchor], []).append(row)
-        if len(rows) == 1 and ("", False) in rows:
-            return [(key, None, anchors[0])]
-        return [(key if binding == ("", False) else f"{key}<{binding[0]}{'!' if binding[1] else ''}>",
-                 np.asarray(part), anchors[part[0]]) for binding, part in rows.items()]
+        for row, part in enumerate(zip(bindings, purpose_of)):
+            rows.setdefault(part, []).append(row)
+        if len(rows) == 1 and (("", False), default) in rows:
+            return [(key, None, anchors[0], default)]
+        return [(key + (f"<{binding[0]}{'!' if binding[1] else ''}>" if binding != ("", False) else "") +
+                 (f"({purpose})" if purpose != default else ""),
+                 np.asarray(part), anchors[part[0]], purpose) for (binding, purpose), part in rows.items()]
 
     def _instance_binding_key(self, anchor: str) -> tuple[str, bool]:
         """(material, strong) an instance prim resolves: what decides the binding of every gprim of its prototype
@@ -900,9 +921,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if authored is None:
             authored = self._authored_names(prim.GetAuthoredPropertyNames())
         name = id if record.group is None else str(prim.GetPath())
-        needs = self._primvar_needs(record)
+        needs = self._primvar_needs(record, name)
         # A plain mesh authors no primvars: only a material's primvar reader fallback would need the full path.
-        if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and needs.color_fallback is None:
+        if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and all(r.fallback is None for r in needs.channel):
             source = self._plain_mesh_source(prim, authored, name, record)
         else:
             source = self._mesh_source(prim, authored, needs, name, record)
@@ -931,15 +952,16 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             None, left_handed, double_sided, None, "vertex", None, None, "constant", None, None, "faceVarying", None, None,
             scheme, self.refine_level)
 
-    def _primvar_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
+    def _primvar_needs(self, record: _Rprim, name: str | None = None) -> materials.PrimvarNeeds:
         """What the rprim's materials read of its primvars (its own and its GeomSubsets'): the first UV set and the
-        first colour primvar any of them reads."""
-        needs = self._textured_needs(record)
+        first vertex channel any of them reads."""
+        needs = self._textured_needs(record, name)
         if self._all_uvs and needs.uv is None:
-            return materials.PrimvarNeeds(uv="st", color=needs.color, color_fallback=needs.color_fallback)
+            return materials.PrimvarNeeds(uv="st", channel=needs.channel)
         return needs
 
-    def _textured_needs(self, record: _Rprim) -> materials.PrimvarNeeds:
+    def _textured_needs(self, record: _Rprim, name: str | None = None) -> materials.PrimvarNeeds:
+        """`name`: the mesh's, to warn when its materials (its own and its GeomSubsets') read different vertex channels."""
         bound = [m for m in (record.material, *record.subset_materials) if m]
         if not bound:
             return materials.NO_MATERIAL
@@ -947,8 +969,14 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             bound.append("")  # faces in no subset: no material, the fallback surface
         found = [self._material_needs(m) if m else materials.NO_MATERIAL for m in bound]
         uv = next((n.uv for n in found if n.uv), None)
-        color = next((n for n in found if n.color), materials.PrimvarNeeds())
-        return materials.PrimvarNeeds(uv=uv, color=color.color, color_fallback=color.color_fallback)
+        channel = next((n.channel for n in found if n.channel), ())
+        if name is not None:
+            others = [m or "the fallback surface" for m, n in zip(bound, found) if n.channel and n.channel != channel]
+            if others:
+                first = next(m or "the fallback surface" for m, n in zip(bound, found) if n.channel == channel)
+                self.warnings.append(f"{name}: its materials read different primvars into its vertex channel; {first}'s are "
+                                     f"read, and {', '.join(others)} read(s) them in place of its own")
+        return materials.PrimvarNeeds(uv=uv, channel=channel)
 
     def read_all_uvs(self) -> None:
         """From now on every mesh reads texture coordinates (its material's UV set, else st), as the `uv` debug view
@@ -974,40 +1002,56 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             for user in self._material_users[material]:
                 self.index.mark_dirty(user, _dirty.PRIMVAR)
 
-    def _color_primvar(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str):
-        """(values, interpolation, indices) of the primvar the materials route into the mesh's colour channel, as 3
-        floats per element: on the mesh, else, for a primvar reader, a constant one inherited from an ancestor
-        (UsdGeomPrimvarsAPI's FindPrimvarWithInheritance, as UsdImaging reads them; the fallback surface's displayColor
-        is not looked for above the mesh: an ancestor walk per mesh), else the reader's fallback (constant)."""
-        fallback = (np.asarray(needs.color_fallback, np.float32), "constant", None) if needs.color_fallback else (None, "constant", None)
-        if not needs.color:
-            return fallback
+    def _vertex_channel(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str, topology=None):
+        """(values, interpolation, indices, components) of the mesh's vertex channel (vertex_channel.pack), or
+        (None, "constant", None, 3) when its materials read none. `topology`: (point count, faceVertexCounts,
+        faceVertexIndices); None for an implicit shape, which takes each primvar's first element (a constant)."""
+        if not needs.channel:
+            return None, "constant", None, 3
+        found = [self._channel_primvar(prim, authored, read, name) for read in needs.channel]
+        return vertex_channel.pack(needs.channel, found, topology, name, self.warnings)
+
+    def _channel_primvar(self, prim: Usd.Prim, authored: _AuthoredNames, read: materials.ChannelRead, name: str):
+        """(values as `read.components` columns, interpolation, indices) of one primvar of the vertex channel: on the mesh,
+        else, for a primvar reader, a constant one inherited from an ancestor (UsdGeomPrimvarsAPI's
+        FindPrimvarWithInheritance, as UsdImaging reads them; the fallback surface's displayColor is not looked for above
+        the mesh: an ancestor walk per mesh); None where the mesh lacks it (the reader's fallback then)."""
+        if not read.primvar:
+            return None
         primvars = UsdGeom.PrimvarsAPI(prim)
-        if f"primvars:{needs.color}" in authored:
-            pv = primvars.GetPrimvar(needs.color)
-        elif needs.color_fallback is not None:
-            pv = primvars.FindPrimvarWithInheritance(needs.color)
+        if f"primvars:{read.primvar}" in authored:
+            pv = primvars.GetPrimvar(read.primvar)
+        elif read.fallback is not None:
+            pv = primvars.FindPrimvarWithInheritance(read.primvar)
         else:
-            return fallback
+            return None
         values = pv.Get(self.time) if pv and pv.HasAuthoredValue() else None
         if values is None:
-            return fallback
-        a = np.asarray(values, np.float32)
-        if a.ndim == 1:
+            return None
+        try:
+            a = np.asarray(values, np.float32)
+        except (TypeError, ValueError):
+            a = np.zeros((0,), np.float32)
+        if not pv.GetTypeName().isArray:  # a single value (a float or a colour), as a constant primvar often is
+            a = a.reshape(1, -1)
+        elif a.ndim == 1:
             a = a[:, None]
         if a.ndim != 2 or a.shape[1] not in (1, 2, 3, 4) or not len(a):
-            self.warnings.append(f"{name}: primvars:{needs.color} is {pv.GetTypeName()}, not a number or vector; ignored")
-            return fallback
-        a = np.repeat(a, 3, axis=1) if a.shape[1] == 1 else np.pad(a, ((0, 0), (0, max(0, 3 - a.shape[1]))))[:, :3]
+            self.warnings.append(f"{name}: primvars:{read.primvar} is {pv.GetTypeName()}, not a number or vector; ignored")
+            return None
+        if read.components == 1:
+            a = a[:, :1]
+        else:  # a colour: grey from one component, (x, y, 0) from two
+            a = np.repeat(a, 3, axis=1) if a.shape[1] == 1 else np.pad(a, ((0, 0), (0, max(0, 3 - a.shape[1]))))[:, :3]
         idx = pv.GetIndices(self.time)
-        idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
-        return np.ascontiguousarray(a.reshape(-1)), pv.GetInterpolation(), idx
+        idx = np.asarray(idx, np.int32) if idx is not None and len(idx) else None
+        return a, str(pv.GetInterpolation()), idx
 
     def _mesh_source(self, prim: Usd.Prim, authored: _AuthoredNames, needs: materials.PrimvarNeeds, name: str, record: _Rprim):
         record.subdivided = False
         if not prim.IsA(UsdGeom.Mesh):
-            color, interpolation, _ = self._color_primvar(prim, authored, needs, name)
-            return implicit.mesh_source(prim, self.time, color, interpolation)
+            color, _, _, components = self._vertex_channel(prim, authored, needs, name)
+            return implicit.mesh_source(prim, self.time, color, components)
         t = self.time
 
         def array(attribute_name, dtype, width=None):
@@ -1046,12 +1090,18 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             idx = np.ascontiguousarray(np.asarray(idx, np.int32)) if idx is not None and len(idx) else None
             return np.ascontiguousarray(np.asarray(values, np.float32).reshape(-1)), pv.GetInterpolation(), idx
 
-        # primvars:normals wins over the normals attribute, as in UsdImaging.
-        normals, normals_interp, normals_idx = primvar("normals", "vertex")
-        if normals is None and "normals" in authored and prim.GetAttribute("normals").HasAuthoredValue():
-            normals, normals_interp = array("normals", np.float32, 3), UsdGeom.Mesh(prim).GetNormalsInterpolation()
+        scheme = value("subdivisionScheme", "") or "catmullClark"
+        record.subdivided = scheme != UsdGeom.Tokens.none
+        # primvars:normals wins over the normals attribute, as in UsdImaging. Like UsdImaging (its mesh adapter reads
+        # normals only when subdivisionScheme is none), a subdivision surface's authored normals are not read, at any
+        # refine level: its normals are smooth ones from its geometry.
+        normals, normals_interp, normals_idx = None, "vertex", None
+        if not record.subdivided:
+            normals, normals_interp, normals_idx = primvar("normals", "vertex")
+            if normals is None and "normals" in authored and prim.GetAttribute("normals").HasAuthoredValue():
+                normals, normals_interp = array("normals", np.float32, 3), UsdGeom.Mesh(prim).GetNormalsInterpolation()
         # Only what the materials read: the colour primvar one routes into diffuseColor, the UV set textures read.
-        color, color_interp, color_idx = self._color_primvar(prim, authored, needs, name)
+        color, color_interp, color_idx, color_components = self._vertex_channel(prim, authored, needs, name, (len(points) // 3, counts, indices))
         uvs, uvs_interp, uvs_idx = primvar(needs.uv, "faceVarying", width=2) if needs.uv else (None, "faceVarying", None)
         face_materials = None
         subsets = self._material_subsets(prim)
@@ -1063,8 +1113,6 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 if bad.any():
                     self.warnings.append(f"{subset.GetPath()}: {int(bad.sum())} face indices outside 0..{len(counts) - 1}; ignored")
                 face_materials[faces[~bad]] = slot
-        scheme = value("subdivisionScheme", "") or "catmullClark"
-        record.subdivided = scheme != UsdGeom.Tokens.none
         # Subdivision tags matter only to a refined mesh: read then alone.
         tags = (subdivision.tags(prim, authored, t, name, self.warnings)
                 if record.subdivided and self.refine_level > 0 and not authored.isdisjoint(subdivision.TAG_ATTRIBUTES) else {})
@@ -1075,6 +1123,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             double_sided=bool(value("doubleSided", False)),
             normals=normals, normals_interpolation=normals_interp, normals_indices=normals_idx,
             display_color=color, display_color_interpolation=color_interp, display_color_indices=color_idx,
+            display_color_components=color_components,
             uvs=uvs, uvs_interpolation=uvs_interp, uvs_indices=uvs_idx, face_materials=face_materials,
             subdivision_scheme=scheme, refine_level=self.refine_level, **tags)
 

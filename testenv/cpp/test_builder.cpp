@@ -101,7 +101,7 @@ TEST(Prepare, FaceVaryingSeamsSplitVertices) {
     v.displayColor = {Interpolation::Uniform, 3, colors, {}};
     PreparedMesh m = prepare_mesh(v);
     EXPECT_EQ(m.positions.size() / 3, 8u) << "the two shared points are split by the colour seam";
-    ASSERT_EQ(m.colors.size(), 24u);
+    ASSERT_EQ(m.colors.size(), 32u);  // 4 per vertex: alpha 1
     // Vertex-interpolated colours need no split.
     std::vector<float> perPoint(18, 0.5f);
     v.displayColor = {Interpolation::Vertex, 3, perPoint, {}};
@@ -234,6 +234,37 @@ MeshView cube_cage(std::vector<float>& points, std::vector<int32_t>& counts, std
     return v;
 }
 }  // namespace
+
+// The vertex channel with 4 components (primvar readers packed by the scene delegate): carried per vertex through
+// refinement (vertex and uniform interpolation alike) and through the DAG into rgba16f, the fourth component included.
+TEST(Subdivision, AFourComponentVertexChannelIsRefinedWhole) {
+    std::vector<float> points;
+    std::vector<int32_t> counts, indices;
+    MeshView v = cube_cage(points, counts, indices, SubdivisionScheme::CatmullClark, 1);
+    std::vector<float> perPoint;
+    for (int p = 0; p < 8; ++p) perPoint.insert(perPoint.end(), {1, 0, 0, float(p) / 7});  // fourth: 0 to 1 by point
+    v.displayColor = {Interpolation::Vertex, 4, perPoint, {}};
+    PreparedMesh m = prepare_mesh(v);
+    ASSERT_EQ(m.colors.size(), 4 * (m.positions.size() / 3));
+    float lo = 1, hi = 0;
+    for (size_t i = 0; i < m.colors.size(); i += 4) {
+        EXPECT_EQ(m.colors[i], 1.0f);
+        lo = std::min(lo, m.colors[i + 3]);
+        hi = std::max(hi, m.colors[i + 3]);
+    }
+    EXPECT_TRUE(lo >= 0 && hi <= 1 && hi - lo > 0.5f) << lo << " " << hi << ": the fourth component varies, within its range";
+    std::vector<float> perFace;
+    for (int f = 0; f < 6; ++f) perFace.insert(perFace.end(), {0, 1, 0, float(f) / 5});
+    v.displayColor = {Interpolation::Uniform, 4, perFace, {}};
+    PreparedMesh uniform = prepare_mesh(v);
+    std::set<float> fourth;
+    for (size_t i = 3; i < uniform.colors.size(); i += 4) fourth.insert(uniform.colors[i]);
+    EXPECT_EQ(fourth.size(), 6u) << "each refined face keeps its cage face's value";
+    BuiltMesh built = build_mesh(uniform, BuildSettings{});
+    std::set<uint16_t> stored;
+    for (size_t i = 1; i < built.colors.size(); i += 2) stored.insert(uint16_t(built.colors[i] >> 16));
+    EXPECT_EQ(stored.size(), 6u) << "the fourth component reaches the rgba16f stream";
+}
 
 TEST(Subdivision, CatmullClarkRefinesTowardsTheLimitSurface) {
     std::vector<float> points;

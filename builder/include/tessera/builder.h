@@ -39,6 +39,9 @@ struct SubdivisionTags {
     std::span<const float> cornerSharpnesses;
 };
 
+// Components per vertex of the vertex channel (the colour stream, rgba16f on the GPU and in page files).
+constexpr int kChannelComponents = 4;
+
 // How a primvar's values map onto the mesh (USD's interpolation names).
 enum class Interpolation { None, Constant, Uniform, Vertex, Varying, FaceVarying };
 
@@ -62,13 +65,16 @@ struct MeshView {
     std::span<const int32_t> holeIndices;      // faces not drawn
     bool leftHanded = false;                   // faces wind clockwise
     PrimvarView normals;                       // 3 components
-    PrimvarView displayColor;                  // 3 components
+    // The mesh's vertex channel: displayColor (3 components) or up to 4 primvars packed by the scene delegate (4
+    // components: what its materials' primvar readers read, GpuMaterial::vertexInputs says which drives what).
+    PrimvarView displayColor;
     PrimvarView uvs;                           // 2 components: the texture coordinates (USD's `st`), any interpolation
     // Per authored face, its material slot (0-255: USD's GeomSubsets of family materialBind, slot 0 the faces in no
     // subset), or empty: one material. Faces of different slots meet at split vertices, like a seam.
     std::span<const int32_t> faceMaterials;
     // Subdivision surfaces are refined uniformly this many times (OpenSubdiv) before triangulation, with the
-    // mesh's subdivision tags. Authored normals do not describe the refined surface and are recomputed; texture
+    // mesh's subdivision tags. Authored normals do not describe the refined surface and are recomputed (the USD scene
+    // delegate does not even read them for a scheme other than none, as UsdImaging does not); texture
     // coordinates are refined as a face-varying channel (faceVaryingLinearInterpolation), vertex colours linearly.
     SubdivisionScheme subdivisionScheme = SubdivisionScheme::None;
     int refineLevel = 0;
@@ -88,10 +94,11 @@ struct MeshError : std::runtime_error {
 struct PreparedMesh {
     std::vector<float> positions;      // 3 per vertex, as authored (float)
     std::vector<float> normals;        // 3 per vertex, unit length
-    std::vector<float> colors;         // 3 per vertex when the mesh has varying displayColor, else empty
+    std::vector<float> colors;         // kChannelComponents per vertex when the vertex channel varies, else empty (a 3-component
+                                       // displayColor gets alpha 1)
     std::vector<float> uvs;            // 2 per vertex when the mesh has texture coordinates, else empty
-    std::array<float, 3> constantColor{0.5f, 0.5f, 0.5f};
-    bool hasConstantColor = false;     // displayColor authored with constant interpolation
+    std::array<float, 4> constantColor{0.5f, 0.5f, 0.5f, 1.0f};
+    bool hasConstantColor = false;     // the vertex channel (displayColor) authored with constant interpolation
     std::vector<uint32_t> indices;     // 3 per triangle
     std::vector<uint8_t> triangleMaterials;  // per triangle, its material slot, when the mesh has more than one
     std::vector<uint32_t> sourceFaces; // per triangle, the authored face it came from
@@ -188,7 +195,7 @@ struct BuiltMesh {
     // coarser where the coordinates are so large that float holds no finer steps), so that clusters sharing a
     // vertex share its UV bit for bit and the page file stores integers.
     int uvPrecision = 0;
-    std::array<float, 3> constantColor{0.5f, 0.5f, 0.5f};
+    std::array<float, 4> constantColor{0.5f, 0.5f, 0.5f, 1.0f};
     bool hasConstantColor = false;
     uint32_t materialSlots = 1;         // 1 + the largest material slot of its triangles
     size_t sourceTriangles = 0;         // as authored (after dropping collapsed triangles); the leaf level may hold fewer
@@ -234,7 +241,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings = {
 // Clusters are stored in pages of at most kPageBytes (before compression too); the children of one group never
 // straddle pages (a parent refines by loading one page), and root clusters (no parent) fill pages of their own that
 // stay resident.
-constexpr uint32_t kPageFormatVersion = 3;
+constexpr uint32_t kPageFormatVersion = 4;  // 4: the constant vertex channel has 4 components
 // Bumped whenever the builder makes a different DAG from the same input and settings (simplifier weights, grouping,
 // error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
 constexpr uint32_t kBuilderRevision = 2;

@@ -21,6 +21,13 @@ Matrix4d multiply(const Matrix4d& a, const Matrix4d& b);
 
 // UsdPreviewSurface's inputs, with its defaults: constants, and the textures that drive some of them instead. A
 // surface without a preview material (displayColor only) is diffuse: ior 1 reflects nothing at normal incidence.
+// MaterialDesc::vertexInputs (GpuMaterial::vertexInputs, TS_VERTEX_INPUT_* in shaders/shared.h): 4 bits per input,
+// diffuseColor to occlusion in MaterialInput order, saying which components of the mesh's vertex channel drive it.
+constexpr uint32_t vertex_input(MaterialInput input, uint32_t firstComponent, bool rgb) {
+    return (8u | (rgb ? 4u : 0u) | (firstComponent & 3u)) << (4u * uint32_t(input));
+}
+constexpr uint32_t kDisplayColorInputs = vertex_input(MaterialInput::DiffuseColor, 0, true);  // diffuse from displayColor
+
 struct MaterialDesc {
     std::array<float, 3> diffuseColor{0.18f, 0.18f, 0.18f};
     std::array<float, 3> emissiveColor{0, 0, 0};
@@ -31,7 +38,9 @@ struct MaterialDesc {
     std::array<float, 3> specularColor{0, 0, 0};
     float ior = 1.5f;
     float occlusion = 1.0f;          // scales what the dome light contributes
-    bool useDisplayColor = false;  // diffuse from the mesh's displayColor instead of diffuseColor
+    // Inputs driven by the mesh's vertex channel (per vertex, interpolated over the surface), packed as
+    // GpuMaterial::vertexInputs (TS_VERTEX_INPUT_*): 0 none; kDisplayColorInputs for diffuse from displayColor.
+    uint32_t vertexInputs = 0;
     // Displacement along the (smoothed) vertex normal: offset = (displacement - center) * magnitude in mesh units, the
     // value from `displacement` or a texture slot for MaterialInput::Displacement. UsdPreviewSurface's displacement
     // input, with Tessera's tessera:displacement:* attributes for the rest. It fades out while its largest offset
