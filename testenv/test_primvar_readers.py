@@ -217,3 +217,42 @@ def test_an_edit_of_what_a_material_reads_re_reads_its_meshes_primvars():
         "roughness", Sdf.ValueTypeNames.Float).Set(0.2)  # reads nothing new: the material alone
     render()
     assert dict(session.index.last_synced) == {"/Looks/Tint": _tessera.dirty.PARAMS}
+
+
+def test_the_fallback_surface_inherits_a_constant_display_color_and_follows_its_edits():
+    """A mesh with no material and no displayColor of its own takes a constant one authored on an ancestor, as
+    UsdImaging's primvar inheritance gives it; its own wins. An edit of the ancestor's primvar re-reads the meshes below
+    it (and only those), and so does an edit of a primvar a reader inherits."""
+    from tessera.usd import ChangeTracker
+
+    stage = _stage()
+    group = UsdGeom.PrimvarsAPI(UsdGeom.Xform.Define(stage, "/World/Group"))
+    group.CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.constant).Set([(1, 0, 0)])
+    group.CreatePrimvar("tint", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.constant).Set([(0, 0, 1)])
+    inherits = _quad(stage, "/World/Group/Inherits", -3.0)
+    own = _quad(stage, "/World/Group/Own", -1.0)
+    own.CreateDisplayColorAttr([(0, 1, 0)])
+    tinted = _quad(stage, "/World/Group/Tinted", 1.0)
+    UsdShade.MaterialBindingAPI(tinted.GetPrim()).Bind(_reader_material(stage, "/Looks/Tint", fallback=Gf.Vec3f(1, 1, 1)))
+    _quad(stage, "/World/Outside", 3.0)
+
+    session = tessera.Session(stage, validation=True)
+    tracker = ChangeTracker(stage)
+
+    def render():
+        session.scene.apply_changes(*tracker.take())
+        result = session.render(camera="/Camera", resolution=RESOLUTION)
+        assert not result.errors, result.errors
+        return result
+
+    result = render()
+    assert _is(_rgb(result, -3.0), (1, 0, 0)), "inherited from /World/Group"
+    assert _is(_rgb(result, -1.0), (0, 1, 0)), "its own displayColor wins"
+    assert _is(_rgb(result, 1.0), (0, 0, 1)), "the reader's inherited primvar"
+    assert _is(_rgb(result, 3.0), (1, 1, 1)), "Hydra's grey outside the group"
+
+    group.GetPrimvar("displayColor").Set([(1, 1, 0)])
+    group.GetPrimvar("tint").Set([(0, 1, 1)])
+    result = render()
+    assert _is(_rgb(result, -3.0), (1, 1, 0)) and _is(_rgb(result, 1.0), (0, 1, 1)), "edits of the ancestor's primvars"
+    assert set(session.index.last_synced) == {"/World/Group/Inherits", "/World/Group/Own", "/World/Group/Tinted"}

@@ -25,6 +25,7 @@ property dirties:
 | `orientation`, `subdivisionScheme`, subdivision tags             |                                                          |
 | (`interpolateBoundary`, `crease*`, `corner*`, ...)               |                                                          |
 | `normals`, `primvars:*`                                          | GPRIM DirtyPrimvar                                       |
+| `primvars:*` on another imageable prim (an Xform, a Scope)       | SUBTREE DirtyPrimvar (constant primvars are inherited)   |
 | `doubleSided`                                                    | GPRIM DirtyDoubleSided                                   |
 | `tessera:*` (TesseraMeshAPI build settings)                      | GPRIM DirtyTopology (the mesh is built again)            |
 | anything else (`extent`, custom attributes, prim metadata)       | nothing                                                  |
@@ -94,6 +95,8 @@ def classify(prim: Usd.Prim, name: str) -> Effect | None:
             return Effect(GPRIM, _dirty.PRIMVAR)
         if name == "doubleSided":
             return Effect(GPRIM, _dirty.DOUBLE_SIDED)
+    elif name.startswith("primvars:") and prim.IsA(UsdGeom.Imageable):
+        return Effect(SUBTREE, _dirty.PRIMVAR)  # a constant primvar the meshes below inherit
     return None
 
 

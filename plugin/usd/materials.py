@@ -67,8 +67,8 @@ def vertex_input(input_index: int, offset: int, rgb: bool) -> int:
 class ChannelRead:
     """One primvar a material reads into the mesh's vertex channel: `components` (3 for a colour input, else 1) from
     component `offset`. `fallback`: the reader's, where the mesh lacks the primvar (found on the gprim, else a constant
-    one inherited from an ancestor); None for the fallback surface's displayColor, read on the gprim alone (missing: no
-    channel, Hydra's grey)."""
+    one inherited from an ancestor); None for the fallback surface's displayColor, read on the gprim, else inherited
+    (missing: no channel, Hydra's grey)."""
     primvar: str | None
     components: int
     offset: int

@@ -237,6 +237,9 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         # What each material needs its meshes to read (materials.PrimvarNeeds): 100 k meshes bound to one material read
         # its network once. An edit of the material that changes it dirties the meshes' primvars (_renew_needs).
         self._needs: dict[str, materials.PrimvarNeeds] = {}
+        # Some prim that is not a mesh authors primvars:displayColor: the fallback surface's meshes look for an inherited
+        # one (UsdImaging's constant primvar inheritance). Until then, no ancestor walk per mesh.
+        self._inherited_display_color = False
         self._all_uvs = False  # read_all_uvs(): every mesh reads its st, textured or not (the `uv` debug view)
 
     @property
@@ -319,6 +322,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 entered = xformable and "xformOpOrder" in authored and not instance and role != "pointInstancer"
                 if entered:
                     world = worlds.enter(prim, path)
+                if role != "mesh" and "primvars:displayColor" in authored:
+                    self._inherited_display_color = True
             if instance:  # also a PointInstancer prototype root that is itself instanceable
                 # An instance of a purpose not drawn is kept, as UsdImaging keeps it: its prototype's prims inherit that
                 # purpose (and are not drawn) unless they author one that is drawn. Visibility has no such exception.
@@ -814,6 +819,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             if not prim:
                 continue
             for name in sorted(names):
+                if name == "primvars:displayColor" and not prim.IsA(UsdGeom.Gprim):
+                    self._inherited_display_color = True
                 effect = change_tracker.classify(prim, name)
                 if effect is not None:
                     self._apply(path, prim, effect)
@@ -923,7 +930,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         name = id if record.group is None else str(prim.GetPath())
         needs = self._primvar_needs(record, name)
         # A plain mesh authors no primvars: only a material's primvar reader fallback would need the full path.
-        if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and all(r.fallback is None for r in needs.channel):
+        if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and \
+                all(r.fallback is None for r in needs.channel) and not self._inherited_display_color:
             source = self._plain_mesh_source(prim, authored, name, record)
         else:
             source = self._mesh_source(prim, authored, needs, name, record)
@@ -1014,14 +1022,15 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
     def _channel_primvar(self, prim: Usd.Prim, authored: _AuthoredNames, read: materials.ChannelRead, name: str):
         """(values as `read.components` columns, interpolation, indices) of one primvar of the vertex channel: on the mesh,
         else, for a primvar reader, a constant one inherited from an ancestor (UsdGeomPrimvarsAPI's
-        FindPrimvarWithInheritance, as UsdImaging reads them; the fallback surface's displayColor is not looked for above
-        the mesh: an ancestor walk per mesh); None where the mesh lacks it (the reader's fallback then)."""
+        FindPrimvarWithInheritance, as UsdImaging reads them; the fallback surface's displayColor too, once some prim
+        that is not a mesh authors one: before that, no ancestor walk per mesh); None where the mesh lacks it (the
+        reader's fallback then)."""
         if not read.primvar:
             return None
         primvars = UsdGeom.PrimvarsAPI(prim)
         if f"primvars:{read.primvar}" in authored:
             pv = primvars.GetPrimvar(read.primvar)
-        elif read.fallback is not None:
+        elif read.fallback is not None or (read.primvar == "displayColor" and self._inherited_display_color):
             pv = primvars.FindPrimvarWithInheritance(read.primvar)
         else:
             return None
