@@ -5,6 +5,7 @@
 #include "tessera/builder.h"
 
 #include "area.h"
+#include "clusters.h"
 #include "cut.h"
 #include "edge_limit.h"
 #include "fallback.h"
@@ -24,7 +25,7 @@
 namespace tessera {
 namespace {
 
-constexpr size_t kClusterVertices = 255;  // meshoptimizer's meshlet limit
+constexpr size_t kClusterVertices = 255;  // build_clusters numbers a cluster's vertices in a byte, 255 meaning none
 constexpr size_t kGroupSize = 16;         // clusters per group (partitions come out between about 8 and 32)
 constexpr double kStuckRatio = 0.85;      // a group that keeps more than this share of its triangles is stuck
 constexpr int kPinRounds = 16;            // retries of one simplification step that made too long an edge
@@ -196,19 +197,9 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
     std::vector<uint32_t> localIndices(indices.size());
     for (size_t i = 0; i < indices.size(); ++i) localIndices[i] = entry(indices[i]).second;
 
-    const size_t maxClusters = meshopt_buildMeshletsBound(indices.size(), kClusterVertices, kClusterMaxTriangles);
-    std::vector<meshopt_Meshlet> meshlets(maxClusters);
-    std::vector<unsigned int> meshletVertices(maxClusters * kClusterVertices);
-    std::vector<unsigned char> meshletTriangles(maxClusters * kClusterMaxTriangles * 3);
-    const size_t count = meshopt_buildMeshlets(meshlets.data(), meshletVertices.data(), meshletTriangles.data(), localIndices.data(),
-                                               localIndices.size(), compact.data(), vertices.size(), 12, kClusterVertices, kClusterMaxTriangles, 0.0f);
-    std::vector<std::vector<uint32_t>> pieces(count);
-    for (size_t m = 0; m < count; ++m) {
-        const meshopt_Meshlet& meshlet = meshlets[m];
-        pieces[m].resize(meshlet.triangle_count * 3);
-        for (size_t i = 0; i < pieces[m].size(); ++i)
-            pieces[m][i] = vertices[meshletVertices[meshlet.vertex_offset + meshletTriangles[meshlet.triangle_offset + i]]];
-    }
+    std::vector<std::vector<uint32_t>> pieces = build_clusters(localIndices.data(), localIndices.size(), compact.data(), vertices.size(), kClusterVertices, kClusterMaxTriangles);
+    for (auto& piece : pieces)
+        for (uint32_t& v : piece) v = vertices[v];
     return pieces;
 }
 
@@ -244,7 +235,7 @@ uint32_t spread_bits(uint32_t v) {  // 10 bits -> every third bit of 30
 }
 
 // Level 0: the source in spatially compact clusters. A large mesh is first cut into Morton-ordered chunks of
-// 64k triangles that are clustered in parallel (the meshlet builder is the build's slowest serial step); only
+// 64k triangles that are clustered in parallel (clustering is one of the build's costliest steps); only
 // the last cluster of each chunk may be partly filled.
 std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>& indices, const std::vector<float>& positions) {
     constexpr size_t kChunkTriangles = 65536;
