@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cfloat>
 #include <cmath>
+#include <cstring>
 #include <memory>
 
 namespace tessera {
@@ -136,58 +137,70 @@ std::vector<std::vector<uint32_t>> build_clusters(const uint32_t* indices, size_
     }
 
     std::vector<uint8_t> taken(triangles, 0), slot(vertexCount, kNotInCluster);  // slot: the vertex's place in the open cluster
-    std::vector<uint32_t> listedBy(triangles, kNone);  // the cluster whose candidate list holds the triangle
-    // The triangles around the cluster, with what scoring them reads (kept together: the scan is the builder's hot loop).
+    // The triangles around the open cluster, with their priority and centroid side by side: scanning them is the hot
+    // loop. A triangle's priority depends only on its corners, so it changes only when a triangle sharing a corner is
+    // taken, and is updated then.
     struct Candidate {
-        uint32_t triangle;
-        uint32_t corners[3];
         float centroid[3];
+        uint32_t triangle;
+        int priority;
     };
     std::vector<Candidate> candidates;
+    std::vector<uint32_t> listed(triangles, kNone);  // a triangle's place in `candidates`
     std::vector<uint32_t> clusterVertices, corners, closed;  // closed: candidates whose corners are all in the cluster
     clusterVertices.reserve(maxVertices);
     corners.reserve(3 * maxTriangles);
     float sum[3] = {0, 0, 0}, center[3] = {0, 0, 0};
     std::unique_ptr<NearestTriangle> nearest;  // built on first need: connected surfaces seldom need it
 
+    // meshoptimizer's priorities: a triangle that adds no vertex, then one that leaves a vertex with no other triangle
+    // left, then (by how many vertices it adds) one that leaves two vertices with one, then the rest.
+    auto priority_of = [&](uint32_t t) {
+        const uint32_t a = indices[3 * size_t(t)], b = indices[3 * size_t(t) + 1], c = indices[3 * size_t(t) + 2];
+        const int extra = (slot[a] == kNotInCluster) + (slot[b] == kNotInCluster) + (slot[c] == kNotInCluster);
+        if (extra == 0) return 0;
+        if (live[a] == 1 || live[b] == 1 || live[c] == 1) return 1;
+        if ((live[a] == 2) + (live[b] == 2) + (live[c] == 2) >= 2) return 1 + extra;
+        return 2 + extra;
+    };
+    auto unlist = [&](uint32_t t) {
+        const uint32_t at = listed[t];
+        if (at == kNone) return;
+        candidates[at] = candidates.back();
+        listed[candidates[at].triangle] = at;
+        candidates.pop_back();
+        listed[t] = kNone;
+    };
     auto finish_cluster = [&] {
         for (uint32_t v : clusterVertices) slot[v] = kNotInCluster;
         clusterVertices.clear();
         clusters.push_back(corners);
         corners.clear();
+        for (const Candidate& c : candidates) listed[c.triangle] = kNone;
         candidates.clear();
         closed.clear();
         sum[0] = sum[1] = sum[2] = 0;
     };
-    // The best candidate: first by topology (meshoptimizer's priorities: a triangle that adds no vertex, then one
-    // that leaves a vertex with no other triangle, then fewer new vertices), then by distance to the cluster's centre
-    // (`spatial`) or by how few triangles its vertices have left (for the first triangle of the next cluster).
+    // The best candidate: first by priority, then by distance to the cluster's centre (`spatial`) or by how few
+    // triangles its vertices have left (for the first triangle of the next cluster).
     auto best_candidate = [&](bool spatial) {
+        // One key per candidate, priority above the score's bits (a non-negative float's bits order as it does): the
+        // scan is then a branch-free minimum.
+        uint64_t bestKey = UINT64_MAX;
         uint32_t best = kNone;
-        int bestPriority = 5;
-        float bestScore = FLT_MAX;
-        for (size_t i = 0; i < candidates.size();) {
-            const Candidate& candidate = candidates[i];
-            if (taken[candidate.triangle]) {
-                candidates[i] = candidates.back();
-                candidates.pop_back();
-                continue;
+        for (const Candidate& candidate : candidates) {
+            float score;
+            if (spatial) {
+                score = distance2(candidate.centroid, center);
+            } else {
+                const uint32_t* c = &indices[3 * size_t(candidate.triangle)];
+                score = float(live[c[0]] + live[c[1]] + live[c[2]]);
             }
-            ++i;
-            const uint32_t a = candidate.corners[0], b = candidate.corners[1], c = candidate.corners[2];
-            const int extra = (slot[a] == kNotInCluster) + (slot[b] == kNotInCluster) + (slot[c] == kNotInCluster);
-            int priority;
-            if (extra == 0) priority = 0;
-            else if (live[a] == 1 || live[b] == 1 || live[c] == 1) priority = 1;
-            else if ((live[a] == 2) + (live[b] == 2) + (live[c] == 2) >= 2) priority = 1 + extra;
-            else priority = 2 + extra;
-            if (priority > bestPriority) continue;
-            const float score = spatial ? distance2(candidate.centroid, center) : float(live[a] + live[b] + live[c]);
-            if (priority < bestPriority || score < bestScore) {
-                best = candidate.triangle;
-                bestPriority = priority;
-                bestScore = score;
-            }
+            uint32_t bits;
+            std::memcpy(&bits, &score, 4);
+            const uint64_t key = uint64_t(candidate.priority) << 32 | bits;
+            best = key < bestKey ? candidate.triangle : best;
+            bestKey = std::min(key, bestKey);
         }
         return best;
     };
@@ -213,6 +226,7 @@ std::vector<std::vector<uint32_t>> build_clusters(const uint32_t* indices, size_
             }
         corners.insert(corners.end(), corner, corner + 3);
         taken[next] = 1;
+        unlist(next);
         for (int k = 0; k < 3; ++k) {  // no longer around its vertices
             const uint32_t v = corner[k];
             uint32_t* list = &around[first[v]];
@@ -223,19 +237,25 @@ std::vector<std::vector<uint32_t>> build_clusters(const uint32_t* indices, size_
                     break;
                 }
         }
-        // The triangles around vertices that just joined become candidates; those with every corner in already are closed.
-        const uint32_t clusterId = uint32_t(clusters.size());
+        // The triangles around vertices that just joined become candidates.
         for (; joined < clusterVertices.size(); ++joined) {
             const uint32_t v = clusterVertices[joined];
             for (uint32_t i = 0; i < live[v]; ++i) {
                 const uint32_t t = around[first[v] + i];
-                if (listedBy[t] != clusterId) {
-                    listedBy[t] = clusterId;
-                    const uint32_t* c = &indices[3 * size_t(t)];
-                    candidates.push_back({t, {c[0], c[1], c[2]}, {centroids[3 * size_t(t)], centroids[3 * size_t(t) + 1], centroids[3 * size_t(t) + 2]}});
+                if (listed[t] == kNone) {
+                    listed[t] = uint32_t(candidates.size());
+                    candidates.push_back({{centroids[3 * size_t(t)], centroids[3 * size_t(t) + 1], centroids[3 * size_t(t) + 2]}, t, 0});
                 }
-                if (slot[indices[3 * t]] != kNotInCluster && slot[indices[3 * t + 1]] != kNotInCluster && slot[indices[3 * t + 2]] != kNotInCluster)
-                    closed.push_back(t);
+            }
+        }
+        // Only the triangles sharing a corner with this one change priority.
+        for (int k = 0; k < 3; ++k) {
+            const uint32_t v = corner[k];
+            for (uint32_t i = 0; i < live[v]; ++i) {
+                const uint32_t t = around[first[v] + i];
+                const int priority = priority_of(t);
+                candidates[listed[t]].priority = priority;
+                if (priority == 0) closed.push_back(t);
             }
         }
         for (int k = 0; k < 3; ++k) sum[k] += centroids[3 * size_t(next) + k];
