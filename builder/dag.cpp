@@ -249,17 +249,27 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
             hi[k] = std::max(hi[k], positions[i + k]);
         }
     const float extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-30f});
-    std::vector<std::pair<uint32_t, uint32_t>> order(triangles);  // (Morton code of the centroid, triangle)
-    for (size_t t = 0; t < triangles; ++t) {
-        uint32_t code = 0;
-        for (int k = 0; k < 3; ++k) {
-            const float c = (positions[3 * indices[3 * t] + k] + positions[3 * indices[3 * t + 1] + k] + positions[3 * indices[3 * t + 2] + k]) / 3;
-            code |= spread_bits(uint32_t(std::clamp((c - lo[k]) / extent * 1023.0f, 0.0f, 1023.0f))) << k;
-        }
-        order[t] = {code, uint32_t(t)};
-    }
-    std::sort(order.begin(), order.end());
+    // (Morton code of the centroid, triangle), coded and sorted in blocks on every core, then merged: the order is
+    // total (triangle numbers differ), so it does not depend on the blocks.
+    std::vector<std::pair<uint32_t, uint32_t>> order(triangles);
     const size_t chunks = (triangles + kChunkTriangles - 1) / kChunkTriangles;
+    parallel_for(chunks, [&](size_t c) {
+        const size_t end = std::min(triangles, (c + 1) * kChunkTriangles);
+        for (size_t t = c * kChunkTriangles; t < end; ++t) {
+            uint32_t code = 0;
+            for (int k = 0; k < 3; ++k) {
+                const float centroid = (positions[3 * indices[3 * t] + k] + positions[3 * indices[3 * t + 1] + k] + positions[3 * indices[3 * t + 2] + k]) / 3;
+                code |= spread_bits(uint32_t(std::clamp((centroid - lo[k]) / extent * 1023.0f, 0.0f, 1023.0f))) << k;
+            }
+            order[t] = {code, uint32_t(t)};
+        }
+        std::sort(order.begin() + c * kChunkTriangles, order.begin() + end);
+    });
+    for (size_t width = kChunkTriangles; width < triangles; width *= 2)  // pairs of sorted runs, merged on every core
+        parallel_for((triangles + 2 * width - 1) / (2 * width), [&](size_t pair) {
+            const size_t begin = pair * 2 * width, middle = std::min(triangles, begin + width), end = std::min(triangles, begin + 2 * width);
+            std::inplace_merge(order.begin() + begin, order.begin() + middle, order.begin() + end);
+        });
     std::vector<std::vector<std::vector<uint32_t>>> pieces(chunks);
     parallel_for(chunks, [&](size_t c) {
         std::vector<uint32_t> chunk;
@@ -377,10 +387,12 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     std::vector<Group> groups;
     auto add_clusters = [&](std::vector<std::vector<uint32_t>> pieces, const Sphere* groupSphere, float groupError, uint32_t level,
                             int32_t madeBy, std::vector<uint32_t>& created) {
-        for (auto& piece : pieces) {
+        std::vector<Sphere> own(groupSphere ? 0 : pieces.size());  // level 0's, on every core
+        parallel_for(own.size(), [&](size_t i) { own[i] = vertex_sphere(local, pieces[i].data(), pieces[i].size()); });
+        for (size_t i = 0; i < pieces.size(); ++i) {
             WorkCluster c;
-            c.indices = std::move(piece);
-            c.lodSphere = groupSphere ? *groupSphere : vertex_sphere(local, c.indices.data(), c.indices.size());
+            c.indices = std::move(pieces[i]);
+            c.lodSphere = groupSphere ? *groupSphere : own[i];
             c.lodError = groupError;
             c.level = level;
             c.madeBy = madeBy;
@@ -684,12 +696,20 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.normals.resize(vertexTotal);
     out.colors.resize(hasColors ? 2 * size_t(vertexTotal) : 0);
     out.uvs.resize(hasUvs ? 2 * size_t(vertexTotal) : 0);
+    // Each source normal encoded once (a vertex is stored about five times over the levels); vertices Preserve Area
+    // moved keep their source's attributes.
+    std::vector<uint32_t> packedNormals(vertexCount);
+    constexpr size_t kBlock = 16384;
+    parallel_for((vertexCount + kBlock - 1) / kBlock, [&](size_t b) {
+        for (size_t a = b * kBlock; a < std::min(vertexCount, (b + 1) * kBlock); ++a)
+            packedNormals[a] = encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]);
+    });
     parallel_for(order.size(), [&](size_t i) {
         uint32_t at = emitted[i].vertexOffset;
         for (uint32_t v : clusterVertices[i]) {
-            const uint32_t a = attributeOf[v];  // vertices Preserve Area moved keep their source's attributes
+            const uint32_t a = attributeOf[v];
             std::copy_n(&local[3 * v], 3, &out.positions[3 * size_t(at)]);
-            out.normals[at] = encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]);
+            out.normals[at] = packedNormals[a];
             if (hasColors) {
                 const float* col = &mesh.colors[3 * a];
                 out.colors[2 * size_t(at)] = float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16);
