@@ -455,18 +455,36 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     std::vector<unsigned char> lock(vertexCount, 0);
     std::vector<int32_t> firstGroup(vertexCount, -1);
     std::vector<unsigned char> shared(vertexCount, 0);
+    std::vector<uint32_t> roundPosition;  // a position's number in the round's partition input
     while (pending.size() > 1) {
         // Group the pending clusters by shared positions.
         const size_t roundVertices = local.size() / 3;  // vertices added this round are numbered from here
         std::vector<unsigned int> partition(pending.size(), 0);
         size_t groupCount = 1;
         if (pending.size() > kGroupSize) {
-            std::vector<unsigned int> clusterIndices, counts;
-            for (uint32_t c : pending) {
-                for (uint32_t v : clusters[c].indices) clusterIndices.push_back(positionId[v]);
-                counts.push_back(unsigned(clusters[c].indices.size()));
+            // Each cluster's distinct positions in order of first use, numbered for this round only: meshoptimizer's
+            // partitioner counts a position once per cluster and only compares numbers, so the partition is the one
+            // every corner of the mesh's numbering gives, while its tables (sized by the vertex count) and loops
+            // shrink to the round's own positions.
+            std::vector<std::vector<uint32_t>> distinct(pending.size());
+            parallel_for(pending.size(), [&](size_t i) {
+                std::vector<uint32_t> cornerPositions(clusters[pending[i]].indices.size());
+                for (size_t k = 0; k < cornerPositions.size(); ++k) cornerPositions[k] = positionId[clusters[pending[i]].indices[k]];
+                number_by_first_use(cornerPositions, distinct[i]);
+            });
+            std::vector<unsigned int> clusterIndices, counts(pending.size());
+            uint32_t positions = 0;
+            roundPosition.resize(roundVertices, UINT32_MAX);
+            for (size_t i = 0; i < pending.size(); ++i) {
+                for (uint32_t p : distinct[i]) {
+                    if (roundPosition[p] == UINT32_MAX) roundPosition[p] = positions++;
+                    clusterIndices.push_back(roundPosition[p]);
+                }
+                counts[i] = unsigned(distinct[i].size());
             }
-            groupCount = meshopt_partitionClusters(partition.data(), clusterIndices.data(), clusterIndices.size(), counts.data(), pending.size(), roundVertices, kGroupSize);
+            groupCount = meshopt_partitionClusters(partition.data(), clusterIndices.data(), clusterIndices.size(), counts.data(), pending.size(), positions, kGroupSize);
+            for (const auto& list : distinct)
+                for (uint32_t p : list) roundPosition[p] = UINT32_MAX;
         }
         std::vector<std::vector<uint32_t>> members(groupCount);
         for (size_t i = 0; i < pending.size(); ++i) members[partition[i]].push_back(pending[i]);
