@@ -294,12 +294,28 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.hasConstantColor = mesh.hasConstantColor;
 
     // Recentre (in double, on the grid) so that large authored coordinates lose no more precision than they already have.
+    // The loops over every vertex or triangle before the DAG run on every core in blocks; minima and maxima do not
+    // depend on the blocks.
+    constexpr size_t kBlock = 65536;
+    const size_t vertexBlocks = (vertexCount + kBlock - 1) / kBlock;
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t v = 0; v < vertexCount; ++v)
-        for (int k = 0; k < 3; ++k) {
-            lo[k] = std::min(lo[k], double(mesh.positions[3 * v + k]));
-            hi[k] = std::max(hi[k], double(mesh.positions[3 * v + k]));
-        }
+    {
+        std::vector<std::array<double, 6>> blockBounds(vertexBlocks);
+        parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+            std::array<double, 6> b{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+            for (size_t v = begin; v < end; ++v)
+                for (int k = 0; k < 3; ++k) {
+                    b[k] = std::min(b[k], double(mesh.positions[3 * v + k]));
+                    b[3 + k] = std::max(b[3 + k], double(mesh.positions[3 * v + k]));
+                }
+            blockBounds[begin / kBlock] = b;
+        });
+        for (const auto& b : blockBounds)
+            for (int k = 0; k < 3; ++k) {
+                lo[k] = std::min(lo[k], b[k]);
+                hi[k] = std::max(hi[k], b[3 + k]);
+            }
+    }
     out.size = float(std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2])));
 
     // The position grid: a power-of-two step in object space, anchored at the object's origin.
@@ -308,14 +324,20 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         // Fine against the shortest edge: snapping must not turn thin triangles into slivers or collapse them (the
         // simplifier's attribute metric punishes slivers badly, and a measured 1 M-triangle sphere's DAG stalled with
         // 32x coarser steps). The range cap below bounds the cost on meshes with near-degenerate edges.
-        double shortest = INFINITY;
-        for (size_t i = 0; i < mesh.indices.size(); i += 3)
-            for (int e = 0; e < 3; ++e) {
-                const float* a = &mesh.positions[3 * mesh.indices[i + e]];
-                const float* b = &mesh.positions[3 * mesh.indices[i + (e + 1) % 3]];
-                const double length2 = double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]);
-                if (length2 > 0) shortest = std::min(shortest, length2);
-            }
+        const size_t triangleCount = mesh.indices.size() / 3;
+        std::vector<double> blockShortest((triangleCount + kBlock - 1) / kBlock, INFINITY);
+        parallel_blocks(triangleCount, kBlock, [&](size_t begin, size_t end) {
+            double shortest = INFINITY;
+            for (size_t i = 3 * begin; i < 3 * end; i += 3)
+                for (int e = 0; e < 3; ++e) {
+                    const float* a = &mesh.positions[3 * mesh.indices[i + e]];
+                    const float* b = &mesh.positions[3 * mesh.indices[i + (e + 1) % 3]];
+                    const double length2 = double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]);
+                    if (length2 > 0) shortest = std::min(shortest, length2);
+                }
+            blockShortest[begin / kBlock] = shortest;
+        });
+        const double shortest = *std::min_element(blockShortest.begin(), blockShortest.end());
         const double wanted = std::min(double(out.size) / 65536.0, std::sqrt(shortest) / 64.0);  // and 16 bits across the mesh
         precision = int(std::floor(std::log2(std::max(wanted, 1e-30))));
     }
@@ -330,9 +352,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         out.origin[k] = originGrid[k] * step;
     }
     std::vector<float> local(3 * vertexCount);
-    for (size_t v = 0; v < vertexCount; ++v)
-        for (int k = 0; k < 3; ++k)  // + 0.0f turns -0 into +0, so equal positions have equal bits
-            local[3 * v + k] = float((std::round(double(mesh.positions[3 * v + k]) / step) - originGrid[k]) * step) + 0.0f;
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t v = begin; v < end; ++v)
+            for (int k = 0; k < 3; ++k)  // + 0.0f turns -0 into +0, so equal positions have equal bits
+                local[3 * v + k] = float((std::round(double(mesh.positions[3 * v + k]) / step) - originGrid[k]) * step) + 0.0f;
+    });
 
     // Vertices split at attribute seams share a position id: adjacency and border locks follow positions.
     // Preserve Area adds moved vertices later: the welder gives them ids too.
@@ -368,13 +392,15 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     const size_t colorAttribute = 3, uvAttribute = hasColors ? 6 : 3;
     const size_t attributeCount = uvAttribute + (hasUvs ? 2 : 0);
     std::vector<float> attributes(vertexCount * attributeCount);
-    for (size_t v = 0; v < vertexCount; ++v) {
-        for (int k = 0; k < 3; ++k) attributes[v * attributeCount + k] = mesh.normals[3 * v + k];
-        if (hasColors)
-            for (int k = 0; k < 3; ++k) attributes[v * attributeCount + colorAttribute + k] = mesh.colors[3 * v + k];
-        if (hasUvs)
-            for (int k = 0; k < 2; ++k) attributes[v * attributeCount + uvAttribute + k] = uvs[2 * v + k];
-    }
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t v = begin; v < end; ++v) {
+            for (int k = 0; k < 3; ++k) attributes[v * attributeCount + k] = mesh.normals[3 * v + k];
+            if (hasColors)
+                for (int k = 0; k < 3; ++k) attributes[v * attributeCount + colorAttribute + k] = mesh.colors[3 * v + k];
+            if (hasUvs)
+                for (int k = 0; k < 2; ++k) attributes[v * attributeCount + uvAttribute + k] = uvs[2 * v + k];
+        }
+    });
     // Normals weigh little: the simplifier's error, which the cut projects to pixels, includes the attribute terms,
     // and at 0.5 they steered collapses into surfaces about 2.6x farther off at coarse levels (0.10 against 0.038
     // mesh units on a bumpy unit sphere at 3k triangles; docs/benchmarks.md). Texture coordinates are weighed per
@@ -717,10 +743,8 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // Each source normal encoded once (a vertex is stored about five times over the levels); vertices Preserve Area
     // moved keep their source's attributes.
     std::vector<uint32_t> packedNormals(vertexCount);
-    constexpr size_t kBlock = 16384;
-    parallel_for((vertexCount + kBlock - 1) / kBlock, [&](size_t b) {
-        for (size_t a = b * kBlock; a < std::min(vertexCount, (b + 1) * kBlock); ++a)
-            packedNormals[a] = encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]);
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t a = begin; a < end; ++a) packedNormals[a] = encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]);
     });
     parallel_for(order.size(), [&](size_t i) {
         uint32_t at = emitted[i].vertexOffset;
