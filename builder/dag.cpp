@@ -161,9 +161,9 @@ size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t
 // `position(v)` gives vertex v's xyz.
 template <typename PositionOf>
 std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, PositionOf position) {
-    // Local numbers in ascending order of the mesh's, found through a table (sorting every index and searching for
-    // each cost a fifth of the build): direct when the vertex numbers span little more than the indices (a small
-    // mesh in one piece), else open addressing at most half full (Morton chunks and groups of large meshes).
+    // Local numbers found through a table (sorting every index and searching for each cost a fifth of the build):
+    // direct when the vertex numbers span little more than the indices (a small mesh in one piece), else open
+    // addressing at most half full (Morton chunks and groups of large meshes).
     uint32_t first = UINT32_MAX, last = 0;
     for (uint32_t v : indices) {
         first = std::min(first, v);
@@ -179,23 +179,20 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
         while (table[i].first != v && table[i].first != UINT32_MAX) i = (i + 1) & (slots - 1);
         return table[i];
     };
-    std::vector<uint32_t> vertices;
+    // Numbered by first use: build_clusters does not depend on how vertices are numbered.
+    std::vector<uint32_t> vertices, localIndices(indices.size());
+    std::vector<float> compact;
     vertices.reserve(indices.size() / 2 + 3);
-    for (uint32_t v : indices) {
-        auto& e = entry(v);
+    compact.reserve(3 * (indices.size() / 2 + 3));
+    for (size_t i = 0; i < indices.size(); ++i) {
+        auto& e = entry(indices[i]);
         if (e.first == UINT32_MAX) {
-            e.first = v;
-            vertices.push_back(v);
+            e = {indices[i], uint32_t(vertices.size())};
+            vertices.push_back(indices[i]);
+            compact.insert(compact.end(), position(indices[i]), position(indices[i]) + 3);
         }
+        localIndices[i] = e.second;
     }
-    std::sort(vertices.begin(), vertices.end());
-    std::vector<float> compact(3 * vertices.size());
-    for (size_t i = 0; i < vertices.size(); ++i) {
-        std::memcpy(&compact[3 * i], position(vertices[i]), 12);
-        entry(vertices[i]).second = uint32_t(i);
-    }
-    std::vector<uint32_t> localIndices(indices.size());
-    for (size_t i = 0; i < indices.size(); ++i) localIndices[i] = entry(indices[i]).second;
 
     std::vector<std::vector<uint32_t>> pieces = build_clusters(localIndices.data(), localIndices.size(), compact.data(), vertices.size(), kClusterVertices, kClusterMaxTriangles);
     for (auto& piece : pieces)
