@@ -25,13 +25,13 @@ public:
         const double extent = std::max({double(hi[0] - lo[0]), double(hi[1] - lo[1]), double(hi[2] - lo[2])});
         double cell = std::sqrt(8.0 * area / double(triangles));
         if (!(cell > 0)) cell = extent > 0 ? extent : 1.0;  // degenerate triangles only
-        for (;;) {  // at most 4 cells a triangle
+        for (;;) {  // at most one cell per two triangles (a closed surface leaves most cells of its box empty)
             size_t cells = 1;
             for (int k = 0; k < 3; ++k) {
                 size_[k] = std::min<size_t>(size_t(double(hi[k] - lo[k]) / cell) + 1, 1u << 20);
                 cells *= size_[k];
             }
-            if (cells <= 4 * triangles + 64) break;
+            if (cells <= triangles / 2 + 64) break;
             cell *= 1.5;
         }
         for (int k = 0; k < 3; ++k) lo_[k] = lo[k];
