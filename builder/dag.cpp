@@ -258,17 +258,27 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
             hi[k] = std::max(hi[k], positions[i + k]);
         }
     const float extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-30f});
-    std::vector<std::pair<uint32_t, uint32_t>> order(triangles);  // (Morton code of the centroid, triangle)
-    for (size_t t = 0; t < triangles; ++t) {
-        uint32_t code = 0;
-        for (int k = 0; k < 3; ++k) {
-            const float c = (positions[3 * indices[3 * t] + k] + positions[3 * indices[3 * t + 1] + k] + positions[3 * indices[3 * t + 2] + k]) / 3;
-            code |= spread_bits(uint32_t(std::clamp((c - lo[k]) / extent * 1023.0f, 0.0f, 1023.0f))) << k;
-        }
-        order[t] = {code, uint32_t(t)};
-    }
-    std::sort(order.begin(), order.end());
+    // (Morton code of the centroid, triangle), coded and sorted in blocks on every core, then merged: the order is
+    // total (triangle numbers differ), so it does not depend on the blocks.
+    std::vector<std::pair<uint32_t, uint32_t>> order(triangles);
     const size_t chunks = (triangles + kChunkTriangles - 1) / kChunkTriangles;
+    parallel_for(chunks, [&](size_t c) {
+        const size_t end = std::min(triangles, (c + 1) * kChunkTriangles);
+        for (size_t t = c * kChunkTriangles; t < end; ++t) {
+            uint32_t code = 0;
+            for (int k = 0; k < 3; ++k) {
+                const float centroid = (positions[3 * indices[3 * t] + k] + positions[3 * indices[3 * t + 1] + k] + positions[3 * indices[3 * t + 2] + k]) / 3;
+                code |= spread_bits(uint32_t(std::clamp((centroid - lo[k]) / extent * 1023.0f, 0.0f, 1023.0f))) << k;
+            }
+            order[t] = {code, uint32_t(t)};
+        }
+        std::sort(order.begin() + c * kChunkTriangles, order.begin() + end);
+    });
+    for (size_t width = kChunkTriangles; width < triangles; width *= 2)  // pairs of sorted runs, merged on every core
+        parallel_for((triangles + 2 * width - 1) / (2 * width), [&](size_t pair) {
+            const size_t begin = pair * 2 * width, middle = std::min(triangles, begin + width), end = std::min(triangles, begin + 2 * width);
+            std::inplace_merge(order.begin() + begin, order.begin() + middle, order.begin() + end);
+        });
     std::vector<std::vector<std::vector<uint32_t>>> pieces(chunks);
     parallel_for(chunks, [&](size_t c) {
         std::vector<uint32_t> chunk;
@@ -293,12 +303,28 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.hasConstantColor = mesh.hasConstantColor;
 
     // Recentre (in double, on the grid) so that large authored coordinates lose no more precision than they already have.
+    // The loops over every vertex or triangle before the DAG run on every core in blocks; minima and maxima do not
+    // depend on the blocks.
+    constexpr size_t kBlock = 65536;
+    const size_t vertexBlocks = (vertexCount + kBlock - 1) / kBlock;
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t v = 0; v < vertexCount; ++v)
-        for (int k = 0; k < 3; ++k) {
-            lo[k] = std::min(lo[k], double(mesh.positions[3 * v + k]));
-            hi[k] = std::max(hi[k], double(mesh.positions[3 * v + k]));
-        }
+    {
+        std::vector<std::array<double, 6>> blockBounds(vertexBlocks);
+        parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+            std::array<double, 6> b{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+            for (size_t v = begin; v < end; ++v)
+                for (int k = 0; k < 3; ++k) {
+                    b[k] = std::min(b[k], double(mesh.positions[3 * v + k]));
+                    b[3 + k] = std::max(b[3 + k], double(mesh.positions[3 * v + k]));
+                }
+            blockBounds[begin / kBlock] = b;
+        });
+        for (const auto& b : blockBounds)
+            for (int k = 0; k < 3; ++k) {
+                lo[k] = std::min(lo[k], b[k]);
+                hi[k] = std::max(hi[k], b[3 + k]);
+            }
+    }
     out.size = float(std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2])));
 
     // The position grid: a power-of-two step in object space, anchored at the object's origin.
@@ -307,14 +333,20 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         // Fine against the shortest edge: snapping must not turn thin triangles into slivers or collapse them (the
         // simplifier's attribute metric punishes slivers badly, and a measured 1 M-triangle sphere's DAG stalled with
         // 32x coarser steps). The range cap below bounds the cost on meshes with near-degenerate edges.
-        double shortest = INFINITY;
-        for (size_t i = 0; i < mesh.indices.size(); i += 3)
-            for (int e = 0; e < 3; ++e) {
-                const float* a = &mesh.positions[3 * mesh.indices[i + e]];
-                const float* b = &mesh.positions[3 * mesh.indices[i + (e + 1) % 3]];
-                const double length2 = double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]);
-                if (length2 > 0) shortest = std::min(shortest, length2);
-            }
+        const size_t triangleCount = mesh.indices.size() / 3;
+        std::vector<double> blockShortest((triangleCount + kBlock - 1) / kBlock, INFINITY);
+        parallel_blocks(triangleCount, kBlock, [&](size_t begin, size_t end) {
+            double shortest = INFINITY;
+            for (size_t i = 3 * begin; i < 3 * end; i += 3)
+                for (int e = 0; e < 3; ++e) {
+                    const float* a = &mesh.positions[3 * mesh.indices[i + e]];
+                    const float* b = &mesh.positions[3 * mesh.indices[i + (e + 1) % 3]];
+                    const double length2 = double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]);
+                    if (length2 > 0) shortest = std::min(shortest, length2);
+                }
+            blockShortest[begin / kBlock] = shortest;
+        });
+        const double shortest = *std::min_element(blockShortest.begin(), blockShortest.end());
         const double wanted = std::min(double(out.size) / 65536.0, std::sqrt(shortest) / 64.0);  // and 16 bits across the mesh
         precision = int(std::floor(std::log2(std::max(wanted, 1e-30))));
     }
@@ -329,9 +361,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         out.origin[k] = originGrid[k] * step;
     }
     std::vector<float> local(3 * vertexCount);
-    for (size_t v = 0; v < vertexCount; ++v)
-        for (int k = 0; k < 3; ++k)  // + 0.0f turns -0 into +0, so equal positions have equal bits
-            local[3 * v + k] = float((std::round(double(mesh.positions[3 * v + k]) / step) - originGrid[k]) * step) + 0.0f;
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t v = begin; v < end; ++v)
+            for (int k = 0; k < 3; ++k)  // + 0.0f turns -0 into +0, so equal positions have equal bits
+                local[3 * v + k] = float((std::round(double(mesh.positions[3 * v + k]) / step) - originGrid[k]) * step) + 0.0f;
+    });
 
     // Vertices split at attribute seams share a position id: adjacency and border locks follow positions.
     // Preserve Area adds moved vertices later: the welder gives them ids too.
@@ -367,14 +401,16 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     const size_t colorAttribute = 3, uvAttribute = hasColors ? 3 + kChannelComponents : 3;
     const size_t attributeCount = uvAttribute + (hasUvs ? 2 : 0);
     std::vector<float> attributes(vertexCount * attributeCount);
-    for (size_t v = 0; v < vertexCount; ++v) {
-        for (int k = 0; k < 3; ++k) attributes[v * attributeCount + k] = mesh.normals[3 * v + k];
-        if (hasColors)
-            for (int k = 0; k < kChannelComponents; ++k)
-                attributes[v * attributeCount + colorAttribute + k] = mesh.colors[kChannelComponents * v + k];
-        if (hasUvs)
-            for (int k = 0; k < 2; ++k) attributes[v * attributeCount + uvAttribute + k] = uvs[2 * v + k];
-    }
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t v = begin; v < end; ++v) {
+            for (int k = 0; k < 3; ++k) attributes[v * attributeCount + k] = mesh.normals[3 * v + k];
+            if (hasColors)
+                for (int k = 0; k < kChannelComponents; ++k)
+                    attributes[v * attributeCount + colorAttribute + k] = mesh.colors[kChannelComponents * v + k];
+            if (hasUvs)
+                for (int k = 0; k < 2; ++k) attributes[v * attributeCount + uvAttribute + k] = uvs[2 * v + k];
+        }
+    });
     // Normals weigh little: the simplifier's error, which the cut projects to pixels, includes the attribute terms,
     // and at 0.5 they steered collapses into surfaces about 2.6x farther off at coarse levels (0.10 against 0.038
     // mesh units on a bumpy unit sphere at 3k triangles; docs/benchmarks.md). Texture coordinates are weighed per
@@ -389,10 +425,12 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     std::vector<Group> groups;
     auto add_clusters = [&](std::vector<std::vector<uint32_t>> pieces, const Sphere* groupSphere, float groupError, uint32_t level,
                             int32_t madeBy, std::vector<uint32_t>& created) {
-        for (auto& piece : pieces) {
+        std::vector<Sphere> own(groupSphere ? 0 : pieces.size());  // level 0's, on every core
+        parallel_for(own.size(), [&](size_t i) { own[i] = vertex_sphere(local, pieces[i].data(), pieces[i].size()); });
+        for (size_t i = 0; i < pieces.size(); ++i) {
             WorkCluster c;
-            c.indices = std::move(piece);
-            c.lodSphere = groupSphere ? *groupSphere : vertex_sphere(local, c.indices.data(), c.indices.size());
+            c.indices = std::move(pieces[i]);
+            c.lodSphere = groupSphere ? *groupSphere : own[i];
             c.lodError = groupError;
             c.level = level;
             c.madeBy = madeBy;
@@ -455,18 +493,36 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     std::vector<unsigned char> lock(vertexCount, 0);
     std::vector<int32_t> firstGroup(vertexCount, -1);
     std::vector<unsigned char> shared(vertexCount, 0);
+    std::vector<uint32_t> roundPosition;  // a position's number in the round's partition input
     while (pending.size() > 1) {
         // Group the pending clusters by shared positions.
         const size_t roundVertices = local.size() / 3;  // vertices added this round are numbered from here
         std::vector<unsigned int> partition(pending.size(), 0);
         size_t groupCount = 1;
         if (pending.size() > kGroupSize) {
-            std::vector<unsigned int> clusterIndices, counts;
-            for (uint32_t c : pending) {
-                for (uint32_t v : clusters[c].indices) clusterIndices.push_back(positionId[v]);
-                counts.push_back(unsigned(clusters[c].indices.size()));
+            // Each cluster's distinct positions in order of first use, numbered for this round only: meshoptimizer's
+            // partitioner counts a position once per cluster and only compares numbers, so the partition is the one
+            // every corner of the mesh's numbering gives, while its tables (sized by the vertex count) and loops
+            // shrink to the round's own positions.
+            std::vector<std::vector<uint32_t>> distinct(pending.size());
+            parallel_for(pending.size(), [&](size_t i) {
+                std::vector<uint32_t> cornerPositions(clusters[pending[i]].indices.size());
+                for (size_t k = 0; k < cornerPositions.size(); ++k) cornerPositions[k] = positionId[clusters[pending[i]].indices[k]];
+                number_by_first_use(cornerPositions, distinct[i]);
+            });
+            std::vector<unsigned int> clusterIndices, counts(pending.size());
+            uint32_t positions = 0;
+            roundPosition.resize(roundVertices, UINT32_MAX);
+            for (size_t i = 0; i < pending.size(); ++i) {
+                for (uint32_t p : distinct[i]) {
+                    if (roundPosition[p] == UINT32_MAX) roundPosition[p] = positions++;
+                    clusterIndices.push_back(roundPosition[p]);
+                }
+                counts[i] = unsigned(distinct[i].size());
             }
-            groupCount = meshopt_partitionClusters(partition.data(), clusterIndices.data(), clusterIndices.size(), counts.data(), pending.size(), roundVertices, kGroupSize);
+            groupCount = meshopt_partitionClusters(partition.data(), clusterIndices.data(), clusterIndices.size(), counts.data(), pending.size(), positions, kGroupSize);
+            for (const auto& list : distinct)
+                for (uint32_t p : list) roundPosition[p] = UINT32_MAX;
         }
         std::vector<std::vector<uint32_t>> members(groupCount);
         for (size_t i = 0; i < pending.size(); ++i) members[partition[i]].push_back(pending[i]);
@@ -696,12 +752,18 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.normals.resize(vertexTotal);
     out.colors.resize(hasColors ? 2 * size_t(vertexTotal) : 0);
     out.uvs.resize(hasUvs ? 2 * size_t(vertexTotal) : 0);
+    // Each source normal encoded once (a vertex is stored about five times over the levels); vertices Preserve Area
+    // moved keep their source's attributes.
+    std::vector<uint32_t> packedNormals(vertexCount);
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t a = begin; a < end; ++a) packedNormals[a] = encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]);
+    });
     parallel_for(order.size(), [&](size_t i) {
         uint32_t at = emitted[i].vertexOffset;
         for (uint32_t v : clusterVertices[i]) {
-            const uint32_t a = attributeOf[v];  // vertices Preserve Area moved keep their source's attributes
+            const uint32_t a = attributeOf[v];
             std::copy_n(&local[3 * v], 3, &out.positions[3 * size_t(at)]);
-            out.normals[at] = encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]);
+            out.normals[at] = packedNormals[a];
             if (hasColors) {
                 const float* col = &mesh.colors[kChannelComponents * a];
                 out.colors[2 * size_t(at)] = float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16);

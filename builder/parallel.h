@@ -34,6 +34,11 @@ inline void parallel_for(size_t count, const std::function<void(size_t)>& body) 
     for (auto& thread : pool) thread.join();
 }
 
+// Runs body(begin, end) over consecutive ranges of at most `block` of 0..count-1, on every core.
+inline void parallel_blocks(size_t count, size_t block, const std::function<void(size_t, size_t)>& body) {
+    parallel_for((count + block - 1) / block, [&](size_t b) { body(b * block, std::min(count, (b + 1) * block)); });
+}
+
 // parallel_for for a body that may throw: every index runs, then the exception of the lowest index that threw is
 // rethrown (the same one whatever the threads' timing).
 inline void parallel_for_rethrowing(size_t count, const std::function<void(size_t)>& body) {
