@@ -34,6 +34,33 @@ std::optional<DisplacementBake> displacement_bake(const MaterialDesc& m) {
     return bake;
 }
 
+MeshTable::Handle MeshTable::acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param) {
+    validate_settings(settings);
+    std::string key = MeshCache::key(view, settings);
+    auto found = byKey_.find(key);
+    if (found != byKey_.end()) {
+        Shared& shared = found->second;
+        ++shared.users;
+        ++param.meshesShared;
+        for (const std::string& warning : shared.warnings)  // this prim has the same problems: say so by its name
+            param.warnings.push_back(warning.rfind(shared.name + ": ", 0) == 0 ? view.name + warning.substr(shared.name.size()) : warning);
+        return {shared.gpuMesh, std::move(key)};
+    }
+    CachedBuild built = build_through_cache(view, settings, cache_);
+    ++(built.fromCache ? param.meshesFromCache : param.meshesBuilt);
+    Shared& shared = byKey_[key];
+    shared = {scene_.add_mesh(std::move(built.mesh)), 1, view.name, built.warnings};
+    for (auto& w : built.warnings) param.warnings.push_back(std::move(w));
+    return {shared.gpuMesh, std::move(key)};
+}
+
+void MeshTable::release(const Handle& handle) {
+    auto found = byKey_.find(handle.key);
+    if (found == byKey_.end() || --found->second.users > 0) return;
+    scene_.remove_mesh(found->second.gpuMesh);
+    byKey_.erase(found);
+}
+
 Mesh::~Mesh() {
     if (mesh_) meshes_.release(*mesh_);
 }
@@ -86,8 +113,8 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
             MeshSource source = scene.get_mesh(id());
             doubleSided_ = source.doubleSided;
             if (source.view.name.empty()) source.view.name = id();
-            if (bake) source.view.bake = &*bake;  // built before acquire() returns: `bake` lives until then
-            mesh_ = meshes_.acquire(std::move(source), param);
+            if (bake) source.view.bake = &*bake;
+            mesh_ = meshes_.acquire(source.view, source.settings, param);
         } catch (const MeshError& e) {
             param.errors.push_back(std::string(e.what()) + "; the mesh is skipped");
         }

@@ -187,7 +187,6 @@ void RenderIndex::sync_all(SceneDelegate& scene, const PrimId& cameraId, uint32_
             ++syncCounts_[entry.type];
         }
     }
-    delegate_.meshes().finish(param_);  // the builds the syncs started
     if (structureDirty_) {
         commit_resources();
     } else if (!moved.empty()) {
@@ -254,7 +253,7 @@ void RenderIndex::commit_resources() {
         const Mesh& mesh = static_cast<Mesh&>(*entry.prim);
         entry.firstInstance = instances.size();
         entry.instanceCount = 0;
-        if (entry.failed || !mesh.visible() || !mesh.built()) continue;  // a build that failed holds no mesh
+        if (entry.failed || !mesh.visible() || !mesh.gpu_mesh()) continue;
         InstanceDesc instance;
         instance.mesh = *mesh.gpu_mesh();
         instance.primId = mesh.prim_id();

@@ -89,11 +89,6 @@ uint32_t GpuScene::add_mesh(std::shared_ptr<const BuiltMesh> mesh) {
     return uint32_t(meshes_.size() - 1);
 }
 
-void GpuScene::set_mesh(uint32_t handle, std::shared_ptr<const BuiltMesh> mesh) {
-    meshes_.at(handle) = std::move(mesh);
-    ++geometryVersion_;
-}
-
 void GpuScene::remove_mesh(uint32_t handle) {
     meshes_.at(handle).reset();
     freeMeshes_.push_back(handle);

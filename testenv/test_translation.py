@@ -299,11 +299,10 @@ def test_a_transform_usd_rejects_is_left_to_the_sync():
     assert "/Bad/Added" in delegate.rprims and "/Bad/Added" not in delegate._walked_worlds
 
 
-def test_builds_on_the_worker_report_by_prim_and_draw_every_mesh():
-    """Meshes are built on a worker thread while the stage is read (plugin/mesh_table.cpp). Whatever the batching, every
-    mesh is drawn, identical meshes are built once, and a build's warning or error names each prim that authored it:
-    here 150 distinct quads (several batches), two identical meshes that lose a face (a warning each) and two identical
-    meshes with no face left (an error each; the rest renders)."""
+def test_shared_and_failed_builds_report_by_prim_and_draw_every_mesh():
+    """Identical meshes are built once (MeshTable), and a build's warning or error names each prim that authored it:
+    150 distinct quads, two identical meshes that lose a face (a warning each) and two identical meshes with no face
+    left (an error each; the rest renders)."""
     stage, _ = _stage()
     stage.RemovePrim("/Quad")
     UsdGeom.Xformable(stage.GetPrimAtPath("/Camera")).GetOrderedXformOps()[0].Set(Gf.Vec3d(0, 0, 50))  # sees 40 x 20
@@ -333,7 +332,7 @@ def test_builds_on_the_worker_report_by_prim_and_draw_every_mesh():
     drawn = {result.prim_path(int(i)) for i in set(result["primId"].ids().ravel()) if i != NO_HIT}
     assert drawn == {f"/Quads/Q{i}" for i in range(150)} | {"/LossyA/Mesh", "/LossyB/Mesh"}
 
-    # The broken mesh's build is not tried again for an identical one, and the error still names the new prim.
+    # A broken mesh added later is reported by its own name.
     mesh("/BrokenC", 0, 9, 1.0, [3], [0, 1, 9])
     again = session.render(camera="/Camera", resolution=(400, 200), aovs=("primId",))
     assert [e.split(":")[0] for e in again.errors] == ["/BrokenC"], again.errors

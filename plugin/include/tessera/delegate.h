@@ -11,11 +11,7 @@
 #include "tessera/cache.h"
 #include "tessera/renderer.h"
 
-#include <condition_variable>
-#include <deque>
 #include <map>
-#include <mutex>
-#include <thread>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -105,63 +101,26 @@ struct RenderParam {
 
 // Built meshes shared by content: rprims whose meshes are identical (the mesh cache's key: points, topology,
 // primvars, build settings) use one GPU scene mesh, built or loaded once, however many prims author it.
-//
-// Builds run on a worker thread while the scene delegate goes on reading the stage (on usd-core, one core's worth of
-// Python): acquire() hands back the GPU scene handle at once and finish() waits for the builds, puts the meshes into
-// the GPU scene and reports their warnings and errors (RenderIndex::sync_all calls it before committing). The source
-// arrays stay alive, and are released, on the calling thread: they belong to Python.
 class MeshTable {
 public:
     MeshTable(GpuScene& scene, const MeshCache& cache) : scene_(scene), cache_(cache) {}
-    ~MeshTable();
-    MeshTable(const MeshTable&) = delete;
-    MeshTable& operator=(const MeshTable&) = delete;
     struct Handle {
         uint32_t gpuMesh;
         std::string key;
     };
-    // The GPU scene mesh for `source`: shared, else loaded from the cache, else built. A bad setting, or a mesh whose
-    // build already failed, throws MeshError; other build failures are reported by finish() (the handle then holds no
-    // mesh: GpuScene::mesh is null).
-    Handle acquire(MeshSource source, RenderParam& param);
+    // The GPU scene mesh for `view`: shared, else loaded from the cache, else built (throws MeshError).
+    Handle acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param);
     void release(const Handle& handle);
-    // Waits for the builds acquire() started and puts their meshes into the GPU scene.
-    void finish(RenderParam& param);
 
 private:
     struct Shared {
         uint32_t gpuMesh = 0, users = 0;
         std::string name;  // of the prim it was built for: its warnings name it
         std::vector<std::string> warnings;
-        std::string error;  // the build failed: why (naming `name`)
-        bool pending = false;  // its build has not been finished yet: builds_[build]
-        size_t build = 0;
     };
-    // A build handed to the worker. `source` is touched only by the calling thread (it holds Python objects); the
-    // worker reads the arrays its view borrows.
-    struct Build {
-        std::string key;
-        MeshSource source;
-        std::vector<std::string> sharers;  // prims that acquired it while it was pending
-        CachedBuild result;
-        std::exception_ptr error;
-    };
-    void run_worker();
-    Shared* shared_of(const std::string& key);
-
     GpuScene& scene_;
     const MeshCache& cache_;
     std::unordered_map<std::string, Shared> byKey_;
-
-    std::deque<Build> builds_;  // those not finished yet, in the order acquire() started them
-    size_t submitted_ = 0, built_ = 0;  // builds handed to the worker, and done (guarded by mutex_)
-    size_t pendingBytes_ = 0;  // source bytes of builds handed over and not done: acquire() waits above a budget
-    std::mutex mutex_;
-    std::condition_variable wake_, done_;
-    bool stopping_ = false;
-    bool workerIdle_ = true;  // waiting for builds: an acquire() wakes it (guarded by mutex_, as are the next two)
-    int waiting_ = 0;         // threads waiting on done_
-    std::thread worker_;
 };
 
 // Base of every prim kind.
@@ -283,7 +242,6 @@ public:
     Device& device() { return device_; }
     Renderer& renderer() { return renderer_; }
     GpuScene& scene() { return scene_; }
-    MeshTable& meshes() { return meshes_; }
     const MeshCache& cache() const { return cache_; }
     void set_cache(MeshCache cache) { cache_ = std::move(cache); }
 

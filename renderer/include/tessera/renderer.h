@@ -224,8 +224,7 @@ struct FrameStats {
 // The GPU scene: meshes shared by any number of instances. Changes are uploaded by the next render.
 class GpuScene {
 public:
-    uint32_t add_mesh(std::shared_ptr<const BuiltMesh> mesh);  // null: a handle for a mesh set_mesh() gives later
-    void set_mesh(uint32_t handle, std::shared_ptr<const BuiltMesh> mesh);
+    uint32_t add_mesh(std::shared_ptr<const BuiltMesh> mesh);
     void remove_mesh(uint32_t handle);
     uint32_t add_material(const MaterialDesc& material);
     // For meshes whose triangles carry material slots: slot s draws with material handle `materials[s]`. Instances of
