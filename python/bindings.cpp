@@ -133,6 +133,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["sw_triangles"] = s.swTriangles;
     d["hw_triangles"] = s.hwTriangles;
     d["sw_clusters"] = s.swClusters;
+    d["sw_raster_vertices"] = s.swSharedVertices ? "shared" : "per-triangle";
     d["overflow_redraws"] = s.overflowRedraws;
     d["visible_cluster_capacity"] = s.visibleClusterCapacity;
     d["occlusion_tested"] = s.occlusionTested;
@@ -586,7 +587,7 @@ NB_MODULE(_tessera, m) {
             "execute",
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
                const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
-               const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate) {
+               const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate, const std::string& rasterVertices) {
                 RenderPassSettings settings;
                 if (!(dicingRate > 0.0f)) throw nb::value_error("the dicing rate must be a number of pixels > 0");
                 settings.render.dicingRate = dicingRate;
@@ -598,6 +599,10 @@ NB_MODULE(_tessera, m) {
                 else if (raster == "hardware") settings.render.raster = RasterMode::Hardware;
                 else if (raster == "software") settings.render.raster = RasterMode::Software;
                 else throw nb::value_error(("unknown raster mode '" + raster + "' (auto, hardware or software)").c_str());
+                if (rasterVertices == "auto") settings.render.rasterVertices = RasterVertices::Auto;
+                else if (rasterVertices == "shared") settings.render.rasterVertices = RasterVertices::Shared;
+                else if (rasterVertices == "per-triangle") settings.render.rasterVertices = RasterVertices::PerTriangle;
+                else throw nb::value_error(("unknown raster vertices '" + rasterVertices + "' (auto, shared or per-triangle)").c_str());
                 settings.cameraId = cameraId;
                 settings.camera = camera;
                 settings.render.width = width;
@@ -610,7 +615,7 @@ NB_MODULE(_tessera, m) {
                 return std::make_pair(std::move(images), stats_dict(stats));
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
-            "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f)
+            "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f, "raster_vertices"_a = "auto")
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
         .def_prop_ro(

@@ -27,6 +27,7 @@
 #include <cstddef>
 #include <atomic>
 #include <chrono>
+#include <cstdlib>
 #include <cstring>
 #include <map>
 #include <string>
@@ -358,11 +359,14 @@ struct Renderer::Impl {
     VkDescriptorSetLayout frameSetLayout = VK_NULL_HANDLE;
     VkDescriptorPool framePool = VK_NULL_HANDLE;
     VkDescriptorSet frameSet = VK_NULL_HANDLE;
-    VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE, rasterSoftware = VK_NULL_HANDLE;
+    VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE;
     VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
     // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
     // first needs them.
-    VkPipeline rasterMasked = VK_NULL_HANDLE, rasterSoftwareMasked = VK_NULL_HANDLE;
+    VkPipeline rasterMasked = VK_NULL_HANDLE;
+    // The compute rasterizer's variants, made on first use: [masks (TS_SPEC_TEXTURES)][own corners (TS_SPEC_OWN_CORNERS,
+    // RasterVertices::PerTriangle)].
+    VkPipeline rasterSoftware[2][2] = {};
     VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
     // Resolve's variants, made when a frame first needs them, by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 |
     // TS_SPEC_AREA_LIGHTS << 2 (textured materials, displaced materials, frames with area lights or a textured dome) and
@@ -442,9 +446,9 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, bins, nullptr);
         vkDestroyPipeline(vk, background, nullptr);
         vkDestroyPipeline(vk, raster, nullptr);
-        vkDestroyPipeline(vk, rasterSoftware, nullptr);
+        for (auto& variants : rasterSoftware)
+            for (VkPipeline variant : variants) vkDestroyPipeline(vk, variant, nullptr);
         vkDestroyPipeline(vk, rasterMasked, nullptr);
-        vkDestroyPipeline(vk, rasterSoftwareMasked, nullptr);
         vkDestroyPipeline(vk, tessellate, nullptr);
         vkDestroyPipeline(vk, dice, nullptr);
         vkDestroyPipeline(vk, diceMasked, nullptr);
@@ -459,23 +463,26 @@ struct Renderer::Impl {
     }
 
     // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES and TS_SPEC_AREA_LIGHTS (booleans),
-    // TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*) and TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*).
+    // TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*), TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*),
+    // TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it.
     struct Variant {
-        uint32_t values[4];
-        VkSpecializationMapEntry entries[4] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4}};
-        VkSpecializationInfo info{4, entries, sizeof(values), values};
-        Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE)
-            : values{VkBool32(textures), pixels, VkBool32(areaLights), output} {}
+        uint32_t values[6];
+        VkSpecializationMapEntry entries[6] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+                                               {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}};
+        VkSpecializationInfo info{6, entries, sizeof(values), values};
+        Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false)
+            : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
+                     ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE} {}
         Variant(const Variant&) = delete;
     };
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, uint32_t pixels = TS_BIN_TRIANGLES,
-                                bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE) {
+                                bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, pixels, areaLights, output);
+        const Variant variant(textures, pixels, areaLights, output, ownCorners);
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
-                      textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE ? &variant.info : nullptr};
+                      textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ? &variant.info : nullptr};
         info.layout = layout;
         VkPipeline pipeline;
         const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
@@ -523,7 +530,7 @@ struct Renderer::Impl {
         classify = compute_pipeline(classify_comp, sizeof(classify_comp));
         bins = compute_pipeline(bins_comp, sizeof(bins_comp));
         background = compute_pipeline(background_comp, sizeof(background_comp));
-        rasterSoftware = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp));
+        software_raster(false, default_own_corners());
         raster = graphics_pipeline(false, false);
 
         VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
@@ -538,10 +545,29 @@ struct Renderer::Impl {
             for (bool light : {false, areaLights})
                 resolve_variant(textured, pixels, light, TS_OUTPUT_SHADE);
         if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
-        if (masks && !rasterMasked) {
-            rasterMasked = graphics_pipeline(false, true);
-            rasterSoftwareMasked = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), true);
+        if (masks && !rasterMasked) rasterMasked = graphics_pipeline(false, true);
+    }
+
+    // RasterVertices::Auto: each thread its own triangle's corners on a CPU device, shared vertices on a GPU;
+    // $TESSERA_RASTER_VERTICES (shared, per-triangle) overrides that, for tests and measurements.
+    bool default_own_corners() const {
+        if (const char* forced = std::getenv("TESSERA_RASTER_VERTICES"); forced && *forced) {
+            if (std::strcmp(forced, "shared") == 0) return false;
+            if (std::strcmp(forced, "per-triangle") == 0) return true;
+            throw std::invalid_argument(std::string("TESSERA_RASTER_VERTICES='") + forced + "': expected shared or per-triangle");
         }
+        return device.is_software();
+    }
+
+    bool own_corners(RasterVertices mode) const {
+        return mode == RasterVertices::Auto ? default_own_corners() : mode == RasterVertices::PerTriangle;
+    }
+
+    // The compute rasterizer's variant, made on first use (a few tens of ms on lavapipe, cold).
+    VkPipeline software_raster(bool masks, bool ownCorners) {
+        VkPipeline& variant = rasterSoftware[masks][ownCorners];
+        if (!variant) variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), masks, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, ownCorners);
+        return variant;
     }
 
     // Resolve's variant for a bin, made on first use. Textures and area lights only matter to shading.
@@ -1157,9 +1183,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     s.ensure_texture_pipelines(std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(), s.anyMasked,
                                texturedDome, areaLights);
     if (s.anyDisplaced) s.ensure_tessellation_pipelines(s.anyMasked);
+    const bool ownCorners = s.own_corners(settings.rasterVertices);
+    const VkPipeline softwareRaster = s.software_raster(s.anyMasked, ownCorners);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
+    frameStats.swSharedVertices = !ownCorners;
     frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
     frameStats.instances = s.instanceCount;
     frameStats.instanceBatches = uint32_t(s.gpuBatches.size());
@@ -1311,7 +1340,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.anyMasked ? s.rasterSoftwareMasked : s.rasterSoftware);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, softwareRaster);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX));
                 mark();
                 // Both rasterizers only do atomic max into the visibility buffer, which commutes; the barrier keeps the

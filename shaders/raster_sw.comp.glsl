@@ -1,4 +1,4 @@
-// Software raster: one workgroup per cluster of the software list, one thread per triangle. Clusters here lie
+// Software raster: one workgroup per cluster of the software list, its threads over the triangles. Clusters here lie
 // beyond the near plane and cover a small screen area (cull.comp.glsl), so no clipping is needed and edge
 // functions stay small. Vertices are snapped to the hardware rasterizer's sub-pixel grid and
 // coverage follows its top-left rule, so both paths cover the same pixels for the same triangle; depth and
@@ -10,13 +10,28 @@
 #include "surface.h"
 #include "raster.h"
 
-layout(local_size_x = TS_SW_RASTER_GROUP_SIZE) in;
+layout(local_size_x = TS_SW_RASTER_GROUP_SIZE, local_size_x_id = TS_SPEC_RASTER_GROUP_SIZE) in;
 
 // The pipeline variant for frames with textured opacity masks (the others carry no mask code).
 layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
 
+// Two variants (RasterVertices, chosen per device in renderer.cpp), the same pixels bit for bit. Shared (a GPU's): 128
+// threads transform each vertex once into shared memory, a barrier, then one thread per triangle. Own corners
+// (TS_SPEC_OWN_CORNERS, a CPU device's): 16 threads (local_size_x_id), each transforming the corners of every 16th triangle
+// itself, with no shared memory and no barrier. lavapipe runs a workgroup as coroutines of 8 invocations, each loading
+// the cluster and instance again, and switches between them at a barrier: two batches per cluster instead of sixteen, and
+// no barrier, halve its raster time though each vertex is transformed about six times (docs/benchmarks.md).
+layout(constant_id = TS_SPEC_OWN_CORNERS) const bool OWN_CORNERS = false;
+
 shared ivec2 screen[TS_CLUSTER_MAX_VERTICES];  // sub-pixel position
 shared float depth[TS_CLUSTER_MAX_VERTICES];   // reversed-Z depth (z / w)
+
+// Vertex (index into the vertex streams) -> framebuffer sub-pixels and depth (Vulkan viewport transform:
+// (ndc * 0.5 + 0.5) * size): the same arithmetic in both variants, so they cover the same pixels bit for bit.
+void transform_vertex(GpuFrame frame, Instance instance, vec3 translation, uint vertex, out ivec2 screen, out float depth) {
+    snap_vertex(frame, frame.viewProjection * vec4(to_camera_relative(instance, translation, vertex_position(frame, vertex)), 1.0),
+                screen, depth);
+}
 
 void main() {
     GpuFrame frame = frameConstants;
@@ -31,22 +46,38 @@ void main() {
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     vec3 translation = camera_relative_translation(instance);
 
-    // Vertices: clip space -> framebuffer sub-pixels (Vulkan viewport transform: (ndc * 0.5 + 0.5) * size).
-    uint vertexCount = cluster.levelVertices & 0xffffu;
-    for (uint v = gl_LocalInvocationIndex; v < vertexCount; v += TS_SW_RASTER_GROUP_SIZE)
-        snap_vertex(frame, frame.viewProjection * vec4(to_camera_relative(instance, translation, vertex_position(frame, cluster.vertexOffset + v)), 1.0),
-                    screen[v], depth[v]);
-    barrier();
+    if (!OWN_CORNERS) {
+        // Each vertex once, into shared memory, for every triangle that uses it.
+        uint vertexCount = cluster.levelVertices & 0xffffu;
+        for (uint v = gl_LocalInvocationIndex; v < vertexCount; v += gl_WorkGroupSize.x)
+            transform_vertex(frame, instance, translation, cluster.vertexOffset + v, screen[v], depth[v]);
+        barrier();
+    }
 
-    uint triangle = gl_LocalInvocationIndex;
-    if (triangle < cluster.triangleCount) {
-        bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
-        uint i0 = corner_vertex(frame, cluster, triangle, 0u, flip) - cluster.vertexOffset;
-        uint i1 = corner_vertex(frame, cluster, triangle, 1u, flip) - cluster.vertexOffset;
-        uint i2 = corner_vertex(frame, cluster, triangle, 2u, flip) - cluster.vertexOffset;
+    bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
+    for (uint triangle = gl_LocalInvocationIndex; triangle < cluster.triangleCount; triangle += gl_WorkGroupSize.x) {
+        uint i0 = corner_vertex(frame, cluster, triangle, 0u, flip);
+        uint i1 = corner_vertex(frame, cluster, triangle, 1u, flip);
+        uint i2 = corner_vertex(frame, cluster, triangle, 2u, flip);
+        ivec2 a, b, c;
+        float za, zb, zc;
+        if (OWN_CORNERS) {
+            transform_vertex(frame, instance, translation, i0, a, za);
+            transform_vertex(frame, instance, translation, i1, b, zb);
+            transform_vertex(frame, instance, translation, i2, c, zc);
+        } else {
+            i0 -= cluster.vertexOffset;
+            i1 -= cluster.vertexOffset;
+            i2 -= cluster.vertexOffset;
+            a = screen[i0];
+            b = screen[i1];
+            c = screen[i2];
+            za = depth[i0];
+            zb = depth[i1];
+            zc = depth[i2];
+        }
         uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
         bool masked = MASKS && (instance.flags & TS_INSTANCE_MASKED) != 0u;
-        rasterize_triangle(frame, screen[i0], screen[i1], screen[i2], depth[i0], depth[i1], depth[i2], payload,
-                           (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, masked);
+        rasterize_triangle(frame, a, b, c, za, zb, zc, payload, (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, masked);
     }
 }

@@ -200,6 +200,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_OUTPUT_NORMAL 3u
 #define TS_OUTPUT_ID 4u         // primId, instanceId, clusterId, triangleId (push.aov says which)
 #define TS_OUTPUT_KINDS 5u
+// Specialization constants of the compute rasterizer (raster_sw.comp.glsl): its variant where each thread transforms its
+// own triangles' corners, with no shared memory and no barrier, in workgroups of TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE
+// (RasterVertices::PerTriangle, for CPU devices), and the workgroup size (local_size_x_id), which follows the variant.
+#define TS_SPEC_OWN_CORNERS 4
+#define TS_SPEC_RASTER_GROUP_SIZE 5
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
@@ -211,6 +216,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_PIXEL_TILE 8         // classify: 8x8 pixels per workgroup
 #define TS_SHADE_GROUP_SIZE 64  // resolve: a material bin's pixels per workgroup
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
+// The compute rasterizer's variant for CPU devices: one workgroup of 16 per cluster, each thread every 16th triangle.
+// lavapipe runs a workgroup 8 invocations at a time and loads the cluster and instance again in each batch: 16 triangles
+// per thread cost 0.5x the 128-thread workgroup's raster time, 8 or 32 threads more (docs/benchmarks.md).
+#define TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE 16
 #define TS_TESS_GROUP_SIZE 128       // tessellate: one workgroup per cluster, one thread per triangle
 #define TS_DICE_GROUP_SIZE 64        // dice: one workgroup per patch, its lattice points (<= 153), then its micro-triangles
                                      // (<= 256), 64 at a time

@@ -289,7 +289,8 @@ def test_usd_wg_texture_assets(render, tmp_path, asset, stage_file):
 
 def test_both_rasterizers_cut_a_textured_mask_at_the_same_pixels(tmp_path):
     """A finely tessellated card with a round hole from its texture's alpha: small triangles, so the compute
-    rasterizer takes them; forced through hardware raster instead, the same pixels are cut."""
+    rasterizer takes them (in each of its variants: shared vertices, each thread its own corners); forced through
+    hardware raster instead, the same pixels are cut."""
     import tessera
     from conftest import TESTENV
 
@@ -320,18 +321,25 @@ def test_both_rasterizers_cut_a_textured_mask_at_the_same_pixels(tmp_path):
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
 
     session = tessera.Session(stage, validation=True)
-    results = {raster: session.render(camera="/Camera", resolution=(240, 240), aovs=("primId",), raster=raster, lod=False)
-               for raster in ("software", "hardware")}
+    renders = {"hardware": ("hardware", "auto"), "shared": ("software", "shared"), "per-triangle": ("software", "per-triangle")}
+    results = {name: session.render(camera="/Camera", resolution=(240, 240), aovs=("primId",), raster=raster,
+                                    raster_vertices=vertices, lod=False) for name, (raster, vertices) in renders.items()}
     for result in results.values():
         assert not result.errors, result.errors
-    assert results["software"].stats["sw_triangles"] == results["software"].stats["source_triangles"], "the small triangles go to the compute rasterizer"
     assert results["hardware"].stats["sw_triangles"] == 0
-    software, hardware = results["software"]["primId"].ids(), results["hardware"]["primId"].ids()
+    hardware = results["hardware"]["primId"].ids()
     card = _prim_mask(results["hardware"], "/Card")
     seen_behind = _prim_mask(results["hardware"], "/Behind")
     assert seen_behind[120, 120] and card[120, 75], "the hole shows the card behind; the card's edge is drawn"
     assert seen_behind.sum() > 1000, "all of the card behind shows through the hole"
-    assert np.array_equal(software, hardware), f"{(software != hardware).sum()} pixels differ"
+    for vertices in ("shared", "per-triangle"):
+        stats = results[vertices].stats
+        assert stats["sw_raster_vertices"] == vertices
+        assert stats["sw_triangles"] == stats["source_triangles"], "the small triangles go to the compute rasterizer"
+        software = results[vertices]["primId"].ids()
+        assert np.array_equal(software, hardware), f"{vertices}: {(software != hardware).sum()} pixels differ"
+    with pytest.raises(tessera.StageError, match="raster vertices"):
+        session.render(camera="/Camera", resolution=(8, 8), raster_vertices="sideways")
 
 
 def test_a_mask_on_one_geom_subset_cuts_only_its_faces(render):

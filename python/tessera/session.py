@@ -14,6 +14,7 @@ AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triang
 # Debug views the color AOV can show instead of shading (renderer.h: Visualize).
 VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw", "uv", "tessellation")
 RASTER_MODES = ("auto", "hardware", "software")
+RASTER_VERTICES = ("auto", "shared", "per-triangle")
 # UsdGeom purposes a render may draw besides `default` (which is always drawn).
 PURPOSES = ("render", "proxy", "guide")
 
@@ -143,7 +144,7 @@ class Session:
     def render(self, *, camera: str | None = None, resolution: tuple[int, int] = (960, 540),
                aovs=("color",), background=(0.0, 0.0, 0.0, 0.0), pixel_error: float = 1.0, lod: bool = True,
                vis: str | None = None, raster: str = "auto", occlusion: bool = True, dicing_rate: float = 1.0,
-               complexity: float | None = None) -> RenderResult:
+               complexity: float | None = None, raster_vertices: str = "auto") -> RenderResult:
         """Renders the stage at the session's time. `pixel_error` is the DAG cut's screen-space error bound in
         pixels; `lod=False` draws every source triangle (the full-detail reference); `vis` replaces shading in
         the color AOV by a debug view (VISUALIZATIONS); `raster` forces one rasterizer (RASTER_MODES); `occlusion`
@@ -151,7 +152,9 @@ class Session:
         not; a session's first render, or one after instances moved, has nothing to test against); `dicing_rate`:
         displaced surfaces are diced into micro-triangles whose edges project to about this many pixels;
         `complexity` (None: the session's) refines subdivision surfaces (see Session): a render at another refine
-        level than the last rebuilds the meshes that have a subdivision scheme, and no others."""
+        level than the last rebuilds the meshes that have a subdivision scheme, and no others; `raster_vertices`
+        picks the compute rasterizer's variant (RASTER_VERTICES; the same pixels either way, a matter of speed: auto
+        is per-triangle on a CPU device, shared on a GPU, or $TESSERA_RASTER_VERTICES)."""
         from .usd import framing_camera
 
         width, height = resolution
@@ -163,6 +166,8 @@ class Session:
             raise StageError(f"unknown visualization '{vis}' (choose from {', '.join(VISUALIZATIONS)})")
         if raster not in RASTER_MODES:
             raise StageError(f"unknown raster mode '{raster}' (choose from {', '.join(RASTER_MODES)})")
+        if raster_vertices not in RASTER_VERTICES:
+            raise StageError(f"unknown raster vertices '{raster_vertices}' (choose from {', '.join(RASTER_VERTICES)})")
         if not (pixel_error >= 0.0):
             raise StageError(f"pixel error must be a number >= 0, not {pixel_error}")
         if not (dicing_rate > 0.0):
@@ -185,7 +190,7 @@ class Session:
         fallback = (framing_camera(self.stage, self.time, width, height, self.purposes, self.scene.instancer_cycles)
                     if not camera_id else _tessera.CameraDesc())
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
-                                           vis or "none", raster, bool(occlusion), float(dicing_rate))
+                                           vis or "none", raster, bool(occlusion), float(dicing_rate), raster_vertices)
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)

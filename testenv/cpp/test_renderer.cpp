@@ -235,18 +235,22 @@ TEST_F(RendererTest, SoftwareAndHardwareRasterCoverTheSamePixels) {
         FrameStats hw, sw;
         settings.raster = RasterMode::Hardware;
         Image a = renderer.render(scene, camera, settings, {Aov::TriangleId}, &hw)[0];
-        settings.raster = RasterMode::Software;
-        Image b = renderer.render(scene, camera, settings, {Aov::TriangleId}, &sw)[0];
         EXPECT_EQ(hw.swTriangles, 0u) << what;
-        EXPECT_EQ(sw.hwTriangles, 0u) << what << ": every cluster must have gone to the compute rasterizer";
-        size_t same = 0, covered = 0;
-        for (uint32_t y = 0; y < a.height; ++y)
-            for (uint32_t x = 0; x < a.width; ++x) {
-                same += id_at(a, x, y) == id_at(b, x, y);
-                covered += id_at(a, x, y) != 0xffffffffu;
-            }
-        EXPECT_GT(covered, 64u) << what;
-        EXPECT_GE(double(same) / (a.width * a.height), minimumShare) << what;
+        settings.raster = RasterMode::Software;
+        for (RasterVertices vertices : {RasterVertices::Shared, RasterVertices::PerTriangle}) {  // both compute variants
+            settings.rasterVertices = vertices;
+            Image b = renderer.render(scene, camera, settings, {Aov::TriangleId}, &sw)[0];
+            EXPECT_EQ(sw.hwTriangles, 0u) << what << ": every cluster must have gone to the compute rasterizer";
+            size_t same = 0, covered = 0;
+            for (uint32_t y = 0; y < a.height; ++y)
+                for (uint32_t x = 0; x < a.width; ++x) {
+                    same += id_at(a, x, y) == id_at(b, x, y);
+                    covered += id_at(a, x, y) != 0xffffffffu;
+                }
+            EXPECT_GT(covered, 64u) << what;
+            EXPECT_GE(double(same) / (a.width * a.height), minimumShare) << what << (sw.swSharedVertices ? ", shared vertices" : ", per triangle");
+        }
+        settings.rasterVertices = RasterVertices::Auto;
     };
     for (double shift : {0.0, 0.5}) {  // in pixels: diagonals, then horizontal and vertical edges through pixel centres
         CameraDesc ortho = camera_at(shift / 64, shift / 64, 2);
@@ -259,6 +263,53 @@ TEST_F(RendererTest, SoftwareAndHardwareRasterCoverTheSamePixels) {
     settings.width = settings.height = 160;
     for (double distance : {3.0, 8.0, 30.0})  // depth ties between the two paths' interpolated depths are rare
         compare(camera_at(0.1, 0.2, distance), 0.999, "bumpy sphere");
+}
+
+// The compute rasterizer's two variants (vertices shared through workgroup memory, or each thread transforming its own
+// triangle's corners) snap with the same arithmetic, so they draw the same visibility buffer bit for bit: triangle ids
+// and depths, for plain, mirrored (winding flipped) and double-sided instances.
+TEST_F(RendererTest, ComputeRasterVariantsDrawTheSameVisibility) {
+    Renderer renderer(*device);
+    GpuScene scene;
+    const uint32_t sphere = scene.add_mesh(bumpy_sphere(48)), grid = scene.add_mesh(grid_mesh(24));
+    InstanceDesc plain = identity_instance(sphere), mirrored = identity_instance(sphere), sheet = identity_instance(grid);
+    // The spheres cut into each other and the sheet cuts into both: which surface wins a pixel along those curves
+    // follows the depths the rasterizer interpolated, so the ids test depth too.
+    plain.transform[3] = -0.6;
+    mirrored.transform[0] = -1;  // mirrored in x: the winding flips
+    mirrored.transform[3] = 0.6;
+    mirrored.primId = 1;
+    sheet.transform[5] = -1;  // half a turn about x: its back faces the camera
+    sheet.transform[10] = -1;
+    sheet.transform[7] = 0.7;
+    sheet.transform[11] = 0.4;
+    sheet.doubleSided = true;
+    sheet.primId = 2;
+    scene.set_instances({plain, mirrored, sheet});
+    RenderSettings settings{200, 120, {0, 0, 0, 0}};
+    settings.raster = RasterMode::Software;
+    settings.lod = false;  // every source triangle, to the compute rasterizer (but for clusters that are large on screen)
+    for (double distance : {4.0, 12.0}) {
+        std::vector<Image> images[2];
+        FrameStats stats[2];
+        for (int own = 0; own < 2; ++own) {
+            settings.rasterVertices = own ? RasterVertices::PerTriangle : RasterVertices::Shared;
+            images[own] = renderer.render(scene, camera_at(0, 0.2, distance), settings, {Aov::TriangleId, Aov::Depth, Aov::PrimId}, &stats[own]);
+            EXPECT_EQ(stats[own].swSharedVertices, !own);
+            EXPECT_GT(stats[own].swTriangles, 1000u) << "the compute rasterizer must draw the scene";
+        }
+        std::set<uint32_t> prims;
+        for (uint32_t y = 0; y < images[0][2].height; ++y)
+            for (uint32_t x = 0; x < images[0][2].width; ++x) prims.insert(id_at(images[0][2], x, y));
+        EXPECT_EQ(prims, (std::set<uint32_t>{0u, 1u, 2u, 0xffffffffu})) << "every instance and the background in view at " << distance;
+        for (size_t aov = 0; aov < 2; ++aov) {
+            ASSERT_EQ(images[0][aov].pixels.size(), images[1][aov].pixels.size());
+            size_t differing = 0;
+            for (size_t i = 0; i < images[0][aov].pixels.size(); ++i)
+                differing += std::memcmp(&images[0][aov].pixels[i], &images[1][aov].pixels[i], 4) != 0;  // as bits
+            EXPECT_EQ(differing, 0u) << (aov == 0 ? "triangle ids" : "depths") << " at distance " << distance;
+        }
+    }
 }
 
 TEST_F(RendererTest, SingleSidedBackFacesAreCulledDoubleSidedAreNot) {

@@ -155,6 +155,13 @@ enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primit
 // for the rest. The forced modes exist for tests and measurements (Software still sends clusters that touch the
 // near plane or cover a large area to hardware raster).
 enum class RasterMode { Auto, Hardware, Software };
+// How the compute rasterizer's workgroup gets its cluster's vertices on screen (both cover the same pixels, bit for bit).
+// Shared: each vertex transformed once into shared memory, then a barrier, then one thread per triangle (the GPU way).
+// PerTriangle: each thread transforms its own triangle's three corners, no shared memory, no barrier: on a CPU device
+// (lavapipe) a barrier makes a workgroup run as coroutines, which costs more than the repeated transforms
+// (docs/benchmarks.md). Auto: PerTriangle on a CPU device, Shared on a GPU; $TESSERA_RASTER_VERTICES (shared,
+// per-triangle) overrides Auto, for tests and measurements.
+enum class RasterVertices { Auto, Shared, PerTriangle };
 const char* visualize_name(Visualize mode);
 
 struct RenderSettings {
@@ -167,6 +174,7 @@ struct RenderSettings {
                       // with RasterMode::Auto they all go through hardware raster (the r.Nanite 0 baseline)
     Visualize visualize = Visualize::None;
     RasterMode raster = RasterMode::Auto;
+    RasterVertices rasterVertices = RasterVertices::Auto;
     // Auto mode: clusters whose triangles are estimated to cover less than this many pixels each go to the compute
     // rasterizer. Measured per device (docs/benchmarks.md: about 45 on lavapipe).
     float softwareRasterArea = 45.0f;
@@ -192,6 +200,7 @@ struct FrameStats {
     uint64_t visibleTriangles = 0;  // triangles of the cut's visible clusters
     uint64_t swTriangles = 0, hwTriangles = 0;  // of those, drawn by the compute rasterizer and by hardware raster
     uint32_t swClusters = 0;
+    bool swSharedVertices = false;  // the compute rasterizer's variant this frame: RasterVertices::Shared (else PerTriangle)
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
