@@ -134,6 +134,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["hw_triangles"] = s.hwTriangles;
     d["sw_clusters"] = s.swClusters;
     d["sw_raster_vertices"] = s.swSharedVertices ? "shared" : "per-triangle";
+    d["cull_group_size"] = s.cullGroupSize;
     d["overflow_redraws"] = s.overflowRedraws;
     d["visible_cluster_capacity"] = s.visibleClusterCapacity;
     d["occlusion_tested"] = s.occlusionTested;

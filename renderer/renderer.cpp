@@ -360,6 +360,7 @@ struct Renderer::Impl {
     VkDescriptorPool framePool = VK_NULL_HANDLE;
     VkDescriptorSet frameSet = VK_NULL_HANDLE;
     VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE;
+    uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // its workgroup size, chosen for the device (default_cull_group_size)
     VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
     // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
     // first needs them.
@@ -464,25 +465,30 @@ struct Renderer::Impl {
 
     // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES and TS_SPEC_AREA_LIGHTS (booleans),
     // TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*), TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*),
-    // TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it.
+    // TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it;
+    // TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size). A shader ignores the entries it does not declare.
     struct Variant {
-        uint32_t values[6];
-        VkSpecializationMapEntry entries[6] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
-                                               {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}};
-        VkSpecializationInfo info{6, entries, sizeof(values), values};
-        Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false)
+        uint32_t values[7];
+        VkSpecializationMapEntry entries[7] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+                                               {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4}};
+        VkSpecializationInfo info{7, entries, sizeof(values), values};
+        Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
+                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE)
             : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
-                     ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE} {}
+                     ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE, cullGroupSize} {}
         Variant(const Variant&) = delete;
     };
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, uint32_t pixels = TS_BIN_TRIANGLES,
-                                bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false) {
+                                bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
+                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, pixels, areaLights, output, ownCorners);
+        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize);
+        const bool specialized = textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ||
+                                 cullGroupSize != TS_CULL_GROUP_SIZE;
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
-                      textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ? &variant.info : nullptr};
+                      specialized ? &variant.info : nullptr};
         info.layout = layout;
         VkPipeline pipeline;
         const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
@@ -524,7 +530,8 @@ struct Renderer::Impl {
         layoutInfo.pushConstantRangeCount = 1;
         layoutInfo.pPushConstantRanges = &range;
         check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
-        cull = compute_pipeline(cull_comp, sizeof(cull_comp));
+        cullGroupSize = default_cull_group_size();
+        cull = compute_pipeline(cull_comp, sizeof(cull_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false, cullGroupSize);
         resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp));
         hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
         classify = compute_pipeline(classify_comp, sizeof(classify_comp));
@@ -557,6 +564,17 @@ struct Renderer::Impl {
             throw std::invalid_argument(std::string("TESSERA_RASTER_VERTICES='") + forced + "': expected shared or per-triangle");
         }
         return device.is_software();
+    }
+
+    // The cull's workgroup size: TS_CULL_SOFTWARE_GROUP_SIZE on a CPU device, TS_CULL_GROUP_SIZE on a GPU;
+    // $TESSERA_CULL_GROUP_SIZE (16, 32, 64, 128 or 256) overrides that, for tests and measurements.
+    uint32_t default_cull_group_size() const {
+        if (const char* forced = std::getenv("TESSERA_CULL_GROUP_SIZE"); forced && *forced) {
+            for (uint32_t size : {16u, 32u, 64u, 128u, 256u})
+                if (std::to_string(size) == forced) return size;
+            throw std::invalid_argument(std::string("TESSERA_CULL_GROUP_SIZE='") + forced + "': expected 16, 32, 64, 128 or 256");
+        }
+        return device.is_software() ? TS_CULL_SOFTWARE_GROUP_SIZE : TS_CULL_GROUP_SIZE;
     }
 
     bool own_corners(RasterVertices mode) const {
@@ -1189,6 +1207,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
     frameStats.swSharedVertices = !ownCorners;
+    frameStats.cullGroupSize = s.cullGroupSize;
     frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
     frameStats.instances = s.instanceCount;
     frameStats.instanceBatches = uint32_t(s.gpuBatches.size());

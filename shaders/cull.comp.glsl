@@ -11,7 +11,7 @@
 #include "frame.h"
 #include "occlusion.h"
 
-layout(local_size_x = TS_CULL_GROUP_SIZE) in;
+layout(local_size_x = TS_CULL_GROUP_SIZE, local_size_x_id = TS_SPEC_CULL_GROUP_SIZE) in;  // the device's size
 
 const float NEVER_FINE_ENOUGH = 3.4e38;
 
@@ -110,7 +110,7 @@ void defer_cluster(GpuFrame frame, uint instanceIndex, uint clusterIndex) {
     uint k = atomicAdd(draw.state.deferredClusters, 1u);
     if (k >= frame.counts.y) return;
     VisibleClusterRef(frame.deferredClusters).data[k] = uvec2(instanceIndex, clusterIndex);
-    atomicMax(draw.state.postGroupsX, min(k / TS_CULL_GROUP_SIZE + 1u, 65535u));
+    atomicMax(draw.state.postGroupsX, min(k / gl_WorkGroupSize.x + 1u, 65535u));
 }
 
 // The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup.
@@ -139,7 +139,7 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
             if (level.maxParentError < TS_ROOT_ERROR && level.maxParentError * scale * nearScale < threshold * 0.9999) continue;  // every parent fine enough
         }
         if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.candidateClusters, level.clusterCount);
-        for (uint c = gl_LocalInvocationIndex; c < level.clusterCount; c += TS_CULL_GROUP_SIZE) {
+        for (uint c = gl_LocalInvocationIndex; c < level.clusterCount; c += gl_WorkGroupSize.x) {
             uint clusterIndex = mesh.clusterOffset + level.clusterOffset + c;
             GpuCluster cluster = ClusterRef(frame.clusters).data[clusterIndex];
             if (lod) {
@@ -229,11 +229,11 @@ void test_instance(GpuFrame frame, uint step, uint thread) {
     }
 }
 
-// A workgroup tests TS_CULL_INSTANCES_PER_GROUP consecutive instances, each thread every TS_CULL_GROUP_SIZE-th: on
+// A workgroup tests TS_CULL_INSTANCES_PER_GROUP consecutive instances, each thread every gl_WorkGroupSize.x-th: on
 // lavapipe a workgroup of this shader costs about 30 us before it does anything, so each must do much.
 void test_instances(GpuFrame frame, uint step) {
     uint first = (gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x) * TS_CULL_INSTANCES_PER_GROUP;
-    for (uint i = gl_LocalInvocationIndex; i < TS_CULL_INSTANCES_PER_GROUP; i += TS_CULL_GROUP_SIZE) test_instance(frame, step, first + i);
+    for (uint i = gl_LocalInvocationIndex; i < TS_CULL_INSTANCES_PER_GROUP; i += gl_WorkGroupSize.x) test_instance(frame, step, first + i);
 }
 
 // Main pass: one workgroup per listed instance.
@@ -249,7 +249,7 @@ void post_pass(GpuFrame frame) {
     uint instances = min(draw.state.cutInstances, frame.hzb.y);
     for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) cut_instance(frame, TS_CULL_POST, UintRef(frame.cutList).data[i]);
     uint clusters = min(draw.state.deferredClusters, frame.counts.y);
-    for (uint i = gl_GlobalInvocationID.x; i < clusters; i += gl_NumWorkGroups.x * TS_CULL_GROUP_SIZE) {
+    for (uint i = gl_GlobalInvocationID.x; i < clusters; i += gl_NumWorkGroups.x * gl_WorkGroupSize.x) {
         uvec2 entry = VisibleClusterRef(frame.deferredClusters).data[i];
         Instance instance = load_instance(frame, entry.x);
         GpuCluster cluster = ClusterRef(frame.clusters).data[entry.y];

@@ -205,9 +205,16 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // (RasterVertices::PerTriangle, for CPU devices), and the workgroup size (local_size_x_id), which follows the variant.
 #define TS_SPEC_OWN_CORNERS 4
 #define TS_SPEC_RASTER_GROUP_SIZE 5
+// The cull's workgroup size (cull.comp.glsl, local_size_x_id): TS_CULL_GROUP_SIZE on a GPU, TS_CULL_SOFTWARE_GROUP_SIZE on
+// a CPU device.
+#define TS_SPEC_CULL_GROUP_SIZE 6
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
+// On a CPU device: lavapipe runs a workgroup 8 invocations at a time, each batch loading the instance and its level
+// table again; 16 threads striding over a level's clusters cost about a fifth of 64's cull time on the 1e6 field and a
+// third on the 1e10 one (docs/benchmarks.md).
+#define TS_CULL_SOFTWARE_GROUP_SIZE 16
 #define TS_CULL_INSTANCES_PER_GROUP 2048  // the cull's instance steps: instances tested per workgroup
 // A first frame (no previous HZB) draws in its main pass only the instances likely to hide others: those whose bounds
 // project at least this fraction of the viewport's smaller side across (radius), or reach the camera plane. The post

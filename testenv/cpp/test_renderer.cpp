@@ -435,6 +435,50 @@ TEST_F(RendererTest, OcclusionCullingChangesCountsNotTheImage) {
     EXPECT_TRUE(movedStats.occlusionTested);
 }
 
+// The cull's workgroup size is chosen per device (TS_CULL_GROUP_SIZE on a GPU, TS_CULL_SOFTWARE_GROUP_SIZE on a CPU):
+// every size culls, cuts and defers the same clusters, so the frames are the same bit for bit.
+TEST_F(RendererTest, CullWorkgroupSizesDrawTheSameFrames) {
+    GpuScene scene;
+    const uint32_t sphere = scene.add_mesh(bumpy_sphere(48));
+    std::vector<InstanceDesc> instances = wall_and_spheres(scene.add_mesh(grid_mesh(16)), sphere);
+    for (int i = 0; i < 60; ++i) {  // beside the wall, more than a workgroup's threads: each thread strides over several
+        InstanceDesc s = identity_instance(sphere);
+        s.transform[0] = s.transform[5] = s.transform[10] = 0.15;
+        s.transform[3] = -4.5 + 0.3 * (i % 10), s.transform[7] = 2.6 + 0.3 * (i / 10), s.transform[11] = -1.0 - 0.05 * i;
+        s.primId = uint32_t(200 + i);
+        instances.push_back(s);
+    }
+    scene.set_instances(instances);
+    RenderSettings settings{160, 128, {0, 0, 0, 0}};
+    settings.pixelError = 0;  // source clusters: a sphere's level holds more clusters than a workgroup has threads
+    const std::vector<Aov> aovs = {Aov::PrimId, Aov::ClusterId, Aov::TriangleId, Aov::Depth};
+    std::vector<Image> frames[2][2];
+    FrameStats stats[2][2];
+    const uint32_t sizes[2] = {TS_CULL_GROUP_SIZE, TS_CULL_SOFTWARE_GROUP_SIZE};
+    for (int k = 0; k < 2; ++k) {
+        setenv("TESSERA_CULL_GROUP_SIZE", std::to_string(sizes[k]).c_str(), 1);
+        Renderer renderer(*device);  // the size is chosen when the pipelines are made
+        unsetenv("TESSERA_CULL_GROUP_SIZE");
+        frames[k][0] = renderer.render(scene, camera_at(0, 0.5, 7), settings, aovs, &stats[k][0]);  // first frame: no HZB yet
+        frames[k][1] = renderer.render(scene, camera_at(0.3, 0.4, 6.5), settings, aovs, &stats[k][1]);  // the HZB reprojected
+        EXPECT_EQ(stats[k][0].cullGroupSize, sizes[k]);
+    }
+    for (int f = 0; f < 2; ++f) {
+        expect_same_images(frames[0][f], frames[1][f], f ? "second frame" : "first frame");
+        const FrameStats &a = stats[0][f], &b = stats[1][f];
+        EXPECT_EQ(a.visibleClusters, b.visibleClusters) << "frame " << f;
+        EXPECT_EQ(a.candidateClusters, b.candidateClusters) << "frame " << f;
+        EXPECT_EQ(a.swTriangles, b.swTriangles) << "frame " << f;
+        EXPECT_EQ(a.hwTriangles, b.hwTriangles) << "frame " << f;
+        EXPECT_EQ(a.occludedInstances, b.occludedInstances) << "frame " << f;
+        EXPECT_EQ(a.occludedClusters, b.occludedClusters) << "frame " << f;
+        EXPECT_EQ(a.postPassClusters, b.postPassClusters) << "frame " << f;
+        EXPECT_GT(a.visibleClusters, 60u) << "the small spheres are drawn";
+    }
+    EXPECT_GT(stats[0][0].occludedInstances, 0u) << "the first frame tests the spheres behind the wall against it";
+    EXPECT_GT(stats[0][1].occludedClusters + stats[0][1].occludedInstances, 0u);
+}
+
 TEST_F(RendererTest, ThePostPassDrawsWhatTheLastFrameHid) {
     GpuScene scene;
     scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));

@@ -201,6 +201,7 @@ struct FrameStats {
     uint64_t swTriangles = 0, hwTriangles = 0;  // of those, drawn by the compute rasterizer and by hardware raster
     uint32_t swClusters = 0;
     bool swSharedVertices = false;  // the compute rasterizer's variant this frame: RasterVertices::Shared (else PerTriangle)
+    uint32_t cullGroupSize = 0;     // the cull's workgroup size on this device (TS_CULL_*GROUP_SIZE)
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
