@@ -26,6 +26,19 @@ def shared_asset(relative: str) -> Path:
     return path
 
 
+def stage_with_camera():
+    """An in-memory stage with /Camera at z = 10 looking down -z, apertures 40 x 20 mm (it sees x in [-8, 8] and y in
+    [-4, 4] at z = 0)."""
+    from pxr import Gf, Usd, UsdGeom
+
+    stage = Usd.Stage.CreateInMemory()
+    camera = UsdGeom.Camera.Define(stage, "/Camera")
+    camera.AddTranslateOp().Set(Gf.Vec3d(0, 0, 10))
+    camera.GetHorizontalApertureAttr().Set(40.0)
+    camera.GetVerticalApertureAttr().Set(20.0)
+    return stage
+
+
 def preview_material(stage, path, color):
     """A UsdPreviewSurface material of one diffuse colour at `path`."""
     from pxr import Gf, Sdf, UsdShade

@@ -5,10 +5,11 @@ prims inside honour their own purpose and visibility. Instances are grouped by (
 rprim per prototype gprim and part, all sharing one built mesh."""
 
 import numpy as np
-from pxr import Gf, Usd, UsdGeom
+from pxr import Gf, UsdGeom
 
 import tessera
 from tessera import _tessera
+from conftest import stage_with_camera
 
 DIRTY = _tessera.dirty
 RESOLUTION = (200, 100)  # the camera sees x in [-4, 4], y in [-2, 2]: 25 pixels per unit
@@ -28,11 +29,7 @@ def _square(stage, path, x0, y0, x1, y1):
 
 def _stage():
     """Four native instances of one tile in a row, seen from z = 10: T1 invisible, T2 of purpose proxy."""
-    stage = Usd.Stage.CreateInMemory()
-    camera = UsdGeom.Camera.Define(stage, "/Camera")
-    camera.AddTranslateOp().Set(Gf.Vec3d(0, 0, 10))
-    camera.GetHorizontalApertureAttr().Set(40.0)
-    camera.GetVerticalApertureAttr().Set(20.0)
+    stage = stage_with_camera()
     assets = UsdGeom.Scope.Define(stage, "/Assets")
     assets.GetVisibilityAttr().Set(UsdGeom.Tokens.invisible)
     UsdGeom.Xform.Define(stage, "/Assets/Tile")

@@ -6,9 +6,10 @@ is folded into a copy of the material and costs nothing per vertex."""
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 import tessera
+from conftest import stage_with_camera
 
 RESOLUTION = (200, 100)  # the camera sees x in [-4, 4], y in [-2, 2]: 25 pixels per unit
 _TYPES = {1: Sdf.ValueTypeNames.Float, 3: Sdf.ValueTypeNames.Color3f}
@@ -16,11 +17,7 @@ _READERS = {1: "UsdPrimvarReader_float", 3: "UsdPrimvarReader_float3"}
 
 
 def _stage():
-    stage = Usd.Stage.CreateInMemory()
-    camera = UsdGeom.Camera.Define(stage, "/Camera")
-    camera.AddTranslateOp().Set(Gf.Vec3d(0, 0, 10))
-    camera.GetHorizontalApertureAttr().Set(40.0)
-    camera.GetVerticalApertureAttr().Set(20.0)
+    stage = stage_with_camera()
     return stage
 
 

@@ -6,20 +6,17 @@ something else drives diffuseColor) are neither read nor uploaded."""
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+from pxr import Gf, Sdf, UsdGeom, UsdShade
 
 import tessera
 from tessera import _tessera
+from conftest import stage_with_camera
 
 RESOLUTION = (200, 100)  # the camera sees x in [-4, 4], y in [-2, 2]: 25 pixels per unit
 
 
 def _stage():
-    stage = Usd.Stage.CreateInMemory()
-    camera = UsdGeom.Camera.Define(stage, "/Camera")
-    camera.AddTranslateOp().Set(Gf.Vec3d(0, 0, 10))
-    camera.GetHorizontalApertureAttr().Set(40.0)
-    camera.GetVerticalApertureAttr().Set(20.0)
+    stage = stage_with_camera()
     return stage
 
 

@@ -7,16 +7,13 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 import tessera
+from conftest import stage_with_camera
 
 NO_HIT = 0xFFFFFFFF
 
 
 def _stage():
-    stage = Usd.Stage.CreateInMemory()
-    camera = UsdGeom.Camera.Define(stage, "/Camera")
-    camera.AddTranslateOp().Set(Gf.Vec3d(0, 0, 10))
-    camera.GetHorizontalApertureAttr().Set(40.0)
-    camera.GetVerticalApertureAttr().Set(20.0)
+    stage = stage_with_camera()
     quad = UsdGeom.Mesh.Define(stage, "/Quad")
     quad.GetPointsAttr().Set([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
     quad.GetFaceVertexCountsAttr().Set([4])
