@@ -253,3 +253,11 @@ def test_the_fallback_surface_inherits_a_constant_display_color_and_follows_its_
     result = render()
     assert _is(_rgb(result, -3.0), (1, 1, 0)) and _is(_rgb(result, 1.0), (0, 1, 1)), "edits of the ancestor's primvars"
     assert set(session.index.last_synced) == {"/World/Group/Inherits", "/World/Group/Own", "/World/Group/Tinted"}
+
+    group.CreatePrimvar("unread", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.constant).Set([0.5])
+    render()
+    assert not session.index.last_synced, "a primvar no material reads dirties nothing"
+    group.GetPrimvar("tint").Set([(1, 0, 1)])
+    result = render()
+    assert set(session.index.last_synced) == {"/World/Group/Tinted"}, "only the mesh whose reader reads it"
+    assert _is(_rgb(result, 1.0), (1, 0, 1))

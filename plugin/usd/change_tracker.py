@@ -25,7 +25,8 @@ property dirties:
 | `orientation`, `subdivisionScheme`, subdivision tags             |                                                          |
 | (`interpolateBoundary`, `crease*`, `corner*`, ...)               |                                                          |
 | `normals`, `primvars:*`                                          | GPRIM DirtyPrimvar                                       |
-| `primvars:*` on another imageable prim (an Xform, a Scope)       | SUBTREE DirtyPrimvar (constant primvars are inherited)   |
+| `primvars:*` on another imageable prim (an Xform, a Scope)       | INHERITED_PRIMVAR DirtyPrimvar on the meshes under it    |
+|                                                                  | that read that primvar (constant primvars are inherited) |
 | `doubleSided`                                                    | GPRIM DirtyDoubleSided                                   |
 | `tessera:*` (TesseraMeshAPI build settings)                      | GPRIM DirtyTopology (the mesh is built again)            |
 | anything else (`extent`, custom attributes, prim metadata)       | nothing                                                  |
@@ -54,6 +55,7 @@ EVERY_MESH = "every mesh"
 INSTANCER = "instancer"
 SPRIM = "sprim"
 GPRIM = "gprim"
+INHERITED_PRIMVAR = "inherited primvar"
 
 
 class Effect(NamedTuple):
@@ -96,7 +98,7 @@ def classify(prim: Usd.Prim, name: str) -> Effect | None:
         if name == "doubleSided":
             return Effect(GPRIM, _dirty.DOUBLE_SIDED)
     elif name.startswith("primvars:") and prim.IsA(UsdGeom.Imageable):
-        return Effect(SUBTREE, _dirty.PRIMVAR)  # a constant primvar the meshes below inherit
+        return Effect(INHERITED_PRIMVAR, _dirty.PRIMVAR)  # a constant primvar the meshes below may inherit
     return None
 
 

@@ -819,11 +819,25 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             if not prim:
                 continue
             for name in sorted(names):
-                if name == "primvars:displayColor" and not prim.IsA(UsdGeom.Gprim):
-                    self._inherited_display_color = True
                 effect = change_tracker.classify(prim, name)
-                if effect is not None:
+                if effect is None:
+                    continue
+                if effect.scope == change_tracker.INHERITED_PRIMVAR:
+                    self._inherited_primvar_edited(path, name)
+                else:
                     self._apply(path, prim, effect)
+
+    def _inherited_primvar_edited(self, path: str, name: str) -> None:
+        """A primvar edited on a prim that is not a gprim: the meshes under it whose materials read that primvar (a
+        reader's, or the fallback surface's displayColor) read their primvars again; the others are left alone (a
+        primvar nothing reads rebuilds nothing)."""
+        primvar = name[len("primvars:"):].removesuffix(":indices")
+        if primvar == "displayColor":
+            self._inherited_display_color = True
+        for id in self._paths.under(path):
+            record = self.rprims.get(id)
+            if record is not None and record.group is None and any(r.primvar == primvar for r in self._primvar_needs(record).channel):
+                self.index.mark_dirty(id, _dirty.PRIMVAR)
 
     def _apply(self, path: str, prim: Usd.Prim, effect: change_tracker.Effect) -> None:
         scope, bits = effect
