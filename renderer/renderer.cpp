@@ -1471,20 +1471,23 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             if (occlusion) s.build_hzb(cmd, TS_HZB_FINAL);
             mark();
 
-            // Material bins: count covered pixels per material, give each bin its range and dispatch arguments, scatter.
+            // Material bins: count covered pixels per material, give each bin its range and dispatch arguments, scatter
+            // (or, when only one bin is possible, list the covered pixels and give it its dispatch arguments).
             auto compute_barrier = [&]() {
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                         VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
             };
             const uint32_t tilesX = (settings.width + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE, tilesY = (settings.height + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE;
-            for (uint32_t step : {TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
+            const bool oneBin = s.materialCount * s.bin_kinds() == 1;  // nothing to sort: list the covered pixels
+            for (uint32_t step : {oneBin ? TS_CLASSIFY_ONE_BIN : TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
+                if (oneBin && step == TS_CLASSIFY_SCATTER) break;
                 PushConstants classifyPush{0, step, 0};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(classifyPush), &classifyPush);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.classify);
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 compute_barrier();
-                if (step == TS_CLASSIFY_COUNT) {
+                if (step != TS_CLASSIFY_SCATTER) {
                     vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.bins);
                     vkCmdDispatch(cmd, 1, 1, 1);
                     compute_barrier();

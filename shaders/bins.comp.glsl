@@ -15,7 +15,6 @@ void main() {
     for (uint m = 0u; m < binCount; ++m) {
         uint count = bins.data[m].count;
         bins.data[m].offset = offset;
-        bins.data[m].cursor = 0u;
         uint groups = (count + TS_SHADE_GROUP_SIZE - 1u) / TS_SHADE_GROUP_SIZE;
         bins.data[m].groupsX = min(groups, 65535u);
         bins.data[m].groupsY = (groups + 65534u) / 65535u;

@@ -1,19 +1,32 @@
-// Material bins, one thread per pixel. Count step: each covered pixel adds one to its bin: its material's, and for
-// a micro-triangle its kind's (TS_BIN_*: resolve has a variant per kind). Scatter step (after bins.comp.glsl gave each
-// bin its range): each covered pixel writes its index into its bin's range.
+// Material bins, one thread per pixel. Count step: each covered pixel takes the next place in its bin (its material's,
+// and for a micro-triangle its kind's, TS_BIN_*: resolve has a variant per kind) and notes bin and place. Scatter step
+// (after bins.comp.glsl gave each bin its range): each covered pixel writes its index at its place in its bin's range.
+// A frame with a single possible bin (one material, no displacement) runs the one-bin step alone: the place is the
+// pixel's entry, with nothing to decode and no second pass.
 #version 460
 #extension GL_GOOGLE_include_directive : require
+#extension GL_KHR_shader_subgroup_ballot : require
 #include "frame.h"
 
 layout(local_size_x = TS_PIXEL_TILE, local_size_y = TS_PIXEL_TILE) in;
 
-void main() {
-    GpuFrame frame = frameConstants;
-    uvec2 pixel = gl_GlobalInvocationID.xy;
-    if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
-    uint index = pixel.y * frame.viewport.x + pixel.x;
-    uint64_t value = VisibilityRef(frame.visibility).data[index];
-    if (value == 0ul) return;
+// The next free place in `bin` for each lane, with one atomic per distinct bin in the subgroup, not one per pixel:
+// neighbouring pixels mostly share a bin, and on a CPU device every lane's atomic is a locked instruction that all
+// cores fight over.
+uint take_place(uint bin) {
+    BinRef bins = BinRef(frameConstants.bins);
+    for (;;) {  // each round serves the lanes of one bin: the lowest active lane's
+        if (bin == subgroupBroadcastFirst(bin)) {
+            uvec4 lanes = subgroupBallot(true);
+            uint first = 0u;
+            if (subgroupElect()) first = atomicAdd(bins.data[bin].count, subgroupBallotBitCount(lanes));
+            return subgroupBroadcastFirst(first) + subgroupBallotExclusiveBitCount(lanes);
+        }
+    }
+}
+
+// The bin of a covered pixel's visibility value.
+uint pixel_bin(GpuFrame frame, uint64_t value) {
     Payload payload = decode_payload(frame, uint(value));
     uvec2 visible = visible_cluster(frame, payload.slot);
     Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
@@ -22,11 +35,27 @@ void main() {
         bool kept = PatchRef(frame.patches).data[payload.patchIndex].points != TS_NO_STREAM;
         bin += (kept ? TS_BIN_KEPT_MICRO : TS_BIN_DICED_MICRO) * frame.viewport.z;
     }
-    BinRef bins = BinRef(frame.bins);
-    if (push.step == TS_CLASSIFY_COUNT) {
-        atomicAdd(bins.data[bin].count, 1u);
-    } else {
-        uint k = atomicAdd(bins.data[bin].cursor, 1u);
-        CounterRef(frame.binPixels).data[bins.data[bin].offset + k] = index;
+    return bin;
+}
+
+void main() {
+    GpuFrame frame = frameConstants;
+    uvec2 pixel = gl_GlobalInvocationID.xy;
+    if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
+    uint index = pixel.y * frame.viewport.x + pixel.x;
+    PixelBinRef places = PixelBinRef(frame.aovOutput);
+    if (push.step == TS_CLASSIFY_SCATTER) {
+        uvec2 place = places.data[index];
+        if (place.x != TS_NO_BIN) CounterRef(frame.binPixels).data[BinRef(frame.bins).data[place.x].offset + place.y] = index;
+        return;
     }
+    uint64_t value = VisibilityRef(frame.visibility).data[index];
+    if (value == 0ul) {
+        if (push.step == TS_CLASSIFY_COUNT) places.data[index] = uvec2(TS_NO_BIN, 0u);
+        return;
+    }
+    uint bin = push.step == TS_CLASSIFY_ONE_BIN ? 0u : pixel_bin(frame, value);
+    uint place = atomicAdd(BinRef(frame.bins).data[bin].count, 1u);
+    if (push.step == TS_CLASSIFY_ONE_BIN) CounterRef(frame.binPixels).data[place] = index;  // the only bin starts at 0
+    else places.data[index] = uvec2(bin, place);
 }

@@ -20,6 +20,9 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer DrawStateRe
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibilityRef { uint64_t data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputRef { vec4 data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer OutputIdRef { uvec4 data[]; };
+// classify.comp.glsl's (bin, place in the bin) per pixel, kept in the AOV output between its count and scatter steps
+// (resolve writes the AOVs only after): no memory of its own.
+layout(buffer_reference, std430, buffer_reference_align = 8) buffer PixelBinRef { uvec2 data[]; };
 
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer HzbRef { float data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchRef { GpuPatch data[]; };

@@ -39,16 +39,18 @@ void main() {
     uvec2 size = hzb_level_size(frame, level);
     uvec2 texel = gl_GlobalInvocationID.xy;
     if (texel.x >= size.x || texel.y >= size.y) return;
+    // The 2x2 below, clamped at the last row and column (repeating a texel changes no minimum): no per-texel branch.
     uvec2 below = level == 0u ? frame.viewport.xy : hzb_level_size(frame, level - 1u);
-    uint belowOffset = level == 0u ? 0u : hzb_level_offset(frame, level - 1u);
-    float farthest = 3.4e38;
-    for (uint dy = 0u; dy < 2u; ++dy)
-        for (uint dx = 0u; dx < 2u; ++dx) {
-            uvec2 p = texel * 2u + uvec2(dx, dy);
-            if (p.x >= below.x || p.y >= below.y) continue;
-            float depth = level == 0u ? uintBitsToFloat(uint(VisibilityRef(frame.visibility).data[p.y * below.x + p.x] >> 32))
-                                      : push.hzb.data[belowOffset + p.y * below.x + p.x];
-            farthest = min(farthest, depth);
-        }
+    uvec2 p0 = min(texel * 2u, below - 1u), p1 = min(texel * 2u + 1u, below - 1u);
+    float farthest;
+    if (level == 0u) {
+        VisibilityRef visibility = VisibilityRef(frame.visibility);
+        uint row0 = p0.y * below.x, row1 = p1.y * below.x;
+        farthest = min(min(uintBitsToFloat(uint(visibility.data[row0 + p0.x] >> 32)), uintBitsToFloat(uint(visibility.data[row0 + p1.x] >> 32))),
+                       min(uintBitsToFloat(uint(visibility.data[row1 + p0.x] >> 32)), uintBitsToFloat(uint(visibility.data[row1 + p1.x] >> 32))));
+    } else {
+        uint row0 = hzb_level_offset(frame, level - 1u) + p0.y * below.x, row1 = row0 + (p1.y - p0.y) * below.x;
+        farthest = min(min(push.hzb.data[row0 + p0.x], push.hzb.data[row0 + p1.x]), min(push.hzb.data[row1 + p0.x], push.hzb.data[row1 + p1.x]));
+    }
     push.hzb.data[hzb_level_offset(frame, level) + texel.y * size.x + texel.x] = farthest;
 }

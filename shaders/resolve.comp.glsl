@@ -122,8 +122,11 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     vec3 geometric = normalize(cross(e1, e2));
     vec3 n = geometric;  // a micro-triangle's own normal is the displaced surface's
     if (!diced) {
+        // The inverse transpose up to a positive scale (normalized below): the cofactor matrix, its sign the
+        // determinant's. Three cross products instead of a general inverse per pixel.
         mat3 toWorld = transpose(mat3(instance.rows[0].xyz, instance.rows[1].xyz, instance.rows[2].xyz));
-        mat3 normalMatrix = transpose(inverse(toWorld));
+        vec3 a = toWorld[0], b = toWorld[1], c = toWorld[2];
+        mat3 normalMatrix = mat3(cross(b, c), cross(c, a), cross(a, b)) * (dot(a, cross(b, c)) < 0.0 ? -1.0 : 1.0);
         UintRef normals = UintRef(frame.normals);
         vec3 objectNormal = bary.x * decode_octahedral(normals.data[v0]) + bary.y * decode_octahedral(normals.data[v1]) +
                             bary.z * decode_octahedral(normals.data[v2]);

@@ -157,6 +157,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // a pass of its own writes the background.
 #define TS_CLASSIFY_COUNT 0u
 #define TS_CLASSIFY_SCATTER 1u
+#define TS_CLASSIFY_ONE_BIN 2u  // a frame whose pixels can only fall in one bin: listed at once, no count or scatter
+#define TS_NO_BIN 0xffffffffu   // classify's mark for a pixel nothing covers
 
 // Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
 #define TS_VISIBLE_SOFTWARE 0x80000000u
@@ -220,7 +222,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // project at least this fraction of the viewport's smaller side across (radius), or reach the camera plane. The post
 // pass tests the rest against the HZB of those.
 #define TS_OCCLUDER_FRACTION 0.125
-#define TS_PIXEL_TILE 8         // classify: 8x8 pixels per workgroup
+#define TS_PIXEL_TILE 8        // classify: 8x8 pixels per workgroup
 #define TS_SHADE_GROUP_SIZE 64  // resolve: a material bin's pixels per workgroup
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
 // The compute rasterizer's variant for CPU devices: one workgroup of 16 per cluster, each thread every 16th triangle.
@@ -459,8 +461,7 @@ struct GpuBin {
     uint groupsZ;
     uint count;            // covered pixels of this material and kind (TS_BIN_*)
     uint offset;           // first entry in the bin pixel list
-    uint cursor;           // entries scattered so far
-    uint pad0, pad1;
+    uint pad0, pad1, pad2;
 };
 TS_CHECK_SIZE(GpuBin, 32);
 
