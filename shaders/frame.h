@@ -95,6 +95,14 @@ uint corner_vertex(GpuFrame frame, GpuCluster cluster, uint triangle, uint corne
     return cluster.vertexOffset + ((packed >> (8u * corner)) & 0xffu);
 }
 
+// The three corners' vertices at once: one load of the packed triangle, not one per corner (on a CPU device every
+// load of a per-pixel address is a loop over the lanes).
+uvec3 triangle_vertices(GpuFrame frame, GpuCluster cluster, uint triangle, bool flip) {
+    uint packed = UintRef(frame.triangles).data[cluster.triangleOffset + triangle];
+    uvec3 v = cluster.vertexOffset + (uvec3(packed, packed >> 8u, packed >> 16u) & 0xffu);
+    return flip ? v.xzy : v;
+}
+
 // Largest factor by which the instance transform stretches a length: the square root of the largest eigenvalue of
 // A^T A (A the linear part), in closed form (Smith's trigonometric solution for symmetric 3x3 matrices, as the CPU did).
 float instance_scale(Instance instance) {

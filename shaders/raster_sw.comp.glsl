@@ -56,9 +56,8 @@ void main() {
 
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
     for (uint triangle = gl_LocalInvocationIndex; triangle < cluster.triangleCount; triangle += gl_WorkGroupSize.x) {
-        uint i0 = corner_vertex(frame, cluster, triangle, 0u, flip);
-        uint i1 = corner_vertex(frame, cluster, triangle, 1u, flip);
-        uint i2 = corner_vertex(frame, cluster, triangle, 2u, flip);
+        uvec3 corners = triangle_vertices(frame, cluster, triangle, flip);
+        uint i0 = corners.x, i1 = corners.y, i2 = corners.z;
         ivec2 a, b, c;
         float za, zb, zc;
         if (OWN_CORNERS) {

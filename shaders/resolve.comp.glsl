@@ -63,7 +63,9 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
         return;
     }
 
-    Payload payload = decode_payload(frame, uint(value));
+    // A bin of clusters' own triangles holds no micro-triangle: no patch to look up (a branch is not free on a CPU device).
+    Payload payload = PIXELS == TS_BIN_TRIANGLES ? Payload(uint(value) >> TS_VIS_TRIANGLE_BITS, uint(value) & ((1u << TS_VIS_TRIANGLE_BITS) - 1u), 0xffffffffu, 0u)
+                                                 : decode_payload(frame, uint(value));
     uint triangle = payload.triangle;
     uvec2 visible = visible_cluster(frame, payload.slot);
     bool software = (visible.x & TS_VISIBLE_SOFTWARE) != 0u;

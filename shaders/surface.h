@@ -104,9 +104,10 @@ PixelTriangle pixel_triangle(GpuFrame frame, Instance instance, GpuCluster clust
     PixelTriangle t;
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
     vec3 translation = camera_relative_translation(instance);
-    t.v0 = corner_vertex(frame, cluster, triangle, 0u, flip);
-    t.v1 = corner_vertex(frame, cluster, triangle, 1u, flip);
-    t.v2 = corner_vertex(frame, cluster, triangle, 2u, flip);
+    uvec3 v = triangle_vertices(frame, cluster, triangle, flip);
+    t.v0 = v.x;
+    t.v1 = v.y;
+    t.v2 = v.z;
     t.p0 = to_camera_relative(instance, translation, vertex_position(frame, t.v0));
     t.e1 = to_camera_relative(instance, translation, vertex_position(frame, t.v1)) - t.p0;
     t.e2 = to_camera_relative(instance, translation, vertex_position(frame, t.v2)) - t.p0;
