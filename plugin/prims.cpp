@@ -36,7 +36,7 @@ std::optional<DisplacementBake> displacement_bake(const MaterialDesc& m) {
 
 MeshTable::Handle MeshTable::acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param) {
     validate_settings(settings);
-    std::string key = MeshCache::key(view, settings);
+    const MeshCache::Digest key = MeshCache::digest(view, settings);
     auto found = byKey_.find(key);
     if (found != byKey_.end()) {
         Shared& shared = found->second;
@@ -44,14 +44,14 @@ MeshTable::Handle MeshTable::acquire(const MeshView& view, const BuildSettings& 
         ++param.meshesShared;
         for (const std::string& warning : shared.warnings)  // this prim has the same problems: say so by its name
             param.warnings.push_back(warning.rfind(shared.name + ": ", 0) == 0 ? view.name + warning.substr(shared.name.size()) : warning);
-        return {shared.gpuMesh, std::move(key)};
+        return {shared.gpuMesh, key};
     }
-    CachedBuild built = build_through_cache(view, settings, cache_);
+    CachedBuild built = build_through_cache(view, settings, cache_, &key);
     ++(built.fromCache ? param.meshesFromCache : param.meshesBuilt);
     Shared& shared = byKey_[key];
-    shared = {scene_.add_mesh(std::move(built.mesh)), 1, view.name, built.warnings};
+    shared = {scene_.add_mesh(std::move(built.mesh)), 1, built.warnings.empty() ? std::string() : view.name, built.warnings};
     for (auto& w : built.warnings) param.warnings.push_back(std::move(w));
-    return {shared.gpuMesh, std::move(key)};
+    return {shared.gpuMesh, key};
 }
 
 void MeshTable::release(const Handle& handle) {

@@ -225,18 +225,19 @@ nb::ndarray<T, nb::numpy, nb::shape<-1, 3>> rows_of_three(std::vector<T> values)
 }
 
 nb::dict fallback_dict(const BuiltMesh& built) {
-    const FallbackMesh& f = built.fallback;
+    FallbackMesh f = fallback_mesh(built);  // extracted now: built meshes keep only its cut
     std::vector<float> positions(f.positions.size());  // object space, through double
     for (size_t i = 0; i < positions.size(); ++i) positions[i] = float(built.origin[i % 3] + double(f.positions[i]));
     nb::dict d;
     d["positions"] = rows_of_three(std::move(positions));
-    d["normals"] = rows_of_three(f.normals);
-    d["indices"] = rows_of_three(f.indices);
+    const size_t triangles = f.indices.size() / 3;
+    d["normals"] = rows_of_three(std::move(f.normals));
+    d["indices"] = rows_of_three(std::move(f.indices));
     // None where the mesh has no such attribute.
-    d["colors"] = f.colors.empty() ? nb::none() : nb::object(nb::cast(rows_of<4>(f.colors)));
-    d["uvs"] = f.uvs.empty() ? nb::none() : nb::object(nb::cast(rows_of<2>(f.uvs)));
-    d["material_slots"] = f.materialSlots.empty() ? nb::none() : nb::object(nb::cast(rows_of<1>(f.materialSlots)));
-    d["triangles"] = f.indices.size() / 3;
+    d["colors"] = f.colors.empty() ? nb::none() : nb::object(nb::cast(rows_of<4>(std::move(f.colors))));
+    d["uvs"] = f.uvs.empty() ? nb::none() : nb::object(nb::cast(rows_of<2>(std::move(f.uvs))));
+    d["material_slots"] = f.materialSlots.empty() ? nb::none() : nb::object(nb::cast(rows_of<1>(std::move(f.materialSlots))));
+    d["triangles"] = triangles;
     d["error"] = f.error;
     d["relative_error"] = built.size > 0 ? f.error / built.size : 0.0f;
     return d;

@@ -106,21 +106,22 @@ public:
     MeshTable(GpuScene& scene, const MeshCache& cache) : scene_(scene), cache_(cache) {}
     struct Handle {
         uint32_t gpuMesh;
-        std::string key;
+        MeshCache::Digest key;
     };
     // The GPU scene mesh for `view`: shared, else loaded from the cache, else built (throws MeshError).
     Handle acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param);
     void release(const Handle& handle);
 
 private:
+    // Kept small (100 k distinct meshes are 100 k of these): the name only where there are warnings to rename.
     struct Shared {
         uint32_t gpuMesh = 0, users = 0;
-        std::string name;  // of the prim it was built for: its warnings name it
+        std::string name;  // of the prim it was built for, which its warnings name ("" without warnings)
         std::vector<std::string> warnings;
     };
     GpuScene& scene_;
     const MeshCache& cache_;
-    std::unordered_map<std::string, Shared> byKey_;
+    std::unordered_map<MeshCache::Digest, Shared, MeshCache::DigestHash> byKey_;
 };
 
 // Base of every prim kind.
