@@ -267,6 +267,20 @@ def test_the_short_mesh_read_matches_the_full_one(orientation, double_sided, sch
     assert np.array_equal(normals, full_normals)
 
 
+def test_the_short_read_borrows_arrays_of_any_shape_and_refuses_other_types():
+    """plain_mesh_source (the short path's one call) takes USD's points as numpy gives them, (N, 3), without a copy,
+    and names the mesh when an array is of another type."""
+    points = np.array([(0, 0, 0), (1, 0, 0), (0, 1, 0)], np.float32)
+    counts, indices = np.array([3], np.int32), np.array([0, 1, 2], np.int32)
+    from tessera import _tessera
+
+    assert isinstance(_tessera.plain_mesh_source("/Tri", points, counts, indices, False, True, "none", 0), _tessera.MeshSource)
+    with pytest.raises(ValueError, match="/Tri: points must be contiguous float32"):
+        _tessera.plain_mesh_source("/Tri", points.astype(np.float64), counts, indices, False, False, "none", 0)
+    with pytest.raises(ValueError, match="/Tri: .*int32"):
+        _tessera.plain_mesh_source("/Tri", points, counts.astype(np.int64), indices, False, False, "none", 0)
+
+
 def test_a_transform_usd_rejects_is_left_to_the_sync():
     """Ops USD cannot evaluate (a scale of one double) stop the walk's transforms below that prim, and only there:
     the meshes under it read theirs in their sync, which reports the prim by name (test_render.py); a reset below

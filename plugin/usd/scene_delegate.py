@@ -942,10 +942,12 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if authored is None:
             authored = self._authored_names(prim.GetAuthoredPropertyNames())
         name = id if record.group is None else str(prim.GetPath())
-        needs = self._primvar_needs(record, name)
+        # Without a material (the common case of big stages) the needs are known without asking.
+        unbound = not record.material and not record.subset_materials and not self._all_uvs
+        needs = materials.NO_MATERIAL if unbound else self._primvar_needs(record, name)
         # A plain mesh authors no primvars: only a material's primvar reader fallback would need the full path.
         if authored.plain and "points" in authored and not self._stage_has("GeomSubset") and \
-                all(r.fallback is None for r in needs.channel) and not self._inherited_display_color:
+                (unbound or all(r.fallback is None for r in needs.channel)) and not self._inherited_display_color:
             source = self._plain_mesh_source(prim, authored, name, record)
         else:
             source = self._mesh_source(prim, authored, needs, name, record)
@@ -969,10 +971,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         record.subdivided = scheme != UsdGeom.Tokens.none
         left_handed = "orientation" in authored and attribute("orientation").Get(t) == UsdGeom.Tokens.leftHanded
         double_sided = "doubleSided" in authored and bool(attribute("doubleSided").Get(t))
-        return _tessera.mesh_source(
-            name, np.asarray(points, np.float32).reshape(-1), np.asarray(counts, np.int32), np.asarray(indices, np.int32),
-            None, left_handed, double_sided, None, "vertex", None, None, "constant", None, None, "faceVarying", None, None,
-            scheme, self.refine_level)
+        return _tessera.plain_mesh_source(name, np.asarray(points, np.float32), np.asarray(counts, np.int32),
+                                          np.asarray(indices, np.int32), left_handed, double_sided, scheme, self.refine_level)
 
     def _primvar_needs(self, record: _Rprim, name: str | None = None) -> materials.PrimvarNeeds:
         """What the rprim's materials read of its primvars (its own and its GeomSubsets'): the first UV set and the
