@@ -36,9 +36,10 @@ _MATERIAL_PURPOSE = UsdShade.Tokens.preview
 
 
 def to_column_major(gf_matrix: Gf.Matrix4d) -> list[float]:
-    """Gf (row vectors) -> the C++ convention (row-major, column vectors). Through the matrix's own buffer: once per
-    mesh on a first sync, where numpy's view, transpose and copy cost 1.5x as much."""
-    return memoryview(gf_matrix.GetTranspose()).cast("B").cast("d").tolist()
+    """Gf (row vectors) -> the C++ convention (row-major, column vectors). Once per mesh on a first sync: Gf's transpose
+    read through its buffer by numpy (0.5 us; a memoryview cast to doubles unpacks each item alone, 0.9 us, and
+    numpy's view, transpose and copy cost more still)."""
+    return np.frombuffer(gf_matrix.GetTranspose()).tolist()
 
 
 @dataclass(slots=True)  # one per rprim: 100 k of them on big stages
@@ -745,7 +746,7 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def get_subset_material_ids(self, id: str) -> list[str]:
         """The material of each GeomSubset (slot 1, 2, ...): its own binding, else its mesh's (UsdShade's resolution)."""
-        return list(self.rprims[id].subset_materials)
+        return self.rprims[id].subset_materials  # a tuple: C++ takes any sequence
 
     def _stage_has(self, type_name: str) -> bool:
         """Whether a walk or a visit has met a prim of this type (the walks see every prim's type once)."""
