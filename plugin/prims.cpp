@@ -2,6 +2,7 @@
 #include "tessera/delegate.h"
 
 #include <algorithm>
+#include <utility>
 
 namespace tessera::hd {
 
@@ -68,14 +69,15 @@ Mesh::~Mesh() {
 void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
     // A hidden mesh reads only its visibility: the rest (a build among it) waits until it shows, as in Hydra
     // (the render index keeps those bits dirty).
-    if (dirtyBits & DirtyVisibility) visible_ = scene.get_visible(id());
+    const uint32_t asked = dirtyBits & ~std::exchange(defaults_, 0u);  // what the delegate said at insertion is not asked
+    if (asked & DirtyVisibility) visible_ = scene.get_visible(id());
     if (!visible_) {
         awaitingBits_ = 0;  // its bits stay dirty with the render index, as a hidden mesh's do
         return;
     }
     // Only points, topology, primvars and sidedness rebuild the mesh; a transform, a material or new instance
     // transforms are read alone.
-    if (dirtyBits & DirtyMaterialId) {
+    if (asked & DirtyMaterialId) {
         materialId_ = scene.get_material_id(id());
         subsetMaterialIds_ = scene.get_subset_material_ids(id());
     }

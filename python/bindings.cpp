@@ -606,13 +606,18 @@ NB_MODULE(_tessera, m) {
 
     nb::class_<RenderIndex>(m, "RenderIndex")
         .def(nb::init<RenderDelegate&>(), "delegate"_a, nb::keep_alive<1, 2>())
-        .def("insert_rprim", &RenderIndex::insert_rprim, "type"_a, "id"_a, "instancer_id"_a = "")
+        .def("insert_rprim", &RenderIndex::insert_rprim, "type"_a, "id"_a, "instancer_id"_a = "", "defaults"_a = 0,
+             "defaults: dirty bits (VISIBILITY: visible, MATERIAL_ID: no material nor subset materials) the delegate knows "
+             "to be in their default state, which the first sync then does not ask for")
         .def(
             "insert_rprims",
-            [](RenderIndex& index, const std::string& type, const std::vector<PrimId>& ids) {
-                for (const PrimId& id : ids) index.insert_rprim(type, id);
+            [](RenderIndex& index, const std::string& type, const std::vector<PrimId>& ids, const std::optional<std::vector<uint32_t>>& defaults) {
+                if (defaults && defaults->size() != ids.size())
+                    throw std::invalid_argument(std::to_string(defaults->size()) + " defaults for " + std::to_string(ids.size()) + " ids");
+                for (size_t i = 0; i < ids.size(); ++i) index.insert_rprim(type, ids[i], "", defaults ? (*defaults)[i] : 0u);
             },
-            "type"_a, "ids"_a, "insert_rprim for each id in turn (no instancer): one call for a whole walk's finds.")
+            "type"_a, "ids"_a, "defaults"_a = nb::none(),
+            "insert_rprim for each id in turn (no instancer), with its defaults if given: one call for a whole walk's finds.")
         .def("insert_sprim", &RenderIndex::insert_sprim, "type"_a, "id"_a)
         .def("remove_prim", &RenderIndex::remove_prim, "id"_a)
         .def("mark_dirty", &RenderIndex::mark_dirty, "id"_a, "bits"_a)

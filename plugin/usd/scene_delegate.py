@@ -697,13 +697,19 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         return group.copies
 
     def _insert_walked(self, ids: list[str], found: _Found) -> None:
-        """Gprims drawn once that a walk found and the index lacks, inserted into the index in one call."""
+        """Gprims drawn once that a walk found and the index lacks, inserted into the index in one call. What the walk
+        saw of a mesh's visibility and material, when they are the defaults (visible; no material, no subsets), goes
+        with it, so that its first sync does not call back for them."""
+        visible, unbound = _dirty.VISIBILITY, _dirty.MATERIAL_ID
+        defaults = []
         for id in ids:
-            record = self.rprims[id] = _Rprim(found.rprims[id], walked_visible=id not in found.hidden,
+            shown = id not in found.hidden
+            record = self.rprims[id] = _Rprim(found.rprims[id], walked_visible=None if shown else False,
                                               walked_authored=found.authored[id])
             self._paths.add(id, id)
             self._rebind(id, record)
-        self.index.insert_rprims("mesh", ids)
+            defaults.append((visible if shown else 0) | (0 if record.material or record.subset_materials else unbound))
+        self.index.insert_rprims("mesh", ids, defaults)
 
     def _insert_rprim(self, id: str, record: _Rprim) -> None:
         self.rprims[id] = record
