@@ -32,11 +32,7 @@ public:
         a_ = mix(a_ ^ w) * 0x9E3779B97F4A7C15ull;
         b_ = mix(b_ + w * 0xC2B2AE3D27D4EB4Full) ^ (b_ >> 29);
     }
-    std::string hex() const {
-        char out[33];
-        std::snprintf(out, sizeof out, "%016llx%016llx", (unsigned long long)mix(a_ ^ b_), (unsigned long long)mix(b_ + 0x165667B19E3779F9ull));
-        return out;
-    }
+    MeshCache::Digest digest() const { return {mix(a_ ^ b_), mix(b_ + 0x165667B19E3779F9ull)}; }
 
 private:
     static uint64_t mix(uint64_t x) {
@@ -89,7 +85,13 @@ MeshCache MeshCache::from_environment() {
     return MeshCache("");
 }
 
-std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) {
+std::string MeshCache::Digest::hex() const {
+    char out[33];
+    std::snprintf(out, sizeof out, "%016llx%016llx", (unsigned long long)hi, (unsigned long long)lo);
+    return out;
+}
+
+MeshCache::Digest MeshCache::digest(const MeshView& mesh, const BuildSettings& settings) {
     Hasher h;
     h.word(kPageFormatVersion);
     h.word(kBuilderRevision);
@@ -122,7 +124,7 @@ std::string MeshCache::key(const MeshView& mesh, const BuildSettings& settings) 
         h.bytes(mesh.bake->key.data(), mesh.bake->key.size());
         h.word(mesh.bake->maxTriangles);
     }
-    return h.hex();
+    return h.digest();
 }
 
 std::string MeshCache::path_of(const std::string& key) const { return directory_ + "/" + key.substr(0, 2) + "/" + key + ".tsra"; }
@@ -186,13 +188,14 @@ bool worth_caching(const MeshView& mesh) {
 }
 }  // namespace
 
-CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& settings, const MeshCache& cache) {
+CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& settings, const MeshCache& cache,
+                                const MeshCache::Digest* digest) {
     validate_settings(settings);  // before the lookup: a bad setting fails whether or not the mesh is cached
     CachedBuild result;
     std::string key;
     const bool cached = cache.enabled() && worth_caching(mesh);
     if (cached) {
-        key = MeshCache::key(mesh, settings);
+        key = (digest ? *digest : MeshCache::digest(mesh, settings)).hex();
         std::string problem;
         if (auto entry = cache.load(key, &problem)) {
             result.mesh = entry->mesh;

@@ -7,7 +7,6 @@
 #include "area.h"
 #include "cut.h"
 #include "edge_limit.h"
-#include "fallback.h"
 #include "parallel.h"
 #include "weld.h"
 
@@ -778,8 +777,8 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     std::vector<uint32_t> all(totalVertices);
     for (size_t i = 0; i < all.size(); ++i) all[i] = uint32_t(i);
     out.sphere = to_float(vertex_sphere(local, all.data(), all.size()));
-    out.fallback = extract_cut(out, fallbackCut);
-    out.fallback.error = measure(nodes, fallbackCut).error;
+    out.fallbackThreshold = fallbackCut.source ? -1.0f : fallbackCut.threshold;  // extracted on demand (fallback_mesh)
+    out.fallbackError = measure(nodes, fallbackCut).error;
     return out;
 }
 

@@ -1,6 +1,7 @@
 // The fallback mesh: a cut of the built DAG as a plain indexed triangle mesh.
 #include "fallback.h"
 
+#include <cmath>
 #include <cstring>
 #include <unordered_map>
 
@@ -52,6 +53,13 @@ FallbackMesh extract_cut(const BuiltMesh& mesh, const DagCut& cut) {
 
 FallbackMesh extract_fallback(const BuiltMesh& mesh, float threshold) {
     return extract_cut(mesh, threshold < 0 ? DagCut{} : DagCut{false, threshold});
+}
+
+FallbackMesh fallback_mesh(const BuiltMesh& mesh) {
+    if (std::isnan(mesh.fallbackThreshold)) return {};
+    FallbackMesh out = extract_fallback(mesh, mesh.fallbackThreshold);
+    out.error = mesh.fallbackError;
+    return out;
 }
 
 }  // namespace tessera

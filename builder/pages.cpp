@@ -1,7 +1,7 @@
 // The page file: a BuiltMesh on disk.
 //
 //   header      (kHeaderBytes)  magic "TSRA", version, counts, origin, precision, size, colour mode, UV grid, leaf error,
-//                               fallback cut (threshold and error: the fallback mesh is rebuilt from the DAG), checksum
+//                               fallback cut (threshold and error: the fallback mesh is extracted from the DAG on demand), checksum
 //   page table  (pages x 24)    per page: offset (u64), bytes, first cluster, cluster count, CRC32; then its CRC32
 //   pages                       per stream (cluster_codec.h): size before and after compression; then the streams,
 //                               each zstd-compressed, or as is where that would not make it smaller
@@ -178,9 +178,9 @@ std::vector<uint8_t> encode_pages(const BuiltMesh& mesh, PageLayout* layout) {
     header.put(uint32_t(!mesh.uvs.empty()));
     header.put(int32_t(mesh.uvPrecision));
     header.put(mesh.leafError);
-    // A mesh without a fallback (one not made by build_mesh) stores NaN: decode_pages then makes none.
-    header.put(mesh.fallback.indices.empty() ? std::numeric_limits<float>::quiet_NaN() : mesh.fallback.threshold);
-    header.put(mesh.fallback.error);
+    // A mesh without a fallback (one not made by build_mesh) stores NaN: the decoded mesh then has none.
+    header.put(mesh.fallbackThreshold);
+    header.put(mesh.fallbackError);
     header.put(mesh.materialSlots);
     if (header.bytes.size() > kHeaderBytes - 4) throw std::logic_error("the page file header outgrew kPageHeaderBytes");
     header.bytes.resize(kHeaderBytes - 4, 0);
@@ -236,7 +236,8 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
     const bool uvs = header.get<uint32_t>() != 0;
     mesh.uvPrecision = header.get<int32_t>();
     mesh.leafError = header.get<float>();
-    const float fallbackThreshold = header.get<float>(), fallbackError = header.get<float>();
+    mesh.fallbackThreshold = header.get<float>();
+    mesh.fallbackError = header.get<float>();
     mesh.materialSlots = header.get<uint32_t>();
     if (pageBytes != kPageBytes || rootPages > pageCount) throw PageFileError(name + ": inconsistent header");
     if (mesh.uvPrecision < -1074 || mesh.uvPrecision > 1023) throw PageFileError(name + ": invalid texture coordinate precision");
@@ -298,10 +299,6 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
         mesh.uvs.insert(mesh.uvs.end(), d.uvs.begin(), d.uvs.end());
         mesh.triangles.insert(mesh.triangles.end(), d.triangles.begin(), d.triangles.end());
         append_cluster(mesh, c);
-    }
-    if (std::isfinite(fallbackThreshold)) {
-        mesh.fallback = extract_fallback(mesh, fallbackThreshold);
-        mesh.fallback.error = fallbackError;
     }
     return mesh;
 }

@@ -2,6 +2,7 @@
 #include "tessera/delegate.h"
 
 #include <algorithm>
+#include <utility>
 
 namespace tessera::hd {
 
@@ -36,7 +37,7 @@ std::optional<DisplacementBake> displacement_bake(const MaterialDesc& m) {
 
 MeshTable::Handle MeshTable::acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param) {
     validate_settings(settings);
-    std::string key = MeshCache::key(view, settings);
+    const MeshCache::Digest key = MeshCache::digest(view, settings);
     auto found = byKey_.find(key);
     if (found != byKey_.end()) {
         Shared& shared = found->second;
@@ -44,14 +45,14 @@ MeshTable::Handle MeshTable::acquire(const MeshView& view, const BuildSettings& 
         ++param.meshesShared;
         for (const std::string& warning : shared.warnings)  // this prim has the same problems: say so by its name
             param.warnings.push_back(warning.rfind(shared.name + ": ", 0) == 0 ? view.name + warning.substr(shared.name.size()) : warning);
-        return {shared.gpuMesh, std::move(key)};
+        return {shared.gpuMesh, key};
     }
-    CachedBuild built = build_through_cache(view, settings, cache_);
+    CachedBuild built = build_through_cache(view, settings, cache_, &key);
     ++(built.fromCache ? param.meshesFromCache : param.meshesBuilt);
     Shared& shared = byKey_[key];
-    shared = {scene_.add_mesh(std::move(built.mesh)), 1, view.name, built.warnings};
+    shared = {scene_.add_mesh(std::move(built.mesh)), 1, built.warnings.empty() ? std::string() : view.name, built.warnings};
     for (auto& w : built.warnings) param.warnings.push_back(std::move(w));
-    return {shared.gpuMesh, std::move(key)};
+    return {shared.gpuMesh, key};
 }
 
 void MeshTable::release(const Handle& handle) {
@@ -68,14 +69,15 @@ Mesh::~Mesh() {
 void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
     // A hidden mesh reads only its visibility: the rest (a build among it) waits until it shows, as in Hydra
     // (the render index keeps those bits dirty).
-    if (dirtyBits & DirtyVisibility) visible_ = scene.get_visible(id());
+    const uint32_t asked = dirtyBits & ~std::exchange(defaults_, 0u);  // what the delegate said at insertion is not asked
+    if (asked & DirtyVisibility) visible_ = scene.get_visible(id());
     if (!visible_) {
         awaitingBits_ = 0;  // its bits stay dirty with the render index, as a hidden mesh's do
         return;
     }
     // Only points, topology, primvars and sidedness rebuild the mesh; a transform, a material or new instance
     // transforms are read alone.
-    if (dirtyBits & DirtyMaterialId) {
+    if (asked & DirtyMaterialId) {
         materialId_ = scene.get_material_id(id());
         subsetMaterialIds_ = scene.get_subset_material_ids(id());
     }

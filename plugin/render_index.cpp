@@ -41,9 +41,10 @@ std::unique_ptr<RenderBuffer> RenderDelegate::create_bprim(const std::string& ty
     return std::make_unique<RenderBuffer>(id);
 }
 
-void RenderIndex::insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId) {
+void RenderIndex::insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t defaults) {
     auto prim = delegate_.create_rprim(type, id, instancerId, uint32_t(primPaths_.size()));
     if (!prim) throw std::invalid_argument("unsupported rprim type '" + type + "' for " + id);
+    prim->assume_defaults(defaults);
     primPaths_.push_back(id);
     Entry& entry = rprims_[id];
     entry = {type, std::move(prim), AllDirty, false};
@@ -82,6 +83,7 @@ void RenderIndex::mark_dirty(const PrimId& id, uint32_t bits) {
     for (auto [prims, dirty] : {std::pair{&rprims_, &dirtyRprims_}, std::pair{&sprims_, &dirtySprims_}}) {
         auto it = prims->find(id);
         if (it == prims->end()) continue;
+        if (prims == &rprims_) static_cast<Mesh&>(*it->second.prim).forget_defaults(bits);  // changed: ask again
         it->second.dirty |= bits;
         it->second.failed = false;  // a changed prim gets another chance (sync_all decides what to commit)
         dirty->insert(&it->second);
@@ -91,6 +93,7 @@ void RenderIndex::mark_dirty(const PrimId& id, uint32_t bits) {
 void RenderIndex::mark_all_dirty(uint32_t bits) {
     for (auto [prims, dirty] : {std::pair{&rprims_, &dirtyRprims_}, std::pair{&sprims_, &dirtySprims_}})
         for (auto& [id, entry] : *prims) {
+            if (prims == &rprims_) static_cast<Mesh&>(*entry.prim).forget_defaults(bits);
             entry.dirty |= bits;
             dirty->insert(&entry);
         }
@@ -225,6 +228,7 @@ void RenderIndex::rebuild_bound_meshes(const PrimId& materialId) {
         const Mesh& mesh = static_cast<const Mesh&>(*entry.prim);
         const auto& subsets = mesh.subset_material_ids();
         if (mesh.material_id() != materialId && std::find(subsets.begin(), subsets.end(), materialId) == subsets.end()) continue;
+        static_cast<Mesh&>(*entry.prim).forget_defaults(DirtyMaterialId);
         entry.dirty |= DirtyMaterialId;
         dirtyRprims_.insert(&entry);
     }

@@ -225,18 +225,19 @@ nb::ndarray<T, nb::numpy, nb::shape<-1, 3>> rows_of_three(std::vector<T> values)
 }
 
 nb::dict fallback_dict(const BuiltMesh& built) {
-    const FallbackMesh& f = built.fallback;
+    FallbackMesh f = fallback_mesh(built);  // extracted now: built meshes keep only its cut
     std::vector<float> positions(f.positions.size());  // object space, through double
     for (size_t i = 0; i < positions.size(); ++i) positions[i] = float(built.origin[i % 3] + double(f.positions[i]));
     nb::dict d;
     d["positions"] = rows_of_three(std::move(positions));
-    d["normals"] = rows_of_three(f.normals);
-    d["indices"] = rows_of_three(f.indices);
+    const size_t triangles = f.indices.size() / 3;
+    d["normals"] = rows_of_three(std::move(f.normals));
+    d["indices"] = rows_of_three(std::move(f.indices));
     // None where the mesh has no such attribute.
-    d["colors"] = f.colors.empty() ? nb::none() : nb::object(nb::cast(rows_of<4>(f.colors)));
-    d["uvs"] = f.uvs.empty() ? nb::none() : nb::object(nb::cast(rows_of<2>(f.uvs)));
-    d["material_slots"] = f.materialSlots.empty() ? nb::none() : nb::object(nb::cast(rows_of<1>(f.materialSlots)));
-    d["triangles"] = f.indices.size() / 3;
+    d["colors"] = f.colors.empty() ? nb::none() : nb::object(nb::cast(rows_of<4>(std::move(f.colors))));
+    d["uvs"] = f.uvs.empty() ? nb::none() : nb::object(nb::cast(rows_of<2>(std::move(f.uvs))));
+    d["material_slots"] = f.materialSlots.empty() ? nb::none() : nb::object(nb::cast(rows_of<1>(std::move(f.materialSlots))));
+    d["triangles"] = triangles;
     d["error"] = f.error;
     d["relative_error"] = built.size > 0 ? f.error / built.size : 0.0f;
     return d;
@@ -325,6 +326,41 @@ NB_MODULE(_tessera, m) {
         "floats per element, 3 (displayColor) or 4 (the vertex channel as the scene delegate packs it); uvs: float32 pairs). "
         "Subdivision tags take UsdGeomMesh's tokens and arrays (int32 indices and lengths, float32 sharpnesses); an unknown "
         "token is a ValueError.");
+
+    // The common mesh (no primvars, normals, holes or tags: what the scene delegate's short path reads) in one lean call:
+    // 100 k small prims paid for mesh_source's 29 arguments and for numpy copies of the arrays. USD's arrays are taken
+    // as they come (any object with the buffer protocol: a Vt.Vec3fArray, a numpy array), without copies.
+    m.def(
+        "plain_mesh_source",
+        [](const std::string& name, nb::object points, nb::object counts, nb::object indices, bool leftHanded, bool doubleSided,
+           const std::string& scheme, int refineLevel) {
+            using Floats = nb::ndarray<const float, nb::c_contig, nb::device::cpu>;
+            using Ints = nb::ndarray<const int32_t, nb::c_contig, nb::device::cpu>;
+            Floats p;
+            Ints c, i;
+            // No implicit conversion: a converted copy would not outlive this call, and the views would dangle.
+            if (!nb::try_cast(points, p, false) || !nb::try_cast(counts, c, false) || !nb::try_cast(indices, i, false))
+                throw std::invalid_argument(name + ": points must be contiguous float32 values, face vertex counts and indices int32");
+            MeshSource source;
+            source.view.subdivisionScheme = scheme == "catmullClark" ? SubdivisionScheme::CatmullClark
+                                            : scheme == "loop"       ? SubdivisionScheme::Loop
+                                            : scheme == "bilinear"   ? SubdivisionScheme::Bilinear
+                                                                     : SubdivisionScheme::None;
+            source.view.refineLevel = std::clamp(refineLevel, 0, 8);
+            source.view.name = name;
+            source.view.points = {p.data(), p.size()};
+            source.view.faceVertexCounts = {c.data(), c.size()};
+            source.view.faceVertexIndices = {i.data(), i.size()};
+            source.view.leftHanded = leftHanded;
+            source.doubleSided = doubleSided;
+            // The arrays' own objects are kept (their data stays where it is while they live), not the views.
+            source.keepAlive = keep_alive(nb::make_tuple(points, counts, indices));
+            return source;
+        },
+        "name"_a, "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "left_handed"_a = false, "double_sided"_a = false,
+        "subdivision_scheme"_a = "none", "refine_level"_a = 0,
+        "mesh_source for a mesh of points, face vertex counts and indices alone (subdivision tags at USD's fallbacks), "
+        "borrowing any contiguous float32 / int32 arrays with the buffer protocol, USD's VtArrays included.");
 
     nb::class_<MatrixArray>(m, "MatrixArray").def_prop_ro("size", &MatrixArray::size);
     m.def(
@@ -570,13 +606,18 @@ NB_MODULE(_tessera, m) {
 
     nb::class_<RenderIndex>(m, "RenderIndex")
         .def(nb::init<RenderDelegate&>(), "delegate"_a, nb::keep_alive<1, 2>())
-        .def("insert_rprim", &RenderIndex::insert_rprim, "type"_a, "id"_a, "instancer_id"_a = "")
+        .def("insert_rprim", &RenderIndex::insert_rprim, "type"_a, "id"_a, "instancer_id"_a = "", "defaults"_a = 0,
+             "defaults: dirty bits (VISIBILITY: visible, MATERIAL_ID: no material nor subset materials) the delegate knows "
+             "to be in their default state, which the first sync then does not ask for")
         .def(
             "insert_rprims",
-            [](RenderIndex& index, const std::string& type, const std::vector<PrimId>& ids) {
-                for (const PrimId& id : ids) index.insert_rprim(type, id);
+            [](RenderIndex& index, const std::string& type, const std::vector<PrimId>& ids, const std::optional<std::vector<uint32_t>>& defaults) {
+                if (defaults && defaults->size() != ids.size())
+                    throw std::invalid_argument(std::to_string(defaults->size()) + " defaults for " + std::to_string(ids.size()) + " ids");
+                for (size_t i = 0; i < ids.size(); ++i) index.insert_rprim(type, ids[i], "", defaults ? (*defaults)[i] : 0u);
             },
-            "type"_a, "ids"_a, "insert_rprim for each id in turn (no instancer): one call for a whole walk's finds.")
+            "type"_a, "ids"_a, "defaults"_a = nb::none(),
+            "insert_rprim for each id in turn (no instancer), with its defaults if given: one call for a whole walk's finds.")
         .def("insert_sprim", &RenderIndex::insert_sprim, "type"_a, "id"_a)
         .def("remove_prim", &RenderIndex::remove_prim, "id"_a)
         .def("mark_dirty", &RenderIndex::mark_dirty, "id"_a, "bits"_a)

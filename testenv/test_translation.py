@@ -267,6 +267,55 @@ def test_the_short_mesh_read_matches_the_full_one(orientation, double_sided, sch
     assert np.array_equal(normals, full_normals)
 
 
+def test_the_short_read_borrows_arrays_of_any_shape_and_refuses_other_types():
+    """plain_mesh_source (the short path's one call) takes USD's points as numpy gives them, (N, 3), without a copy,
+    and names the mesh when an array is of another type."""
+    points = np.array([(0, 0, 0), (1, 0, 0), (0, 1, 0)], np.float32)
+    counts, indices = np.array([3], np.int32), np.array([0, 1, 2], np.int32)
+    from tessera import _tessera
+
+    assert isinstance(_tessera.plain_mesh_source("/Tri", points, counts, indices, False, True, "none", 0), _tessera.MeshSource)
+    with pytest.raises(ValueError, match="/Tri: points must be contiguous float32"):
+        _tessera.plain_mesh_source("/Tri", points.astype(np.float64), counts, indices, False, False, "none", 0)
+    with pytest.raises(ValueError, match="/Tri: .*int32"):
+        _tessera.plain_mesh_source("/Tri", points, counts.astype(np.int64), indices, False, False, "none", 0)
+
+
+def test_the_first_sync_asks_for_no_default_the_walk_saw():
+    """A mesh the walk saw visible and without a material is inserted with those defaults: its first sync does not call
+    back for its visibility or material. A hidden mesh and a bound one are asked, and marking a default's bit dirty
+    (an edit) makes the next sync ask again."""
+    from tessera import _tessera
+    from tessera.usd import UsdSceneDelegate
+
+    stage, _ = _stage()
+    _cube(stage, "/Plain")
+    _cube(stage, "/Hidden").MakeInvisible()
+    bound = _cube(stage, "/Bound")
+    material = UsdShade.Material.Define(stage, "/Looks/Red")
+    UsdShade.MaterialBindingAPI.Apply(bound.GetPrim()).Bind(material)
+    asked = []
+
+    class Counting(UsdSceneDelegate):
+        def get_visible(self, id):
+            asked.append(("visible", id))
+            return super().get_visible(id)
+
+        def get_material_id(self, id):
+            asked.append(("material", id))
+            return super().get_material_id(id)
+
+    index = _tessera.RenderIndex(_tessera.RenderDelegate(device="cpu", validation=True))
+    delegate = Counting(stage, index)
+    delegate.populate()
+    index.mark_dirty("/Plain", _tessera.dirty.VISIBILITY | _tessera.dirty.MATERIAL_ID)  # as an edit before the first sync
+    index.sync_all(delegate)
+    assert sorted(asked) == [("material", "/Bound"), ("material", "/Plain"), ("visible", "/Hidden"), ("visible", "/Plain")], \
+        "only what is not a default (/Quad is asked nothing)"
+    built = index.take_diagnostics()
+    assert built["meshes_built"] + built["meshes_shared"] == 3, "the plain meshes are built all the same (not the hidden one)"
+
+
 def test_a_transform_usd_rejects_is_left_to_the_sync():
     """Ops USD cannot evaluate (a scale of one double) stop the walk's transforms below that prim, and only there:
     the meshes under it read theirs in their sync, which reports the prim by name (test_render.py); a reset below

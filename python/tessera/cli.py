@@ -284,10 +284,10 @@ class _Collector:
     def __init__(self):
         self.meshes = []
 
-    def insert_rprim(self, kind, prim_id, instancer_id=""):
+    def insert_rprim(self, kind, prim_id, instancer_id="", defaults=0):
         self.meshes.append(prim_id)
 
-    def insert_rprims(self, kind, prim_ids):
+    def insert_rprims(self, kind, prim_ids, defaults=None):
         self.meshes.extend(prim_ids)
 
     def insert_sprim(self, kind, prim_id):

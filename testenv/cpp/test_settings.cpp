@@ -221,7 +221,7 @@ TEST(Settings, BuildsStayDeterministic) {
         EXPECT_EQ(a.triangles, b.triangles);
         ASSERT_EQ(a.clusters.size(), b.clusters.size());
         EXPECT_EQ(std::memcmp(a.clusters.data(), b.clusters.data(), a.clusters.size() * sizeof(Cluster)), 0);
-        EXPECT_EQ(a.fallback.indices, b.fallback.indices);
+        EXPECT_EQ(fallback_mesh(a).indices, fallback_mesh(b).indices);
     }
 }
 
@@ -333,7 +333,7 @@ TEST(Trim, TrimmedMeshesRoundTripThroughPages) {
 
 TEST(Fallback, DefaultIsTheFirstCutAtOnePercentOfTheSize) {
     const BuiltMesh m = icosphere(5).build();
-    const FallbackMesh& f = m.fallback;
+    const FallbackMesh f = fallback_mesh(m);
     const CutMeasure expected = first_cut(all_cuts(m), 0.01 * m.size, INFINITY);
     ASSERT_EQ(f.indices.size() % 3, 0u);
     EXPECT_EQ(f.indices.size() / 3, expected.triangles);
@@ -359,16 +359,16 @@ TEST(Fallback, FollowsTrianglePercentAndNeverExceedsTheStoredDetail) {
     s.fallbackRelativeError = 0;
     s.fallbackTrianglePercent = 10;
     const BuiltMesh tenth = sphere.build(s);
-    EXPECT_LE(tenth.fallback.indices.size() / 3, 0.10 * tenth.sourceTriangles);
-    EXPECT_EQ(tenth.fallback.indices.size() / 3, first_cut(all_cuts(tenth), 0, 0.10 * tenth.sourceTriangles).triangles);
+    EXPECT_LE(fallback_mesh(tenth).indices.size() / 3, 0.10 * tenth.sourceTriangles);
+    EXPECT_EQ(fallback_mesh(tenth).indices.size() / 3, first_cut(all_cuts(tenth), 0, 0.10 * tenth.sourceTriangles).triangles);
     s.fallbackTrianglePercent = 100;
     const BuiltMesh whole = sphere.build(s);
-    EXPECT_EQ(whole.fallback.indices.size() / 3, whole.sourceTriangles) << "0 % error and 100 % triangles: the source itself";
-    EXPECT_EQ(whole.fallback.error, 0.0f);
+    EXPECT_EQ(fallback_mesh(whole).indices.size() / 3, whole.sourceTriangles) << "0 % error and 100 % triangles: the source itself";
+    EXPECT_EQ(fallback_mesh(whole).error, 0.0f);
     s.keepTrianglePercent = 25;
     const BuiltMesh trimmed = sphere.build(s);
-    EXPECT_EQ(trimmed.fallback.indices.size() / 3, trimmed.leafTriangles) << "the fallback is never finer than what is stored";
-    EXPECT_EQ(trimmed.fallback.error, trimmed.leafError);
+    EXPECT_EQ(fallback_mesh(trimmed).indices.size() / 3, trimmed.leafTriangles) << "the fallback is never finer than what is stored";
+    EXPECT_EQ(fallback_mesh(trimmed).error, trimmed.leafError);
 }
 
 TEST(Fallback, RestoredFromADecodedDagByItsThreshold) {
@@ -376,10 +376,12 @@ TEST(Fallback, RestoredFromADecodedDagByItsThreshold) {
     trimmed.keepTrianglePercent = 40;
     for (const BuildSettings& s : {BuildSettings{}, trimmed}) {
         const BuiltMesh m = icosphere(5).build(s);
-        const FallbackMesh f = extract_fallback(decode_pages(encode_pages(m), "sphere"), m.fallback.threshold);
-        EXPECT_EQ(f.positions, m.fallback.positions);
-        EXPECT_EQ(f.normals, m.fallback.normals);
-        EXPECT_EQ(f.indices, m.fallback.indices);
+        const FallbackMesh built = fallback_mesh(m), f = fallback_mesh(decode_pages(encode_pages(m), "sphere"));
+        ASSERT_FALSE(built.indices.empty());
+        EXPECT_EQ(f.positions, built.positions);
+        EXPECT_EQ(f.normals, built.normals);
+        EXPECT_EQ(f.indices, built.indices);
+        EXPECT_EQ(f.error, built.error);
     }
 }
 

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <functional>
+#include <limits>
 #include <cstdint>
 #include <span>
 #include <stdexcept>
@@ -200,7 +201,11 @@ struct BuiltMesh {
     uint32_t materialSlots = 1;         // 1 + the largest material slot of its triangles
     size_t sourceTriangles = 0;         // as authored (after dropping collapsed triangles); the leaf level may hold fewer
     float leafError = 0;                // error of the stored leaf level against the source (0 unless trimmed), mesh units
-    FallbackMesh fallback;              // the page file keeps its cut, and decode_pages rebuilds it from the DAG
+    // The fallback mesh is kept as its cut alone (FallbackMesh::threshold; NaN: none, a mesh not made by build_mesh) and
+    // its error, and extracted on demand (fallback_mesh): the renderer never draws it, and 100 k small meshes held it for
+    // nothing. The page file stores the same two numbers.
+    float fallbackThreshold = std::numeric_limits<float>::quiet_NaN();
+    float fallbackError = 0;
 };
 
 // Per-mesh build settings (the schema's tessera:* attributes; render-wide defaults), after Nanite's. Relative errors
@@ -276,9 +281,12 @@ struct NormalCone {
 };
 NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster);
 
-// The fallback mesh of the cut at `threshold` (FallbackMesh::threshold) of a built or decoded DAG: what build_mesh made,
-// bit for bit, so a page file needs to keep only the threshold and the error to restore it. `error` is left at 0.
+// The fallback mesh of the cut at `threshold` (FallbackMesh::threshold) of a built or decoded DAG: a decoded DAG gives the
+// same mesh as the built one, bit for bit, so a page file needs to keep only the threshold and the error. `error` is
+// left at 0.
 FallbackMesh extract_fallback(const BuiltMesh& mesh, float threshold);
+// The mesh's fallback mesh (BuiltMesh::fallbackThreshold, error included); empty when it has none.
+FallbackMesh fallback_mesh(const BuiltMesh& mesh);
 
 // Reorders one cluster for the page file, the DAG unchanged: triangles in vertex cache order (meshoptimizer), vertices
 // numbered by first use, each triangle rotated to its smallest rotation. `corners` (3 cluster-local indices per

@@ -5,6 +5,7 @@
 
 #include "tessera/builder.h"
 
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <string>
@@ -22,8 +23,18 @@ public:
     bool enabled() const { return !directory_.empty(); }
     const std::string& directory() const { return directory_; }
 
-    // 32 hex digits: a 128-bit hash of the mesh, the settings, the format version and the builder revision.
-    static std::string key(const MeshView& mesh, const BuildSettings& settings);
+    // A 128-bit hash of the mesh, the settings, the format version and the builder revision.
+    struct Digest {
+        uint64_t hi = 0, lo = 0;
+        bool operator==(const Digest&) const = default;
+        std::string hex() const;  // 32 hex digits
+    };
+    struct DigestHash {
+        size_t operator()(const Digest& d) const { return size_t(d.lo); }  // already mixed
+    };
+    static Digest digest(const MeshView& mesh, const BuildSettings& settings);
+    // The digest in hex: the page file's name.
+    static std::string key(const MeshView& mesh, const BuildSettings& settings) { return digest(mesh, settings).hex(); }
 
     struct Entry {
         std::shared_ptr<const BuiltMesh> mesh;
@@ -46,6 +57,8 @@ struct CachedBuild {
 };
 
 // prepare_mesh + build_mesh through the cache (throws MeshError as prepare_mesh does; nothing is cached then).
-CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& settings, const MeshCache& cache);
+// `digest`: MeshCache::digest of the mesh and settings where the caller has it already.
+CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& settings, const MeshCache& cache,
+                                const MeshCache::Digest* digest = nullptr);
 
 }  // namespace tessera

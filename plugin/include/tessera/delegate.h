@@ -106,21 +106,22 @@ public:
     MeshTable(GpuScene& scene, const MeshCache& cache) : scene_(scene), cache_(cache) {}
     struct Handle {
         uint32_t gpuMesh;
-        std::string key;
+        MeshCache::Digest key;
     };
     // The GPU scene mesh for `view`: shared, else loaded from the cache, else built (throws MeshError).
     Handle acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param);
     void release(const Handle& handle);
 
 private:
+    // Kept small (100 k distinct meshes are 100 k of these): the name only where there are warnings to rename.
     struct Shared {
         uint32_t gpuMesh = 0, users = 0;
-        std::string name;  // of the prim it was built for: its warnings name it
+        std::string name;  // of the prim it was built for, which its warnings name ("" without warnings)
         std::vector<std::string> warnings;
     };
     GpuScene& scene_;
     const MeshCache& cache_;
-    std::unordered_map<std::string, Shared> byKey_;
+    std::unordered_map<MeshCache::Digest, Shared, MeshCache::DigestHash> byKey_;
 };
 
 // Base of every prim kind.
@@ -153,6 +154,11 @@ public:
     const Matrix4d& transform() const { return transform_; }
     const InstanceSet& instances() const { return instances_; }
     const BuiltMesh* built() const { return mesh_ ? scene_.mesh(mesh_->gpuMesh).get() : nullptr; }
+    // Bits whose state the scene delegate gave when it inserted the mesh as the defaults (DirtyVisibility: visible;
+    // DirtyMaterialId: no material and no GeomSubset materials): the first sync does not ask for them (100 k plain
+    // meshes made 300 k calls into Python for nothing). Marking such a bit dirty forgets it.
+    void assume_defaults(uint32_t bits) { defaults_ = bits & (DirtyVisibility | DirtyMaterialId); }
+    void forget_defaults(uint32_t bits) { defaults_ &= ~bits; }
     // The build bits it holds back while no rendered view has seen its bounds (0: none; it is built or unbuildable).
     uint32_t awaiting_view() const { return awaitingBits_; }
     bool seen_by(const ViewFrustum& view) const { return view.touches_box(transform_, {box_[0], box_[1], box_[2]}, {box_[3], box_[4], box_[5]}); }
@@ -162,6 +168,7 @@ private:
     bool displaced_by_materials(const RenderParam& param) const;
 
     uint32_t awaitingBits_ = 0;
+    uint32_t defaults_ = 0;  // assume_defaults
     std::array<double, 6> box_{};  // its extent (mesh space) when it began to wait
     PrimId instancerId_, materialId_;
     std::string bakeKey_;  // the static displacement its mesh was built with (Material::bake_key), "" for none
@@ -267,7 +274,8 @@ public:
     RenderIndex(const RenderIndex&) = delete;
     RenderIndex& operator=(const RenderIndex&) = delete;
 
-    void insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId = "");
+    // `defaults`: Mesh::assume_defaults, what the scene delegate already knows to be in its default state.
+    void insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId = "", uint32_t defaults = 0);
     void insert_sprim(const std::string& type, const PrimId& id);
     void insert_bprim(const std::string& type, const PrimId& id);
     void remove_prim(const PrimId& id);
