@@ -64,7 +64,8 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
     }
 
     // A bin of clusters' own triangles holds no micro-triangle: no patch to look up (a branch is not free on a CPU device).
-    Payload payload = PIXELS == TS_BIN_TRIANGLES ? Payload(uint(value) >> TS_VIS_TRIANGLE_BITS, uint(value) & ((1u << TS_VIS_TRIANGLE_BITS) - 1u), 0xffffffffu, 0u)
+    // The id variant serves every kind of bin (renderer.cpp: resolve_variant), so it decodes micro-triangles too.
+    Payload payload = PIXELS == TS_BIN_TRIANGLES && OUTPUT != TS_OUTPUT_ID ? Payload(uint(value) >> TS_VIS_TRIANGLE_BITS, uint(value) & ((1u << TS_VIS_TRIANGLE_BITS) - 1u), 0xffffffffu, 0u)
                                                  : decode_payload(frame, uint(value));
     uint triangle = payload.triangle;
     uvec2 visible = visible_cluster(frame, payload.slot);

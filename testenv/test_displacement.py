@@ -258,6 +258,9 @@ def test_micro_triangles_resolve_alike_from_kept_points_and_diced_again(tmp_path
     assert kept.stats["kept_micro_pixels"] > 1000 and kept.stats["diced_micro_pixels"] == 0
     assert diced.stats["kept_micro_pixels"] == 0 and diced.stats["diced_micro_pixels"] == kept.stats["kept_micro_pixels"]
     assert np.array_equal(diced["primId"].ids(), kept["primId"].ids())
+    # The id variant reads micro-triangles' payloads through their patches: every covered pixel names the sphere.
+    ids = kept["primId"].ids()
+    assert {kept.prim_path(int(i)) for i in np.unique(ids) if i != NO_HIT} == {"/Sphere"}
     for aov in ("color", "depth", "normal"):
         np.testing.assert_allclose(diced[aov].pixels, kept[aov].pixels, atol=1e-5, err_msg=aov)
 
