@@ -1480,9 +1480,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             };
             const uint32_t tilesX = (settings.width + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE, tilesY = (settings.height + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE;
             const bool oneBin = s.materialCount * s.bin_kinds() == 1;  // nothing to sort: list the covered pixels
+            // A one-bin frame's listing pass also writes the first AOV's background (unless that is a textured dome's).
+            const bool listingDrawsBackground = oneBin && !(texturedDome && aovs[0] == Aov::Color);
             for (uint32_t step : {oneBin ? TS_CLASSIFY_ONE_BIN : TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
                 if (oneBin && step == TS_CLASSIFY_SCATTER) break;
-                PushConstants classifyPush{0, step, 0};
+                PushConstants classifyPush{listingDrawsBackground ? uint32_t(aovs[0]) : TS_NO_AOV, step, 0};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(classifyPush), &classifyPush);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.classify);
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
@@ -1502,7 +1504,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 PushConstants background{uint32_t(aovs[i]), 0, 0};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, texturedDome && aovs[i] == Aov::Color ? s.backgroundTextured : s.background);
-                vkCmdDispatch(cmd, tilesX, tilesY, 1);
+                if (i > 0 || !listingDrawsBackground) vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 const uint32_t output = aovs[i] == Aov::Color ? (settings.visualize == Visualize::None ? TS_OUTPUT_SHADE : TS_OUTPUT_VISUALIZE)
                                       : aovs[i] == Aov::Depth  ? TS_OUTPUT_DEPTH
                                       : aovs[i] == Aov::Normal ? TS_OUTPUT_NORMAL

@@ -1,6 +1,7 @@
 // The pixels nothing covers, for the AOV being resolved (push.aov); resolve.comp.glsl shades the others, bin by bin.
 // A shader of its own: on a CPU device (lavapipe) the shading code beside it would cost every pixel, covered or not.
-// Its textured variant (a stage with a textured dome light) shows the dome's image there.
+// Its textured variant (a stage with a textured dome light) shows the dome's image there. A frame with one material
+// bin has its first AOV's plain background written by classify.comp.glsl instead, in its pass over the pixels.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
@@ -39,17 +40,13 @@ void main() {
     uint index = pixel.y * frame.viewport.x + pixel.x;
     if (VisibilityRef(frame.visibility).data[index] != 0ul) return;
     uint aov = push.aov;
-    if (aov >= TS_AOV_PRIM_ID) OutputIdRef(frame.aovOutput).data[index] = uvec4(0xffffffffu);
-    else if (aov == TS_AOV_COLOR) {
-        vec4 color = frame.background;
-        if (TEXTURED)
-            for (uint i = 0u; i < frame.viewport.w; ++i)
-                if (uint(frameConstants.lights[i].directionType.w) == TS_LIGHT_DOME && frameConstants.lights[i].texture != TS_NO_TEXTURE) {
-                    color = vec4(dome_background(frame, frameConstants.lights[i], vec2(pixel)), 1.0);  // not frame.lights[i]: resolve.comp.glsl
-                    break;
-                }
-        OutputRef(frame.aovOutput).data[index] = color;
+    if (TEXTURED && aov == TS_AOV_COLOR) {
+        for (uint i = 0u; i < frame.viewport.w; ++i)
+            if (uint(frameConstants.lights[i].directionType.w) == TS_LIGHT_DOME && frameConstants.lights[i].texture != TS_NO_TEXTURE) {
+                // frameConstants.lights[i], not frame.lights[i]: resolve.comp.glsl
+                OutputRef(frame.aovOutput).data[index] = vec4(dome_background(frame, frameConstants.lights[i], vec2(pixel)), 1.0);
+                return;
+            }
     }
-    else if (aov == TS_AOV_DEPTH) OutputRef(frame.aovOutput).data[index] = vec4(uintBitsToFloat(0x7f800000u));
-    else OutputRef(frame.aovOutput).data[index] = vec4(0.0);
+    write_background(frame, index, aov);
 }

@@ -147,6 +147,14 @@ uint hzb_level_offset(GpuFrame frame, uint level) {
     return offset;
 }
 
+// What an AOV holds where nothing covers the pixel (without a textured dome: background.comp.glsl draws that).
+void write_background(GpuFrame frame, uint index, uint aov) {
+    if (aov >= TS_AOV_PRIM_ID) OutputIdRef(frame.aovOutput).data[index] = uvec4(0xffffffffu);
+    else if (aov == TS_AOV_COLOR) OutputRef(frame.aovOutput).data[index] = frame.background;
+    else if (aov == TS_AOV_DEPTH) OutputRef(frame.aovOutput).data[index] = vec4(uintBitsToFloat(0x7f800000u));
+    else OutputRef(frame.aovOutput).data[index] = vec4(0.0);
+}
+
 // Both rasterizers record each fragment they write (the overdraw view).
 void count_fragment(GpuFrame frame, uint pixel) {
     if (frame.counts.w == TS_VIS_OVERDRAW) atomicAdd(CounterRef(frame.overdraw).data[pixel], 1u);

@@ -281,3 +281,20 @@ def test_geom_subsets_bind_materials_per_face(render, tmp_path):
         x = int(240 + (-3 + 2 * quad) * per_unit)
         channel = int(np.argmax(color[160, x, :3]))
         assert ["red", "green", "blue"][channel] == name, (quad, color[160, x])
+
+
+def test_every_aov_shows_the_same_background_first_or_not(render):
+    """A one-material frame writes its first AOV's background in the pass that lists the covered pixels, and the other
+    AOVs' in the background pass: each AOV must come out the same, bit for bit, whichever place it has."""
+    stage = Usd.Stage.Open(str(TESTENV / "testCube" / "cube.usda"))
+    first = render(stage, resolution=(96, 64), aovs=("color", "depth", "normal", "primId"))
+    assert first.stats["shading_bins"] == 1
+    ids = first["primId"].ids()
+    background = ids == NO_HIT
+    assert 0 < background.sum() < background.size, "the cube covers part of the frame"
+    assert np.all(np.isinf(first["depth"].pixels[..., 0][background]))
+    for leading in ("depth", "normal", "primId"):
+        others = tuple(a for a in ("color", "depth", "normal", "primId") if a != leading)
+        moved = render(stage, resolution=(96, 64), aovs=(leading,) + others)
+        for aov in ("color", "depth", "normal", "primId"):
+            assert np.array_equal(moved[aov].pixels, first[aov].pixels, equal_nan=True), f"{aov} with {leading} first"
