@@ -475,7 +475,7 @@ struct Renderer::Impl {
         Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
                 uint32_t cullGroupSize = TS_CULL_GROUP_SIZE)
             : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
-                     ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE, cullGroupSize} {}
+                     uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize} {}
         Variant(const Variant&) = delete;
     };
 
