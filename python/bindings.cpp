@@ -65,6 +65,13 @@ Enum token_from(const char* attribute, const std::string& token, std::initialize
     }
     throw std::invalid_argument(std::string(attribute) + " '" + token + "' is not one of " + names);
 }
+// UsdGeomMesh's subdivisionScheme token; none, or any token outside the schema's, draws the cage as it is.
+SubdivisionScheme subdivision_scheme_from(const std::string& token) {
+    return token == "catmullClark" ? SubdivisionScheme::CatmullClark
+         : token == "loop"         ? SubdivisionScheme::Loop
+         : token == "bilinear"     ? SubdivisionScheme::Bilinear
+                                   : SubdivisionScheme::None;
+}
 BoundaryInterpolation boundary_interpolation_from(const std::string& token) {
     return token_from<BoundaryInterpolation>("interpolateBoundary", token,
                                              {{"none", BoundaryInterpolation::None},
@@ -286,10 +293,7 @@ NB_MODULE(_tessera, m) {
             tags.creaseSharpnesses = span_of(creaseSharpnesses);
             tags.cornerIndices = span_of(cornerIndices);
             tags.cornerSharpnesses = span_of(cornerSharpnesses);
-            source.view.subdivisionScheme = scheme == "catmullClark" ? SubdivisionScheme::CatmullClark
-                                            : scheme == "loop"       ? SubdivisionScheme::Loop
-                                            : scheme == "bilinear"   ? SubdivisionScheme::Bilinear
-                                                                     : SubdivisionScheme::None;
+            source.view.subdivisionScheme = subdivision_scheme_from(scheme);
             source.view.refineLevel = std::clamp(refineLevel, 0, 8);
             source.view.name = name;
             source.view.points = {points.data(), points.shape(0)};
@@ -342,10 +346,7 @@ NB_MODULE(_tessera, m) {
             if (!nb::try_cast(points, p, false) || !nb::try_cast(counts, c, false) || !nb::try_cast(indices, i, false))
                 throw std::invalid_argument(name + ": points must be contiguous float32 values, face vertex counts and indices int32");
             MeshSource source;
-            source.view.subdivisionScheme = scheme == "catmullClark" ? SubdivisionScheme::CatmullClark
-                                            : scheme == "loop"       ? SubdivisionScheme::Loop
-                                            : scheme == "bilinear"   ? SubdivisionScheme::Bilinear
-                                                                     : SubdivisionScheme::None;
+            source.view.subdivisionScheme = subdivision_scheme_from(scheme);
             source.view.refineLevel = std::clamp(refineLevel, 0, 8);
             source.view.name = name;
             source.view.points = {p.data(), p.size()};
