@@ -87,20 +87,18 @@ vec3 vertex_position(GpuFrame frame, uint vertex) {
     return vec3(positions.data[3 * vertex], positions.data[3 * vertex + 1], positions.data[3 * vertex + 2]);
 }
 
-// Vertex of a triangle corner. The winding is reversed for flipped instances so that every triangle reaches
-// the rasterizer counter-clockwise when seen from its front.
-uint corner_vertex(GpuFrame frame, GpuCluster cluster, uint triangle, uint corner, bool flip) {
-    uint packed = UintRef(frame.triangles).data[cluster.triangleOffset + triangle];
-    if (flip && corner != 0u) corner = 3u - corner;
-    return cluster.vertexOffset + ((packed >> (8u * corner)) & 0xffu);
-}
-
-// The three corners' vertices at once: one load of the packed triangle, not one per corner (on a CPU device every
-// load of a per-pixel address is a loop over the lanes).
+// The vertices of a triangle's three corners. The winding is reversed for flipped instances so that every triangle
+// reaches the rasterizer counter-clockwise when seen from its front. All three from one load of the packed triangle,
+// not one load per corner (on a CPU device every load of a per-pixel address is a loop over the lanes).
 uvec3 triangle_vertices(GpuFrame frame, GpuCluster cluster, uint triangle, bool flip) {
     uint packed = UintRef(frame.triangles).data[cluster.triangleOffset + triangle];
     uvec3 v = cluster.vertexOffset + (uvec3(packed, packed >> 8u, packed >> 16u) & 0xffu);
     return flip ? v.xzy : v;
+}
+
+// The vertex of one corner (the hardware rasterizer's vertex shader: one corner per invocation).
+uint corner_vertex(GpuFrame frame, GpuCluster cluster, uint triangle, uint corner, bool flip) {
+    return triangle_vertices(frame, cluster, triangle, flip)[corner];
 }
 
 // Largest factor by which the instance transform stretches a length: the square root of the largest eigenvalue of

@@ -39,8 +39,9 @@ DisplacedTriangle displaced_triangle(GpuFrame frame, Instance instance, GpuClust
     DisplacedTriangle t;
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
+    uvec3 corners = triangle_vertices(frame, cluster, triangle, flip);
     for (uint k = 0u; k < 3u; ++k) {
-        uint v = corner_vertex(frame, cluster, triangle, k, flip);
+        uint v = corners[k];
         t.v[k] = v;
         t.p[k] = vertex_position(frame, v);
         t.n[k] = decode_octahedral(mesh.displacementNormalOffset != TS_NO_STREAM
