@@ -35,35 +35,24 @@ std::optional<DisplacementBake> displacement_bake(const MaterialDesc& m) {
     return bake;
 }
 
-MeshTable::Handle MeshTable::acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param) {
-    validate_settings(settings);
-    const MeshCache::Digest key = MeshCache::digest(view, settings);
-    auto found = byKey_.find(key);
-    if (found != byKey_.end()) {
-        Shared& shared = found->second;
-        ++shared.users;
-        ++param.meshesShared;
-        for (const std::string& warning : shared.warnings)  // this prim has the same problems: say so by its name
-            param.warnings.push_back(warning.rfind(shared.name + ": ", 0) == 0 ? view.name + warning.substr(shared.name.size()) : warning);
-        return {shared.gpuMesh, key};
-    }
-    CachedBuild built = build_through_cache(view, settings, cache_, &key);
-    ++(built.fromCache ? param.meshesFromCache : param.meshesBuilt);
-    Shared& shared = byKey_[key];
-    shared = {scene_.add_mesh(std::move(built.mesh)), 1, built.warnings.empty() ? std::string() : view.name, built.warnings};
-    for (auto& w : built.warnings) param.warnings.push_back(std::move(w));
-    return {shared.gpuMesh, key};
-}
-
-void MeshTable::release(const Handle& handle) {
-    auto found = byKey_.find(handle.key);
-    if (found == byKey_.end() || --found->second.users > 0) return;
-    scene_.remove_mesh(found->second.gpuMesh);
-    byKey_.erase(found);
-}
-
 Mesh::~Mesh() {
+    if (building_) {  // a sync that threw before the render index finished it: the build is waited for, then dropped
+        RenderParam ignored;
+        try {
+            mesh_ = meshes_.finish(*building_, ignored);
+        } catch (const std::exception&) {
+        }
+    }
     if (mesh_) meshes_.release(*mesh_);
+}
+
+void Mesh::finish_build(RenderParam& param) {
+    const std::unique_ptr<MeshTable::Ticket> ticket = std::move(building_);
+    try {
+        mesh_ = meshes_.finish(*ticket, param);
+    } catch (const MeshError& e) {
+        param.errors.push_back(std::string(e.what()) + "; the mesh is skipped");
+    }
 }
 
 void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
@@ -92,9 +81,10 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
         rebuild = rebuild || bakeKey != bakeKey_;
         bakeKey_ = bakeKey;
     }
-    if (dirtyBits & DirtyTransform) transform_ = scene.get_transform(id());
+    if (asked & DirtyTransform) transform_ = scene.get_transform(id());
     awaitingBits_ = 0;
     if (rebuild) {
+        if (building_) finish_build(param);  // the render index finishes each sync's builds: only defensive
         if (mesh_) {
             meshes_.release(*mesh_);
             mesh_.reset();
@@ -115,8 +105,7 @@ void Mesh::sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) {
             MeshSource source = scene.get_mesh(id());
             doubleSided_ = source.doubleSided;
             if (source.view.name.empty()) source.view.name = id();
-            if (bake) source.view.bake = &*bake;
-            mesh_ = meshes_.acquire(source.view, source.settings, param);
+            building_ = std::make_unique<MeshTable::Ticket>(meshes_.start(std::move(source), std::move(bake), param));
         } catch (const MeshError& e) {
             param.errors.push_back(std::string(e.what()) + "; the mesh is skipped");
         }

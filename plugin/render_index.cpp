@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <optional>
 #include <sstream>
 #include <tuple>
@@ -41,10 +42,11 @@ std::unique_ptr<RenderBuffer> RenderDelegate::create_bprim(const std::string& ty
     return std::make_unique<RenderBuffer>(id);
 }
 
-void RenderIndex::insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t defaults) {
+void RenderIndex::insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t defaults,
+                               const Matrix4d* transform) {
     auto prim = delegate_.create_rprim(type, id, instancerId, uint32_t(primPaths_.size()));
     if (!prim) throw std::invalid_argument("unsupported rprim type '" + type + "' for " + id);
-    prim->assume_defaults(defaults);
+    prim->assume_defaults(defaults, transform);
     primPaths_.push_back(id);
     Entry& entry = rprims_[id];
     entry = {type, std::move(prim), AllDirty, false};
@@ -88,6 +90,11 @@ void RenderIndex::mark_dirty(const PrimId& id, uint32_t bits) {
         it->second.failed = false;  // a changed prim gets another chance (sync_all decides what to commit)
         dirty->insert(&it->second);
     }
+}
+
+const Mesh* RenderIndex::rprim(const PrimId& id) const {
+    auto it = rprims_.find(id);
+    return it == rprims_.end() ? nullptr : static_cast<const Mesh*>(it->second.prim.get());
 }
 
 void RenderIndex::mark_all_dirty(uint32_t bits) {
@@ -146,11 +153,32 @@ void RenderIndex::sync_all(SceneDelegate& scene, const PrimId& cameraId, uint32_
         return it != sprims_.end() && it->second.type == "material" ? &static_cast<const Material&>(*it->second.prim).desc() : nullptr;
     };
     std::vector<const Entry*> moved;  // plain meshes whose transform alone changed: patched into the instance list
+    // Meshes whose builds their syncs started (MeshTable), finished in sync order: each as soon as it is ready, so that
+    // the workers build while the next prims are read.
+    std::deque<Entry*> building;
+    auto finish_first = [&] {
+        Entry& entry = *building.front();
+        building.pop_front();
+        try {
+            static_cast<Mesh&>(*entry.prim).finish_build(param_);
+        } catch (const std::exception& e) {
+            param_.errors.push_back(entry.prim->id() + ": " + one_line(e.what()) + "; the prim is skipped");
+            entry.failed = true;
+        }
+    };
     // Only the prims marked dirty are visited (sprims first: rprims refer to materials), in id order.
     for (auto* dirty : {&dirtySprims_, &dirtyRprims_}) {
         if (dirty == &dirtyRprims_) prepare_view(cameraId, width, height);
-        std::vector<Entry*> entries(dirty->begin(), dirty->end());
-        std::sort(entries.begin(), entries.end(), [](const Entry* a, const Entry* b) { return a->prim->id() < b->prim->id(); });
+        std::vector<Entry*> entries;
+        auto& all = dirty == &dirtyRprims_ ? rprims_ : sprims_;
+        if (dirty->size() > all.size() / 8) {  // a first sync, say: the map is in id order already (sorting 100 k ids cost more)
+            entries.reserve(dirty->size());
+            for (auto& [id, entry] : all)
+                if (dirty->count(&entry)) entries.push_back(&entry);
+        } else {
+            entries.assign(dirty->begin(), dirty->end());
+            std::sort(entries.begin(), entries.end(), [](const Entry* a, const Entry* b) { return a->prim->id() < b->prim->id(); });
+        }
         dirty->clear();
         for (Entry* entryPointer : entries) {
             Entry& entry = *entryPointer;
@@ -174,7 +202,10 @@ void RenderIndex::sync_all(SceneDelegate& scene, const PrimId& cameraId, uint32_
                 entry.failed = true;
             }
             lastSynced_.emplace_back(id, entry.dirty);
-            if (mesh) {
+            if (mesh && mesh->building()) {
+                building.push_back(&entry);
+                structureDirty_ = true;  // drawn with its new mesh, or no longer drawn if it cannot be built
+            } else if (mesh) {
                 const bool drawn = !entry.failed && mesh->visible() && mesh->gpu_mesh();
                 if (entry.dirty == DirtyTransform && mesh->instancer_id().empty() && drawn && entry.instanceCount == 1)
                     moved.push_back(&entry);
@@ -188,7 +219,10 @@ void RenderIndex::sync_all(SceneDelegate& scene, const PrimId& cameraId, uint32_
             if (mesh && mesh->awaiting_view()) awaitingView_.insert(&entry);
             else if (mesh) awaitingView_.erase(&entry);
             ++syncCounts_[entry.type];
+            while (!building.empty() && (static_cast<const Mesh&>(*building.front()->prim).build_ready() || delegate_.meshes().saturated()))
+                finish_first();
         }
+        while (!building.empty()) finish_first();
     }
     if (structureDirty_) {
         commit_resources();

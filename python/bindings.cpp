@@ -607,18 +607,30 @@ NB_MODULE(_tessera, m) {
 
     nb::class_<RenderIndex>(m, "RenderIndex")
         .def(nb::init<RenderDelegate&>(), "delegate"_a, nb::keep_alive<1, 2>())
-        .def("insert_rprim", &RenderIndex::insert_rprim, "type"_a, "id"_a, "instancer_id"_a = "", "defaults"_a = 0,
+        .def("insert_rprim", [](RenderIndex& index, const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t defaults) {
+                 index.insert_rprim(type, id, instancerId, defaults);
+             }, "type"_a, "id"_a, "instancer_id"_a = "", "defaults"_a = 0,
              "defaults: dirty bits (VISIBILITY: visible, MATERIAL_ID: no material nor subset materials) the delegate knows "
              "to be in their default state, which the first sync then does not ask for")
         .def(
             "insert_rprims",
-            [](RenderIndex& index, const std::string& type, const std::vector<PrimId>& ids, const std::optional<std::vector<uint32_t>>& defaults) {
+            [](RenderIndex& index, const std::string& type, const std::vector<PrimId>& ids, const std::optional<std::vector<uint32_t>>& defaults,
+               std::optional<nb::ndarray<const double, nb::shape<-1, 16>, nb::c_contig, nb::device::cpu>> transforms) {
                 if (defaults && defaults->size() != ids.size())
                     throw std::invalid_argument(std::to_string(defaults->size()) + " defaults for " + std::to_string(ids.size()) + " ids");
-                for (size_t i = 0; i < ids.size(); ++i) index.insert_rprim(type, ids[i], "", defaults ? (*defaults)[i] : 0u);
+                if (transforms && transforms->shape(0) != ids.size())
+                    throw std::invalid_argument(std::to_string(transforms->shape(0)) + " transforms for " + std::to_string(ids.size()) + " ids");
+                for (size_t i = 0; i < ids.size(); ++i) {
+                    Matrix4d transform;
+                    if (transforms)  // Gf's layout (row vectors): transposed into the C++ convention
+                        for (size_t r = 0; r < 4; ++r)
+                            for (size_t c = 0; c < 4; ++c) transform[r * 4 + c] = transforms->data()[i * 16 + c * 4 + r];
+                    index.insert_rprim(type, ids[i], "", defaults ? (*defaults)[i] : 0u, transforms ? &transform : nullptr);
+                }
             },
-            "type"_a, "ids"_a, "defaults"_a = nb::none(),
-            "insert_rprim for each id in turn (no instancer), with its defaults if given: one call for a whole walk's finds.")
+            "type"_a, "ids"_a, "defaults"_a = nb::none(), "transforms"_a = nb::none(),
+            "insert_rprim for each id in turn (no instancer), with its defaults if given: one call for a whole walk's finds. "
+            "`transforms`: (N, 16) world transforms in Gf's layout (row vectors), used where `defaults` has dirty.TRANSFORM.")
         .def("insert_sprim", &RenderIndex::insert_sprim, "type"_a, "id"_a)
         .def("remove_prim", &RenderIndex::remove_prim, "id"_a)
         .def("mark_dirty", &RenderIndex::mark_dirty, "id"_a, "bits"_a)
@@ -669,6 +681,22 @@ NB_MODULE(_tessera, m) {
             },
             "The prims the last sync synced: {id: dirty bits} (tessera._tessera.dirty names the bits).")
         .def_prop_ro("rprim_count", &RenderIndex::rprim_count)
+        .def(
+            "rprim_transform",
+            [](const RenderIndex& index, const PrimId& id) {
+                const Mesh* mesh = index.rprim(id);
+                if (!mesh) throw nb::key_error(id.c_str());
+                return mesh->transform();
+            },
+            "id"_a, "The mesh's world transform (row-major, column vectors): as synced, or as given at insertion.")
+        .def(
+            "rprim_defaults",
+            [](const RenderIndex& index, const PrimId& id) {
+                const Mesh* mesh = index.rprim(id);
+                if (!mesh) throw nb::key_error(id.c_str());
+                return mesh->defaults();
+            },
+            "id"_a, "The dirty bits whose state the mesh was given at insertion and its next sync will not ask for.")
         .def("take_diagnostics", [](RenderIndex& index) {
             RenderParam p = index.take_diagnostics();
             nb::dict d;

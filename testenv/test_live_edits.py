@@ -146,6 +146,31 @@ def test_a_points_edit_rebuilds_that_mesh_alone(live):
     assert _mask(after, "/World/Right").sum() == pytest.approx(4 * _mask(before, "/World/Right").sum(), rel=0.1)
 
 
+def test_a_mesh_shared_from_one_rebuilt_in_the_same_sync_keeps_the_old_shape(live):
+    """Builds finish in sync order while the next prims are read (MeshTable): here a slow new mesh is read first, then a
+    new prim identical to /World/Left/Quad (shared at once), then /World/Left/Quad itself, edited: it lets its old mesh
+    go and builds a new one, while the copy must keep drawing the old."""
+    first, _ = live.render()
+    side = 150  # a dense grid: its build is still running when the prims after it sync
+    u, v = np.meshgrid(np.linspace(-0.4, 0.4, side + 1), np.linspace(-0.4, 0.4, side + 1))
+    dense = UsdGeom.Mesh.Define(live.stage, "/World/Alpha")
+    dense.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.stack([u + 3.3, v + 1.4, 0 * u], -1).reshape(-1, 3).astype(np.float32)))
+    corners = np.arange((side + 1) * side).reshape(side, side + 1)[:, :side]
+    dense.GetFaceVertexCountsAttr().Set(Vt.IntArray([4] * side * side))
+    dense.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(
+        np.stack([corners, corners + 1, corners + side + 2, corners + side + 1], -1).reshape(-1).astype(np.int32)))
+    UsdGeom.Xform.Define(live.stage, "/World/Copy").AddTranslateOp().Set(Gf.Vec3d(-3.3, 1.4, 0))
+    _quad(live.stage, "/World/Copy/Quad", 0, 0)  # the points of /World/Left/Quad before the edit below
+    points = live.stage.GetPrimAtPath("/World/Left/Quad").GetAttribute("points")
+    points.Set(Vt.Vec3fArray([Gf.Vec3f(p[0] * 0.5, p[1] * 0.5, 0) for p in points.Get()]))
+    edited, synced = live.render()
+    assert list(synced) == ["/World/Alpha", "/World/Copy/Quad", "/World/Left/Quad"], "in this order"
+    assert edited.stats["meshes_shared"] == 1 and edited.stats["meshes_built"] == 2, edited.stats
+    old = _mask(first, "/World/Left/Quad").sum()
+    assert _mask(edited, "/World/Copy/Quad").sum() == old > 0, "the copy draws the shape it was shared"
+    assert _mask(edited, "/World/Left/Quad").sum() == pytest.approx(old / 4, rel=0.15)
+    assert _mask(edited, "/World/Alpha").sum() > 0
+
 def test_prims_added_and_removed(live):
     live.render()
     _quad(live.stage, "/World/Added", 0, 0, 0.8)

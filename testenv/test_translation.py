@@ -202,17 +202,25 @@ def _delegate(stage, time=Usd.TimeCode.Default()):
 @pytest.mark.parametrize("time", [Usd.TimeCode.Default(), Usd.TimeCode(7.5)])
 def test_walked_world_transforms_are_usds(time):
     stage, _layers = _layered_transform_stage()
-    delegate, _index = _delegate(stage, time)
+    from tessera import _tessera
+
+    delegate, index = _delegate(stage, time)
     plain = sorted(id for id, record in delegate.rprims.items() if record.group is None)
     assert plain == ["/World/Group/Mesh", "/World/Group/OnlyReset/Mesh", "/World/Group/Reset/Mesh", "/World/Hidden/Mesh",
                      "/World/Placed/Body", "/World/Scope/Mesh", "/World/Switch/Mesh"]
-    assert set(delegate._walked_worlds) == set(plain), "the walk computed every plain mesh's transform"
+    # The walk computed every plain mesh's transform: a shown mesh's went into the index with it (its first sync does
+    # not ask for it), a hidden one's waits in the delegate for the sync that shows it.
+    assert set(delegate._walked_worlds) == {"/World/Hidden/Mesh"}
     for id in plain:
-        walked = np.array(delegate.get_transform(id))  # the first read takes the walk's
+        if id in delegate._walked_worlds:
+            walked = np.array(delegate.get_transform(id))  # the first read takes the walk's
+            assert id not in delegate._walked_worlds, "used once"
+            assert np.array_equal(np.array(delegate.get_transform(id)), walked), "read again through USD: the same"
+        else:
+            assert index.rprim_defaults(id) & _tessera.dirty.TRANSFORM, id
+            walked = np.array(index.rprim_transform(id))
         assert not np.isnan(walked).any()
         assert np.allclose(walked, _usd_world(stage, id, time), rtol=0, atol=1e-12), id
-        assert id not in delegate._walked_worlds, "used once"
-        assert np.array_equal(np.array(delegate.get_transform(id)), walked), "read again through USD: the same"
 
 
 def test_walked_world_transforms_are_dropped_by_edits_and_time():
@@ -220,13 +228,20 @@ def test_walked_world_transforms_are_dropped_by_edits_and_time():
     time, before that sync (a hidden mesh waits for its first show) means reading it again."""
     from tessera.usd import ChangeTracker
 
+    from tessera import _tessera
+
     stage, _layers = _layered_transform_stage()
-    delegate, _index = _delegate(stage)
+    delegate, index = _delegate(stage)
     changes = ChangeTracker(stage)
     UsdGeom.Xformable(stage.GetPrimAtPath("/World")).GetOrderedXformOps()[0].Set(Gf.Vec3d(0, -8, 0))
     delegate.apply_changes(*changes.take())
     for id in ("/World/Hidden/Mesh", "/World/Group/Mesh"):
         assert np.allclose(delegate.get_transform(id), _usd_world(stage, id, Usd.TimeCode.Default()), atol=1e-12), id
+    # The index forgot the transform the walk handed it (the edit dirtied it): the first sync reads it again.
+    assert not index.rprim_defaults("/World/Placed/Body") & _tessera.dirty.TRANSFORM
+    index.sync_all(delegate)
+    assert np.allclose(index.rprim_transform("/World/Placed/Body"), _usd_world(stage, "/World/Placed/Body", Usd.TimeCode.Default()),
+                       atol=1e-12)
     delegate.set_time(Usd.TimeCode(3.0))  # re-walked prims then a new time: the walk's time no longer applies
     assert np.allclose(delegate.get_transform("/World/Placed/Body"), _usd_world(stage, "/World/Placed/Body", Usd.TimeCode(3.0)),
                        atol=1e-12)
@@ -282,8 +297,8 @@ def test_the_short_read_borrows_arrays_of_any_shape_and_refuses_other_types():
 
 
 def test_the_first_sync_asks_for_no_default_the_walk_saw():
-    """A mesh the walk saw visible and without a material is inserted with those defaults: its first sync does not call
-    back for its visibility or material. A hidden mesh and a bound one are asked, and marking a default's bit dirty
+    """A mesh the walk saw visible and without a material is inserted with those defaults and its world transform: its
+    first sync does not call back for them. A hidden mesh and a bound one are asked, and marking a default's bit dirty
     (an edit) makes the next sync ask again."""
     from tessera import _tessera
     from tessera.usd import UsdSceneDelegate
@@ -305,13 +320,19 @@ def test_the_first_sync_asks_for_no_default_the_walk_saw():
             asked.append(("material", id))
             return super().get_material_id(id)
 
+        def get_transform(self, id):
+            asked.append(("transform", id))
+            return super().get_transform(id)
+
     index = _tessera.RenderIndex(_tessera.RenderDelegate(device="cpu", validation=True))
     delegate = Counting(stage, index)
     delegate.populate()
-    index.mark_dirty("/Plain", _tessera.dirty.VISIBILITY | _tessera.dirty.MATERIAL_ID)  # as an edit before the first sync
+    dirty = _tessera.dirty
+    index.mark_dirty("/Plain", dirty.VISIBILITY | dirty.MATERIAL_ID)  # as an edit before the first sync
+    index.mark_dirty("/Bound", dirty.TRANSFORM)
     index.sync_all(delegate)
-    assert sorted(asked) == [("material", "/Bound"), ("material", "/Plain"), ("visible", "/Hidden"), ("visible", "/Plain")], \
-        "only what is not a default (/Quad is asked nothing)"
+    assert sorted(asked) == [("material", "/Bound"), ("material", "/Plain"), ("transform", "/Bound"), ("visible", "/Hidden"),
+                             ("visible", "/Plain")], "only what is not a default (/Quad is asked nothing; /Hidden shows no transform)"
     built = index.take_diagnostics()
     assert built["meshes_built"] + built["meshes_shared"] == 3, "the plain meshes are built all the same (not the hidden one)"
 
@@ -330,9 +351,13 @@ def test_a_transform_usd_rejects_is_left_to_the_sync():
     reset.AddTranslateOp().Set(Gf.Vec3d(0, 2, 0))
     _cube(stage, "/Bad/Reset/Mesh")
     _cube(stage, "/Good/Mesh").AddTranslateOp().Set(Gf.Vec3d(1, 0, 0))
-    delegate, _index = _delegate(stage)
-    assert set(delegate._walked_worlds) == {"/Quad", "/Bad/Reset/Mesh", "/Good/Mesh"}
+    from tessera import _tessera
+
+    delegate, index = _delegate(stage)
+    assert {id for id in delegate.rprims if index.rprim_defaults(id) & _tessera.dirty.TRANSFORM} == \
+        {"/Quad", "/Bad/Reset/Mesh", "/Good/Mesh"}, "the walk's transforms, handed to the index"
     for id in ("/Bad/Reset/Mesh", "/Good/Mesh"):
+        assert np.allclose(index.rprim_transform(id), _usd_world(stage, id, Usd.TimeCode.Default()), atol=1e-12)
         assert np.allclose(delegate.get_transform(id), _usd_world(stage, id, Usd.TimeCode.Default()), atol=1e-12)
     with pytest.raises(Exception, match="opType"):
         delegate.get_transform("/Bad/Mesh")

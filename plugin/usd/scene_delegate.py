@@ -123,6 +123,7 @@ class _Purposes:
 
 
 _UNKNOWN = object()  # a world transform the walk could not compute (USD rejected an ancestor's ops)
+_IDENTITY_BYTES = bytes(memoryview(Gf.Matrix4d(1.0)))  # a place holder where no transform is handed over
 
 
 class _WorldTransforms:
@@ -506,7 +507,6 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         if hidden is not None:
             self._walk(prim, hidden, found)
         resync = survivor_bits == _dirty.ALL
-        self._walked_worlds.update(found.worlds)
 
         # Gprims drawn once, cameras and lights: ids are prim paths.
         for id in self._paths.under(path):
@@ -528,7 +528,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
                 self.index.mark_dirty(id, survivor_bits)
             elif survivor_bits:
                 self.index.mark_dirty(id, survivor_bits)
-        self._insert_walked(new, found)
+        self._insert_walked(new, found)  # takes the world transforms it hands over out of found.worlds
+        self._walked_worlds.update(found.worlds)
         for id, kind in found.sprims.items():
             if self.sprims.get(id) not in (None, kind):
                 self._remove_sprim(id)
@@ -698,18 +699,23 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
 
     def _insert_walked(self, ids: list[str], found: _Found) -> None:
         """Gprims drawn once that a walk found and the index lacks, inserted into the index in one call. What the walk
-        saw of a mesh's visibility and material, when they are the defaults (visible; no material, no subsets), goes
-        with it, so that its first sync does not call back for them."""
-        visible, unbound = _dirty.VISIBILITY, _dirty.MATERIAL_ID
-        defaults = []
+        saw of a mesh's visibility and material, when they are the defaults (visible; no material, no subsets), and the
+        world transform it computed for a mesh that shows go with it, so that its first sync does not call back for
+        them. (A hidden mesh's transform is noted for the sync that shows it.)"""
+        visible, unbound, placed = _dirty.VISIBILITY, _dirty.MATERIAL_ID, _dirty.TRANSFORM
+        defaults, worlds = [], []
         for id in ids:
             shown = id not in found.hidden
             record = self.rprims[id] = _Rprim(found.rprims[id], walked_visible=None if shown else False,
                                               walked_authored=found.authored[id])
             self._paths.add(id, id)
             self._rebind(id, record)
-            defaults.append((visible if shown else 0) | (0 if record.material or record.subset_materials else unbound))
-        self.index.insert_rprims("mesh", ids, defaults)
+            world = found.worlds.pop(id, None) if shown else None
+            worlds.append(_IDENTITY_BYTES if world is None else bytes(memoryview(world)))
+            defaults.append((visible if shown else 0) | (0 if record.material or record.subset_materials else unbound) |
+                            (0 if world is None else placed))
+        transforms = np.frombuffer(b"".join(worlds)).reshape(-1, 16) if ids else None
+        self.index.insert_rprims("mesh", ids, defaults, transforms)
 
     def _insert_rprim(self, id: str, record: _Rprim) -> None:
         self.rprims[id] = record
@@ -904,8 +910,8 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
         self.apply_changes(set(), changed)
 
     def _forget_walked_worlds(self) -> None:
-        """Drops the world transforms that walks noted and no sync used yet (a hidden mesh keeps its own until it
-        shows): an edit or a new time may have moved them."""
+        """Drops the world transforms that walks noted and no sync used yet: an edit or a new time may have moved them.
+        (Those handed to the index with new meshes are forgotten there by the edit's own dirty bits.)"""
         self._walked_worlds.clear()
 
     def _find_time_varying(self) -> dict[str, set[str]]:

@@ -11,12 +11,16 @@
 #include "tessera/cache.h"
 #include "tessera/renderer.h"
 
-#include <map>
+#include <condition_variable>
+#include <deque>
 #include <functional>
+#include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <span>
 #include <string>
+#include <thread>
 #include <unordered_map>
 #include <unordered_set>
 #include <utility>
@@ -101,18 +105,46 @@ struct RenderParam {
 
 // Built meshes shared by content: rprims whose meshes are identical (the mesh cache's key: points, topology,
 // primvars, build settings) use one GPU scene mesh, built or loaded once, however many prims author it.
+//
+// Builds run on worker threads while the syncing thread goes on reading the stage (the scene delegate is Python: one
+// thread): start() hands a mesh over, finish() waits for it on the syncing thread, in sync order (so the GPU scene,
+// the counts and the messages come out as they would one by one), and adds it to the GPU scene.
 class MeshTable {
 public:
     MeshTable(GpuScene& scene, const MeshCache& cache) : scene_(scene), cache_(cache) {}
+    ~MeshTable();
+    MeshTable(const MeshTable&) = delete;
+    MeshTable& operator=(const MeshTable&) = delete;
+
     struct Handle {
         uint32_t gpuMesh;
         MeshCache::Digest key;
     };
-    // The GPU scene mesh for `view`: shared, else loaded from the cache, else built (throws MeshError).
-    Handle acquire(const MeshView& view, const BuildSettings& settings, RenderParam& param);
+    struct Build;  // one mesh on its way (mesh_table.cpp)
+    struct Ticket {
+        std::shared_ptr<Build> build;  // shared by the prims whose identical meshes were started before it finished
+        std::string name;              // the prim's mesh name, which its messages use
+        std::optional<Handle> held;    // an identical mesh was held already: shared at start (no build)
+    };
+    // Starts getting the GPU scene mesh of `source` (with `bake`, its material's static displacement, if any): one
+    // held already is shared at once, one on its way is waited for, else it is loaded from the cache or built by a
+    // worker thread. Bad settings throw MeshError at once.
+    Ticket start(MeshSource source, std::optional<DisplacementBake> bake, RenderParam& param);
+    static bool ready(const Ticket& ticket);
+    // Waits for the mesh and adds it to the GPU scene; throws MeshError (naming the ticket's prim) as its build did.
+    // On the syncing thread: the mesh's source arrays (Python's) are let go here.
+    Handle finish(const Ticket& ticket, RenderParam& param);
+    // Whether so much is on its way that the syncing thread should finish what it started before reading on (the
+    // sources of started meshes stay in memory until they finish).
+    bool saturated() const;
     void release(const Handle& handle);
 
 private:
+    void work();     // a worker thread's loop
+    void publish();  // hands the started meshes over to the workers
+    struct Shared;
+    Handle share(Shared& shared, const MeshCache::Digest& key, const std::string& name, RenderParam& param);
+
     // Kept small (100 k distinct meshes are 100 k of these): the name only where there are warnings to rename.
     struct Shared {
         uint32_t gpuMesh = 0, users = 0;
@@ -122,6 +154,16 @@ private:
     GpuScene& scene_;
     const MeshCache& cache_;
     std::unordered_map<MeshCache::Digest, Shared, MeshCache::DigestHash> byKey_;
+    std::unordered_map<MeshCache::Digest, std::shared_ptr<Build>, MeshCache::DigestHash> started_;  // not finished yet
+    size_t startedIndices_ = 0;  // face-vertex indices of the sources of started_ (saturated())
+    std::vector<std::shared_ptr<Build>> unpublished_;  // started, not handed to the workers yet (publish())
+    size_t unpublishedIndices_ = 0;
+    // The workers, started at the first build (a render that builds nothing starts no thread).
+    std::vector<std::thread> workers_;
+    std::mutex mutex_;
+    std::condition_variable queued_, done_;
+    std::deque<std::shared_ptr<Build>> queue_;
+    bool stopping_ = false;
 };
 
 // Base of every prim kind.
@@ -142,7 +184,12 @@ public:
     Mesh(PrimId id, PrimId instancerId, uint32_t primId, GpuScene& scene, MeshTable& meshes)
         : Prim(std::move(id)), instancerId_(std::move(instancerId)), primId_(primId), scene_(scene), meshes_(meshes) {}
     ~Mesh() override;
+    // A sync that rebuilds the mesh starts its build (MeshTable::start): the render index finishes it, in sync order.
     void sync(SceneDelegate& scene, RenderParam& param, uint32_t dirtyBits) override;
+    bool building() const { return building_ != nullptr; }
+    bool build_ready() const { return building_ && MeshTable::ready(*building_); }
+    // Waits for the mesh its sync started; a mesh that cannot be built is reported and skipped.
+    void finish_build(RenderParam& param);
 
     const PrimId& instancer_id() const { return instancerId_; }
     const PrimId& material_id() const { return materialId_; }
@@ -154,11 +201,16 @@ public:
     const Matrix4d& transform() const { return transform_; }
     const InstanceSet& instances() const { return instances_; }
     const BuiltMesh* built() const { return mesh_ ? scene_.mesh(mesh_->gpuMesh).get() : nullptr; }
-    // Bits whose state the scene delegate gave when it inserted the mesh as the defaults (DirtyVisibility: visible;
-    // DirtyMaterialId: no material and no GeomSubset materials): the first sync does not ask for them (100 k plain
-    // meshes made 300 k calls into Python for nothing). Marking such a bit dirty forgets it.
-    void assume_defaults(uint32_t bits) { defaults_ = bits & (DirtyVisibility | DirtyMaterialId); }
+    // Bits whose state the scene delegate gave when it inserted the mesh (DirtyVisibility: visible; DirtyMaterialId: no
+    // material and no GeomSubset materials; DirtyTransform: `transform`, what the stage walk computed): the first sync
+    // does not ask for them (100 k plain meshes made 400 k calls into Python for nothing). Marking such a bit dirty
+    // forgets it.
+    void assume_defaults(uint32_t bits, const Matrix4d* transform = nullptr) {
+        defaults_ = bits & (DirtyVisibility | DirtyMaterialId | (transform ? DirtyTransform : 0u));
+        if (defaults_ & DirtyTransform) transform_ = *transform;
+    }
     void forget_defaults(uint32_t bits) { defaults_ &= ~bits; }
+    uint32_t defaults() const { return defaults_; }  // those its next sync will not ask for
     // The build bits it holds back while no rendered view has seen its bounds (0: none; it is built or unbuildable).
     uint32_t awaiting_view() const { return awaitingBits_; }
     bool seen_by(const ViewFrustum& view) const { return view.touches_box(transform_, {box_[0], box_[1], box_[2]}, {box_[3], box_[4], box_[5]}); }
@@ -177,6 +229,7 @@ private:
     GpuScene& scene_;
     MeshTable& meshes_;
     std::optional<MeshTable::Handle> mesh_;
+    std::unique_ptr<MeshTable::Ticket> building_;  // started by sync, not finished yet (a pointer: 100 k meshes hold one)
     Matrix4d transform_ = identity_matrix();
     InstanceSet instances_;
     bool visible_ = true, doubleSided_ = false;
@@ -249,6 +302,7 @@ public:
     Device& device() { return device_; }
     Renderer& renderer() { return renderer_; }
     GpuScene& scene() { return scene_; }
+    MeshTable& meshes() { return meshes_; }
     const MeshCache& cache() const { return cache_; }
     void set_cache(MeshCache cache) { cache_ = std::move(cache); }
 
@@ -274,8 +328,9 @@ public:
     RenderIndex(const RenderIndex&) = delete;
     RenderIndex& operator=(const RenderIndex&) = delete;
 
-    // `defaults`: Mesh::assume_defaults, what the scene delegate already knows to be in its default state.
-    void insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId = "", uint32_t defaults = 0);
+    // `defaults` (and `transform`): Mesh::assume_defaults, what the scene delegate already knows of the mesh.
+    void insert_rprim(const std::string& type, const PrimId& id, const PrimId& instancerId = "", uint32_t defaults = 0,
+                      const Matrix4d* transform = nullptr);
     void insert_sprim(const std::string& type, const PrimId& id);
     void insert_bprim(const std::string& type, const PrimId& id);
     void remove_prim(const PrimId& id);
@@ -299,6 +354,7 @@ public:
     const std::vector<std::pair<PrimId, uint32_t>>& last_synced() const { return lastSynced_; }
     RenderParam take_diagnostics() { return std::exchange(param_, {}); }
     size_t rprim_count() const { return rprims_.size(); }
+    const Mesh* rprim(const PrimId& id) const;  // null if there is none
 
 private:
     void commit_resources();
