@@ -254,13 +254,6 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
     if (!(expectedRadius > 0) || !std::isfinite(expectedRadius) || !std::isfinite(meshArea)) return false;  // degenerate: meshoptimizer decides
 
     std::vector<uint8_t> taken(triangles, 0);
-    // The triangles around the open cluster (those meshoptimizer scans), with their priority and centroid side by
-    // side: scanning them is the hot loop. A triangle's priority depends only on its corners, so it changes only when
-    // a triangle sharing a corner is taken, and is updated then.
-    std::vector<uint32_t> candidate, priority;
-    std::vector<float> cx, cy, cz;
-    std::vector<uint64_t> keys;
-    std::vector<uint32_t> listed(triangles, kNone);  // a triangle's place in the candidate arrays
     std::vector<uint32_t> clusterVertices, corners;
     clusterVertices.reserve(maxVertices);
     corners.reserve(3 * maxTriangles);
@@ -283,8 +276,52 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
         return size_t(vertex[indices[3 * size_t(t)]].slot == kNotInCluster) + (vertex[indices[3 * size_t(t) + 1]].slot == kNotInCluster) +
                (vertex[indices[3 * size_t(t) + 2]].slot == kNotInCluster);
     };
+
+    // The triangles around the open cluster (those meshoptimizer scans), kept by priority (a candidate shares a
+    // vertex with the cluster, so it adds at most two: priorities 0-4), each with its centroid side by side: only the
+    // best non-empty priority is scanned. A triangle's priority depends only on its corners, so it changes only when
+    // a triangle sharing a corner is taken, and is moved then.
+    struct Bucket {
+        std::vector<uint32_t> triangle;
+        std::vector<float> x, y, z;
+    };
+    constexpr uint32_t kPriorities = 5;
+    Bucket buckets[kPriorities];
+    std::vector<uint32_t> listed(triangles, kNone);  // a candidate's place: index in its bucket * 8 + its priority
+    std::vector<float> scores;
+    size_t candidates = 0;
+    auto list = [&](uint32_t t, uint32_t priority) {
+        Bucket& b = buckets[priority];
+        listed[t] = uint32_t(b.triangle.size()) << 3 | priority;
+        b.triangle.push_back(t);
+        b.x.push_back(centroids[3 * size_t(t)]);
+        b.y.push_back(centroids[3 * size_t(t) + 1]);
+        b.z.push_back(centroids[3 * size_t(t) + 2]);
+        ++candidates;
+    };
+    auto unlist = [&](uint32_t t) {
+        const uint32_t at = listed[t] >> 3;
+        Bucket& b = buckets[listed[t] & 7];
+        const uint32_t moved = b.triangle.back();
+        b.triangle[at] = moved;
+        b.x[at] = b.x.back();
+        b.y[at] = b.y.back();
+        b.z[at] = b.z.back();
+        listed[moved] = at << 3 | (listed[t] & 7);
+        b.triangle.pop_back();
+        b.x.pop_back();
+        b.y.pop_back();
+        b.z.pop_back();
+        listed[t] = kNone;
+        --candidates;
+    };
+    auto best_bucket = [&]() -> const Bucket& {
+        uint32_t p = 0;
+        while (buckets[p].triangle.empty()) ++p;
+        return buckets[p];
+    };
     // Where meshoptimizer's scan (the cluster's vertices in order, each one's live triangles in list order) first
-    // meets triangle t: among equal keys the first met wins.
+    // meets triangle t: among equal scores the first met wins.
     auto scan_position = [&](uint32_t t) {
         uint64_t position = UINT64_MAX;
         for (int k = 0; k < 3; ++k) {
@@ -296,76 +333,54 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
         }
         return position;
     };
-    // The candidate with the smallest key (priority above the score's bits: a non-negative float's bits order as it
-    // does), ties to the one meshoptimizer's scan meets first.
-    auto smallest_key = [&]() {
-        uint64_t best = UINT64_MAX;
-        for (uint64_t key : keys) best = std::min(best, key);
+    // The bucket's triangle with the smallest score, ties to the one meshoptimizer's scan meets first.
+    auto smallest_score = [&](const Bucket& b) {
+        float best = FLT_MAX;
+        for (float score : scores) best = std::min(best, score);
         uint32_t winner = kNone;
         uint64_t winnerPosition = UINT64_MAX;
         size_t matches = 0;
-        for (size_t i = 0; i < keys.size(); ++i) {
-            if (keys[i] != best) continue;
+        for (size_t i = 0; i < scores.size(); ++i) {
+            if (scores[i] != best) continue;
             if (++matches == 1) {
-                winner = uint32_t(i);
+                winner = b.triangle[i];
                 continue;
             }
-            if (matches == 2) winnerPosition = scan_position(candidate[winner]);
-            const uint64_t position = scan_position(candidate[i]);
+            if (matches == 2) winnerPosition = scan_position(winner);
+            const uint64_t position = scan_position(b.triangle[i]);
             if (position < winnerPosition) {
-                winner = uint32_t(i);
+                winner = b.triangle[i];
                 winnerPosition = position;
             }
         }
-        return candidate[winner];
-    };
-    auto key_of = [](uint32_t priority, float score) {
-        uint32_t bits;
-        std::memcpy(&bits, &score, 4);
-        return uint64_t(priority) << 32 | bits;
+        return winner;
     };
     // By distance to the cluster's mean centroid (meshoptimizer's score 1 + distance / expected radius).
     auto nearest_candidate = [&](const float* center) {
-        keys.resize(candidate.size());
-        for (size_t i = 0; i < candidate.size(); ++i) {
-            const float dx = cx[i] - center[0], dy = cy[i] - center[1], dz = cz[i] - center[2];
-            const float score = 1 + std::sqrt(dx * dx + dy * dy + dz * dz) / expectedRadius;
-            keys[i] = key_of(priority[i], score);
+        const Bucket& b = best_bucket();
+        scores.resize(b.triangle.size());
+        for (size_t i = 0; i < scores.size(); ++i) {
+            const float dx = b.x[i] - center[0], dy = b.y[i] - center[1], dz = b.z[i] - center[2];
+            scores[i] = 1 + std::sqrt(dx * dx + dy * dy + dz * dz) / expectedRadius;
         }
-        return smallest_key();
+        return smallest_score(b);
     };
     // By how many triangles its corners have left (for the first triangle of the next cluster).
     auto loneliest_candidate = [&]() {
-        keys.resize(candidate.size());
-        for (size_t i = 0; i < candidate.size(); ++i) {
-            const uint32_t* c = &indices[3 * size_t(candidate[i])];
-            keys[i] = key_of(priority[i], float(vertex[c[0]].live + vertex[c[1]].live + vertex[c[2]].live - 3));
+        const Bucket& b = best_bucket();
+        scores.resize(b.triangle.size());
+        for (size_t i = 0; i < scores.size(); ++i) {
+            const uint32_t* c = &indices[3 * size_t(b.triangle[i])];
+            scores[i] = float(vertex[c[0]].live + vertex[c[1]].live + vertex[c[2]].live - 3);
         }
-        return smallest_key();
-    };
-    auto unlist = [&](uint32_t t) {
-        const uint32_t at = listed[t];
-        if (at == kNone) return;
-        const uint32_t last = uint32_t(candidate.size() - 1);
-        candidate[at] = candidate[last];
-        priority[at] = priority[last];
-        cx[at] = cx[last];
-        cy[at] = cy[last];
-        cz[at] = cz[last];
-        listed[candidate[at]] = at;
-        candidate.pop_back();
-        priority.pop_back();
-        cx.pop_back();
-        cy.pop_back();
-        cz.pop_back();
-        listed[t] = kNone;
+        return smallest_score(b);
     };
 
     for (size_t done = 0; done < triangles; ++done) {
         const float scale = clusterTriangles == 0 ? 0.f : 1.f / float(clusterTriangles);
         const float center[3] = {sum[0] * scale, sum[1] * scale, sum[2] * scale};
         uint32_t next = kNone;
-        if (!candidate.empty()) {
+        if (candidates > 0) {
             next = nearest_candidate(center);
             // The nearest does not fit: the next cluster starts where the fewest triangles are left around.
             if (clusterVertices.size() + extra_of(next) > maxVertices || clusterTriangles >= maxTriangles) next = loneliest_candidate();
@@ -401,12 +416,14 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
             clusterVertices.clear();
             clusters.push_back(corners);
             corners.clear();
-            for (uint32_t t : candidate) listed[t] = kNone;
-            candidate.clear();
-            priority.clear();
-            cx.clear();
-            cy.clear();
-            cz.clear();
+            for (Bucket& b : buckets) {
+                for (uint32_t t : b.triangle) listed[t] = kNone;
+                b.triangle.clear();
+                b.x.clear();
+                b.y.clear();
+                b.z.clear();
+            }
+            candidates = 0;
             sum[0] = sum[1] = sum[2] = 0;
             clusterTriangles = 0;
         }
@@ -421,7 +438,7 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
         corners.insert(corners.end(), corner, corner + 3);
         ++clusterTriangles;
         taken[next] = 1;
-        unlist(next);
+        if (listed[next] != kNone) unlist(next);
         for (int k = 0; k < 3; ++k) {  // no longer around its corners
             const uint32_t v = corner[k];
             uint32_t* list = &around[vertex[v].first];
@@ -437,13 +454,7 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
             const uint32_t v = clusterVertices[joined];
             for (uint32_t i = 0; i < vertex[v].live; ++i) {
                 const uint32_t t = around[vertex[v].first + i];
-                if (listed[t] != kNone) continue;
-                listed[t] = uint32_t(candidate.size());
-                candidate.push_back(t);
-                priority.push_back(0);
-                cx.push_back(centroids[3 * size_t(t)]);
-                cy.push_back(centroids[3 * size_t(t) + 1]);
-                cz.push_back(centroids[3 * size_t(t) + 2]);
+                if (listed[t] == kNone) list(t, priority_of(t));
             }
         }
         // Only the triangles around this one's corners can change priority, and only where the corner just joined or
@@ -453,7 +464,10 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
             if (vertex[v].live > 2 && !joinedNow[k]) continue;
             for (uint32_t i = 0; i < vertex[v].live; ++i) {
                 const uint32_t t = around[vertex[v].first + i];
-                priority[listed[t]] = priority_of(t);
+                const uint32_t priority = priority_of(t);
+                if ((listed[t] & 7) == priority) continue;
+                unlist(t);
+                list(t, priority);
             }
         }
         for (int k = 0; k < 3; ++k) sum[k] += centroids[3 * size_t(next) + k];
