@@ -14,6 +14,7 @@
 #include <meshoptimizer.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cfloat>
 #include <cmath>
 #include <cstring>
@@ -505,17 +506,18 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         const size_t roundVertices = local.size() / 3;  // vertices added this round are numbered from here
         std::vector<unsigned int> partition(pending.size(), 0);
         size_t groupCount = 1;
+        // Each cluster's distinct positions in order of first use (about a fifth of its corners): what the partition
+        // and the border locks look at.
+        std::vector<std::vector<uint32_t>> distinct(pending.size());
+        parallel_for(pending.size(), [&](size_t i) {
+            std::vector<uint32_t> cornerPositions(clusters[pending[i]].indices.size());
+            for (size_t k = 0; k < cornerPositions.size(); ++k) cornerPositions[k] = positionId[clusters[pending[i]].indices[k]];
+            number_by_first_use(cornerPositions, distinct[i]);
+        });
         if (pending.size() > kGroupSize) {
-            // Each cluster's distinct positions in order of first use, numbered for this round only: meshoptimizer's
-            // partitioner counts a position once per cluster and only compares numbers, so the partition is the one
-            // every corner of the mesh's numbering gives, while its tables (sized by the vertex count) and loops
-            // shrink to the round's own positions.
-            std::vector<std::vector<uint32_t>> distinct(pending.size());
-            parallel_for(pending.size(), [&](size_t i) {
-                std::vector<uint32_t> cornerPositions(clusters[pending[i]].indices.size());
-                for (size_t k = 0; k < cornerPositions.size(); ++k) cornerPositions[k] = positionId[clusters[pending[i]].indices[k]];
-                number_by_first_use(cornerPositions, distinct[i]);
-            });
+            // The positions numbered for this round only: meshoptimizer's partitioner counts a position once per
+            // cluster and only compares numbers, so the partition is the one every corner of the mesh's numbering
+            // gives, while its tables (sized by the vertex count) and loops shrink to the round's own positions.
             std::vector<unsigned int> clusterIndices, counts(pending.size());
             uint32_t positions = 0;
             roundPosition.resize(roundVertices, UINT32_MAX);
@@ -536,15 +538,17 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         // Positions used by more than one group are the group borders: locked while simplifying. The locks are set
         // for the whole round; while the groups simplify in parallel, each writes only its own interior vertices' locks
         // (pins), which no other group reads.
-        for (size_t g = 0; g < groupCount; ++g)
-            for (uint32_t c : members[g])
-                for (uint32_t v : clusters[c].indices) {
-                    const uint32_t p = positionId[v];
-                    if (firstGroup[p] < 0) firstGroup[p] = int32_t(g);
-                    else if (firstGroup[p] != int32_t(g)) shared[p] = 1;
-                }
-        for (uint32_t c : pending)
-            for (uint32_t v : clusters[c].indices) lock[v] = shared[positionId[v]] ? kBorderLock : 0;
+        // Whether a position is shared does not depend on the order the clusters are visited in. The locks are written
+        // on every core (a vertex of two clusters gets the same value from both: relaxed atomic stores).
+        for (size_t i = 0; i < pending.size(); ++i)
+            for (uint32_t p : distinct[i]) {
+                if (firstGroup[p] < 0) firstGroup[p] = int32_t(partition[i]);
+                else if (firstGroup[p] != int32_t(partition[i])) shared[p] = 1;
+            }
+        parallel_for(pending.size(), [&](size_t i) {
+            for (uint32_t v : clusters[pending[i]].indices)
+                std::atomic_ref<unsigned char>(lock[v]).store(shared[positionId[v]] ? kBorderLock : 0, std::memory_order_relaxed);
+        });
 
         struct Result {
             bool simplified = false;
@@ -679,12 +683,14 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             groups.push_back(group);
             add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, int32_t(groups.size() - 1), next);
         }
-        for (uint32_t c : pending)
-            for (uint32_t v : clusters[c].indices) {
-                firstGroup[positionId[v]] = -1;
-                shared[positionId[v]] = 0;
-                lock[v] = 0;
+        for (const auto& list : distinct)
+            for (uint32_t p : list) {
+                firstGroup[p] = -1;
+                shared[p] = 0;
             }
+        parallel_for(pending.size(), [&](size_t i) {
+            for (uint32_t v : clusters[pending[i]].indices) std::atomic_ref<unsigned char>(lock[v]).store(0, std::memory_order_relaxed);
+        });
         if (!progress) break;
         pending = std::move(next);
     }

@@ -85,3 +85,12 @@ TEST(ClusterBuilder, SameClustersUnderOtherBudgets) {
     EXPECT_TRUE(expect_same_clusters(bunny, 64, 32));
     EXPECT_TRUE(expect_same_clusters(jittered_grid(30, true), 255, 16));
 }
+
+TEST(ClusterBuilder, LeavesMeshesOfNoAreaToMeshoptimizer) {
+    // Collinear triangles: meshoptimizer's scores divide by a zero expected radius, which ours does not reproduce.
+    const std::vector<float> positions = {0, 0, 0, 1, 0, 0, 2, 0, 0, 3, 0, 0};
+    const std::vector<uint32_t> indices = {0, 1, 2, 1, 2, 3};
+    std::vector<std::vector<uint32_t>> clusters = {{7}};
+    EXPECT_FALSE(build_clusters(indices.data(), indices.size(), positions.data(), 4, 255, 128, clusters));
+    EXPECT_TRUE(clusters.empty());
+}
