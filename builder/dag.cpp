@@ -194,6 +194,7 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
         }
         localIndices[i] = e.second;
     }
+    table = {};  // freed before clustering: the build's memory peaks there (level 0)
 
     // Our builder gives meshoptimizer's clusters (the same, triangle for triangle) at half the cost; meshoptimizer
     // itself only for what ours leaves to it (a mesh of no area, clusters.h).
