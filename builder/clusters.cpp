@@ -1,6 +1,8 @@
 // Triangles into clusters: meshoptimizer's meshlet growth, reproduced exactly and cheaper (see clusters.h).
 // The float expressions below are written as meshoptimizer 0.22 evaluates them (clusterizer.cpp), because equal scores
-// and their tie order decide which triangle is taken: a different rounding would give different clusters.
+// and their tie order decide which triangle is taken: a different rounding would give different clusters. (Both are
+// compiled for baseline x86-64, without fused multiply-adds; a build with -march allowing them could contract the two
+// differently: the clusters would stay valid but differ from meshoptimizer's, which ClusterBuilder's tests would show.)
 #include "clusters.h"
 
 #include <algorithm>
