@@ -5,6 +5,7 @@
 #include "tessera/builder.h"
 
 #include "area.h"
+#include "clusters.h"
 #include "cut.h"
 #include "edge_limit.h"
 #include "parallel.h"
@@ -13,6 +14,7 @@
 #include <meshoptimizer.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cfloat>
 #include <cmath>
 #include <cstring>
@@ -23,7 +25,7 @@
 namespace tessera {
 namespace {
 
-constexpr size_t kClusterVertices = 255;  // meshoptimizer's meshlet limit
+constexpr size_t kClusterVertices = 255;  // meshoptimizer's meshlet limit (build_clusters keeps to it too)
 constexpr size_t kGroupSize = 16;         // clusters per group (partitions come out between about 8 and 32)
 constexpr double kStuckRatio = 0.85;      // a group that keeps more than this share of its triangles is stuck
 constexpr int kPinRounds = 16;            // retries of one simplification step that made too long an edge
@@ -159,9 +161,9 @@ size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t
 // `position(v)` gives vertex v's xyz.
 template <typename PositionOf>
 std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, PositionOf position) {
-    // Local numbers in ascending order of the mesh's, found through a table (sorting every index and searching for
-    // each cost a fifth of the build): direct when the vertex numbers span little more than the indices (a small
-    // mesh in one piece), else open addressing at most half full (Morton chunks and groups of large meshes).
+    // Local numbers found through a table (sorting every index and searching for each cost a fifth of the build):
+    // direct when the vertex numbers span little more than the indices (a small mesh in one piece), else open
+    // addressing at most half full (Morton chunks and groups of large meshes).
     uint32_t first = UINT32_MAX, last = 0;
     for (uint32_t v : indices) {
         first = std::min(first, v);
@@ -177,31 +179,38 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
         while (table[i].first != v && table[i].first != UINT32_MAX) i = (i + 1) & (slots - 1);
         return table[i];
     };
-    std::vector<uint32_t> vertices;
+    // Numbered by first use (neighbours in the triangle order are near in memory); the clusters do not depend on
+    // the numbering, only on the triangle order.
+    std::vector<uint32_t> vertices, localIndices(indices.size());
+    std::vector<float> compact;
     vertices.reserve(indices.size() / 2 + 3);
-    for (uint32_t v : indices) {
-        auto& e = entry(v);
+    compact.reserve(3 * (indices.size() / 2 + 3));
+    for (size_t i = 0; i < indices.size(); ++i) {
+        auto& e = entry(indices[i]);
         if (e.first == UINT32_MAX) {
-            e.first = v;
-            vertices.push_back(v);
+            e = {indices[i], uint32_t(vertices.size())};
+            vertices.push_back(indices[i]);
+            compact.insert(compact.end(), position(indices[i]), position(indices[i]) + 3);
         }
+        localIndices[i] = e.second;
     }
-    std::sort(vertices.begin(), vertices.end());
-    std::vector<float> compact(3 * vertices.size());
-    for (size_t i = 0; i < vertices.size(); ++i) {
-        std::memcpy(&compact[3 * i], position(vertices[i]), 12);
-        entry(vertices[i]).second = uint32_t(i);
-    }
-    std::vector<uint32_t> localIndices(indices.size());
-    for (size_t i = 0; i < indices.size(); ++i) localIndices[i] = entry(indices[i]).second;
+    table = {};  // freed before clustering: the build's memory peaks there (level 0)
 
+    // Our builder gives meshoptimizer's clusters (the same, triangle for triangle) at half the cost; meshoptimizer
+    // itself only for what ours leaves to it (a mesh of no area, clusters.h).
+    std::vector<std::vector<uint32_t>> pieces;
+    if (build_clusters(localIndices.data(), localIndices.size(), compact.data(), vertices.size(), kClusterVertices, kClusterMaxTriangles, pieces)) {
+        for (auto& piece : pieces)
+            for (uint32_t& v : piece) v = vertices[v];
+        return pieces;
+    }
     const size_t maxClusters = meshopt_buildMeshletsBound(indices.size(), kClusterVertices, kClusterMaxTriangles);
     std::vector<meshopt_Meshlet> meshlets(maxClusters);
     std::vector<unsigned int> meshletVertices(maxClusters * kClusterVertices);
     std::vector<unsigned char> meshletTriangles(maxClusters * kClusterMaxTriangles * 3);
     const size_t count = meshopt_buildMeshlets(meshlets.data(), meshletVertices.data(), meshletTriangles.data(), localIndices.data(),
                                                localIndices.size(), compact.data(), vertices.size(), 12, kClusterVertices, kClusterMaxTriangles, 0.0f);
-    std::vector<std::vector<uint32_t>> pieces(count);
+    pieces.resize(count);
     for (size_t m = 0; m < count; ++m) {
         const meshopt_Meshlet& meshlet = meshlets[m];
         pieces[m].resize(meshlet.triangle_count * 3);
@@ -498,17 +507,18 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         const size_t roundVertices = local.size() / 3;  // vertices added this round are numbered from here
         std::vector<unsigned int> partition(pending.size(), 0);
         size_t groupCount = 1;
+        // Each cluster's distinct positions in order of first use (about a fifth of its corners): what the partition
+        // and the border locks look at.
+        std::vector<std::vector<uint32_t>> distinct(pending.size());
+        parallel_for(pending.size(), [&](size_t i) {
+            std::vector<uint32_t> cornerPositions(clusters[pending[i]].indices.size());
+            for (size_t k = 0; k < cornerPositions.size(); ++k) cornerPositions[k] = positionId[clusters[pending[i]].indices[k]];
+            number_by_first_use(cornerPositions, distinct[i]);
+        });
         if (pending.size() > kGroupSize) {
-            // Each cluster's distinct positions in order of first use, numbered for this round only: meshoptimizer's
-            // partitioner counts a position once per cluster and only compares numbers, so the partition is the one
-            // every corner of the mesh's numbering gives, while its tables (sized by the vertex count) and loops
-            // shrink to the round's own positions.
-            std::vector<std::vector<uint32_t>> distinct(pending.size());
-            parallel_for(pending.size(), [&](size_t i) {
-                std::vector<uint32_t> cornerPositions(clusters[pending[i]].indices.size());
-                for (size_t k = 0; k < cornerPositions.size(); ++k) cornerPositions[k] = positionId[clusters[pending[i]].indices[k]];
-                number_by_first_use(cornerPositions, distinct[i]);
-            });
+            // The positions numbered for this round only: meshoptimizer's partitioner counts a position once per
+            // cluster and only compares numbers, so the partition is the one every corner of the mesh's numbering
+            // gives, while its tables (sized by the vertex count) and loops shrink to the round's own positions.
             std::vector<unsigned int> clusterIndices, counts(pending.size());
             uint32_t positions = 0;
             roundPosition.resize(roundVertices, UINT32_MAX);
@@ -529,15 +539,17 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         // Positions used by more than one group are the group borders: locked while simplifying. The locks are set
         // for the whole round; while the groups simplify in parallel, each writes only its own interior vertices' locks
         // (pins), which no other group reads.
-        for (size_t g = 0; g < groupCount; ++g)
-            for (uint32_t c : members[g])
-                for (uint32_t v : clusters[c].indices) {
-                    const uint32_t p = positionId[v];
-                    if (firstGroup[p] < 0) firstGroup[p] = int32_t(g);
-                    else if (firstGroup[p] != int32_t(g)) shared[p] = 1;
-                }
-        for (uint32_t c : pending)
-            for (uint32_t v : clusters[c].indices) lock[v] = shared[positionId[v]] ? kBorderLock : 0;
+        // Whether a position is shared does not depend on the order the clusters are visited in. The locks are written
+        // on every core (a vertex of two clusters gets the same value from both: relaxed atomic stores).
+        for (size_t i = 0; i < pending.size(); ++i)
+            for (uint32_t p : distinct[i]) {
+                if (firstGroup[p] < 0) firstGroup[p] = int32_t(partition[i]);
+                else if (firstGroup[p] != int32_t(partition[i])) shared[p] = 1;
+            }
+        parallel_for(pending.size(), [&](size_t i) {
+            for (uint32_t v : clusters[pending[i]].indices)
+                std::atomic_ref<unsigned char>(lock[v]).store(shared[positionId[v]] ? kBorderLock : 0, std::memory_order_relaxed);
+        });
 
         struct Result {
             bool simplified = false;
@@ -672,12 +684,14 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             groups.push_back(group);
             add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, int32_t(groups.size() - 1), next);
         }
-        for (uint32_t c : pending)
-            for (uint32_t v : clusters[c].indices) {
-                firstGroup[positionId[v]] = -1;
-                shared[positionId[v]] = 0;
-                lock[v] = 0;
+        for (const auto& list : distinct)
+            for (uint32_t p : list) {
+                firstGroup[p] = -1;
+                shared[p] = 0;
             }
+        parallel_for(pending.size(), [&](size_t i) {
+            for (uint32_t v : clusters[pending[i]].indices) std::atomic_ref<unsigned char>(lock[v]).store(0, std::memory_order_relaxed);
+        });
         if (!progress) break;
         pending = std::move(next);
     }

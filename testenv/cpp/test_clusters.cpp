@@ -1,0 +1,96 @@
+// The builder's own cluster builder (builder/clusters.cpp) against meshoptimizer's meshlet builder, which it must
+// reproduce exactly: the DAG, the page files and every measurement of them depend on the clusters.
+#include "clusters.h"
+#include "dag_fixtures.h"
+
+#include <meshoptimizer.h>
+
+#include <gtest/gtest.h>
+
+using namespace tessera;
+using namespace dagtest;
+
+namespace {
+
+// meshoptimizer's clusters, each as its corners in the order taken.
+std::vector<std::vector<uint32_t>> meshoptimizer_clusters(const PreparedMesh& m, size_t maxVertices, size_t maxTriangles) {
+    const size_t bound = meshopt_buildMeshletsBound(m.indices.size(), maxVertices, maxTriangles);
+    std::vector<meshopt_Meshlet> meshlets(bound);
+    std::vector<unsigned int> vertices(bound * maxVertices);
+    std::vector<unsigned char> triangles(bound * maxTriangles * 3);
+    const size_t count = meshopt_buildMeshlets(meshlets.data(), vertices.data(), triangles.data(), m.indices.data(), m.indices.size(), m.positions.data(),
+                                               m.positions.size() / 3, 12, maxVertices, maxTriangles, 0.0f);
+    std::vector<std::vector<uint32_t>> clusters(count);
+    for (size_t c = 0; c < count; ++c)
+        for (size_t i = 0; i < meshlets[c].triangle_count * 3; ++i)
+            clusters[c].push_back(vertices[meshlets[c].vertex_offset + triangles[meshlets[c].triangle_offset + i]]);
+    return clusters;
+}
+
+// Returns whether ours answered (false: it left the mesh to meshoptimizer); when it did, its clusters must be the same.
+bool expect_same_clusters(const Source& source, size_t maxVertices = 255, size_t maxTriangles = 128) {
+    const PreparedMesh m = prepare_mesh(polygon_view(source.name, source.points, source.counts, source.indices));
+    std::vector<std::vector<uint32_t>> ours;
+    const bool answered = build_clusters(m.indices.data(), m.indices.size(), m.positions.data(), m.positions.size() / 3, maxVertices, maxTriangles, ours);
+    if (!answered) {
+        EXPECT_TRUE(ours.empty()) << source.name;
+        return false;
+    }
+    const auto theirs = meshoptimizer_clusters(m, maxVertices, maxTriangles);
+    EXPECT_EQ(ours.size(), theirs.size()) << source.name;
+    size_t first = 0;  // the first cluster that differs
+    while (first < std::min(ours.size(), theirs.size()) && ours[first] == theirs[first]) ++first;
+    EXPECT_EQ(first, std::min(ours.size(), theirs.size())) << source.name << ": cluster " << first << " of " << theirs.size() << " differs";
+    return true;
+}
+
+// A grid of quads whose points are moved a little at random: no two distances are equal, so ours always answers.
+Source jittered_grid(int n, bool apart) {
+    Source s = apart ? quad_soup(n * n) : grid(n);
+    std::mt19937 rng(n);
+    std::uniform_real_distribution<float> u(-0.2f / float(n), 0.2f / float(n));
+    for (float& p : s.points) p += u(rng);
+    return s;
+}
+
+}  // namespace
+
+TEST(ClusterBuilder, SameClustersAsMeshoptimizer) {
+    EXPECT_TRUE(expect_same_clusters(obj(shared_asset("meshes/stanford-bunny.obj"))));
+    EXPECT_TRUE(expect_same_clusters(jittered_grid(90, false)));
+    EXPECT_TRUE(expect_same_clusters(jittered_grid(40, true))) << "disjoint quads: every next quad is a nearest-triangle jump";
+    EXPECT_TRUE(expect_same_clusters(quad_soup(3000)));
+    // Equally near triangles, where meshoptimizer's k-d tree order decides: the first triangle (nearest to the
+    // origin) of a mesh symmetric about it, and the jumps between the regular quads of a grid.
+    EXPECT_TRUE(expect_same_clusters(obj(shared_asset("meshes/spot.obj"))));
+    EXPECT_TRUE(expect_same_clusters(icosphere(4)));
+    EXPECT_TRUE(expect_same_clusters(grid(64)));
+    Source spaced = grid(40);  // the grid's quads apart: every next quad is a jump
+    spaced.points.clear();
+    spaced.indices.clear();
+    spaced.counts.clear();
+    for (int y = 0; y < 40; ++y)
+        for (int x = 0; x < 40; ++x) {
+            const int base = int(spaced.points.size() / 3);
+            spaced.points.insert(spaced.points.end(), {float(x), float(y), 0, x + 0.5f, float(y), 0, x + 0.5f, y + 0.5f, 0, float(x), y + 0.5f, 0});
+            spaced.counts.push_back(4);
+            spaced.indices.insert(spaced.indices.end(), {base, base + 1, base + 2, base + 3});
+        }
+    EXPECT_TRUE(expect_same_clusters(spaced));
+}
+
+TEST(ClusterBuilder, SameClustersUnderOtherBudgets) {
+    const Source bunny = obj(shared_asset("meshes/stanford-bunny.obj"));
+    EXPECT_TRUE(expect_same_clusters(bunny, 24, 128)) << "the vertex budget binds";
+    EXPECT_TRUE(expect_same_clusters(bunny, 64, 32));
+    EXPECT_TRUE(expect_same_clusters(jittered_grid(30, true), 255, 16));
+}
+
+TEST(ClusterBuilder, LeavesMeshesOfNoAreaToMeshoptimizer) {
+    // Collinear triangles: meshoptimizer's scores divide by a zero expected radius, which ours does not reproduce.
+    const std::vector<float> positions = {0, 0, 0, 1, 0, 0, 2, 0, 0, 3, 0, 0};
+    const std::vector<uint32_t> indices = {0, 1, 2, 1, 2, 3};
+    std::vector<std::vector<uint32_t>> clusters = {{7}};
+    EXPECT_FALSE(build_clusters(indices.data(), indices.size(), positions.data(), 4, 255, 128, clusters));
+    EXPECT_TRUE(clusters.empty());
+}
