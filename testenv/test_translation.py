@@ -4,7 +4,7 @@ back when the stage changes."""
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
 import tessera
 from conftest import stage_with_camera
@@ -295,6 +295,25 @@ def test_the_short_read_borrows_arrays_of_any_shape_and_refuses_other_types():
     with pytest.raises(ValueError, match="/Tri: .*int32"):
         _tessera.plain_mesh_source("/Tri", points, counts.astype(np.int64), indices, False, False, "none", 0)
 
+
+def test_the_short_read_converts_arrays_authored_with_other_types():
+    """The short read hands USD's arrays to C++ as they are; points authored as double3[] and indices as int64[] (not
+    the schema's types) are converted and draw as the schema's types do."""
+    images = []
+    for converted in (False, True):
+        stage, quad = _stage()
+        if converted:
+            spec = stage.GetRootLayer().GetPrimAtPath("/Quad")
+            for name in ("points", "faceVertexIndices"):
+                spec.RemoveProperty(spec.properties[name])
+            Sdf.AttributeSpec(spec, "points", Sdf.ValueTypeNames.Double3Array).default = \
+                Vt.Vec3dArray([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
+            Sdf.AttributeSpec(spec, "faceVertexIndices", Sdf.ValueTypeNames.Int64Array).default = Vt.Int64Array([0, 1, 2, 3])
+            assert isinstance(quad.GetPointsAttr().Get(), Vt.Vec3dArray)
+        result = tessera.Session(stage, validation=True).render(camera="/Camera", resolution=(64, 32), aovs=("primId",))
+        assert not result.errors and not result.warnings, (result.errors, result.warnings)
+        images.append(result["primId"].ids())
+    assert (images[0] != NO_HIT).any() and np.array_equal(images[0], images[1])
 
 def test_the_first_sync_asks_for_no_default_the_walk_saw():
     """A mesh the walk saw visible and without a material is inserted with those defaults and its world transform: its
