@@ -123,7 +123,7 @@ class _Purposes:
 
 
 _UNKNOWN = object()  # a world transform the walk could not compute (USD rejected an ancestor's ops)
-_IDENTITY_BYTES = bytes(memoryview(Gf.Matrix4d(1.0)))  # a place holder where no transform is handed over
+_NO_TRANSFORM = Gf.Matrix4d(1.0)  # a place holder where no transform is handed over
 
 
 class _WorldTransforms:
@@ -711,10 +711,10 @@ class UsdSceneDelegate(_tessera.SceneDelegate):
             self._paths.add(id, id)
             self._rebind(id, record)
             world = found.worlds.pop(id, None) if shown else None
-            worlds.append(_IDENTITY_BYTES if world is None else bytes(memoryview(world)))
+            worlds.append(_NO_TRANSFORM if world is None else world)
             defaults.append((visible if shown else 0) | (0 if record.material or record.subset_materials else unbound) |
                             (0 if world is None else placed))
-        transforms = np.frombuffer(b"".join(worlds)).reshape(-1, 16) if ids else None
+        transforms = np.frombuffer(b"".join(worlds)).reshape(-1, 16) if ids else None  # Gf's buffers, joined in C
         self.index.insert_rprims("mesh", ids, defaults, transforms)
 
     def _insert_rprim(self, id: str, record: _Rprim) -> None:
