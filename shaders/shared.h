@@ -246,6 +246,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
                                      // (<= 256), 64 at a time
 #define TS_DICE_MAX_POINTS 153       // (16 + 1)(16 + 2) / 2
 #define TS_HZB_TILE 8
+// Each HZB thread builds this many texels of a column: on lavapipe a workgroup costs about 16 k instructions before it
+// does anything (an HZB whose threads returned at once still cost three quarters of the real one), so fewer, fuller
+// workgroups (docs/benchmarks.md).
+#define TS_HZB_ROWS_PER_THREAD 16
 // hzb.comp.glsl's steps besides the levels it builds: write the dispatch arguments of the build after the main pass
 // (needed iff the main pass deferred anything) or of the frame's final build (needed unless the post pass drew nothing).
 #define TS_HZB_AFTER_MAIN 0x100u
