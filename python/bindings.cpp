@@ -140,6 +140,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["sw_triangles"] = s.swTriangles;
     d["hw_triangles"] = s.hwTriangles;
     d["sw_clusters"] = s.swClusters;
+    d["sw_large_clusters"] = s.swLargeClusters;
     d["sw_raster_vertices"] = s.swSharedVertices ? "shared" : "per-triangle";
     d["cull_group_size"] = s.cullGroupSize;
     d["overflow_redraws"] = s.overflowRedraws;

@@ -366,8 +366,8 @@ struct Renderer::Impl {
     // first needs them.
     VkPipeline rasterMasked = VK_NULL_HANDLE;
     // The compute rasterizer's variants, made on first use: [masks (TS_SPEC_TEXTURES)][own corners (TS_SPEC_OWN_CORNERS,
-    // RasterVertices::PerTriangle)].
-    VkPipeline rasterSoftware[2][2] = {};
+    // RasterVertices::PerTriangle)][large triangles (TS_SPEC_LARGE_TRIANGLES: the back of the software list)].
+    VkPipeline rasterSoftware[2][2][2] = {};
     VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
     // Resolve's variants, made when a frame first needs them, by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 |
     // TS_SPEC_AREA_LIGHTS << 2 (textured materials, displaced materials, frames with area lights or a textured dome) and
@@ -447,8 +447,9 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, bins, nullptr);
         vkDestroyPipeline(vk, background, nullptr);
         vkDestroyPipeline(vk, raster, nullptr);
-        for (auto& variants : rasterSoftware)
-            for (VkPipeline variant : variants) vkDestroyPipeline(vk, variant, nullptr);
+        for (auto& byMasks : rasterSoftware)
+            for (auto& variants : byMasks)
+                for (VkPipeline variant : variants) vkDestroyPipeline(vk, variant, nullptr);
         vkDestroyPipeline(vk, rasterMasked, nullptr);
         vkDestroyPipeline(vk, tessellate, nullptr);
         vkDestroyPipeline(vk, dice, nullptr);
@@ -466,26 +467,29 @@ struct Renderer::Impl {
     // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES and TS_SPEC_AREA_LIGHTS (booleans),
     // TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*), TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*),
     // TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it;
-    // TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size). A shader ignores the entries it does not declare.
+    // TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size); TS_SPEC_LARGE_TRIANGLES (the compute rasterizer's, a
+    // boolean). A shader ignores the entries it does not declare.
     struct Variant {
-        uint32_t values[7];
-        VkSpecializationMapEntry entries[7] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
-                                               {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4}};
-        VkSpecializationInfo info{7, entries, sizeof(values), values};
+        uint32_t values[8];
+        VkSpecializationMapEntry entries[8] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+                                               {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
+                                               {TS_SPEC_LARGE_TRIANGLES, 28, 4}};
+        VkSpecializationInfo info{8, entries, sizeof(values), values};
         Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE)
+                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false)
             : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
-                     uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize} {}
+                     uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize,
+                     VkBool32(largeTriangles)} {}
         Variant(const Variant&) = delete;
     };
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, uint32_t pixels = TS_BIN_TRIANGLES,
                                 bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE) {
+                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize);
+        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize, largeTriangles);
         const bool specialized = textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ||
-                                 cullGroupSize != TS_CULL_GROUP_SIZE;
+                                 cullGroupSize != TS_CULL_GROUP_SIZE || largeTriangles;
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
                       specialized ? &variant.info : nullptr};
@@ -537,7 +541,7 @@ struct Renderer::Impl {
         classify = compute_pipeline(classify_comp, sizeof(classify_comp));
         bins = compute_pipeline(bins_comp, sizeof(bins_comp));
         background = compute_pipeline(background_comp, sizeof(background_comp));
-        software_raster(false, default_own_corners());
+        for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles);
         raster = graphics_pipeline(false, false);
 
         VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
@@ -582,9 +586,11 @@ struct Renderer::Impl {
     }
 
     // The compute rasterizer's variant, made on first use (a few tens of ms on lavapipe, cold).
-    VkPipeline software_raster(bool masks, bool ownCorners) {
-        VkPipeline& variant = rasterSoftware[masks][ownCorners];
-        if (!variant) variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), masks, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, ownCorners);
+    VkPipeline software_raster(bool masks, bool ownCorners, bool largeTriangles) {
+        VkPipeline& variant = rasterSoftware[masks][ownCorners][largeTriangles];
+        if (!variant)
+            variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), masks, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, ownCorners,
+                                       TS_CULL_GROUP_SIZE, largeTriangles);
         return variant;
     }
 
@@ -1202,7 +1208,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                                texturedDome, areaLights);
     if (s.anyDisplaced) s.ensure_tessellation_pipelines(s.anyMasked);
     const bool ownCorners = s.own_corners(settings.rasterVertices);
-    const VkPipeline softwareRaster = s.software_raster(s.anyMasked, ownCorners);
+    const VkPipeline softwareRaster = s.software_raster(s.anyMasked, ownCorners, false);
+    const VkPipeline softwareRasterLarge = s.software_raster(s.anyMasked, ownCorners, true);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
@@ -1338,6 +1345,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             gpu::GpuDrawState initial{};
             initial.vertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
             initial.swGroupsZ = 1;
+            initial.swLargeGroupsZ = 1;
             initial.tessGroupsZ = 1;
             initial.dicePatchGroupsZ = 1;
             initial.deferredPatchGroupsY = initial.deferredPatchGroupsZ = 1;
@@ -1359,8 +1367,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
                             VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                // Two ends of the software list, each through its own variant: clusters of small triangles (32-bit
+                // edge functions only), then the rest (no workgroups when there are none).
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, softwareRaster);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX));
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, softwareRasterLarge);
+                vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swLargeGroupsX));
                 mark();
                 // Both rasterizers only do atomic max into the visibility buffer, which commutes; the barrier keeps the
                 // synchronization validation layer (rightly strict about unordered writes) quiet and costs little.
@@ -1444,6 +1456,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, instanceCount), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swClusters), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swLargeGroupsX), 8, 0);  // X and Y
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swLargeClusters), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, cutInstances), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessClusters), 4, 0);
@@ -1574,6 +1588,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         frameStats.hwTriangles = state.hwTriangles;
         frameStats.visibleTriangles = uint64_t(state.swTriangles) + state.hwTriangles;
         frameStats.swClusters = state.swClustersDrawn;
+        frameStats.swLargeClusters = state.swLargeClustersDrawn;
         frameStats.candidateClusters = state.candidateClusters;
         frameStats.visibleClusterCapacity = s.capacity;
         frameStats.occlusionTested = previous;

@@ -42,6 +42,34 @@ bool software_raster(GpuFrame frame, vec3 center, float radius, float scale, flo
     return meanTriangleArea * pixelsPerUnit * pixelsPerUnit < frame.raster.x;
 }
 
+// The exact range over the ball |p - center| <= radius (camera-relative world) of the projective coordinate
+// dot(row, (p, 1)) / dot(rowW, (p, 1)), rows of the view-projection matrix: its extremes t are where the plane
+// dot(row - t rowW, (p, 1)) = 0 touches the sphere, the roots of a quadratic (written so that no large terms cancel).
+// Needs the whole ball on the positive side of rowW (beyond the camera plane); orthographic cameras included (rowW =
+// (0, 0, 0, 1): the centre's coordinate plus or minus radius |row.xyz|). The 2D bound of a perspective-projected sphere
+// (Mara and McGuire 2013), for any projection matrix.
+vec2 sphere_ndc_range(vec4 row, vec4 rowW, vec3 center, float radius) {
+    float a = dot(row.xyz, center) + row.w, w = dot(rowW.xyz, center) + rowW.w, r2 = radius * radius;
+    vec3 tilt = w * row.xyz - a * rowW.xyz, axis = cross(row.xyz, rowW.xyz);
+    float spread = radius * sqrt(max(dot(tilt, tilt) - r2 * dot(axis, axis), 0.0));
+    float middle = a * w - r2 * dot(row.xyz, rowW.xyz);
+    return vec2(middle - spread, middle + spread) / (w * w - r2 * dot(rowW.xyz, rowW.xyz));
+}
+
+// True when the sphere (camera-relative) certainly projects to less than TS_SW_SMALL_TRIANGLE_SUBPIXELS across in x and
+// in y, and so does every triangle inside it as the compute rasterizer snaps it: its front-of-list variant scans with
+// 32-bit edge functions only (raster.h). The margins (1 % and 8 sub-pixels) cover float rounding here and in the
+// rasterizer's transform, and its rounding to the sub-pixel grid. False for a sphere that reaches the camera plane.
+bool small_on_screen(GpuFrame frame, vec3 center, float radius) {
+    mat4 m = frame.viewProjection;  // column-major: row i is (m[0][i], m[1][i], m[2][i], m[3][i])
+    vec4 rowW = vec4(m[0][3], m[1][3], m[2][3], m[3][3]);
+    if (!(dot(rowW.xyz, center) + rowW.w > radius * length(rowW.xyz) * 1.001)) return false;
+    vec2 x = sphere_ndc_range(vec4(m[0][0], m[1][0], m[2][0], m[3][0]), rowW, center, radius);
+    vec2 y = sphere_ndc_range(vec4(m[0][1], m[1][1], m[2][1], m[3][1]), rowW, center, radius);
+    vec2 subpixels = vec2(x.y - x.x, y.y - y.x) * 0.5 * vec2(frame.viewport.xy) * frame.raster.y;
+    return max(subpixels.x, subpixels.y) * 1.01 + 8.0 < float(TS_SW_SMALL_TRIANGLE_SUBPIXELS);  // false on NaN too
+}
+
 // True when every triangle of the cluster faces away from the camera (camera-relative centre and radius): the
 // meshoptimizer cone test, widened by the bounding sphere so that it holds for a viewer anywhere near the cluster.
 bool facing_away(GpuFrame frame, Instance instance, GpuCluster cluster, vec3 center, float radius) {
@@ -93,11 +121,22 @@ void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterInd
     if (slot >= frame.counts.y) return;
     VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex | (software ? TS_VISIBLE_SOFTWARE : 0u), clusterIndex);
     if (software) {
-        uint k = atomicAdd(draw.state.swClusters, 1u);
+        // Clusters of certainly small triangles from the front of the software list, the others from its back: each end
+        // has its own variant of the compute rasterizer. Both ends together hold at most the slots stored this pass, so
+        // they cannot meet; past capacity, the visible list's overflow (grow, redraw) covers them.
         atomicAdd(draw.state.swClustersDrawn, 1u);
-        SlotListRef(frame.softwareList).data[k] = slot;
-        atomicMax(draw.state.swGroupsX, min(k + 1u, 65535u));
-        atomicMax(draw.state.swGroupsY, k / 65535u + 1u);
+        if (small_on_screen(frame, center, radius)) {
+            uint k = atomicAdd(draw.state.swClusters, 1u);
+            SlotListRef(frame.softwareList).data[k] = slot;
+            atomicMax(draw.state.swGroupsX, min(k + 1u, 65535u));
+            atomicMax(draw.state.swGroupsY, k / 65535u + 1u);
+        } else {
+            atomicAdd(draw.state.swLargeClustersDrawn, 1u);
+            uint k = atomicAdd(draw.state.swLargeClusters, 1u);
+            SlotListRef(frame.softwareList).data[frame.counts.y - 1u - k] = slot;
+            atomicMax(draw.state.swLargeGroupsX, min(k + 1u, 65535u));
+            atomicMax(draw.state.swLargeGroupsY, k / 65535u + 1u);
+        }
     } else {
         uint k = atomicAdd(draw.state.instanceCount, 1u);
         SlotListRef(frame.hardwareList).data[k] = slot;

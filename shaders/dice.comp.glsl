@@ -60,6 +60,7 @@ void main() {
         uint ia = lattice_index(a, n), ib = lattice_index(b, n), ic = lattice_index(c, n);
         uint64_t payload = uint64_t(TS_VIS_TESSELLATED | index << TS_VIS_MICRO_BITS | micro);
         rasterize_triangle(frame, screen[ia], screen[ib], screen[ic], depth[ia], depth[ib], depth[ic], payload,
-                           (d.instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, MASKS && (d.instance.flags & TS_INSTANCE_MASKED) != 0u);
+                           (d.instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, MASKS && (d.instance.flags & TS_INSTANCE_MASKED) != 0u,
+                           true);  // patches up to TS_DICE_MAX_RADIUS_PIXELS: micro-triangles may be large
     }
 }

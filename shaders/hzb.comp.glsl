@@ -25,7 +25,7 @@ void write_dispatches(GpuFrame frame, uint when) {
     uint first = (when == TS_HZB_FINAL ? 32u : 0u) + level;
     CounterRef arguments = CounterRef(push.hzb);
     arguments.data[3u * first] = needed ? (size.x + TS_HZB_TILE - 1u) / TS_HZB_TILE : 0u;
-    arguments.data[3u * first + 1u] = (size.y + TS_HZB_TILE - 1u) / TS_HZB_TILE;
+    arguments.data[3u * first + 1u] = (size.y + TS_HZB_TILE * TS_HZB_ROWS_PER_THREAD - 1u) / (TS_HZB_TILE * TS_HZB_ROWS_PER_THREAD);
     arguments.data[3u * first + 2u] = 1u;
 }
 
@@ -37,20 +37,27 @@ void main() {
     }
     uint level = push.step;
     uvec2 size = hzb_level_size(frame, level);
-    uvec2 texel = gl_GlobalInvocationID.xy;
-    if (texel.x >= size.x || texel.y >= size.y) return;
-    // The 2x2 below, clamped at the last row and column (repeating a texel changes no minimum): no per-texel branch.
     uvec2 below = level == 0u ? frame.viewport.xy : hzb_level_size(frame, level - 1u);
-    uvec2 p0 = min(texel * 2u, below - 1u), p1 = min(texel * 2u + 1u, below - 1u);
-    float farthest;
-    if (level == 0u) {
-        VisibilityRef visibility = VisibilityRef(frame.visibility);
-        uint row0 = p0.y * below.x, row1 = p1.y * below.x;
-        farthest = min(min(uintBitsToFloat(uint(visibility.data[row0 + p0.x] >> 32)), uintBitsToFloat(uint(visibility.data[row0 + p1.x] >> 32))),
-                       min(uintBitsToFloat(uint(visibility.data[row1 + p0.x] >> 32)), uintBitsToFloat(uint(visibility.data[row1 + p1.x] >> 32))));
-    } else {
-        uint row0 = hzb_level_offset(frame, level - 1u) + p0.y * below.x, row1 = row0 + (p1.y - p0.y) * below.x;
-        farthest = min(min(push.hzb.data[row0 + p0.x], push.hzb.data[row0 + p1.x]), min(push.hzb.data[row1 + p0.x], push.hzb.data[row1 + p1.x]));
+    uint belowOffset = level == 0u ? 0u : hzb_level_offset(frame, level - 1u), offset = hzb_level_offset(frame, level);
+    // TS_HZB_ROWS_PER_THREAD texels of a column, TS_HZB_TILE rows apart (a workgroup's rows stay together).
+    uint x = gl_GlobalInvocationID.x;
+    uint firstRow = gl_WorkGroupID.y * TS_HZB_TILE * TS_HZB_ROWS_PER_THREAD + gl_LocalInvocationID.y;
+    if (x >= size.x) return;
+    for (uint r = 0u; r < TS_HZB_ROWS_PER_THREAD; ++r) {
+        uvec2 texel = uvec2(x, firstRow + r * TS_HZB_TILE);
+        if (texel.y >= size.y) return;
+        // The 2x2 below, clamped at the last row and column (repeating a texel changes no minimum): no per-texel branch.
+        uvec2 p0 = min(texel * 2u, below - 1u), p1 = min(texel * 2u + 1u, below - 1u);
+        float farthest;
+        if (level == 0u) {
+            VisibilityRef visibility = VisibilityRef(frame.visibility);
+            uint row0 = p0.y * below.x, row1 = p1.y * below.x;
+            farthest = min(min(uintBitsToFloat(uint(visibility.data[row0 + p0.x] >> 32)), uintBitsToFloat(uint(visibility.data[row0 + p1.x] >> 32))),
+                           min(uintBitsToFloat(uint(visibility.data[row1 + p0.x] >> 32)), uintBitsToFloat(uint(visibility.data[row1 + p1.x] >> 32))));
+        } else {
+            uint row0 = belowOffset + p0.y * below.x, row1 = row0 + (p1.y - p0.y) * below.x;
+            farthest = min(min(push.hzb.data[row0 + p0.x], push.hzb.data[row0 + p1.x]), min(push.hzb.data[row1 + p0.x], push.hzb.data[row1 + p1.x]));
+        }
+        push.hzb.data[offset + texel.y * size.x + texel.x] = farthest;
     }
-    push.hzb.data[hzb_level_offset(frame, level) + texel.y * size.x + texel.x] = farthest;
 }

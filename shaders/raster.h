@@ -67,12 +67,17 @@ void scan_large(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, i
 }
 
 // One triangle: sub-pixel corners a, b, c with reversed-Z depths; culled when it faces away (unless double-sided) or
-// has no area; `payload` goes into the visibility buffer with the depth. Triangles at most 2^14 sub-pixels across use
-// 32-bit edge functions (exact there; much faster where 64-bit multiplies are emulated, lavapipe), larger ones 64-bit.
-void rasterize_triangle(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, float za, float zb, float zc, uint64_t payload, bool doubleSided, bool masked) {
-    // Edge functions stay within 2 E (E + step) for a triangle E sub-pixels across.
+// has no area; `payload` goes into the visibility buffer with the depth. Triangles less than
+// TS_SW_SMALL_TRIANGLE_SUBPIXELS across use 32-bit edge functions (exact there; much faster where 64-bit multiplies are
+// emulated, lavapipe), larger ones 64-bit. `mayBeLarge`: a constant of the caller; false where the caller knows every
+// triangle is small (the cull's guarantee for the front of the software list), which compiles the 64-bit scan out
+// (lavapipe runs both sides of a branch that differs between lanes). Such a caller's triangle that is not small after
+// all is left out, never scanned with overflowing edge functions.
+void rasterize_triangle(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, float za, float zb, float zc, uint64_t payload, bool doubleSided, bool masked,
+                        bool mayBeLarge) {
+    // Edge functions stay within 2 E (E + step) for a triangle E sub-pixels across (the bound: shared.h).
     ivec2 extent = max(a, max(b, c)) - min(a, min(b, c));
-    bool small = max(extent.x, extent.y) < 16384;
+    bool small = max(extent.x, extent.y) < TS_SW_SMALL_TRIANGLE_SUBPIXELS;
     // Twice the signed area; negative is counter-clockwise on screen (y down), a front face.
     int64_t area = small ? int64_t((b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y))
                          : int64_t(b.x - a.x) * int64_t(c.y - a.y) - int64_t(c.x - a.x) * int64_t(b.y - a.y);
@@ -92,7 +97,7 @@ void rasterize_triangle(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, float za, flo
     ivec2 hi = min((max(a, max(b, c)) - center) / step, ivec2(frame.viewport.xy) - 1);
     vec4 z = vec4(za, zb, zc, 1.0 / float(-area));
     if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload, masked);
-    else scan_large(frame, a, b, c, lo, hi, step, center, z, payload, masked);
+    else if (mayBeLarge) scan_large(frame, a, b, c, lo, hi, step, center, z, payload, masked);
 }
 
 // Clip-space position to the framebuffer's sub-pixel grid (the Vulkan viewport transform, then rounding to the

@@ -1,8 +1,7 @@
 // Software raster: one workgroup per cluster of the software list, its threads over the triangles. Clusters here lie
-// beyond the near plane and cover a small screen area (cull.comp.glsl), so no clipping is needed and edge
-// functions stay small. Vertices are snapped to the hardware rasterizer's sub-pixel grid and
-// coverage follows its top-left rule, so both paths cover the same pixels for the same triangle; depth and
-// payload go into the visibility buffer with the same 64-bit atomic max.
+// beyond the near plane and cover a small screen area (cull.comp.glsl), so no clipping is needed. Vertices are snapped
+// to the hardware rasterizer's sub-pixel grid and coverage follows its top-left rule, so both paths cover the same
+// pixels for the same triangle; depth and payload go into the visibility buffer with the same 64-bit atomic max.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_shader_atomic_int64 : require
@@ -23,6 +22,11 @@ layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
 // no barrier, halve its raster time though each vertex is transformed about six times (docs/benchmarks.md).
 layout(constant_id = TS_SPEC_OWN_CORNERS) const bool OWN_CORNERS = false;
 
+// Which end of the software list this variant draws: the front, clusters the cull found certainly small on screen (every
+// triangle less than TS_SW_SMALL_TRIANGLE_SUBPIXELS across: 32-bit edge functions only, the 64-bit scan compiled out), or
+// the back (LARGE_TRIANGLES: each triangle picks its scan). Both draw the same pixels for the same triangle.
+layout(constant_id = TS_SPEC_LARGE_TRIANGLES) const bool LARGE_TRIANGLES = false;
+
 shared ivec2 screen[TS_CLUSTER_MAX_VERTICES];  // sub-pixel position
 shared float depth[TS_CLUSTER_MAX_VERTICES];   // reversed-Z depth (z / w)
 
@@ -36,11 +40,11 @@ void transform_vertex(GpuFrame frame, Instance instance, vec3 translation, uint 
 void main() {
     GpuFrame frame = frameConstants;
     DrawStateRef draw = DrawStateRef(frame.drawState);
-    uint count = draw.state.swClusters;
+    uint count = LARGE_TRIANGLES ? draw.state.swLargeClusters : draw.state.swClusters;
     // One workgroup per cluster over a 2D grid, no loop: on lavapipe a loop around this code runs it masked.
     uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
     if (k >= count) return;  // the whole workgroup: no barrier is skipped by some threads only
-    uint slot = SlotListRef(frame.softwareList).data[k];
+    uint slot = SlotListRef(frame.softwareList).data[LARGE_TRIANGLES ? frame.counts.y - 1u - k : k];
     uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
     Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
@@ -77,6 +81,6 @@ void main() {
         }
         uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
         bool masked = MASKS && (instance.flags & TS_INSTANCE_MASKED) != 0u;
-        rasterize_triangle(frame, a, b, c, za, zb, zc, payload, (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, masked);
+        rasterize_triangle(frame, a, b, c, za, zb, zc, payload, (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, masked, LARGE_TRIANGLES);
     }
 }

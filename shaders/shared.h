@@ -163,9 +163,16 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 
 // Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
 #define TS_VISIBLE_SOFTWARE 0x80000000u
-// The compute rasterizer takes clusters whose bounding sphere projects to at most this radius in pixels (so a
-// triangle's box stays small and its integer edge functions cannot overflow) and that lie beyond the near plane.
+// The compute rasterizer takes clusters whose bounding sphere projects to at most this radius in pixels (estimated at
+// the sphere's nearest depth) and that lie beyond the near plane.
 #define TS_SW_MAX_RADIUS_PIXELS 64.0
+// A triangle less than this many sub-pixels across (E) is scanned with 32-bit edge functions (raster.h), far cheaper
+// where 64-bit multiplies are emulated (lavapipe); a larger one needs 64-bit ones. Exact: the scan's edge functions
+// stay within 2 E (E + step) (points at most one step past the triangle's box), below 2^31 for E < 2^15 - 2 * 256 and
+// sub-pixel steps up to 256 (device.cpp caps subPixelPrecisionBits at 8). The cull lists a software cluster whose
+// bounding sphere certainly projects within this (so every triangle of it does) at the front of the software list, the
+// others at its back, each drawn by its own variant of the compute rasterizer.
+#define TS_SW_SMALL_TRIANGLE_SUBPIXELS 32256
 // The compute patch rasterizer takes patches up to this radius: their micro-triangles stay small (16 segments an edge),
 // and sub-pixel coordinates this far off screen still fit 32 bits.
 #define TS_DICE_MAX_RADIUS_PIXELS 256.0
@@ -211,6 +218,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // The cull's workgroup size (cull.comp.glsl, local_size_x_id): TS_CULL_GROUP_SIZE on a GPU, TS_CULL_SOFTWARE_GROUP_SIZE on
 // a CPU device.
 #define TS_SPEC_CULL_GROUP_SIZE 6
+// The compute rasterizer's variant for the software clusters whose triangles may be large (boolean; the back of the
+// software list, GpuDrawState.swLarge*). The other variant has no 64-bit scan at all: lavapipe runs both sides of a
+// branch that differs between lanes, so a per-triangle choice cost every triangle both scans (12 % of its instructions).
+#define TS_SPEC_LARGE_TRIANGLES 7
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
@@ -235,6 +246,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
                                      // (<= 256), 64 at a time
 #define TS_DICE_MAX_POINTS 153       // (16 + 1)(16 + 2) / 2
 #define TS_HZB_TILE 8
+// Each HZB thread builds this many texels of a column: on lavapipe a workgroup costs about 16 k instructions before it
+// does anything (an HZB whose threads returned at once still cost three quarters of the real one), so fewer, fuller
+// workgroups (docs/benchmarks.md).
+#define TS_HZB_ROWS_PER_THREAD 16
 // hzb.comp.glsl's steps besides the levels it builds: write the dispatch arguments of the build after the main pass
 // (needed iff the main pass deferred anything) or of the frame's final build (needed unless the post pass drew nothing).
 #define TS_HZB_AFTER_MAIN 0x100u
@@ -387,7 +402,11 @@ struct GpuDrawState {
     uint swGroupsX;        // VkDispatchIndirectCommand: min(software clusters stored, 65535) workgroups
     uint swGroupsY;
     uint swGroupsZ;
-    uint swClusters;       // software clusters stored (this pass)
+    uint swClusters;       // software clusters stored (this pass) at the front of the software list: small triangles only
+    uint swLargeGroupsX;   // VkDispatchIndirectCommand of the compute rasterizer's large-triangle variant
+    uint swLargeGroupsY;
+    uint swLargeGroupsZ;
+    uint swLargeClusters;  // software clusters stored (this pass) at the back of the software list: triangles maybe large
     uint postGroupsX;      // VkDispatchIndirectCommand of the post cull pass: enough workgroups for the deferred work
     uint postGroupsY;
     uint postGroupsZ;
@@ -399,6 +418,7 @@ struct GpuDrawState {
     uint swTriangles;      // triangles sent to each rasterizer (32-bit: saturate past 4 G)
     uint hwTriangles;
     uint swClustersDrawn;  // software clusters, both passes
+    uint swLargeClustersDrawn; // of those, the ones that may have large triangles (the large variant drew them)
     uint occludedInstances; // instances the post pass found hidden
     uint occludedClusters; // clusters the post pass found hidden
     uint postClusters;     // clusters drawn by the post pass (hidden last frame, visible now)
@@ -435,9 +455,8 @@ struct GpuDrawState {
     uint keptMicroPixels;  // covered pixels resolve read from kept points (bin kind TS_BIN_KEPT_MICRO)
     uint dicedMicroPixels; // covered pixels whose micro-triangle resolve diced again (TS_BIN_DICED_MICRO)
     uint hzbBuilds;        // HZB builds the frame needed (hzb.comp.glsl: after the main pass, final)
-    uint pad0;
 };
-TS_CHECK_SIZE(GpuDrawState, 224);
+TS_CHECK_SIZE(GpuDrawState, 240);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.
@@ -502,7 +521,8 @@ struct GpuFrame {
     address materialTables;  // uint[]: per instance with material slots, slot -> material (pixel_material in frame.h)
     address visibleClusters; // uvec2[capacity]: (instance | TS_VISIBLE_SOFTWARE, cluster)
     address hardwareList;    // uint[capacity]: visible-cluster slots for hardware raster
-    address softwareList;    // uint[capacity]: visible-cluster slots for the compute rasterizer
+    address softwareList;    // uint[capacity]: visible-cluster slots for the compute rasterizer (small-triangle clusters
+                             // from the front, the others from the back)
     address drawState;       // GpuDrawState
     address visibility;      // uint64[width * height]
     address aovOutput;       // vec4[width * height]

@@ -265,6 +265,62 @@ TEST_F(RendererTest, SoftwareAndHardwareRasterCoverTheSamePixels) {
         compare(camera_at(0.1, 0.2, distance), 0.999, "bumpy sphere");
 }
 
+// The compute rasterizer takes a cluster whose sphere projects to at most TS_SW_MAX_RADIUS_PIXELS, estimated at its
+// nearest depth; far off the view axis of a wide lens the true projection is several times longer, and a triangle there
+// can be far more than TS_SW_SMALL_TRIANGLE_SUBPIXELS across, past what 32-bit edge functions hold. The cull sends such
+// a cluster to the compute rasterizer's variant with 64-bit ones (its exact screen bound of the sphere), which must
+// cover the same pixels as hardware raster; the quads near the view axis take the 32-bit variant.
+TEST_F(RendererTest, ComputeRasterOfTrianglesTooLargeForItsSmallVariantMatchesHardware) {
+    Renderer renderer(*device);
+    GpuScene scene;
+    const uint32_t quad = scene.add_mesh(grid_mesh(1));  // two triangles, one cluster
+    CameraDesc camera = camera_at(0, 0, 0);
+    camera.focalLength = 10;
+    camera.horizontalAperture = camera.verticalAperture = 120;  // 161 degrees
+    RenderSettings settings{1024, 1024, {0, 0, 0, 0}};
+    settings.lod = false;
+    // Unit quads facing the camera, off the view axis by `angle` along the image diagonal, at `distance`.
+    auto quad_at = [&](double angle, double distance, uint32_t primId) {
+        const double pi = 3.14159265358979323846, a = angle * pi / 180;
+        const double n[3] = {-std::sin(a) * std::sqrt(0.5), -std::sin(a) * std::sqrt(0.5), std::cos(a)};  // towards the camera
+        double x[3] = {n[2], 0, -n[0]};  // (0, 1, 0) x n, normalized
+        const double lx = std::sqrt(x[0] * x[0] + x[2] * x[2]);
+        for (double& v : x) v /= lx;
+        const double y[3] = {n[1] * x[2] - n[2] * x[1], n[2] * x[0] - n[0] * x[2], n[0] * x[1] - n[1] * x[0]};
+        InstanceDesc instance = identity_instance(quad);
+        for (int r = 0; r < 3; ++r) {
+            instance.transform[4 * r + 0] = x[r];
+            instance.transform[4 * r + 1] = y[r];
+            instance.transform[4 * r + 2] = n[r];
+            instance.transform[4 * r + 3] = -n[r] * distance;
+        }
+        instance.doubleSided = true;
+        instance.primId = primId;
+        return instance;
+    };
+    scene.set_instances({quad_at(78, 8.6, 1), quad_at(0, 40, 2), quad_at(30, 30, 3)});
+    FrameStats hw, sw;
+    settings.raster = RasterMode::Hardware;
+    const Image a = renderer.render(scene, camera, settings, {Aov::PrimId}, &hw)[0];
+    settings.raster = RasterMode::Software;
+    for (RasterVertices vertices : {RasterVertices::Shared, RasterVertices::PerTriangle}) {
+        settings.rasterVertices = vertices;
+        const Image b = renderer.render(scene, camera, settings, {Aov::PrimId}, &sw)[0];
+        EXPECT_EQ(sw.hwTriangles, 0u) << "every cluster must have gone to the compute rasterizer";
+        EXPECT_EQ(sw.swClusters, 3u);
+        EXPECT_EQ(sw.swLargeClusters, 1u) << "the quad off axis is large on screen, the others are not";
+        size_t same = 0;
+        std::set<uint32_t> seen;
+        for (uint32_t y = 0; y < a.height; ++y)
+            for (uint32_t x = 0; x < a.width; ++x) {
+                same += id_at(a, x, y) == id_at(b, x, y);
+                seen.insert(id_at(a, x, y));
+            }
+        EXPECT_EQ(seen, (std::set<uint32_t>{1, 2, 3, 0xffffffffu}));
+        EXPECT_EQ(same, size_t(a.width) * a.height) << (sw.swSharedVertices ? "shared vertices" : "per triangle");
+    }
+}
+
 // The compute rasterizer's two variants (vertices shared through workgroup memory, or each thread transforming its own
 // triangle's corners) snap with the same arithmetic, so they draw the same visibility buffer bit for bit: triangle ids
 // and depths, for plain, mirrored (winding flipped) and double-sided instances.

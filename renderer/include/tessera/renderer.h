@@ -200,6 +200,7 @@ struct FrameStats {
     uint64_t visibleTriangles = 0;  // triangles of the cut's visible clusters
     uint64_t swTriangles = 0, hwTriangles = 0;  // of those, drawn by the compute rasterizer and by hardware raster
     uint32_t swClusters = 0;
+    uint32_t swLargeClusters = 0;   // of those, clusters not certainly small on screen: drawn by the variant with 64-bit edge functions
     bool swSharedVertices = false;  // the compute rasterizer's variant this frame: RasterVertices::Shared (else PerTriangle)
     uint32_t cullGroupSize = 0;     // the cull's workgroup size on this device (TS_CULL_*GROUP_SIZE)
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
