@@ -59,11 +59,20 @@ void put_sphere(ByteWriter& w, const std::array<float, 4>& s) {
     for (float f : s) w.put(f);
 }
 
-std::span<const uint32_t> cluster_triangles(const BuiltMesh& mesh, const Cluster& c, std::vector<uint32_t>& corners) {
-    corners.clear();
-    for (uint32_t t = 0; t < c.triangleCount; ++t) {
-        const uint32_t packed = mesh.triangles[c.triangleOffset + t];
-        corners.insert(corners.end(), {packed & 0xff, (packed >> 8) & 0xff, (packed >> 16) & 0xff});
+// Every cluster's corners (cluster-local numbers), cluster after cluster: unpacked once per unit.
+std::vector<uint32_t> unit_corners(const BuiltMesh& mesh, std::span<const uint32_t> clusters) {
+    size_t count = 0;
+    for (uint32_t index : clusters) count += mesh.clusters[index].triangleCount;
+    std::vector<uint32_t> corners(3 * count);
+    uint32_t* out = corners.data();
+    for (uint32_t index : clusters) {
+        const Cluster& c = mesh.clusters[index];
+        for (const uint32_t packed : std::span(mesh.triangles).subspan(c.triangleOffset, c.triangleCount)) {
+            out[0] = packed & 0xff;
+            out[1] = (packed >> 8) & 0xff;
+            out[2] = (packed >> 16) & 0xff;
+            out += 3;
+        }
     }
     return corners;
 }
@@ -93,12 +102,13 @@ void encode_records(const BuiltMesh& mesh, std::span<const uint32_t> clusters, s
     }
 }
 
-std::vector<uint8_t> encode_indices(const BuiltMesh& mesh, std::span<const uint32_t> clusters) {
-    std::vector<uint32_t> unit, corners;
+std::vector<uint8_t> encode_indices(const BuiltMesh& mesh, std::span<const uint32_t> clusters, std::span<const uint32_t> corners) {
+    std::vector<uint32_t> unit(corners.size());
     uint32_t base = 0;
+    size_t at = 0;
     for (uint32_t index : clusters) {
         const Cluster& c = mesh.clusters[index];
-        for (uint32_t corner : cluster_triangles(mesh, c, corners)) unit.push_back(base + corner);
+        for (const size_t end = at + 3 * size_t(c.triangleCount); at < end; ++at) unit[at] = base + corners[at];
         base += c.vertexCount;
     }
     std::vector<uint8_t> encoded(meshopt_encodeIndexBufferBound(unit.size(), base));
@@ -147,25 +157,28 @@ UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clus
 
 void encode_unit(const BuiltMesh& mesh, std::span<const uint32_t> clusters, PageStreams& out) {
     const bool colors = !mesh.colors.empty();
-    const std::vector<uint8_t> indices = encode_indices(mesh, clusters);
+    const std::vector<uint32_t> unitCorners = unit_corners(mesh, clusters);
+    const std::vector<uint8_t> indices = encode_indices(mesh, clusters, unitCorners);
     ByteWriter records, codes;
     encode_records(mesh, clusters, indices.size(), records);
     const UnitVertices vertices = unit_vertices(mesh, clusters);
     FirstSeen firstSeen(vertices, vertices.normal.size() / 2);
     thread_local OppositeCorners opposite;  // 128 KiB: made once per thread, not per unit
     BitWriter bits;
-    std::vector<uint32_t> corners;
     int64_t first = 0, nextReference = 0;
+    size_t cornerAt = 0;
     for (uint32_t index : clusters) {
         const Cluster& c = mesh.clusters[index];
-        const std::span<const uint32_t> triangles = cluster_triangles(mesh, c, corners);
+        const std::span<const uint32_t> triangles = std::span(unitCorners).subspan(cornerAt, 3 * size_t(c.triangleCount));
+        cornerAt += triangles.size();
         for (size_t t = 0; t < triangles.size(); t += 3) {
+            if ((mesh.triangles[c.triangleOffset + t / 3] >> 24) >= mesh.materialSlots)
+                throw std::invalid_argument("a triangle's material slot is not below the mesh's materialSlots");
+            if (triangles[t] < triangles[t + 1] && triangles[t] < triangles[t + 2]) continue;  // the usual case: in order
             uint32_t tri[3] = {triangles[t], triangles[t + 1], triangles[t + 2]};
             rotate_smallest_first(tri);
             if (!std::equal(tri, tri + 3, &triangles[t]))
                 throw std::invalid_argument("a cluster's triangles are not in page order (order_cluster_for_pages)");
-            if ((mesh.triangles[c.triangleOffset + t / 3] >> 24) >= mesh.materialSlots)
-                throw std::invalid_argument("a triangle's material slot is not below the mesh's materialSlots");
         }
         if (mesh.materialSlots > 1)
             for (uint32_t t = 0; t < c.triangleCount; ++t) out[kMaterialStream].push_back(uint8_t(mesh.triangles[c.triangleOffset + t] >> 24));
