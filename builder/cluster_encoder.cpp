@@ -32,10 +32,13 @@ public:
 
 private:
     size_t hash(int64_t v) const {
-        uint64_t h = 0x9E3779B97F4A7C15ull;
-        for (int k = 0; k < 3; ++k) h = (h ^ uint64_t(vertices_.grid[3 * v + k])) * 0xff51afd7ed558ccdull;
-        for (int k = 0; k < 2; ++k) h = (h ^ uint64_t(vertices_.normal[2 * v + k])) * 0xc4ceb9fe1a85ec53ull;
-        return size_t(h >> 20);
+        // Independent products, not a chain: the lookup's result does not depend on the hash, only its speed.
+        const int64_t* g = &vertices_.grid[3 * v];
+        const int64_t* n = &vertices_.normal[2 * v];
+        const uint64_t h = (uint64_t(g[0]) * 0x9E3779B97F4A7C15ull) ^ (uint64_t(g[1]) * 0xC2B2AE3D27D4EB4Full) ^
+                           (uint64_t(g[2]) * 0x165667B19E3779F9ull) ^ (uint64_t(n[0]) * 0xff51afd7ed558ccdull) ^
+                           (uint64_t(n[1]) * 0xc4ceb9fe1a85ec53ull);
+        return size_t(h ^ (h >> 29));
     }
     bool equal(int64_t a, int64_t b) const {
         const bool colors = !vertices_.color.empty(), uvs = !vertices_.uv.empty();
@@ -116,6 +119,14 @@ std::vector<uint8_t> encode_indices(const BuiltMesh& mesh, std::span<const uint3
     return encoded;
 }
 
+// A value's integer coordinate on a power-of-two grid. value / step is exact (powers of two), so the value is on the
+// grid exactly when that quotient is an integer below kGridLimit (a truncation: llround, a library call, cost more).
+int64_t grid_coordinate(float value, double step, const char* offGrid) {
+    const double scaled = double(value) / step;
+    if (!(std::fabs(scaled) < double(kGridLimit)) || double(int64_t(scaled)) != scaled) throw std::invalid_argument(offGrid);
+    return int64_t(scaled);
+}
+
 // The unit's vertices as integers: grid coordinates and normal bits, both checked to give back the mesh's values.
 UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clusters) {
     const bool colors = !mesh.colors.empty(), uvs = !mesh.uvs.empty();
@@ -129,11 +140,7 @@ UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clus
         const Cluster& c = mesh.clusters[index];
         for (size_t source = c.vertexOffset; source < c.vertexOffset + c.vertexCount; ++source, ++at) {
             for (int k = 0; k < 3; ++k) {
-                const float position = mesh.positions[3 * source + k];
-                const int64_t grid = std::llround(double(position) / mesh.positionStep);
-                if (std::llabs(grid) >= kGridLimit || double(grid) * mesh.positionStep != double(position))
-                    throw std::invalid_argument("a position is off the mesh's grid");
-                vertices.grid[3 * at + k] = grid;
+                vertices.grid[3 * at + k] = grid_coordinate(mesh.positions[3 * source + k], mesh.positionStep, "a position is off the mesh's grid");
             }
             const auto normal = octahedral_to_bits(mesh.normals[source]);
             if (octahedral_from_bits(normal[0], normal[1]) != mesh.normals[source])
@@ -142,11 +149,7 @@ UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clus
             vertices.normal[2 * at + 1] = normal[1];
             if (colors) std::copy_n(&mesh.colors[2 * source], 2, &vertices.color[2 * at]);
             for (int k = 0; uvs && k < 2; ++k) {
-                const float uv = mesh.uvs[2 * source + k];
-                const int64_t grid = std::llround(double(uv) / uvStep);
-                if (std::llabs(grid) >= kGridLimit || double(grid) * uvStep != double(uv))
-                    throw std::invalid_argument("a texture coordinate is off the mesh's UV grid");
-                vertices.uv[2 * at + k] = grid;
+                vertices.uv[2 * at + k] = grid_coordinate(mesh.uvs[2 * source + k], uvStep, "a texture coordinate is off the mesh's UV grid");
             }
         }
     }
