@@ -287,7 +287,7 @@ class _Collector:
     def insert_rprim(self, kind, prim_id, instancer_id="", defaults=0):
         self.meshes.append(prim_id)
 
-    def insert_rprims(self, kind, prim_ids, defaults=None):
+    def insert_rprims(self, kind, prim_ids, defaults=None, transforms=None):
         self.meshes.extend(prim_ids)
 
     def insert_sprim(self, kind, prim_id):
