@@ -4,6 +4,7 @@
 #include "parallel.h"
 
 #include <array>
+#include <bit>
 #include <cstdint>
 #include <cstring>
 #include <vector>
@@ -74,7 +75,7 @@ private:
 // shard welded on its own in index order, so the result is the serial one whatever the thread count.
 inline std::vector<uint32_t> weld_equal_positions(const float* xyz, size_t count, PositionWelder* welder = nullptr) {
     std::vector<uint32_t> weld(count);
-    constexpr size_t kShards = 16, kBlock = 1 << 16;  // 16 shards: the hash's top 4 bits
+    constexpr size_t kMaxShards = 64, kBlock = 1 << 16;
     if (welder || count < 4 * kBlock || core_count() < 2) {
         PositionWelder local;
         PositionWelder& w = welder ? *welder : local;
@@ -82,36 +83,39 @@ inline std::vector<uint32_t> weld_equal_positions(const float* xyz, size_t count
         for (size_t i = 0; i < count; ++i) weld[i] = w.add(xyz + 3 * i, uint32_t(i));
         return weld;
     }
+    // One shard per core (each reads every cache line of xyz: more shards cost more than they balance).
+    const int shardBits = std::min(6, int(std::bit_width(core_count() - 1)));
+    const size_t shards = size_t(1) << shardBits;
     auto shard_of = [&](size_t i) {
         uint32_t key[3];
         PositionWelder::key_of(xyz + 3 * i, key);
-        return PositionWelder::hash(key) >> 60;  // the top bits: the tables' masks keep low ones
+        return PositionWelder::hash(key) >> (64 - shardBits);  // the top bits: the tables' masks keep low ones
     };
     // Each shard's indices in order: counted per block, then written at their block's offset.
     const size_t blocks = (count + kBlock - 1) / kBlock;
-    std::vector<std::array<uint32_t, kShards>> blockCounts(blocks);
+    std::vector<std::array<uint32_t, kMaxShards>> blockCounts(blocks);
     parallel_blocks(count, kBlock, [&](size_t begin, size_t end) {
-        std::array<uint32_t, kShards> counts{};
+        std::array<uint32_t, kMaxShards> counts{};
         for (size_t i = begin; i < end; ++i) ++counts[shard_of(i)];
         blockCounts[begin / kBlock] = counts;
     });
-    std::array<size_t, kShards + 1> shardStart{};
-    std::vector<std::array<size_t, kShards>> blockOffset(blocks);
+    std::array<size_t, kMaxShards + 1> shardStart{};
+    std::vector<std::array<size_t, kMaxShards>> blockOffset(blocks);
     size_t at = 0;
-    for (size_t s = 0; s < kShards; ++s) {
+    for (size_t s = 0; s < shards; ++s) {
         shardStart[s] = at;
         for (size_t b = 0; b < blocks; ++b) {
             blockOffset[b][s] = at;
             at += blockCounts[b][s];
         }
     }
-    shardStart[kShards] = at;
+    shardStart[shards] = at;
     std::vector<uint32_t> byShard(count);
     parallel_blocks(count, kBlock, [&](size_t begin, size_t end) {
-        std::array<size_t, kShards> next = blockOffset[begin / kBlock];
+        std::array<size_t, kMaxShards> next = blockOffset[begin / kBlock];
         for (size_t i = begin; i < end; ++i) byShard[next[shard_of(i)]++] = uint32_t(i);
     });
-    parallel_for(kShards, [&](size_t s) {
+    parallel_for(shards, [&](size_t s) {
         PositionWelder w;
         w.reserve(shardStart[s + 1] - shardStart[s]);
         for (size_t k = shardStart[s]; k < shardStart[s + 1]; ++k) weld[byShard[k]] = w.add(xyz + 3 * size_t(byShard[k]), byShard[k]);
