@@ -35,6 +35,13 @@ public:
         }
     }
 
+    // A hint: the slot a later add of xyz starts at is fetched into the cache meanwhile (the table is far larger).
+    void prefetch(const float* xyz) const {
+        if (slots_.empty()) return;
+        uint32_t key[3];
+        key_of(xyz, key);
+        __builtin_prefetch(&slots_[hash(key) & (slots_.size() - 1)]);
+    }
     // The bits compared (-0 as +0), and their hash: equal positions have equal hashes.
     static void key_of(const float* xyz, uint32_t* key) {
         std::memcpy(key, xyz, 3 * sizeof(uint32_t));
@@ -75,12 +82,15 @@ private:
 // shard welded on its own in index order, so the result is the serial one whatever the thread count.
 inline std::vector<uint32_t> weld_equal_positions(const float* xyz, size_t count, PositionWelder* welder = nullptr) {
     std::vector<uint32_t> weld(count);
-    constexpr size_t kMaxShards = 64, kBlock = 1 << 16;
+    constexpr size_t kMaxShards = 64, kBlock = 1 << 16, kAhead = 16;  // kAhead: positions prefetched ahead
     if (welder || count < 4 * kBlock || core_count() < 2) {
         PositionWelder local;
         PositionWelder& w = welder ? *welder : local;
         w.reserve(count);
-        for (size_t i = 0; i < count; ++i) weld[i] = w.add(xyz + 3 * i, uint32_t(i));
+        for (size_t i = 0; i < count; ++i) {
+            if (i + kAhead < count) w.prefetch(xyz + 3 * (i + kAhead));
+            weld[i] = w.add(xyz + 3 * i, uint32_t(i));
+        }
         return weld;
     }
     // One shard per core (each reads every cache line of xyz: more shards cost more than they balance).
@@ -118,7 +128,10 @@ inline std::vector<uint32_t> weld_equal_positions(const float* xyz, size_t count
     parallel_for(shards, [&](size_t s) {
         PositionWelder w;
         w.reserve(shardStart[s + 1] - shardStart[s]);
-        for (size_t k = shardStart[s]; k < shardStart[s + 1]; ++k) weld[byShard[k]] = w.add(xyz + 3 * size_t(byShard[k]), byShard[k]);
+        for (size_t k = shardStart[s]; k < shardStart[s + 1]; ++k) {
+            if (k + kAhead < shardStart[s + 1]) w.prefetch(xyz + 3 * size_t(byShard[k + kAhead]));
+            weld[byShard[k]] = w.add(xyz + 3 * size_t(byShard[k]), byShard[k]);
+        }
     });
     return weld;
 }
