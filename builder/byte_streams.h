@@ -65,22 +65,27 @@ private:
 // LSB-first bit stream; flush() pads to a byte.
 class BitWriter {
 public:
-    void put(uint64_t value, uint32_t bits) {
-        for (uint32_t done = 0; done < bits;) {
-            const uint32_t take = std::min(bits - done, 64 - count_);
-            const uint64_t chunk = (value >> done) & (take == 64 ? ~0ull : (1ull << take) - 1);
-            pending_ |= chunk << count_;
-            count_ += take;
-            done += take;
-            if (count_ == 64) drain(8);
+    void put(uint64_t value, uint32_t bits) {  // bits <= 64
+        if (bits == 0) return;
+        if (bits < 64) value &= (1ull << bits) - 1;
+        pending_ |= value << count_;
+        if (count_ + bits < 64) {
+            count_ += bits;
+            return;
         }
+        const uint32_t carried = count_ + bits - 64;  // the bits of value that did not fit
+        drain(8);
+        pending_ = carried ? value >> (bits - carried) : 0;
+        count_ = carried;
     }
     void flush() { drain((count_ + 7) / 8); }
     std::vector<uint8_t> bytes;
 
 private:
     void drain(uint32_t byteCount) {
-        for (uint32_t b = 0; b < byteCount; ++b) bytes.push_back(uint8_t(pending_ >> (8 * b)));
+        const size_t at = bytes.size();
+        bytes.resize(at + byteCount);
+        std::memcpy(&bytes[at], &pending_, byteCount);  // little-endian: the first bits first
         pending_ = 0;
         count_ = 0;
     }

@@ -32,10 +32,13 @@ public:
 
 private:
     size_t hash(int64_t v) const {
-        uint64_t h = 0x9E3779B97F4A7C15ull;
-        for (int k = 0; k < 3; ++k) h = (h ^ uint64_t(vertices_.grid[3 * v + k])) * 0xff51afd7ed558ccdull;
-        for (int k = 0; k < 2; ++k) h = (h ^ uint64_t(vertices_.normal[2 * v + k])) * 0xc4ceb9fe1a85ec53ull;
-        return size_t(h >> 20);
+        // Independent products, not a chain: the lookup's result does not depend on the hash, only its speed.
+        const int64_t* g = &vertices_.grid[3 * v];
+        const int64_t* n = &vertices_.normal[2 * v];
+        const uint64_t h = (uint64_t(g[0]) * 0x9E3779B97F4A7C15ull) ^ (uint64_t(g[1]) * 0xC2B2AE3D27D4EB4Full) ^
+                           (uint64_t(g[2]) * 0x165667B19E3779F9ull) ^ (uint64_t(n[0]) * 0xff51afd7ed558ccdull) ^
+                           (uint64_t(n[1]) * 0xc4ceb9fe1a85ec53ull);
+        return size_t(h ^ (h >> 29));
     }
     bool equal(int64_t a, int64_t b) const {
         const bool colors = !vertices_.color.empty(), uvs = !vertices_.uv.empty();
@@ -59,11 +62,20 @@ void put_sphere(ByteWriter& w, const std::array<float, 4>& s) {
     for (float f : s) w.put(f);
 }
 
-std::span<const uint32_t> cluster_triangles(const BuiltMesh& mesh, const Cluster& c, std::vector<uint32_t>& corners) {
-    corners.clear();
-    for (uint32_t t = 0; t < c.triangleCount; ++t) {
-        const uint32_t packed = mesh.triangles[c.triangleOffset + t];
-        corners.insert(corners.end(), {packed & 0xff, (packed >> 8) & 0xff, (packed >> 16) & 0xff});
+// Every cluster's corners (cluster-local numbers), cluster after cluster: unpacked once per unit.
+std::vector<uint32_t> unit_corners(const BuiltMesh& mesh, std::span<const uint32_t> clusters) {
+    size_t count = 0;
+    for (uint32_t index : clusters) count += mesh.clusters[index].triangleCount;
+    std::vector<uint32_t> corners(3 * count);
+    uint32_t* out = corners.data();
+    for (uint32_t index : clusters) {
+        const Cluster& c = mesh.clusters[index];
+        for (const uint32_t packed : std::span(mesh.triangles).subspan(c.triangleOffset, c.triangleCount)) {
+            out[0] = packed & 0xff;
+            out[1] = (packed >> 8) & 0xff;
+            out[2] = (packed >> 16) & 0xff;
+            out += 3;
+        }
     }
     return corners;
 }
@@ -93,17 +105,26 @@ void encode_records(const BuiltMesh& mesh, std::span<const uint32_t> clusters, s
     }
 }
 
-std::vector<uint8_t> encode_indices(const BuiltMesh& mesh, std::span<const uint32_t> clusters) {
-    std::vector<uint32_t> unit, corners;
+std::vector<uint8_t> encode_indices(const BuiltMesh& mesh, std::span<const uint32_t> clusters, std::span<const uint32_t> corners) {
+    std::vector<uint32_t> unit(corners.size());
     uint32_t base = 0;
+    size_t at = 0;
     for (uint32_t index : clusters) {
         const Cluster& c = mesh.clusters[index];
-        for (uint32_t corner : cluster_triangles(mesh, c, corners)) unit.push_back(base + corner);
+        for (const size_t end = at + 3 * size_t(c.triangleCount); at < end; ++at) unit[at] = base + corners[at];
         base += c.vertexCount;
     }
     std::vector<uint8_t> encoded(meshopt_encodeIndexBufferBound(unit.size(), base));
     encoded.resize(meshopt_encodeIndexBuffer(encoded.data(), encoded.size(), unit.data(), unit.size()));
     return encoded;
+}
+
+// A value's integer coordinate on a power-of-two grid. value / step is exact (powers of two), so the value is on the
+// grid exactly when that quotient is an integer below kGridLimit (a truncation: llround, a library call, cost more).
+int64_t grid_coordinate(float value, double step, const char* offGrid) {
+    const double scaled = double(value) / step;
+    if (!(std::fabs(scaled) < double(kGridLimit)) || double(int64_t(scaled)) != scaled) throw std::invalid_argument(offGrid);
+    return int64_t(scaled);
 }
 
 // The unit's vertices as integers: grid coordinates and normal bits, both checked to give back the mesh's values.
@@ -119,11 +140,7 @@ UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clus
         const Cluster& c = mesh.clusters[index];
         for (size_t source = c.vertexOffset; source < c.vertexOffset + c.vertexCount; ++source, ++at) {
             for (int k = 0; k < 3; ++k) {
-                const float position = mesh.positions[3 * source + k];
-                const int64_t grid = std::llround(double(position) / mesh.positionStep);
-                if (std::llabs(grid) >= kGridLimit || double(grid) * mesh.positionStep != double(position))
-                    throw std::invalid_argument("a position is off the mesh's grid");
-                vertices.grid[3 * at + k] = grid;
+                vertices.grid[3 * at + k] = grid_coordinate(mesh.positions[3 * source + k], mesh.positionStep, "a position is off the mesh's grid");
             }
             const auto normal = octahedral_to_bits(mesh.normals[source]);
             if (octahedral_from_bits(normal[0], normal[1]) != mesh.normals[source])
@@ -132,11 +149,7 @@ UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clus
             vertices.normal[2 * at + 1] = normal[1];
             if (colors) std::copy_n(&mesh.colors[2 * source], 2, &vertices.color[2 * at]);
             for (int k = 0; uvs && k < 2; ++k) {
-                const float uv = mesh.uvs[2 * source + k];
-                const int64_t grid = std::llround(double(uv) / uvStep);
-                if (std::llabs(grid) >= kGridLimit || double(grid) * uvStep != double(uv))
-                    throw std::invalid_argument("a texture coordinate is off the mesh's UV grid");
-                vertices.uv[2 * at + k] = grid;
+                vertices.uv[2 * at + k] = grid_coordinate(mesh.uvs[2 * source + k], uvStep, "a texture coordinate is off the mesh's UV grid");
             }
         }
     }
@@ -147,25 +160,28 @@ UnitVertices unit_vertices(const BuiltMesh& mesh, std::span<const uint32_t> clus
 
 void encode_unit(const BuiltMesh& mesh, std::span<const uint32_t> clusters, PageStreams& out) {
     const bool colors = !mesh.colors.empty();
-    const std::vector<uint8_t> indices = encode_indices(mesh, clusters);
+    const std::vector<uint32_t> unitCorners = unit_corners(mesh, clusters);
+    const std::vector<uint8_t> indices = encode_indices(mesh, clusters, unitCorners);
     ByteWriter records, codes;
     encode_records(mesh, clusters, indices.size(), records);
     const UnitVertices vertices = unit_vertices(mesh, clusters);
     FirstSeen firstSeen(vertices, vertices.normal.size() / 2);
     thread_local OppositeCorners opposite;  // 128 KiB: made once per thread, not per unit
     BitWriter bits;
-    std::vector<uint32_t> corners;
     int64_t first = 0, nextReference = 0;
+    size_t cornerAt = 0;
     for (uint32_t index : clusters) {
         const Cluster& c = mesh.clusters[index];
-        const std::span<const uint32_t> triangles = cluster_triangles(mesh, c, corners);
+        const std::span<const uint32_t> triangles = std::span(unitCorners).subspan(cornerAt, 3 * size_t(c.triangleCount));
+        cornerAt += triangles.size();
         for (size_t t = 0; t < triangles.size(); t += 3) {
+            if ((mesh.triangles[c.triangleOffset + t / 3] >> 24) >= mesh.materialSlots)
+                throw std::invalid_argument("a triangle's material slot is not below the mesh's materialSlots");
+            if (triangles[t] < triangles[t + 1] && triangles[t] < triangles[t + 2]) continue;  // the usual case: in order
             uint32_t tri[3] = {triangles[t], triangles[t + 1], triangles[t + 2]};
             rotate_smallest_first(tri);
             if (!std::equal(tri, tri + 3, &triangles[t]))
                 throw std::invalid_argument("a cluster's triangles are not in page order (order_cluster_for_pages)");
-            if ((mesh.triangles[c.triangleOffset + t / 3] >> 24) >= mesh.materialSlots)
-                throw std::invalid_argument("a triangle's material slot is not below the mesh's materialSlots");
         }
         if (mesh.materialSlots > 1)
             for (uint32_t t = 0; t < c.triangleCount; ++t) out[kMaterialStream].push_back(uint8_t(mesh.triangles[c.triangleOffset + t] >> 24));

@@ -377,9 +377,8 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
 
     // Vertices split at attribute seams share a position id: adjacency and border locks follow positions.
     // Preserve Area adds moved vertices later: the welder gives them ids too.
-    PositionWelder welder;
-    std::vector<uint32_t> positionId = weld_equal_positions(local.data(), vertexCount, &welder);
-    if (!settings.preserveArea) welder = PositionWelder{};  // its table (16 bytes a slot) is not needed again
+    PositionWelder welder;  // kept only for Preserve Area (without it, the weld runs on every core)
+    std::vector<uint32_t> positionId = weld_equal_positions(local.data(), vertexCount, settings.preserveArea ? &welder : nullptr);
 
     // Texture coordinates on their grid (BuiltMesh::uvPrecision): at most 2^-16, and coarse enough that float holds
     // every grid point of the mesh's range exactly.
@@ -452,39 +451,65 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // angle is a real hard edge and stays split.
     std::vector<uint32_t> weld(vertexCount);
     {
-        // The representatives on each grid point, in order: a list through nextRep from the position id's (position
-        // ids are vertex numbers), where a hash map of vectors cost as much as welding.
-        std::vector<uint32_t> firstRep(vertexCount, UINT32_MAX), lastRep(vertexCount, UINT32_MAX), nextRep(vertexCount, UINT32_MAX);
-        for (uint32_t v = 0; v < vertexCount; ++v) {
-            weld[v] = v;
-            const uint32_t p = positionId[v];
-            for (uint32_t r = firstRep[p]; r != UINT32_MAX; r = nextRep[r]) {
-                const float* n = &mesh.normals[3 * v];
-                const float* m = &mesh.normals[3 * r];
-                const bool sameColor = !hasColors || std::memcmp(&mesh.colors[kChannelComponents * v], &mesh.colors[kChannelComponents * r], 4 * kChannelComponents) == 0;
-                const bool sameUv = !hasUvs || std::memcmp(&uvs[2 * v], &uvs[2 * r], 8) == 0;
-                if (sameColor && sameUv && material_of(v) == material_of(r) && n[0] * m[0] + n[1] * m[1] + n[2] * m[2] > 0.866f) {
-                    weld[v] = r;
-                    break;
-                }
+        // A vertex first at its grid point (its position id is itself) is its own representative; only the others
+        // (seams, snapped neighbours: few) look for one, among their grid point's representatives in vertex order.
+        // Grid points are independent: their vertices are gathered by point (stable, so still in vertex order).
+        std::vector<std::vector<std::pair<uint32_t, uint32_t>>> blockRepeats((vertexCount + kBlock - 1) / kBlock);  // (point, vertex)
+        parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+            for (size_t v = begin; v < end; ++v) {
+                weld[v] = uint32_t(v);
+                if (positionId[v] != v) blockRepeats[begin / kBlock].push_back({positionId[v], uint32_t(v)});
             }
-            if (weld[v] == v) {
-                if (firstRep[p] == UINT32_MAX) firstRep[p] = v;
-                else nextRep[lastRep[p]] = v;
-                lastRep[p] = v;
+        });
+        std::vector<std::pair<uint32_t, uint32_t>> repeats;
+        for (const auto& block : blockRepeats) repeats.insert(repeats.end(), block.begin(), block.end());
+        blockRepeats = {};
+        std::stable_sort(repeats.begin(), repeats.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+        std::vector<uint32_t> reps;
+        for (size_t i = 0; i < repeats.size();) {
+            const uint32_t p = repeats[i].first;
+            reps.assign(1, p);
+            for (; i < repeats.size() && repeats[i].first == p; ++i) {
+                const uint32_t v = repeats[i].second;
+                bool welded = false;
+                for (uint32_t r : reps) {
+                    const float* n = &mesh.normals[3 * v];
+                    const float* m = &mesh.normals[3 * r];
+                    const bool sameColor = !hasColors || std::memcmp(&mesh.colors[kChannelComponents * v], &mesh.colors[kChannelComponents * r], 4 * kChannelComponents) == 0;
+                    const bool sameUv = !hasUvs || std::memcmp(&uvs[2 * v], &uvs[2 * r], 8) == 0;
+                    if (sameColor && sameUv && material_of(v) == material_of(r) && n[0] * m[0] + n[1] * m[1] + n[2] * m[2] > 0.866f) {
+                        weld[v] = r;
+                        welded = true;
+                        break;
+                    }
+                }
+                if (!welded) reps.push_back(v);
             }
         }
     }
 
     // Triangles that quantization collapsed (two corners on one grid point) cannot be seen: drop them. Slivers
     // would also make the simplifier's attribute gradients, which divide by area, explode.
-    std::vector<uint32_t> sourceIndices;
-    sourceIndices.reserve(mesh.indices.size());
-    for (size_t i = 0; i < mesh.indices.size(); i += 3) {
-        const uint32_t a = weld[mesh.indices[i]], b = weld[mesh.indices[i + 1]], c = weld[mesh.indices[i + 2]];
-        if (positionId[a] != positionId[b] && positionId[b] != positionId[c] && positionId[a] != positionId[c])
-            sourceIndices.insert(sourceIndices.end(), {a, b, c});
-    }
+    // Kept triangles are counted per block on every core, then written at their block's offset.
+    const size_t inputTriangles = mesh.indices.size() / 3;
+    std::vector<size_t> blockKept((inputTriangles + kBlock - 1) / kBlock + 1, 0);
+    auto kept_triangle = [&](size_t t, uint32_t* out) {
+        const uint32_t a = weld[mesh.indices[3 * t]], b = weld[mesh.indices[3 * t + 1]], c = weld[mesh.indices[3 * t + 2]];
+        if (positionId[a] == positionId[b] || positionId[b] == positionId[c] || positionId[a] == positionId[c]) return false;
+        if (out) out[0] = a, out[1] = b, out[2] = c;
+        return true;
+    };
+    parallel_blocks(inputTriangles, kBlock, [&](size_t begin, size_t end) {
+        size_t kept = 0;
+        for (size_t t = begin; t < end; ++t) kept += kept_triangle(t, nullptr);
+        blockKept[begin / kBlock + 1] = kept;
+    });
+    for (size_t b = 1; b < blockKept.size(); ++b) blockKept[b] += blockKept[b - 1];
+    std::vector<uint32_t> sourceIndices(3 * blockKept.back());
+    parallel_blocks(inputTriangles, kBlock, [&](size_t begin, size_t end) {
+        uint32_t* out = sourceIndices.data() + 3 * blockKept[begin / kBlock];
+        for (size_t t = begin; t < end; ++t) out += 3 * kept_triangle(t, out);
+    });
     if (sourceIndices.empty())  // everything on one grid point: keep the mesh as it is
         for (uint32_t v : mesh.indices) sourceIndices.push_back(weld[v]);
     out.sourceTriangles = sourceIndices.size() / 3;
@@ -493,7 +518,9 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     const double maxEdge = settings.maxEdgeLengthFactor > 0 ? settings.maxEdgeLengthFactor * mean_edge_length(sourceIndices, local) : 0.0;
     // Where each vertex takes its normal and colour from (itself, or the vertex Preserve Area moved it from).
     std::vector<uint32_t> attributeOf(vertexCount);
-    for (size_t v = 0; v < vertexCount; ++v) attributeOf[v] = uint32_t(v);
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t v = begin; v < end; ++v) attributeOf[v] = uint32_t(v);
+    });
 
     std::vector<uint32_t> pending;
     add_clusters(split_level_zero(sourceIndices, local), nullptr, 0.0f, 0, -1, pending);

@@ -45,20 +45,23 @@ size_t streams_bytes(const PageStreams& streams) {
 }
 
 std::vector<uint8_t> compress_page(const PageStreams& streams) {
-    const std::unique_ptr<ZSTD_CCtx, size_t (*)(ZSTD_CCtx*)> context(ZSTD_createCCtx(), ZSTD_freeCCtx);
-    ByteWriter table;
-    std::vector<uint8_t> body;
-    for (const std::vector<uint8_t>& raw : streams) {
-        std::vector<uint8_t> stored(ZSTD_compressBound(raw.size()));
-        const size_t size = ZSTD_compressCCtx(context.get(), stored.data(), stored.size(), raw.data(), raw.size(), kCompressionLevel);
-        if (ZSTD_isError(size) || size >= raw.size()) stored = raw;
-        else stored.resize(size);
-        table.put(uint32_t(raw.size()));
-        table.put(uint32_t(stored.size()));
-        body.insert(body.end(), stored.begin(), stored.end());
+    // One context per thread: making one per page (its tables) cost as much as compressing a small page.
+    thread_local const std::unique_ptr<ZSTD_CCtx, size_t (*)(ZSTD_CCtx*)> context(ZSTD_createCCtx(), ZSTD_freeCCtx);
+    std::vector<uint8_t> page(kStreamTableBytes);  // the stream table, then the streams
+    for (size_t s = 0; s < streams.size(); ++s) {
+        const std::vector<uint8_t>& raw = streams[s];
+        const size_t at = page.size();
+        page.resize(at + ZSTD_compressBound(raw.size()));
+        size_t size = ZSTD_compressCCtx(context.get(), &page[at], page.size() - at, raw.data(), raw.size(), kCompressionLevel);
+        if (ZSTD_isError(size) || size >= raw.size()) {  // stored as is
+            size = raw.size();
+            if (size) std::memcpy(&page[at], raw.data(), size);
+        }
+        page.resize(at + size);
+        const uint32_t sizes[2] = {uint32_t(raw.size()), uint32_t(size)};
+        std::memcpy(&page[8 * s], sizes, 8);
     }
-    table.bytes.insert(table.bytes.end(), body.begin(), body.end());
-    return std::move(table.bytes);
+    return page;
 }
 
 PageStreams decompress_page(std::span<const uint8_t> page, const std::string& where) {

@@ -1,6 +1,10 @@
 // Internal to the builder: exact welding of positions (prepare.cpp, dag.cpp).
 #pragma once
 
+#include "parallel.h"
+
+#include <array>
+#include <bit>
 #include <cstdint>
 #include <cstring>
 #include <vector>
@@ -16,9 +20,7 @@ public:
     }
     uint32_t add(const float* xyz, uint32_t id) {
         Slot s;
-        std::memcpy(s.key, xyz, sizeof s.key);
-        for (uint32_t& bits : s.key)
-            if (bits == 0x80000000u) bits = 0;
+        key_of(xyz, s.key);
         if (4 * (size_ + 1) > 3 * slots_.size()) rehash(2 * slots_.size());  // at most three quarters full
         const size_t mask = slots_.size() - 1;
         for (size_t i = hash(s.key) & mask;; i = (i + 1) & mask) {
@@ -33,17 +35,31 @@ public:
         }
     }
 
+    // A hint: the slot a later add of xyz starts at is fetched into the cache meanwhile (the table is far larger).
+    void prefetch(const float* xyz) const {
+        if (slots_.empty()) return;
+        uint32_t key[3];
+        key_of(xyz, key);
+        __builtin_prefetch(&slots_[hash(key) & (slots_.size() - 1)]);
+    }
+    // The bits compared (-0 as +0), and their hash: equal positions have equal hashes.
+    static void key_of(const float* xyz, uint32_t* key) {
+        std::memcpy(key, xyz, 3 * sizeof(uint32_t));
+        for (int k = 0; k < 3; ++k)
+            if (key[k] == 0x80000000u) key[k] = 0;
+    }
+    static size_t hash(const uint32_t* k) {
+        // Grid positions share low mantissa bits: mix all bits into the low ones the mask keeps.
+        uint64_t h = (uint64_t(k[0]) * 0x9E3779B97F4A7C15ull) ^ (uint64_t(k[1]) * 0xC2B2AE3D27D4EB4Full) ^ (uint64_t(k[2]) * 0x165667B19E3779F9ull);
+        return size_t(h ^ (h >> 32));
+    }
+
 private:
     static constexpr uint32_t kEmpty = UINT32_MAX;
     struct Slot {
         uint32_t key[3];
         uint32_t id = kEmpty;
     };
-    static size_t hash(const uint32_t* k) {
-        // Grid positions share low mantissa bits: mix all bits into the low ones the mask keeps.
-        uint64_t h = (uint64_t(k[0]) * 0x9E3779B97F4A7C15ull) ^ (uint64_t(k[1]) * 0xC2B2AE3D27D4EB4Full) ^ (uint64_t(k[2]) * 0x165667B19E3779F9ull);
-        return size_t(h ^ (h >> 32));
-    }
     void rehash(size_t wanted) {
         size_t capacity = 16;
         while (capacity < wanted) capacity *= 2;
@@ -61,13 +77,62 @@ private:
     size_t size_ = 0;
 };
 
-// For each of `count` xyz triples, the index of the first triple with bit-identical coordinates.
+// For each of `count` xyz triples, the index of the first triple with bit-identical coordinates. Without a welder to
+// keep, large inputs weld on every core: positions are dealt by hash into shards (equal positions share one), each
+// shard welded on its own in index order, so the result is the serial one whatever the thread count.
 inline std::vector<uint32_t> weld_equal_positions(const float* xyz, size_t count, PositionWelder* welder = nullptr) {
-    PositionWelder local;
-    PositionWelder& w = welder ? *welder : local;
-    w.reserve(count);
     std::vector<uint32_t> weld(count);
-    for (size_t i = 0; i < count; ++i) weld[i] = w.add(xyz + 3 * i, uint32_t(i));
+    constexpr size_t kMaxShards = 64, kBlock = 1 << 16, kAhead = 16;  // kAhead: positions prefetched ahead
+    if (welder || count < 4 * kBlock || core_count() < 2) {
+        PositionWelder local;
+        PositionWelder& w = welder ? *welder : local;
+        w.reserve(count);
+        for (size_t i = 0; i < count; ++i) {
+            if (i + kAhead < count) w.prefetch(xyz + 3 * (i + kAhead));
+            weld[i] = w.add(xyz + 3 * i, uint32_t(i));
+        }
+        return weld;
+    }
+    // One shard per core (each reads every cache line of xyz: more shards cost more than they balance).
+    const int shardBits = std::min(6, int(std::bit_width(core_count() - 1)));
+    const size_t shards = size_t(1) << shardBits;
+    auto shard_of = [&](size_t i) {
+        uint32_t key[3];
+        PositionWelder::key_of(xyz + 3 * i, key);
+        return PositionWelder::hash(key) >> (64 - shardBits);  // the top bits: the tables' masks keep low ones
+    };
+    // Each shard's indices in order: counted per block, then written at their block's offset.
+    const size_t blocks = (count + kBlock - 1) / kBlock;
+    std::vector<std::array<uint32_t, kMaxShards>> blockCounts(blocks);
+    parallel_blocks(count, kBlock, [&](size_t begin, size_t end) {
+        std::array<uint32_t, kMaxShards> counts{};
+        for (size_t i = begin; i < end; ++i) ++counts[shard_of(i)];
+        blockCounts[begin / kBlock] = counts;
+    });
+    std::array<size_t, kMaxShards + 1> shardStart{};
+    std::vector<std::array<size_t, kMaxShards>> blockOffset(blocks);
+    size_t at = 0;
+    for (size_t s = 0; s < shards; ++s) {
+        shardStart[s] = at;
+        for (size_t b = 0; b < blocks; ++b) {
+            blockOffset[b][s] = at;
+            at += blockCounts[b][s];
+        }
+    }
+    shardStart[shards] = at;
+    std::vector<uint32_t> byShard(count);
+    parallel_blocks(count, kBlock, [&](size_t begin, size_t end) {
+        std::array<size_t, kMaxShards> next = blockOffset[begin / kBlock];
+        for (size_t i = begin; i < end; ++i) byShard[next[shard_of(i)]++] = uint32_t(i);
+    });
+    parallel_for(shards, [&](size_t s) {
+        PositionWelder w;
+        w.reserve(shardStart[s + 1] - shardStart[s]);
+        for (size_t k = shardStart[s]; k < shardStart[s + 1]; ++k) {
+            if (k + kAhead < shardStart[s + 1]) w.prefetch(xyz + 3 * size_t(byShard[k + kAhead]));
+            weld[byShard[k]] = w.add(xyz + 3 * size_t(byShard[k]), byShard[k]);
+        }
+    });
     return weld;
 }
 

@@ -2,10 +2,15 @@
 // reproduce exactly: the DAG, the page files and every measurement of them depend on the clusters.
 #include "clusters.h"
 #include "dag_fixtures.h"
+#include "weld.h"
 
 #include <meshoptimizer.h>
 
 #include <gtest/gtest.h>
+
+#include <array>
+#include <map>
+#include <random>
 
 using namespace tessera;
 using namespace dagtest;
@@ -93,4 +98,26 @@ TEST(ClusterBuilder, LeavesMeshesOfNoAreaToMeshoptimizer) {
     std::vector<std::vector<uint32_t>> clusters = {{7}};
     EXPECT_FALSE(build_clusters(indices.data(), indices.size(), positions.data(), 4, 255, 128, clusters));
     EXPECT_TRUE(clusters.empty());
+}
+
+// The exact position weld (builder/weld.h) shards large inputs over the cores: every position must still map to the
+// first index with its bits (-0 as +0), as the serial weld gives, whatever the shard a position falls in.
+TEST(PositionWeld, ParallelWeldIsTheSerialOne) {
+    std::mt19937 random(7);
+    const size_t count = 700'000;  // above the size where the weld shards
+    std::vector<float> xyz(3 * count);
+    std::uniform_int_distribution<int> pick(0, 99'999);  // about 7 indices per position, in scattered order
+    for (size_t i = 0; i < count; ++i) {
+        const int p = pick(random);
+        xyz[3 * i] = float(p % 100) * 0.25f;
+        xyz[3 * i + 1] = float(p / 100 % 100) * 0.5f;
+        xyz[3 * i + 2] = p % 7 == 0 ? ((i & 1) ? -0.0f : 0.0f) : float(p / 10'000);
+    }
+    std::map<std::array<float, 3>, uint32_t> first;  // the serial rule, by value (-0 == +0 as floats)
+    std::vector<uint32_t> expected(count);
+    for (size_t i = 0; i < count; ++i) expected[i] = first.try_emplace({xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]}, uint32_t(i)).first->second;
+    ASSERT_GT(count / first.size(), 5u);
+    EXPECT_EQ(weld_equal_positions(xyz.data(), count), expected);
+    PositionWelder kept;  // the serial path, which keeps its welder for later additions
+    EXPECT_EQ(weld_equal_positions(xyz.data(), count, &kept), expected);
 }
