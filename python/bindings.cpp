@@ -40,6 +40,13 @@ std::shared_ptr<const void> keep_alive(nb::object object) {
     });
 }
 
+// The index's mesh of that id; a KeyError names an id it lacks.
+const Mesh& rprim_of(const RenderIndex& index, const PrimId& id) {
+    const Mesh* mesh = index.rprim(id);
+    if (!mesh) throw nb::key_error(id.c_str());
+    return *mesh;
+}
+
 template <typename T>
 std::span<const T> span_of(const std::optional<Array1<T>>& array) {
     if (!array) return {};
@@ -683,21 +690,11 @@ NB_MODULE(_tessera, m) {
             "The prims the last sync synced: {id: dirty bits} (tessera._tessera.dirty names the bits).")
         .def_prop_ro("rprim_count", &RenderIndex::rprim_count)
         .def(
-            "rprim_transform",
-            [](const RenderIndex& index, const PrimId& id) {
-                const Mesh* mesh = index.rprim(id);
-                if (!mesh) throw nb::key_error(id.c_str());
-                return mesh->transform();
-            },
-            "id"_a, "The mesh's world transform (row-major, column vectors): as synced, or as given at insertion.")
+            "rprim_transform", [](const RenderIndex& index, const PrimId& id) { return rprim_of(index, id).transform(); }, "id"_a,
+            "The mesh's world transform (row-major, column vectors): as synced, or as given at insertion.")
         .def(
-            "rprim_defaults",
-            [](const RenderIndex& index, const PrimId& id) {
-                const Mesh* mesh = index.rprim(id);
-                if (!mesh) throw nb::key_error(id.c_str());
-                return mesh->defaults();
-            },
-            "id"_a, "The dirty bits whose state the mesh was given at insertion and its next sync will not ask for.")
+            "rprim_defaults", [](const RenderIndex& index, const PrimId& id) { return rprim_of(index, id).defaults(); }, "id"_a,
+            "The dirty bits whose state the mesh was given at insertion and its next sync will not ask for.")
         .def("take_diagnostics", [](RenderIndex& index) {
             RenderParam p = index.take_diagnostics();
             nb::dict d;
