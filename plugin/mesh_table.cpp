@@ -26,7 +26,6 @@ std::string renamed(const std::string& message, const std::string& from, const s
 struct MeshTable::Build {
     MeshCache::Digest key;
     std::string name;  // of the prim it was started for, which the build's messages name
-    BuildSettings settings;
     MeshSource source;  // let go by finish(), on the syncing thread: its arrays are Python objects
     std::optional<DisplacementBake> bake;
     size_t indices = 0;  // the source's face-vertex indices
@@ -62,7 +61,6 @@ MeshTable::Ticket MeshTable::start(MeshSource source, std::optional<Displacement
     build->key = key;
     build->name = source.view.name;
     ticket.build = build;
-    build->settings = source.settings;
     build->indices = source.view.faceVertexIndices.size();
     build->bake = std::move(bake);
     build->source = std::move(source);
@@ -102,7 +100,7 @@ void MeshTable::work() {
         CachedBuild result;
         std::exception_ptr error;
         try {
-            result = build_through_cache(build->source.view, build->settings, cache_, &build->key);
+            result = build_through_cache(build->source.view, build->source.settings, cache_, &build->key);
         } catch (...) {
             error = std::current_exception();
         }
