@@ -23,6 +23,22 @@ inline float distance_between(const float* centroid, const float* point) {
     return std::sqrt(dx * dx + dy * dy + dz * dz);
 }
 
+// The nearest triangle offered so far, and whether another was exactly as near (meshoptimizer's order then decides).
+struct Nearest {
+    uint32_t triangle = kNone;
+    float distance = FLT_MAX;
+    bool tied = false;
+    void offer(uint32_t t, float d) {
+        if (d < distance) {
+            triangle = t;
+            distance = d;
+            tied = false;
+        } else if (d == distance) {
+            tied = true;
+        }
+    }
+};
+
 // The triangle nearest to a point among those not yet clustered: a uniform grid over the centroids with cells about
 // eight triangles of the surface wide, searched ring by ring outwards. Clustered triangles are dropped from their cell
 // as searches meet them. `tied` tells that another triangle was exactly as near.
@@ -62,15 +78,13 @@ public:
         size_t home[3];
         for (int k = 0; k < 3; ++k) home[k] = coordinate(point[k], k);
         const size_t rings = std::max({size_[0], size_[1], size_[2]});
-        uint32_t best = kNone;
-        float bestDistance = FLT_MAX;
-        tied = false;
+        Nearest nearest;
         for (size_t r = 0; r <= rings; ++r) {
             // A centroid in ring r (or farther) lies at least r - 1 cells from the point along some axis (the point is
             // anywhere in its home cell, or beyond the grid's box where that cell was clamped); less a little for the
             // rounding of the cell numbers. Stop only when strictly farther, so that an equal distance is seen.
             const float bound = (float(r) - 1.01f) * cell_;
-            if (best != kNone && bound > bestDistance) break;
+            if (nearest.triangle != kNone && bound > nearest.distance) break;
             const int64_t lo[3] = {int64_t(home[0]) - int64_t(r), int64_t(home[1]) - int64_t(r), int64_t(home[2]) - int64_t(r)};
             const int64_t hi[3] = {int64_t(home[0]) + int64_t(r), int64_t(home[1]) + int64_t(r), int64_t(home[2]) + int64_t(r)};
             for (int64_t z = std::max<int64_t>(lo[2], 0); z <= std::min<int64_t>(hi[2], int64_t(size_[2]) - 1); ++z)
@@ -88,19 +102,13 @@ public:
                                 continue;
                             }
                             ++i;
-                            const float d = distance_between(&centroids_[3 * size_t(t)], point);
-                            if (d < bestDistance) {
-                                best = t;
-                                bestDistance = d;
-                                tied = false;
-                            } else if (d == bestDistance) {
-                                tied = true;
-                            }
+                            nearest.offer(t, distance_between(&centroids_[3 * size_t(t)], point));
                         }
                     }
                 }
         }
-        return best;
+        tied = nearest.tied;
+        return nearest.triangle;
     }
 
 private:
@@ -390,17 +398,10 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
             // Nothing around the cluster is left: the nearest triangle anywhere (the first one: by a plain scan).
             bool tied = false;
             if (done == 0) {
-                float bestDistance = FLT_MAX;
-                for (uint32_t t = 0; t < triangles; ++t) {
-                    const float d = distance_between(&centroids[3 * size_t(t)], center);
-                    if (d < bestDistance) {
-                        next = t;
-                        bestDistance = d;
-                        tied = false;
-                    } else if (d == bestDistance) {
-                        tied = true;
-                    }
-                }
+                Nearest first;
+                for (uint32_t t = 0; t < triangles; ++t) first.offer(t, distance_between(&centroids[3 * size_t(t)], center));
+                next = first.triangle;
+                tied = first.tied;
             } else {
                 if (!nearest) nearest = std::make_unique<NearestTriangle>(centroids, lo, hi, double(meshArea) / 2);
                 next = nearest->find(center, taken, tied);
