@@ -6,6 +6,7 @@
 // kept for the next frame (rebuilt only where the post pass drew something: the GPU decides, hzb.comp.glsl).
 #include "tessera/renderer.h"
 
+#include "cut_blocks.h"
 #include "displacement.h"
 #include "shared.h"
 #include "spirv/background_comp.h"
@@ -385,7 +386,7 @@ struct Renderer::Impl {
     // raster, tessellation; the frame's HZB; resolve.
     static constexpr uint32_t kTimestamps = 12;
     Buffer hardwareList, softwareList;
-    Buffer instances, meshes, levels, clusters, positions, normals, colors, uvs, triangles, materials, materialTables;
+    Buffer instances, meshes, levels, cutBlocks, blockClusters, clusters, positions, normals, colors, uvs, triangles, materials, materialTables;
     Buffer instanceBatches, batches;
     uint32_t instanceCount = 0;
     uint64_t clusterCount = 0, sourceTriangles = 0;
@@ -672,6 +673,8 @@ struct Renderer::Impl {
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
         std::vector<gpu::GpuCluster> gpuClusters;
         std::vector<gpu::GpuLevel> gpuLevels;
+        std::vector<gpu::GpuCutBlock> gpuBlocks;
+        std::vector<uint32_t> gpuBlockClusters;
         std::vector<float> gpuPositions, gpuUvs;
         std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles, gpuDisplacementNormals, gpuSeams;
         uvBoxes.assign(scene.meshes_.size(), {});
@@ -713,7 +716,7 @@ struct Renderer::Impl {
                 const bool root = c.parentGroup == kNoGroup || !(c.parentError < TS_ROOT_ERROR);
                 if (i > 0 && c.level < mesh->clusters[i - 1].level) throw std::logic_error("built mesh clusters are not ordered by level");
                 if (gpuLevels.size() == g.levelOffset || c.level != mesh->clusters[i - 1].level) {
-                    gpuLevels.push_back({i, 0, c.lodError, 0.0f});
+                    gpuLevels.push_back({i, 0, c.lodError, 0.0f, 0, 0});
                 }
                 gpu::GpuLevel& level = gpuLevels.back();
                 ++level.clusterCount;
@@ -728,6 +731,13 @@ struct Renderer::Impl {
                                        c.level << 16 | c.vertexCount, c.parentGroup, mean_triangle_area(*mesh, c), pack_cone(cluster_normal_cone(*mesh, c)), 0, 0});
             }
             g.levelCount = uint32_t(gpuLevels.size()) - g.levelOffset;
+            for (uint32_t l = g.levelOffset; l < gpuLevels.size(); ++l) {
+                gpu::GpuLevel& level = gpuLevels[l];
+                level.blockOffset = uint32_t(gpuBlocks.size());
+                append_cut_blocks(gpuClusters.data() + g.clusterOffset + level.clusterOffset, level.clusterCount, level.clusterOffset, gpuBlocks,
+                                  gpuBlockClusters);
+                level.blockCount = uint32_t(gpuBlocks.size()) - level.blockOffset;
+            }
             g.lodRadius = float(lodRadius * (1 + 1e-6));
             gpuPositions.insert(gpuPositions.end(), mesh->positions.begin(), mesh->positions.end());
             gpuNormals.insert(gpuNormals.end(), mesh->normals.begin(), mesh->normals.end());
@@ -736,8 +746,11 @@ struct Renderer::Impl {
             gpuTriangles.insert(gpuTriangles.end(), mesh->triangles.begin(), mesh->triangles.end());
         }
         if (gpuLevels.empty()) gpuLevels.push_back({});
+        if (gpuBlocks.empty()) gpuBlocks.push_back({}), gpuBlockClusters.push_back(0);
         upload_vector(device, meshes, gpuMeshes);
         upload_vector(device, levels, gpuLevels);
+        upload_vector(device, cutBlocks, gpuBlocks);
+        upload_vector(device, blockClusters, gpuBlockClusters);
         upload_vector(device, clusters, gpuClusters);
         upload_vector(device, positions, gpuPositions);
         upload_vector(device, normals, gpuNormals);
@@ -1222,7 +1235,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.sourceTriangles = s.sourceTriangles;
     frameStats.textures = uint32_t(s.poolImages.size());
     frameStats.textureBytes = s.texturePool.size + s.textureSlots.size;
-    frameStats.geometryBytes = s.meshes.size + s.levels.size + s.clusters.size + s.positions.size + s.normals.size + s.colors.size + s.uvs.size +
+    frameStats.geometryBytes = s.meshes.size + s.levels.size + s.cutBlocks.size + s.blockClusters.size + s.clusters.size + s.positions.size + s.normals.size + s.colors.size + s.uvs.size +
                                s.triangles.size;
     const uint64_t pixels = uint64_t(settings.width) * settings.height;
 
@@ -1284,7 +1297,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const bool postPass = occlusion, previous = occlusion && s.previousValid;
         if (occlusion) s.ensure_occlusion_buffers();
         f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags | (previous ? TS_FRAME_PREVIOUS_HZB : 0u) |
-                        (occlusion ? TS_FRAME_OCCLUSION : 0u) | (s.anyDisplaced ? TS_FRAME_MICRO_BINS : 0u),
+                        (occlusion ? TS_FRAME_OCCLUSION : 0u) | (s.anyDisplaced ? TS_FRAME_MICRO_BINS : 0u) |
+                        (settings.cutBlocks ? 0u : TS_FRAME_NO_CUT_BLOCKS),
                     uint32_t(settings.visualize)};
         if (previous) {
             // The previous camera saw positions relative to itself: shift this frame's camera-relative positions back.
@@ -1299,6 +1313,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.batches = s.batches.address;
         f.meshes = s.meshes.address;
         f.levels = s.levels.address;
+        f.cutBlocks = s.cutBlocks.address;
+        f.blockClusters = s.blockClusters.address;
         f.clusters = s.clusters.address;
         f.positions = s.positions.address;
         f.normals = s.normals.address;

@@ -152,13 +152,66 @@ void defer_cluster(GpuFrame frame, uint instanceIndex, uint clusterIndex) {
     atomicMax(draw.state.postGroupsX, min(k / gl_WorkGroupSize.x + 1u, 65535u));
 }
 
-// The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup.
+// The blocks of a level that the current round of cut_instance found worth testing (at most one per thread).
+shared uint passingBlocks[TS_CULL_GROUP_SIZE];  // TS_CULL_GROUP_SIZE: the largest workgroup size the renderer picks
+shared uint passingCount;
+
+// False when no cluster of the block can be drawn for this instance: all too coarse from wherever they are, all with
+// parents fine enough, or all outside the frustum (`extra`: how far displacement may move a cluster, mesh units). The
+// tests mirror the per-cluster ones on spheres enclosing the clusters', with the level skip's margins against rounding.
+bool block_may_draw(GpuFrame frame, Instance instance, vec3 translation, float scale, bool lod, GpuCutBlock block, float extra) {
+    if ((frame.counts.z & TS_FRAME_NO_CUT_BLOCKS) != 0u) return true;
+    if (lod) {
+        float threshold = frame.lod.y;
+        float far = dot(to_camera_relative(instance, translation, block.lodSphere.xyz), frame.cameraForward.xyz) + block.lodSphere.w * scale;
+        float farScale = frame.lod.z != 0.0 ? frame.lod.x : (far > 0.0 ? frame.lod.x / far : NEVER_FINE_ENOUGH);
+        if (block.minLodError * scale * farScale > threshold * 1.0001) return false;  // every cluster too coarse
+        if (block.maxParentError < TS_ROOT_ERROR) {
+            float near = dot(to_camera_relative(instance, translation, block.parentSphere.xyz), frame.cameraForward.xyz) - block.parentSphere.w * scale;
+            float nearScale = frame.lod.z != 0.0 ? frame.lod.x : (near > 0.0 ? frame.lod.x / near : NEVER_FINE_ENOUGH);
+            if (block.maxParentError * scale * nearScale < threshold * 0.9999) return false;  // every parent fine enough
+        }
+    }
+    return sphere_in_frustum(frame, to_camera_relative(instance, translation, block.sphere.xyz), (block.sphere.w + extra) * scale);
+}
+
+// One cluster of the instance's cut: drawn iff fine enough while its parent is not, in the frustum, facing the camera and
+// not hidden (the main pass defers what the previous frame's HZB hides).
+void test_cluster(GpuFrame frame, uint step, uint instanceIndex, Instance instance, GpuMesh mesh, vec3 translation, float scale, bool lod,
+                  uint clusterInMesh) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    float threshold = frame.lod.y;
+    uint clusterIndex = mesh.clusterOffset + clusterInMesh;
+    GpuCluster cluster = ClusterRef(frame.clusters).data[clusterIndex];
+    if (lod) {
+        if (projected_error(frame, instance, translation, scale, cluster.lodSphere, cluster.lodError) > threshold) return;
+        if (projected_error(frame, instance, translation, scale, cluster.parentSphere, cluster.parentError) <= threshold) return;
+    }
+    vec3 center = to_camera_relative(instance, translation, cluster.sphere.xyz);
+    float radius = (cluster.sphere.w + cluster_displacement(frame, instance, clusterInMesh)) * scale;  // widened by its displacement
+    if (!sphere_in_frustum(frame, center, radius)) return;
+    if (facing_away(frame, instance, cluster, center, radius)) {
+        atomicAdd(draw.state.backfaceClusters, 1u);
+        return;
+    }
+    if (hidden(frame, step, center, radius)) {
+        if (step == TS_CULL_MAIN) defer_cluster(frame, instanceIndex, clusterIndex);
+        else atomicAdd(draw.state.occludedClusters, 1u);
+        return;
+    }
+    draw_cluster(frame, step, instanceIndex, clusterIndex, cluster, center, radius, scale);
+}
+
+// The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup (uniform control
+// flow: it has barriers). A hierarchy of three steps: the levels the instance's distance allows, the blocks of those
+// levels that may hold a cluster to draw (GpuCutBlock), then each cluster of those blocks.
 void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     Instance instance = load_instance(frame, instanceIndex);
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
     vec3 meshCenter = to_camera_relative(instance, translation, mesh.sphere.xyz);
+    float extra = instance_displacement(frame, instance);  // bounds every cluster's own (cluster_displacement)
 
     DrawStateRef draw = DrawStateRef(frame.drawState);
     if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.visibleInstances, 1u);
@@ -171,33 +224,35 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     float nearScale = frame.lod.z != 0.0 ? frame.lod.x : (depths.x > 0.0 ? frame.lod.x / depths.x : NEVER_FINE_ENOUGH);
     float farScale = frame.lod.z != 0.0 ? frame.lod.x : (depths.y > 0.0 ? frame.lod.x / depths.y : NEVER_FINE_ENOUGH);
     uint levelCount = lod ? mesh.levelCount : 1u;
+    if (gl_LocalInvocationIndex == 0) passingCount = 0u;
+    barrier();
     for (uint l = 0u; l < levelCount; ++l) {
         GpuLevel level = LevelRef(frame.levels).data[mesh.levelOffset + l];
         if (lod) {
             if (level.minLodError * scale * farScale > threshold * 1.0001) continue;  // every cluster too coarse here
             if (level.maxParentError < TS_ROOT_ERROR && level.maxParentError * scale * nearScale < threshold * 0.9999) continue;  // every parent fine enough
         }
-        if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.candidateClusters, level.clusterCount);
-        for (uint c = gl_LocalInvocationIndex; c < level.clusterCount; c += gl_WorkGroupSize.x) {
-            uint clusterIndex = mesh.clusterOffset + level.clusterOffset + c;
-            GpuCluster cluster = ClusterRef(frame.clusters).data[clusterIndex];
-            if (lod) {
-                if (projected_error(frame, instance, translation, scale, cluster.lodSphere, cluster.lodError) > threshold) continue;
-                if (projected_error(frame, instance, translation, scale, cluster.parentSphere, cluster.parentError) <= threshold) continue;
+        // Rounds of one block per thread: the blocks that may draw are listed, then the workgroup tests their clusters.
+        for (uint round = 0u; round < level.blockCount; round += gl_WorkGroupSize.x) {
+            uint b = round + gl_LocalInvocationIndex;
+            if (b < level.blockCount) {
+                GpuCutBlock block = CutBlockRef(frame.cutBlocks).data[level.blockOffset + b];
+                if (block_may_draw(frame, instance, translation, scale, lod, block, extra)) {
+                    passingBlocks[atomicAdd(passingCount, 1u)] = level.blockOffset + b;
+                    atomicAdd(draw.state.candidateClusters, block.clusterCount);
+                }
             }
-            vec3 center = to_camera_relative(instance, translation, cluster.sphere.xyz);
-            float radius = (cluster.sphere.w + cluster_displacement(frame, instance, level.clusterOffset + c)) * scale;  // widened by its displacement
-            if (!sphere_in_frustum(frame, center, radius)) continue;
-            if (facing_away(frame, instance, cluster, center, radius)) {
-                atomicAdd(draw.state.backfaceClusters, 1u);
-                continue;
+            barrier();
+            uint passing = passingCount;
+            for (uint i = gl_LocalInvocationIndex; i < passing * TS_CUT_BLOCK_SIZE; i += gl_WorkGroupSize.x) {
+                GpuCutBlock block = CutBlockRef(frame.cutBlocks).data[passingBlocks[i / TS_CUT_BLOCK_SIZE]];
+                uint k = i % TS_CUT_BLOCK_SIZE;
+                if (k < block.clusterCount)
+                    test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, lod, UintRef(frame.blockClusters).data[block.firstCluster + k]);
             }
-            if (hidden(frame, step, center, radius)) {
-                if (step == TS_CULL_MAIN) defer_cluster(frame, instanceIndex, clusterIndex);
-                else atomicAdd(draw.state.occludedClusters, 1u);
-                continue;
-            }
-            draw_cluster(frame, step, instanceIndex, clusterIndex, cluster, center, radius, scale);
+            barrier();  // every thread has read the list before it is emptied
+            if (gl_LocalInvocationIndex == 0) passingCount = 0u;
+            barrier();
         }
     }
 }

@@ -9,6 +9,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer In
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MeshRef { GpuMesh data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer ClusterRef { GpuCluster data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer LevelRef { GpuLevel data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer CutBlockRef { GpuCutBlock data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MaterialRef { GpuMaterial data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer FloatRef { float data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer UintRef { uint data[]; };

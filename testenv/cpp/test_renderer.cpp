@@ -454,6 +454,70 @@ void expect_same_images(const std::vector<Image>& a, const std::vector<Image>& b
 }
 }  // namespace
 
+// The cut's blocks (GpuCutBlock) only spare tests: with and without them the same clusters are drawn, through the
+// same rasterizers, to the same pixels, for views that mix levels, cut the mesh with the frustum, look from inside the
+// LOD spheres, are orthographic, or sit far from the origin under a stretching transform.
+TEST_F(RendererTest, CutBlocksChangeWhatIsTestedNotTheCut) {
+    Renderer renderer(*device);
+    GpuScene scene;
+    std::shared_ptr<BuiltMesh> sphere = bumpy_sphere(160);  // 102k triangles
+    const uint32_t mesh = scene.add_mesh(sphere);
+    struct View {
+        const char* name;
+        CameraDesc camera;
+        Matrix4d transform;
+    };
+    std::vector<View> views;
+    CameraDesc wide = camera_at(0, 0, 1.6);  // the whole sphere from 0.6 above it, a 90-degree lens
+    wide.horizontalAperture = wide.verticalAperture = 100;
+    views.push_back({"close and wide", wide, identity_matrix()});
+    views.push_back({"grazing", camera_at(0.8, 0.3, 1.05), identity_matrix()});
+    CameraDesc telephoto = camera_at(0.3, 0.2, 3);  // a 4.6-degree lens: most of the sphere lies outside the frustum
+    telephoto.horizontalAperture = telephoto.verticalAperture = 4;
+    views.push_back({"telephoto", telephoto, identity_matrix()});
+    CameraDesc ortho = camera_at(0.2, 0, 3);
+    ortho.orthographic = true;
+    ortho.horizontalAperture = ortho.verticalAperture = 12;  // tenths of a unit, as USD: 1.2 units across
+    views.push_back({"orthographic", ortho, identity_matrix()});
+    Matrix4d far = identity_matrix();
+    far[0] = 3, far[5] = 0.5, far[10] = 2;  // stretched: its scale bounds the error by the largest axis
+    far[3] = 1.0e6, far[7] = -2.0e6, far[11] = 5.0e5;
+    views.push_back({"far from the origin, stretched", camera_at(1.0e6 + 0.5, -2.0e6, 5.0e5 + 2.6), far});
+    Matrix4d huge = identity_matrix();
+    huge[0] = huge[5] = huge[10] = 40;
+    views.push_back({"a huge sphere from just above it", wide, huge});  // the frustum holds a sliver of it
+    views.back().camera.cameraToWorld[11] = 41.0;
+
+    RenderSettings settings{320, 240, {0, 0, 0, 0}};
+    settings.occlusion = false;  // the counts of the cut alone
+    uint64_t telephotoWith = 0, telephotoWithout = 0;
+    for (const View& view : views) {
+        InstanceDesc instance = identity_instance(mesh);
+        instance.transform = view.transform;
+        scene.set_instances({instance});
+        for (float pixels : {0.5f, 1.0f, 4.0f}) {
+            settings.pixelError = pixels;
+            FrameStats with, without;
+            settings.cutBlocks = true;
+            auto a = renderer.render(scene, view.camera, settings, {Aov::ClusterId, Aov::TriangleId}, &with);
+            settings.cutBlocks = false;
+            auto b = renderer.render(scene, view.camera, settings, {Aov::ClusterId, Aov::TriangleId}, &without);
+            const std::string what = std::string(view.name) + ", " + std::to_string(pixels) + " px";
+            EXPECT_GT(with.visibleClusters, 0u) << what;
+            EXPECT_EQ(with.visibleClusters, without.visibleClusters) << what;
+            EXPECT_EQ(with.visibleTriangles, without.visibleTriangles) << what;
+            EXPECT_EQ(with.swTriangles, without.swTriangles) << what;
+            EXPECT_EQ(with.backfaceClusters, without.backfaceClusters) << what;
+            EXPECT_LE(with.candidateClusters, without.candidateClusters) << what;
+            expect_same_images(a, b, what.c_str());
+            if (view.camera.horizontalAperture == telephoto.horizontalAperture)
+                telephotoWith += with.candidateClusters, telephotoWithout += without.candidateClusters;
+        }
+    }
+    // Through the telephoto lens most blocks lie outside the frustum (measured: 2 357 clusters tested against 4 186).
+    EXPECT_LT(telephotoWith * 3, telephotoWithout * 2) << "blocks outside the frustum must not be tested cluster by cluster";
+}
+
 TEST_F(RendererTest, OcclusionCullingChangesCountsNotTheImage) {
     GpuScene scene;
     scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));

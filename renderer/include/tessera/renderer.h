@@ -184,6 +184,9 @@ struct RenderSettings {
     // depth pyramid (HZB) of what this frame drew first; the first frame of a view (or after instances move) has no
     // previous frame to ask. Off with lod=false, which draws every source triangle.
     bool occlusion = true;
+    // The cut skips whole blocks of clusters that cannot be drawn (GpuCutBlock, renderer/cut_blocks.cpp). Blocks change the clusters tested and
+    // the time, never the cut: false tests each cluster of the levels not ruled out, to compare (tests, measurements).
+    bool cutBlocks = true;
     // Displaced surfaces are diced into micro-triangles whose edges project to about this many pixels.
     float dicingRate = 1.0f;
 };
@@ -195,7 +198,7 @@ struct FrameStats {
     uint64_t instanceBytes = 0;     // GPU memory that grows with the instance count (transforms, batch words, lists)
     uint64_t clusters = 0;  // level 0 of every instance (the source)
     uint32_t visibleClusters = 0;
-    uint64_t candidateClusters = 0;  // clusters the cut tested (the levels an instance's distance did not rule out)
+    uint64_t candidateClusters = 0;  // clusters the cut tested one by one (in the blocks that levels and block bounds did not rule out)
     uint64_t sourceTriangles = 0;   // every triangle of every instance
     uint64_t visibleTriangles = 0;  // triangles of the cut's visible clusters
     uint64_t swTriangles = 0, hwTriangles = 0;  // of those, drawn by the compute rasterizer and by hardware raster
@@ -214,7 +217,7 @@ struct FrameStats {
     uint32_t shadingBins = 0;           // bins with visible pixels, each shaded by a dispatch of its own: one a material, or
                                         // up to three for a displaced one (its triangles, kept and diced micro-triangles)
     uint32_t textures = 0;              // images in the texture pool
-    uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, vertex streams, triangles
+    uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, cut blocks, vertex streams, triangles
     uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
     // Runtime tessellation (0 without displaced materials): clusters and triangles diced, patches, micro-triangles,
     // and the GPU memory of the patch lists and displacement normals.

@@ -1,0 +1,88 @@
+#include "cut_blocks.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+namespace tessera {
+namespace {
+
+using Sphere = std::array<double, 4>;
+
+Sphere sphere_of(const gpu::vec4& s) { return {s.x, s.y, s.z, s.w}; }
+
+// A sphere enclosing the given ones (the centre of their box, then the farthest reach), widened by a relative hair:
+// the GPU transforms its centre in float, not the clusters' own, and a block must never leave out a cluster the
+// per-cluster test would keep.
+gpu::vec4 enclosing(const std::vector<Sphere>& spheres) {
+    if (spheres.empty()) return {0, 0, 0, 0};
+    std::array<double, 3> lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
+    for (const Sphere& s : spheres)
+        for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], s[k] - s[3]), hi[k] = std::max(hi[k], s[k] + s[3]);
+    const std::array<double, 3> c{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
+    double radius = 0;
+    for (const Sphere& s : spheres)
+        radius = std::max(radius, std::sqrt((s[0] - c[0]) * (s[0] - c[0]) + (s[1] - c[1]) * (s[1] - c[1]) + (s[2] - c[2]) * (s[2] - c[2])) + s[3]);
+    const double magnitude = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+    return {float(c[0]), float(c[1]), float(c[2]), float(radius + 1e-5 * (radius + magnitude))};
+}
+
+// Spreads the low 10 bits of v to every third bit.
+uint32_t spread_bits(uint32_t v) {
+    v &= 0x3ff;
+    v = (v | (v << 16)) & 0x030000ff;
+    v = (v | (v << 8)) & 0x0300f00f;
+    v = (v | (v << 4)) & 0x030c30c3;
+    v = (v | (v << 2)) & 0x09249249;
+    return v;
+}
+
+}  // namespace
+
+void append_cut_blocks(const gpu::GpuCluster* clusters, uint32_t count, uint32_t firstInMesh, std::vector<gpu::GpuCutBlock>& blocks,
+                       std::vector<uint32_t>& blockClusters) {
+    // Morton codes of the culling spheres' centres, on a 1024^3 grid over their box.
+    std::array<float, 3> lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t i = 0; i < count; ++i) {
+        const float p[3] = {clusters[i].sphere.x, clusters[i].sphere.y, clusters[i].sphere.z};
+        for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], p[k]), hi[k] = std::max(hi[k], p[k]);
+    }
+    std::vector<std::pair<uint32_t, uint32_t>> order(count);  // (code, cluster in level)
+    for (uint32_t i = 0; i < count; ++i) {
+        const float p[3] = {clusters[i].sphere.x, clusters[i].sphere.y, clusters[i].sphere.z};
+        uint32_t code = 0;
+        for (int k = 0; k < 3; ++k) {
+            const float extent = hi[k] - lo[k];
+            const uint32_t cell = extent > 0 ? uint32_t(std::clamp((p[k] - lo[k]) / extent * 1023.0f + 0.5f, 0.0f, 1023.0f)) : 0;
+            code |= spread_bits(cell) << k;
+        }
+        order[i] = {code, i};
+    }
+    std::sort(order.begin(), order.end());  // ties by index: the same blocks every time
+
+    std::vector<Sphere> spheres, lodSpheres, parentSpheres;
+    for (uint32_t first = 0; first < count; first += TS_CUT_BLOCK_SIZE) {
+        const uint32_t size = std::min<uint32_t>(TS_CUT_BLOCK_SIZE, count - first);
+        gpu::GpuCutBlock block{};
+        block.minLodError = INFINITY;
+        block.maxParentError = 0;
+        block.firstCluster = uint32_t(blockClusters.size());
+        block.clusterCount = size;
+        spheres.clear(), lodSpheres.clear(), parentSpheres.clear();
+        for (uint32_t k = first; k < first + size; ++k) {
+            const gpu::GpuCluster& c = clusters[order[k].second];
+            blockClusters.push_back(firstInMesh + order[k].second);
+            spheres.push_back(sphere_of(c.sphere));
+            lodSpheres.push_back(sphere_of(c.lodSphere));
+            block.minLodError = std::min(block.minLodError, c.lodError);
+            block.maxParentError = std::max(block.maxParentError, c.parentError);
+            if (c.parentError < TS_ROOT_ERROR) parentSpheres.push_back(sphere_of(c.parentSphere));
+        }
+        block.sphere = enclosing(spheres);
+        block.lodSphere = enclosing(lodSpheres);
+        block.parentSphere = enclosing(parentSpheres);
+        blocks.push_back(block);
+    }
+}
+
+}  // namespace tessera
