@@ -152,25 +152,18 @@ void defer_cluster(GpuFrame frame, uint instanceIndex, uint clusterIndex) {
     atomicMax(draw.state.postGroupsX, min(k / gl_WorkGroupSize.x + 1u, 65535u));
 }
 
-// The blocks of a level that the current round of cut_instance found worth testing (at most one per thread).
-shared uint passingBlocks[TS_CULL_GROUP_SIZE];  // TS_CULL_GROUP_SIZE: the largest workgroup size the renderer picks
-shared uint passingCount;
-
 // False when no cluster of the block can be drawn for this instance: all too coarse from wherever they are, all with
 // parents fine enough, or all outside the frustum (`extra`: how far displacement may move a cluster, mesh units). The
 // tests mirror the per-cluster ones on spheres enclosing the clusters', with the level skip's margins against rounding.
-bool block_may_draw(GpuFrame frame, Instance instance, vec3 translation, float scale, bool lod, GpuCutBlock block, float extra) {
-    if ((frame.counts.z & TS_FRAME_NO_CUT_BLOCKS) != 0u) return true;
-    if (lod) {
-        float threshold = frame.lod.y;
-        float far = dot(to_camera_relative(instance, translation, block.lodSphere.xyz), frame.cameraForward.xyz) + block.lodSphere.w * scale;
-        float farScale = frame.lod.z != 0.0 ? frame.lod.x : (far > 0.0 ? frame.lod.x / far : NEVER_FINE_ENOUGH);
-        if (block.minLodError * scale * farScale > threshold * 1.0001) return false;  // every cluster too coarse
-        if (block.maxParentError < TS_ROOT_ERROR) {
-            float near = dot(to_camera_relative(instance, translation, block.parentSphere.xyz), frame.cameraForward.xyz) - block.parentSphere.w * scale;
-            float nearScale = frame.lod.z != 0.0 ? frame.lod.x : (near > 0.0 ? frame.lod.x / near : NEVER_FINE_ENOUGH);
-            if (block.maxParentError * scale * nearScale < threshold * 0.9999) return false;  // every parent fine enough
-        }
+bool block_may_draw(GpuFrame frame, Instance instance, vec3 translation, float scale, GpuCutBlock block, float extra) {
+    float threshold = frame.lod.y;
+    float far = dot(to_camera_relative(instance, translation, block.lodSphere.xyz), frame.cameraForward.xyz) + block.lodSphere.w * scale;
+    float farScale = frame.lod.z != 0.0 ? frame.lod.x : (far > 0.0 ? frame.lod.x / far : NEVER_FINE_ENOUGH);
+    if (block.minLodError * scale * farScale > threshold * 1.0001) return false;  // every cluster too coarse
+    if (block.maxParentError < TS_ROOT_ERROR) {
+        float near = dot(to_camera_relative(instance, translation, block.parentSphere.xyz), frame.cameraForward.xyz) - block.parentSphere.w * scale;
+        float nearScale = frame.lod.z != 0.0 ? frame.lod.x : (near > 0.0 ? frame.lod.x / near : NEVER_FINE_ENOUGH);
+        if (block.maxParentError * scale * nearScale < threshold * 0.9999) return false;  // every parent fine enough
     }
     return sphere_in_frustum(frame, to_camera_relative(instance, translation, block.sphere.xyz), (block.sphere.w + extra) * scale);
 }
@@ -202,59 +195,78 @@ void test_cluster(GpuFrame frame, uint step, uint instanceIndex, Instance instan
     draw_cluster(frame, step, instanceIndex, clusterIndex, cluster, center, radius, scale);
 }
 
-// The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup (uniform control
-// flow: it has barriers). A hierarchy of three steps: the levels the instance's distance allows, the blocks of those
-// levels that may hold a cluster to draw (GpuCutBlock), then each cluster of those blocks.
+// Bounds on the projected errors of every cluster of an instance's mesh (its LOD radius's depth range): x at the
+// nearest depth, y at the farthest.
+struct LevelScales { float nearScale, farScale; };
+
+// False when the instance's distance rules a whole level out: all its clusters too coarse, or all its parents fine
+// enough. The margins keep rounding from skipping a level that the per-cluster test would draw from.
+bool level_in_cut(GpuFrame frame, GpuLevel level, float scale, LevelScales s) {
+    float threshold = frame.lod.y;
+    if (level.minLodError * scale * s.farScale > threshold * 1.0001) return false;
+    return !(level.maxParentError < TS_ROOT_ERROR && level.maxParentError * scale * s.nearScale < threshold * 0.9999);
+}
+
+// The cut by clusters: each cluster of each level in the cut, spread over the threads.
+void cut_by_clusters(GpuFrame frame, uint step, uint instanceIndex, Instance instance, GpuMesh mesh, vec3 translation, float scale, bool lod,
+                     LevelScales s) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    uint levelCount = lod ? mesh.levelCount : 1u;
+    for (uint l = 0u; l < levelCount; ++l) {
+        GpuLevel level = LevelRef(frame.levels).data[mesh.levelOffset + l];
+        if (lod && !level_in_cut(frame, level, scale, s)) continue;
+        if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.candidateClusters, level.clusterCount);
+        for (uint c = gl_LocalInvocationIndex; c < level.clusterCount; c += gl_WorkGroupSize.x)
+            test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, lod, level.clusterOffset + c);
+    }
+}
+
+// The cut by blocks: each block of each level in the cut, spread over the threads; a thread tests the clusters of
+// each of its blocks that may draw.
+void cut_by_blocks(GpuFrame frame, uint step, uint instanceIndex, Instance instance, GpuMesh mesh, vec3 translation, float scale,
+                   LevelScales s) {
+    DrawStateRef draw = DrawStateRef(frame.drawState);
+    float extra = instance_displacement(frame, instance);  // bounds every cluster's own (cluster_displacement)
+    for (uint l = 0u; l < mesh.levelCount; ++l) {
+        GpuLevel level = LevelRef(frame.levels).data[mesh.levelOffset + l];
+        if (!level_in_cut(frame, level, scale, s)) continue;
+        for (uint b = gl_LocalInvocationIndex; b < level.blockCount; b += gl_WorkGroupSize.x) {
+            GpuCutBlock block = CutBlockRef(frame.cutBlocks).data[level.blockOffset + b];
+            if (!block_may_draw(frame, instance, translation, scale, block, extra)) continue;
+            atomicAdd(draw.state.candidateClusters, block.clusterCount);
+            for (uint k = 0u; k < block.clusterCount; ++k)
+                test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, true, UintRef(frame.blockClusters).data[block.firstCluster + k]);
+        }
+    }
+}
+
+// The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup: a hierarchy of
+// the levels the instance's distance allows, then (for an instance with many clusters in those levels) the blocks of
+// those levels that may hold a cluster to draw (GpuCutBlock), then clusters. The choice is made per instance: lavapipe
+// runs both sides of every branch, masked, so a per-level choice cost the field's instances, which test few
+// clusters, a masked pass of the block code on every level (twice the cull of the 1e10 field).
 void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     Instance instance = load_instance(frame, instanceIndex);
     GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
     vec3 meshCenter = to_camera_relative(instance, translation, mesh.sphere.xyz);
-    float extra = instance_displacement(frame, instance);  // bounds every cluster's own (cluster_displacement)
 
     DrawStateRef draw = DrawStateRef(frame.drawState);
     if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.visibleInstances, 1u);
     bool lod = (frame.counts.z & TS_FRAME_NO_LOD) == 0u;
-    float threshold = frame.lod.y;
-    // Every LOD sphere of the mesh lies inside its LOD radius, so that sphere's depth range bounds each projected
-    // error: a level all of whose clusters are too coarse, or all of whose parents are fine enough, is skipped
-    // whole. The margins keep rounding from skipping a level that the per-cluster test would draw from.
+    // Every LOD sphere of the mesh lies inside its LOD radius, so that sphere's depth range bounds each projected error.
     vec2 depths = depth_range(frame, meshCenter, mesh.lodRadius * scale);
-    float nearScale = frame.lod.z != 0.0 ? frame.lod.x : (depths.x > 0.0 ? frame.lod.x / depths.x : NEVER_FINE_ENOUGH);
-    float farScale = frame.lod.z != 0.0 ? frame.lod.x : (depths.y > 0.0 ? frame.lod.x / depths.y : NEVER_FINE_ENOUGH);
-    uint levelCount = lod ? mesh.levelCount : 1u;
-    if (gl_LocalInvocationIndex == 0) passingCount = 0u;
-    barrier();
-    for (uint l = 0u; l < levelCount; ++l) {
-        GpuLevel level = LevelRef(frame.levels).data[mesh.levelOffset + l];
-        if (lod) {
-            if (level.minLodError * scale * farScale > threshold * 1.0001) continue;  // every cluster too coarse here
-            if (level.maxParentError < TS_ROOT_ERROR && level.maxParentError * scale * nearScale < threshold * 0.9999) continue;  // every parent fine enough
+    LevelScales s = LevelScales(frame.lod.z != 0.0 ? frame.lod.x : (depths.x > 0.0 ? frame.lod.x / depths.x : NEVER_FINE_ENOUGH),
+                                frame.lod.z != 0.0 ? frame.lod.x : (depths.y > 0.0 ? frame.lod.x / depths.y : NEVER_FINE_ENOUGH));
+    uint inCut = 0u;
+    if (lod && (frame.counts.z & TS_FRAME_NO_CUT_BLOCKS) == 0u)
+        for (uint l = 0u; l < mesh.levelCount; ++l) {
+            GpuLevel level = LevelRef(frame.levels).data[mesh.levelOffset + l];
+            if (level_in_cut(frame, level, scale, s)) inCut += level.clusterCount;
         }
-        // Rounds of one block per thread: the blocks that may draw are listed, then the workgroup tests their clusters.
-        for (uint round = 0u; round < level.blockCount; round += gl_WorkGroupSize.x) {
-            uint b = round + gl_LocalInvocationIndex;
-            if (b < level.blockCount) {
-                GpuCutBlock block = CutBlockRef(frame.cutBlocks).data[level.blockOffset + b];
-                if (block_may_draw(frame, instance, translation, scale, lod, block, extra)) {
-                    passingBlocks[atomicAdd(passingCount, 1u)] = level.blockOffset + b;
-                    atomicAdd(draw.state.candidateClusters, block.clusterCount);
-                }
-            }
-            barrier();
-            uint passing = passingCount;
-            for (uint i = gl_LocalInvocationIndex; i < passing * TS_CUT_BLOCK_SIZE; i += gl_WorkGroupSize.x) {
-                GpuCutBlock block = CutBlockRef(frame.cutBlocks).data[passingBlocks[i / TS_CUT_BLOCK_SIZE]];
-                uint k = i % TS_CUT_BLOCK_SIZE;
-                if (k < block.clusterCount)
-                    test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, lod, UintRef(frame.blockClusters).data[block.firstCluster + k]);
-            }
-            barrier();  // every thread has read the list before it is emptied
-            if (gl_LocalInvocationIndex == 0) passingCount = 0u;
-            barrier();
-        }
-    }
+    if (inCut > TS_CUT_BLOCKS_FROM * gl_WorkGroupSize.x) cut_by_blocks(frame, step, instanceIndex, instance, mesh, translation, scale, s);
+    else cut_by_clusters(frame, step, instanceIndex, instance, mesh, translation, scale, lod, s);
 }
 
 vec4 instance_sphere(GpuFrame frame, Instance instance) {

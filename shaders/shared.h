@@ -306,6 +306,9 @@ struct GpuCutBlock {
 };
 TS_CHECK_SIZE(GpuCutBlock, 64);
 #define TS_CUT_BLOCK_SIZE 16u
+// An instance goes block by block when the levels its distance allows hold more than this many clusters per thread of
+// the cull's workgroup; below, cluster by cluster (most instances of a field of distant copies: their levels are small).
+#define TS_CUT_BLOCKS_FROM 32u
 
 struct GpuMesh {
     vec4 sphere;         // bounding sphere in mesh space
