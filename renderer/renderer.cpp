@@ -360,12 +360,13 @@ struct Renderer::Impl {
     VkDescriptorSetLayout frameSetLayout = VK_NULL_HANDLE;
     VkDescriptorPool framePool = VK_NULL_HANDLE;
     VkDescriptorSet frameSet = VK_NULL_HANDLE;
-    VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE, raster = VK_NULL_HANDLE;
+    VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE;
+    VkPipeline raster[2] = {};  // hardware raster of clusters: [double-sided (TS_SPEC_DOUBLE_SIDED)]
     uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // its workgroup size, chosen for the device (default_cull_group_size)
     VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
     // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
     // first needs them.
-    VkPipeline rasterMasked = VK_NULL_HANDLE;
+    VkPipeline rasterMasked[2] = {};
     // The compute rasterizer's variants, made on first use: [masks (TS_SPEC_TEXTURES)][own corners (TS_SPEC_OWN_CORNERS,
     // RasterVertices::PerTriangle)][large triangles (TS_SPEC_LARGE_TRIANGLES: the back of the software list)].
     VkPipeline rasterSoftware[2][2][2] = {};
@@ -447,11 +448,11 @@ struct Renderer::Impl {
         vkDestroyPipeline(vk, classify, nullptr);
         vkDestroyPipeline(vk, bins, nullptr);
         vkDestroyPipeline(vk, background, nullptr);
-        vkDestroyPipeline(vk, raster, nullptr);
+        for (VkPipeline variant : raster) vkDestroyPipeline(vk, variant, nullptr);
         for (auto& byMasks : rasterSoftware)
             for (auto& variants : byMasks)
                 for (VkPipeline variant : variants) vkDestroyPipeline(vk, variant, nullptr);
-        vkDestroyPipeline(vk, rasterMasked, nullptr);
+        for (VkPipeline variant : rasterMasked) vkDestroyPipeline(vk, variant, nullptr);
         vkDestroyPipeline(vk, tessellate, nullptr);
         vkDestroyPipeline(vk, dice, nullptr);
         vkDestroyPipeline(vk, diceMasked, nullptr);
@@ -471,16 +472,16 @@ struct Renderer::Impl {
     // TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size); TS_SPEC_LARGE_TRIANGLES (the compute rasterizer's, a
     // boolean). A shader ignores the entries it does not declare.
     struct Variant {
-        uint32_t values[8];
-        VkSpecializationMapEntry entries[8] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+        uint32_t values[9];
+        VkSpecializationMapEntry entries[9] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                                {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
-                                               {TS_SPEC_LARGE_TRIANGLES, 28, 4}};
-        VkSpecializationInfo info{8, entries, sizeof(values), values};
+                                               {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}};
+        VkSpecializationInfo info{9, entries, sizeof(values), values};
         Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false)
+                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, bool doubleSided = false)
             : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
                      uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize,
-                     VkBool32(largeTriangles)} {}
+                     VkBool32(largeTriangles), VkBool32(doubleSided)} {}
         Variant(const Variant&) = delete;
     };
 
@@ -543,7 +544,7 @@ struct Renderer::Impl {
         bins = compute_pipeline(bins_comp, sizeof(bins_comp));
         background = compute_pipeline(background_comp, sizeof(background_comp));
         for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles);
-        raster = graphics_pipeline(false, false);
+        for (bool doubleSided : {false, true}) raster[doubleSided] = graphics_pipeline(false, false, doubleSided);
 
         VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
         queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
@@ -557,7 +558,8 @@ struct Renderer::Impl {
             for (bool light : {false, areaLights})
                 resolve_variant(textured, pixels, light, TS_OUTPUT_SHADE);
         if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
-        if (masks && !rasterMasked) rasterMasked = graphics_pipeline(false, true);
+        if (masks && !rasterMasked[0])
+            for (bool doubleSided : {false, true}) rasterMasked[doubleSided] = graphics_pipeline(false, true, doubleSided);
     }
 
     // RasterVertices::Auto: each thread its own triangle's corners on a CPU device, shared vertices on a GPU;
@@ -620,15 +622,17 @@ struct Renderer::Impl {
     }
 
     // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
-    // Clusters (raster.vert.glsl, raster.frag.glsl) or patches (patch.vert.glsl, patch.frag.glsl).
-    VkPipeline graphics_pipeline(bool patches, bool masks) {
+    // Clusters (raster.vert.glsl, raster.frag.glsl) or patches (patch.vert.glsl, patch.frag.glsl). The cluster variant for
+    // single-sided instances culls back faces; patches come in one draw from instances of both kinds, which the fragment
+    // shader tells apart.
+    VkPipeline graphics_pipeline(bool patches, bool masks, bool doubleSided = true) {
         VkShaderModule vert = patches ? create_module(device.handle(), patch_vert, sizeof(patch_vert)) : create_module(device.handle(), raster_vert, sizeof(raster_vert));
         VkShaderModule frag = patches ? create_module(device.handle(), patch_frag, sizeof(patch_frag)) : create_module(device.handle(), raster_frag, sizeof(raster_frag));
         VkPipelineShaderStageCreateInfo stages[2] = {
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
-        const Variant variant(true, false, false);
-        if (masks) stages[1].pSpecializationInfo = &variant.info;
+        const Variant variant(masks, 0, false, TS_OUTPUT_SHADE, false, TS_CULL_GROUP_SIZE, false, doubleSided);
+        stages[0].pSpecializationInfo = stages[1].pSpecializationInfo = &variant.info;
         VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
         VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
         assembly.topology = VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST;
@@ -637,7 +641,7 @@ struct Renderer::Impl {
         viewport.scissorCount = 1;
         VkPipelineRasterizationStateCreateInfo rasterization{VK_STRUCTURE_TYPE_PIPELINE_RASTERIZATION_STATE_CREATE_INFO};
         rasterization.polygonMode = VK_POLYGON_MODE_FILL;
-        rasterization.cullMode = VK_CULL_MODE_NONE;  // per instance, in the fragment shader (double-sided varies)
+        rasterization.cullMode = doubleSided ? VK_CULL_MODE_NONE : VK_CULL_MODE_BACK_BIT;
         rasterization.frontFace = VK_FRONT_FACE_COUNTER_CLOCKWISE;
         rasterization.lineWidth = 1.0f;
         VkPipelineMultisampleStateCreateInfo multisample{VK_STRUCTURE_TYPE_PIPELINE_MULTISAMPLE_STATE_CREATE_INFO};
@@ -1359,7 +1363,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             auto mark = [&]() { vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, timestamp++); };
             mark();
             gpu::GpuDrawState initial{};
-            initial.vertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
+            initial.vertexCount = initial.doubleSidedVertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
             initial.swGroupsZ = 1;
             initial.swLargeGroupsZ = 1;
             initial.tessGroupsZ = 1;
@@ -1402,8 +1406,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 VkRect2D scissor{{0, 0}, {settings.width, settings.height}};
                 vkCmdSetViewport(cmd, 0, 1, &viewport);
                 vkCmdSetScissor(cmd, 0, 1, &scissor);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.anyMasked ? s.rasterMasked : s.raster);
-                vkCmdDrawIndirect(cmd, s.drawState.handle, 0, 1, sizeof(VkDrawIndirectCommand));
+                for (bool doubleSided : {false, true}) {  // single-sided instances with back faces culled, then the others
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, (s.anyMasked ? s.rasterMasked : s.raster)[doubleSided]);
+                    vkCmdDrawIndirect(cmd, s.drawState.handle, doubleSided ? offsetof(gpu::GpuDrawState, doubleSidedVertexCount) : 0, 1,
+                                      sizeof(VkDrawIndirectCommand));
+                }
                 vkCmdEndRendering(cmd);
                 mark();
                 // Displaced clusters: patches (one workgroup per cluster, indirect); the small ones diced and scanned in
@@ -1470,6 +1477,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             if (postPass) {
                 // The rasterizers' arguments start again at zero (the visible list and the counters go on).
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, instanceCount), 4, 0);
+                vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, doubleSidedInstanceCount), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swClusters), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, swLargeGroupsX), 8, 0);  // X and Y

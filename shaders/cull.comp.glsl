@@ -137,9 +137,14 @@ void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterInd
             atomicMax(draw.state.swLargeGroupsX, min(k + 1u, 65535u));
             atomicMax(draw.state.swLargeGroupsY, k / 65535u + 1u);
         }
-    } else {
-        uint k = atomicAdd(draw.state.instanceCount, 1u);
+    } else if ((instance.flags & TS_INSTANCE_DOUBLE_SIDED) == 0u) {
+        uint k = atomicAdd(draw.state.instanceCount, 1u);  // drawn with back faces culled
         SlotListRef(frame.hardwareList).data[k] = slot;
+    } else {
+        // Double-sided: from the back of the list, for the variant that culls nothing. Both ends together hold at most
+        // the slots stored this pass, so they cannot meet.
+        uint k = atomicAdd(draw.state.doubleSidedInstanceCount, 1u);
+        SlotListRef(frame.hardwareList).data[frame.counts.y - 1u - k] = slot;
     }
 }
 

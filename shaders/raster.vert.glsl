@@ -4,12 +4,15 @@
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
 
+// The variant for double-sided instances, which draws the back of the hardware list (cull.comp.glsl).
+layout(constant_id = TS_SPEC_DOUBLE_SIDED) const bool DOUBLE_SIDED = false;
+
 layout(location = 0) flat out uint outPayload;  // visible cluster << 7 | triangle
 layout(location = 1) flat out uint outFlags;
 
 void main() {
     GpuFrame frame = frameConstants;
-    uint slot = SlotListRef(frame.hardwareList).data[gl_InstanceIndex];
+    uint slot = SlotListRef(frame.hardwareList).data[DOUBLE_SIDED ? frame.counts.y - 1u - gl_InstanceIndex : gl_InstanceIndex];
     uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
     GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
     uint triangle = uint(gl_VertexIndex) / 3u;

@@ -223,6 +223,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // software list, GpuDrawState.swLarge*). The other variant has no 64-bit scan at all: lavapipe runs both sides of a
 // branch that differs between lanes, so a per-triangle choice cost every triangle both scans (12 % of its instructions).
 #define TS_SPEC_LARGE_TRIANGLES 7
+// The hardware raster's variant for double-sided instances (boolean): it draws the back of the hardware list with no face
+// culling; the other culls back faces before any fragment (GpuDrawState.doubleSided*). lavapipe rasterizes and shades
+// every fragment of a triangle it does not cull, so a back face rejected in the fragment shader cost as much as a front.
+#define TS_SPEC_DOUBLE_SIDED 8
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
@@ -294,7 +298,7 @@ TS_CHECK_SIZE(GpuLevel, 24);
 // The cut's second step: up to TS_CUT_BLOCK_SIZE spatially close clusters of one level, with bounds that let the cut
 // skip them all at once: when all are too coarse from where the instance is, when all parents are fine enough, or
 // when none can touch the frustum (renderer/cut_blocks.cpp). The spheres enclose those of its clusters, in mesh space.
-// 16 clusters: on the 9.76 M-triangle sphere of tessera bench render, 32 tested more clusters for fewer blocks.
+// 16 clusters: the 1 px sphere of tessera bench render (1080p) tests 8 713 clusters with 16, 10 073 with 32.
 struct GpuCutBlock {
     vec4 sphere;            // encloses the clusters' culling spheres
     vec4 lodSphere;         // encloses their LOD spheres
@@ -418,7 +422,7 @@ TS_CHECK_SIZE(GpuLight, 96);
 // cull passes. The rasterizers' arguments are reset between the main and the post pass; the counters add up.
 struct GpuDrawState {
     uint vertexCount;      // VkDrawIndirectCommand: TS_CLUSTER_MAX_TRIANGLES * 3 vertices per hardware cluster
-    uint instanceCount;    // hardware clusters stored (this pass)
+    uint instanceCount;    // hardware clusters of single-sided instances stored (this pass) at the front of the hardware list
     uint firstVertex;
     uint firstInstance;
     uint swGroupsX;        // VkDispatchIndirectCommand: min(software clusters stored, 65535) workgroups
@@ -477,8 +481,12 @@ struct GpuDrawState {
     uint keptMicroPixels;  // covered pixels resolve read from kept points (bin kind TS_BIN_KEPT_MICRO)
     uint dicedMicroPixels; // covered pixels whose micro-triangle resolve diced again (TS_BIN_DICED_MICRO)
     uint hzbBuilds;        // HZB builds the frame needed (hzb.comp.glsl: after the main pass, final)
+    uint doubleSidedVertexCount;   // VkDrawIndirectCommand of the hardware clusters of double-sided instances, stored
+    uint doubleSidedInstanceCount; // (this pass) at the back of the hardware list; the front's (above) cull back faces
+    uint doubleSidedFirstVertex;
+    uint doubleSidedFirstInstance;
 };
-TS_CHECK_SIZE(GpuDrawState, 240);
+TS_CHECK_SIZE(GpuDrawState, 256);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.

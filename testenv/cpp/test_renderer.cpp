@@ -368,19 +368,43 @@ TEST_F(RendererTest, ComputeRasterVariantsDrawTheSameVisibility) {
     }
 }
 
+// Through either rasterizer, for copies mirrored or not, and with single- and double-sided copies in one frame (hardware
+// raster draws them from the two ends of its list, with and without face culling).
 TEST_F(RendererTest, SingleSidedBackFacesAreCulledDoubleSidedAreNot) {
     Renderer renderer(*device);
     GpuScene scene;
-    InstanceDesc instance = identity_instance(scene.add_mesh(grid_mesh(4)));
-    scene.set_instances({instance});
-    RenderSettings settings{32, 32, {0, 0, 0, 0}};
-    CameraDesc behind = camera_at(0, 0, -2);
+    const uint32_t mesh = scene.add_mesh(grid_mesh(4));  // in the XY plane, facing +Z
+    RenderSettings settings{64, 32, {0, 0, 0, 0}};
+    CameraDesc front = camera_at(0, 0, 1.5), behind = camera_at(0, 0, -1.5);
+    front.horizontalAperture = behind.horizontalAperture = 100;  // 90 degrees: x = +-0.7 at columns 17 and 47 (mirrored from behind)
     behind.cameraToWorld[0] = -1;  // turn around (rotate 180 degrees about Y)
     behind.cameraToWorld[10] = -1;
-    EXPECT_EQ(id_at(renderer.render(scene, behind, settings, {Aov::PrimId})[0], 16, 16), 0xffffffffu);
-    instance.doubleSided = true;
-    scene.set_instances({instance});
-    EXPECT_EQ(id_at(renderer.render(scene, behind, settings, {Aov::PrimId})[0], 16, 16), 0u);
+    for (RasterMode mode : {RasterMode::Hardware, RasterMode::Software}) {
+        settings.raster = mode;
+        for (bool mirrored : {false, true}) {  // mirrored in Z: the copy faces -Z
+            auto copy = [&](double x, bool doubleSided, uint32_t primId) {
+                InstanceDesc instance = identity_instance(mesh);
+                instance.transform[3] = x;
+                if (mirrored) instance.transform[10] = -1;
+                instance.doubleSided = doubleSided;
+                instance.primId = primId;
+                return instance;
+            };
+            scene.set_instances({copy(-0.7, false, 1), copy(0.7, true, 2)});  // left single-sided, right double-sided
+            const std::string what = std::string(mode == RasterMode::Hardware ? "hardware" : "software") + (mirrored ? ", mirrored" : "");
+            FrameStats stats;
+            const Image seen = renderer.render(scene, mirrored ? behind : front, settings, {Aov::PrimId}, &stats)[0];
+            const Image back = renderer.render(scene, mirrored ? front : behind, settings, {Aov::PrimId})[0];
+            EXPECT_EQ(mode == RasterMode::Hardware ? stats.hwTriangles : stats.swTriangles, stats.visibleTriangles) << what;
+            // Seen from the side they face, both show; from the other, only the double-sided one. The view from the other
+            // side is mirrored, so the single-sided copy's column there is the double-sided one's from the front.
+            const uint32_t single = mirrored ? 47 : 17, both = 64 - single;
+            EXPECT_EQ(id_at(seen, single, 16), 1u) << what;
+            EXPECT_EQ(id_at(seen, both, 16), 2u) << what;
+            EXPECT_EQ(id_at(back, single, 16), 2u) << what;
+            EXPECT_EQ(id_at(back, both, 16), 0xffffffffu) << what;
+        }
+    }
 }
 
 TEST_F(RendererTest, OverflowGrowsTheListAndRedrawsTheExactImage) {
