@@ -3,6 +3,7 @@
 // parent shares its border vertices with its neighbours exactly (crack-free cuts); a group's error is its own
 // simplification error plus the largest of its children's, and its sphere encloses its children's (monotone).
 #include "tessera/builder.h"
+#include "tessera/morton.h"
 
 #include "area.h"
 #include "clusters.h"
@@ -242,15 +243,6 @@ std::vector<uint32_t> number_by_first_use(const std::vector<uint32_t>& indices, 
     return corners;
 }
 
-uint32_t spread_bits(uint32_t v) {  // 10 bits -> every third bit of 30
-    v &= 0x3ff;
-    v = (v | (v << 16)) & 0x030000ff;
-    v = (v | (v << 8)) & 0x0300f00f;
-    v = (v | (v << 4)) & 0x030c30c3;
-    v = (v | (v << 2)) & 0x09249249;
-    return v;
-}
-
 // Level 0: the source in spatially compact clusters. A large mesh is first cut into Morton-ordered chunks of
 // 64k triangles that are clustered in parallel (the meshlet builder is the build's slowest serial step); only
 // the last cluster of each chunk may be partly filled.
@@ -273,12 +265,10 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
     parallel_for(chunks, [&](size_t c) {
         const size_t end = std::min(triangles, (c + 1) * kChunkTriangles);
         for (size_t t = c * kChunkTriangles; t < end; ++t) {
-            uint32_t code = 0;
-            for (int k = 0; k < 3; ++k) {
-                const float centroid = (positions[3 * indices[3 * t] + k] + positions[3 * indices[3 * t + 1] + k] + positions[3 * indices[3 * t + 2] + k]) / 3;
-                code |= spread_bits(uint32_t(std::clamp((centroid - lo[k]) / extent * 1023.0f, 0.0f, 1023.0f))) << k;
-            }
-            order[t] = {code, uint32_t(t)};
+            float centroid[3];
+            for (int k = 0; k < 3; ++k)
+                centroid[k] = (positions[3 * indices[3 * t] + k] + positions[3 * indices[3 * t + 1] + k] + positions[3 * indices[3 * t + 2] + k]) / 3;
+            order[t] = {morton_code(centroid, lo, extent), uint32_t(t)};
         }
         std::sort(order.begin() + c * kChunkTriangles, order.begin() + end);
     });

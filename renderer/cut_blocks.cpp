@@ -1,5 +1,7 @@
 #include "cut_blocks.h"
 
+#include "tessera/morton.h"
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -27,36 +29,21 @@ gpu::vec4 enclosing(const std::vector<Sphere>& spheres) {
     return {float(c[0]), float(c[1]), float(c[2]), float(radius + 1e-5 * (radius + magnitude))};
 }
 
-// Spreads the low 10 bits of v to every third bit.
-uint32_t spread_bits(uint32_t v) {
-    v &= 0x3ff;
-    v = (v | (v << 16)) & 0x030000ff;
-    v = (v | (v << 8)) & 0x0300f00f;
-    v = (v | (v << 4)) & 0x030c30c3;
-    v = (v | (v << 2)) & 0x09249249;
-    return v;
-}
-
 }  // namespace
 
 void append_cut_blocks(const gpu::GpuCluster* clusters, uint32_t count, uint32_t firstInMesh, std::vector<gpu::GpuCutBlock>& blocks,
                        std::vector<uint32_t>& blockClusters) {
-    // Morton codes of the culling spheres' centres, on a 1024^3 grid over their box.
-    std::array<float, 3> lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
+    // Morton codes of the culling spheres' centres, on a 1024^3 grid over the cube around them.
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (uint32_t i = 0; i < count; ++i) {
         const float p[3] = {clusters[i].sphere.x, clusters[i].sphere.y, clusters[i].sphere.z};
         for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], p[k]), hi[k] = std::max(hi[k], p[k]);
     }
+    const float extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-30f});
     std::vector<std::pair<uint32_t, uint32_t>> order(count);  // (code, cluster in level)
     for (uint32_t i = 0; i < count; ++i) {
         const float p[3] = {clusters[i].sphere.x, clusters[i].sphere.y, clusters[i].sphere.z};
-        uint32_t code = 0;
-        for (int k = 0; k < 3; ++k) {
-            const float extent = hi[k] - lo[k];
-            const uint32_t cell = extent > 0 ? uint32_t(std::clamp((p[k] - lo[k]) / extent * 1023.0f + 0.5f, 0.0f, 1023.0f)) : 0;
-            code |= spread_bits(cell) << k;
-        }
-        order[i] = {code, i};
+        order[i] = {morton_code(p, lo, extent), i};
     }
     std::sort(order.begin(), order.end());  // ties by index: the same blocks every time
 
