@@ -536,8 +536,8 @@ TEST_F(RendererTest, CullWorkgroupSizesDrawTheSameFrames) {
 }
 
 // The pixels each resolve thread shades are chosen per device (1 on a GPU, TS_CPU_SHADE_PIXELS_PER_THREAD on a CPU):
-// any count shades the same pixels, so the frames are the same bit for bit. The bins' pixel counts are no multiple of
-// a workgroup's pixels; one stage has three material bins, the other one.
+// any count shades the same pixels, so the frames are the same bit for bit, whatever the bins' pixel counts (a frame of
+// 157x45 pixels; one stage has three material bins, the other one).
 TEST_F(RendererTest, ShadePixelsPerThreadDrawTheSameFrames) {
     GpuScene bins;
     const uint32_t grid = bins.add_mesh(grid_mesh(8));
