@@ -90,12 +90,6 @@ std::vector<std::string> missing_features(VkPhysicalDevice device) {
     need(f.features.multiDrawIndirect, "multiDrawIndirect");
     need(f.features.drawIndirectFirstInstance, "drawIndirectFirstInstance");
     need(f12.drawIndirectCount, "drawIndirectCount");
-    // Material bins add each subgroup's pixels of one material with a single atomic (classify.comp.glsl).
-    VkPhysicalDeviceSubgroupProperties subgroups{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES};
-    VkPhysicalDeviceProperties2 properties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &subgroups};
-    vkGetPhysicalDeviceProperties2(device, &properties);
-    need((subgroups.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) && (subgroups.supportedOperations & VK_SUBGROUP_FEATURE_BALLOT_BIT),
-         "subgroup ballot in compute shaders");
     return missing;
 }
 

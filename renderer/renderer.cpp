@@ -363,6 +363,9 @@ struct Renderer::Impl {
     VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE;
     VkPipeline raster[2] = {};  // hardware raster of clusters: [double-sided (TS_SPEC_DOUBLE_SIDED)]
     uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // its workgroup size, chosen for the device (default_cull_group_size)
+    // Pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD), chosen for the device
+    // (default_shade_pixels_per_thread).
+    uint32_t shadePixelsPerThread = 1;
     VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
     // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
     // first needs them.
@@ -470,18 +473,20 @@ struct Renderer::Impl {
     // TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*), TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*),
     // TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it;
     // TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size); TS_SPEC_LARGE_TRIANGLES (the compute rasterizer's, a
-    // boolean). A shader ignores the entries it does not declare.
+    // boolean); TS_SPEC_SHADE_PIXELS_PER_THREAD (resolve's and bins', the same for every pipeline). A shader ignores the
+    // entries it does not declare.
     struct Variant {
-        uint32_t values[9];
-        VkSpecializationMapEntry entries[9] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+        uint32_t values[10];
+        VkSpecializationMapEntry entries[10] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                                {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
-                                               {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}};
-        VkSpecializationInfo info{9, entries, sizeof(values), values};
+                                               {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4}};
+        VkSpecializationInfo info{10, entries, sizeof(values), values};
         Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, bool doubleSided = false)
+                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t shadePixelsPerThread = 1,
+                bool doubleSided = false)
             : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
                      uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize,
-                     VkBool32(largeTriangles), VkBool32(doubleSided)} {}
+                     VkBool32(largeTriangles), VkBool32(doubleSided), shadePixelsPerThread} {}
         Variant(const Variant&) = delete;
     };
 
@@ -489,9 +494,9 @@ struct Renderer::Impl {
                                 bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
                                 uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize, largeTriangles);
+        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize, largeTriangles, shadePixelsPerThread);
         const bool specialized = textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ||
-                                 cullGroupSize != TS_CULL_GROUP_SIZE || largeTriangles;
+                                 cullGroupSize != TS_CULL_GROUP_SIZE || largeTriangles || shadePixelsPerThread != 1;
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
                       specialized ? &variant.info : nullptr};
@@ -537,6 +542,7 @@ struct Renderer::Impl {
         layoutInfo.pPushConstantRanges = &range;
         check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
         cullGroupSize = default_cull_group_size();
+        shadePixelsPerThread = default_shade_pixels_per_thread();
         cull = compute_pipeline(cull_comp, sizeof(cull_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false, cullGroupSize);
         resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp));
         hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
@@ -582,6 +588,17 @@ struct Renderer::Impl {
             throw std::invalid_argument(std::string("TESSERA_CULL_GROUP_SIZE='") + forced + "': expected 16, 32, 64, 128 or 256");
         }
         return device.is_software() ? TS_CULL_SOFTWARE_GROUP_SIZE : TS_CULL_GROUP_SIZE;
+    }
+
+    // Pixels each resolve thread shades: TS_CPU_SHADE_PIXELS_PER_THREAD on a CPU device, 1 on a GPU;
+    // $TESSERA_SHADE_PIXELS_PER_THREAD (1 to 64) overrides that, for tests and measurements.
+    uint32_t default_shade_pixels_per_thread() const {
+        if (const char* forced = std::getenv("TESSERA_SHADE_PIXELS_PER_THREAD"); forced && *forced) {
+            for (uint32_t count = 1; count <= 64; ++count)
+                if (std::to_string(count) == forced) return count;
+            throw std::invalid_argument(std::string("TESSERA_SHADE_PIXELS_PER_THREAD='") + forced + "': expected a whole number from 1 to 64");
+        }
+        return device.is_software() ? TS_CPU_SHADE_PIXELS_PER_THREAD : 1u;
     }
 
     bool own_corners(RasterVertices mode) const {
@@ -631,7 +648,7 @@ struct Renderer::Impl {
         VkPipelineShaderStageCreateInfo stages[2] = {
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
             {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
-        const Variant variant(masks, 0, false, TS_OUTPUT_SHADE, false, TS_CULL_GROUP_SIZE, false, doubleSided);
+        const Variant variant(masks, 0, false, TS_OUTPUT_SHADE, false, TS_CULL_GROUP_SIZE, false, 1, doubleSided);
         stages[0].pSpecializationInfo = stages[1].pSpecializationInfo = &variant.info;
         VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
         VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
@@ -1232,6 +1249,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     FrameStats frameStats;
     frameStats.swSharedVertices = !ownCorners;
     frameStats.cullGroupSize = s.cullGroupSize;
+    frameStats.shadePixelsPerThread = s.shadePixelsPerThread;
     frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
     frameStats.instances = s.instanceCount;
     frameStats.instanceBatches = uint32_t(s.gpuBatches.size());

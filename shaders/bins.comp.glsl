@@ -6,6 +6,8 @@
 #include "frame.h"
 
 layout(local_size_x = 1) in;
+// resolve.comp.glsl's pixels per thread (its workgroups shade TS_SHADE_GROUP_SIZE times as many pixels).
+layout(constant_id = TS_SPEC_SHADE_PIXELS_PER_THREAD) const uint PIXELS_PER_THREAD = 1u;
 
 void main() {
     GpuFrame frame = frameConstants;
@@ -15,7 +17,7 @@ void main() {
     for (uint m = 0u; m < binCount; ++m) {
         uint count = bins.data[m].count;
         bins.data[m].offset = offset;
-        uint groups = (count + TS_SHADE_GROUP_SIZE - 1u) / TS_SHADE_GROUP_SIZE;
+        uint groups = (count + TS_SHADE_GROUP_SIZE * PIXELS_PER_THREAD - 1u) / (TS_SHADE_GROUP_SIZE * PIXELS_PER_THREAD);
         bins.data[m].groupsX = min(groups, 65535u);
         bins.data[m].groupsY = (groups + 65534u) / 65535u;
         bins.data[m].groupsZ = 1u;

@@ -5,25 +5,9 @@
 // pixel's entry, with nothing to decode and no second pass, and the uncovered pixels get the first AOV's background.
 #version 460
 #extension GL_GOOGLE_include_directive : require
-#extension GL_KHR_shader_subgroup_ballot : require
 #include "frame.h"
 
 layout(local_size_x = TS_PIXEL_TILE, local_size_y = TS_PIXEL_TILE) in;
-
-// The next free place in `bin` for each lane, with one atomic per distinct bin in the subgroup, not one per pixel:
-// neighbouring pixels mostly share a bin, and on a CPU device every lane's atomic is a locked instruction that all
-// cores fight over.
-uint take_place(uint bin) {
-    BinRef bins = BinRef(frameConstants.bins);
-    for (;;) {  // each round serves the lanes of one bin: the lowest active lane's
-        if (bin == subgroupBroadcastFirst(bin)) {
-            uvec4 lanes = subgroupBallot(true);
-            uint first = 0u;
-            if (subgroupElect()) first = atomicAdd(bins.data[bin].count, subgroupBallotBitCount(lanes));
-            return subgroupBroadcastFirst(first) + subgroupBallotExclusiveBitCount(lanes);
-        }
-    }
-}
 
 // The bin of a covered pixel's visibility value.
 uint pixel_bin(GpuFrame frame, uint64_t value) {

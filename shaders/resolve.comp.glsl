@@ -1,7 +1,7 @@
-// Resolve, one dispatch per bin (push.step: the bin, push.material: its material): one thread per covered pixel of the bin reads
-// the visibility buffer, refetches its triangle, finds the barycentrics where the pixel's ray meets it, and writes
-// the requested AOV. Every visible pixel is shaded exactly once, whatever the overdraw. background.comp.glsl writes
-// the pixels nothing covers.
+// Resolve, one dispatch per bin (push.step: the bin, push.material: its material): each covered pixel of the bin (a
+// thread per pixel on a GPU, several per thread on a CPU device): read the visibility buffer, refetch its triangle, find
+// the barycentrics where the pixel's ray meets it, and write the requested AOV. Every visible pixel is shaded exactly
+// once, whatever the overdraw. background.comp.glsl writes the pixels nothing covers.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
@@ -10,6 +10,8 @@
 #include "lights.h"
 
 layout(local_size_x = TS_SHADE_GROUP_SIZE) in;
+// Pixels per thread: one on a GPU, several on a CPU device (shared.h).
+layout(constant_id = TS_SPEC_SHADE_PIXELS_PER_THREAD) const uint PIXELS_PER_THREAD = 1u;
 
 // The pipeline variants for materials with textures and for each kind of pixels (TS_BIN_*: clusters' triangles,
 // micro-triangles read from their kept points, micro-triangles diced again); the renderer picks them per bin.
@@ -222,10 +224,13 @@ void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
 void main() {
     GpuFrame frame = frameConstants;
     uint aov = push.aov;
-    // One thread per pixel of the bin, no loop: on lavapipe a loop around the shading code runs it masked.
+    // The bin's pixels TS_SHADE_GROUP_SIZE apart, PIXELS_PER_THREAD of them (the same trip count for every thread).
     GpuBin bin = BinRef(frame.bins).data[push.step];
-    uint i = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * TS_SHADE_GROUP_SIZE + gl_LocalInvocationIndex;
-    if (i >= bin.count) return;
-    uint index = CounterRef(frame.binPixels).data[bin.offset + i];
-    shade(frame, index, VisibilityRef(frame.visibility).data[index], aov);
+    uint first = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * TS_SHADE_GROUP_SIZE * PIXELS_PER_THREAD + gl_LocalInvocationIndex;
+    for (uint k = 0u; k < PIXELS_PER_THREAD; ++k) {
+        uint i = first + k * TS_SHADE_GROUP_SIZE;
+        if (i >= bin.count) return;
+        uint index = CounterRef(frame.binPixels).data[bin.offset + i];
+        shade(frame, index, VisibilityRef(frame.visibility).data[index], aov);
+    }
 }

@@ -227,6 +227,13 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // culling; the other culls back faces before any fragment (GpuDrawState.doubleSided*). lavapipe rasterizes and shades
 // every fragment of a triangle it does not cull, so a back face rejected in the fragment shader cost as much as a front.
 #define TS_SPEC_DOUBLE_SIDED 8
+// Specialization constant of resolve (and of bins.comp.glsl, which sizes resolve's dispatches): how many of its bin's
+// pixels each thread shades. 1 on a GPU (a thread per pixel, the most threads in flight); TS_CPU_SHADE_PIXELS_PER_THREAD
+// on a CPU device, where lavapipe pays some 5 k instructions for each batch of 8 invocations of resolve whatever it
+// shades: a third of a screen-filling frame's resolve (docs/benchmarks.md). Not for classify and background, whose
+// per-pixel branches a loop made dearer than the batches it saved (measured).
+#define TS_SPEC_SHADE_PIXELS_PER_THREAD 9
+#define TS_CPU_SHADE_PIXELS_PER_THREAD 16
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
@@ -239,8 +246,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // project at least this fraction of the viewport's smaller side across (radius), or reach the camera plane. The post
 // pass tests the rest against the HZB of those.
 #define TS_OCCLUDER_FRACTION 0.125
-#define TS_PIXEL_TILE 8        // classify: 8x8 pixels per workgroup
-#define TS_SHADE_GROUP_SIZE 64  // resolve: a material bin's pixels per workgroup
+#define TS_PIXEL_TILE 8        // classify, background: 8x8 pixels per workgroup
+// resolve: threads per workgroup, each shading the bin's pixels TS_SHADE_GROUP_SIZE apart (TS_SPEC_SHADE_PIXELS_PER_THREAD
+// of them): a workgroup shades TS_SHADE_GROUP_SIZE times that many pixels of its bin.
+#define TS_SHADE_GROUP_SIZE 64
 #define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
 // The compute rasterizer's variant for CPU devices: one workgroup of 16 per cluster, each thread every 16th triangle.
 // lavapipe runs a workgroup 8 invocations at a time and loads the cluster and instance again in each batch: 16 triangles
@@ -506,8 +515,8 @@ TS_CHECK_SIZE(GpuPatch, 32);
 
 // One material's bin: its covered pixels' range in the bin pixel list, and the indirect dispatch that shades them.
 struct GpuBin {
-    uint groupsX;          // VkDispatchIndirectCommand: ceil(count / TS_SHADE_GROUP_SIZE) workgroups, as X (at most
-    uint groupsY;          // 65535) times Y
+    uint groupsX;          // VkDispatchIndirectCommand: ceil(count / (TS_SHADE_GROUP_SIZE * pixels per thread))
+    uint groupsY;          // workgroups, as X (at most 65535) times Y
     uint groupsZ;
     uint count;            // covered pixels of this material and kind (TS_BIN_*)
     uint offset;           // first entry in the bin pixel list

@@ -623,6 +623,54 @@ TEST_F(RendererTest, CullWorkgroupSizesDrawTheSameFrames) {
     EXPECT_GT(stats[0][1].occludedClusters + stats[0][1].occludedInstances, 0u);
 }
 
+// The pixels each resolve thread shades are chosen per device (1 on a GPU, TS_CPU_SHADE_PIXELS_PER_THREAD on a CPU):
+// any count shades the same pixels, so the frames are the same bit for bit, whatever the bins' pixel counts (a frame of
+// 157x45 pixels; one stage has three material bins, the other one).
+TEST_F(RendererTest, ShadePixelsPerThreadDrawTheSameFrames) {
+    GpuScene bins;
+    const uint32_t grid = bins.add_mesh(grid_mesh(8));
+    std::vector<InstanceDesc> grids;
+    for (int i = 0; i < 3; ++i) {
+        MaterialDesc material;
+        material.diffuseColor = {0.2f * i, 0.5f, 0.3f};
+        material.emissiveColor = {0.1f, 0.05f * i, 0};
+        InstanceDesc instance = identity_instance(grid);
+        instance.material = bins.add_material(material);
+        instance.transform[3] = 1.2 * (i - 1);
+        instance.transform[7] = 0.3 * (i - 1);
+        instance.primId = uint32_t(i);
+        grids.push_back(instance);
+    }
+    bins.set_instances(grids);
+    GpuScene oneBin;
+    oneBin.set_instances(wall_and_spheres(oneBin.add_mesh(grid_mesh(16)), oneBin.add_mesh(bumpy_sphere(48))));
+    const std::vector<Aov> aovs = {Aov::Color, Aov::PrimId, Aov::Depth, Aov::Normal};
+    const RenderSettings settings{157, 45, {0.25f, 0.5f, 0.75f, 1}};
+    std::vector<Image> frames[3][2];
+    FrameStats stats[3][2];
+    const uint32_t counts[3] = {1, TS_CPU_SHADE_PIXELS_PER_THREAD, 3};
+    for (int k = 0; k < 3; ++k) {
+        setenv("TESSERA_SHADE_PIXELS_PER_THREAD", std::to_string(counts[k]).c_str(), 1);
+        Renderer renderer(*device);  // the count is chosen when the pipelines are made
+        unsetenv("TESSERA_SHADE_PIXELS_PER_THREAD");
+        frames[k][0] = renderer.render(bins, camera_at(0, 0, 1.6), settings, aovs, &stats[k][0]);
+        frames[k][1] = renderer.render(oneBin, camera_at(0, 0.5, 7), settings, aovs, &stats[k][1]);
+        EXPECT_EQ(stats[k][0].shadePixelsPerThread, counts[k]);
+    }
+    EXPECT_EQ(stats[0][0].shadingBins, 3u);
+    EXPECT_EQ(stats[0][1].shadingBins, 1u);
+    for (int k = 1; k < 3; ++k) {
+        expect_same_images(frames[0][0], frames[k][0], "three bins");
+        expect_same_images(frames[0][1], frames[k][1], "one bin");
+    }
+    size_t background = 0, covered = 0;  // both kinds of pixel in both frames
+    for (int f = 0; f < 2; ++f)
+        for (uint32_t y = 0; y < settings.height; ++y)
+            for (uint32_t x = 0; x < settings.width; ++x) (id_at(frames[0][f][1], x, y) == 0xffffffffu ? background : covered) += 1;
+    EXPECT_GT(background, 1000u);
+    EXPECT_GT(covered, 1000u);
+}
+
 TEST_F(RendererTest, ThePostPassDrawsWhatTheLastFrameHid) {
     GpuScene scene;
     scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));
@@ -794,13 +842,17 @@ TEST_F(RendererTest, MoreThan65535WorkgroupsSpillIntoTheSecondDimension) {
     EXPECT_GT(drawn, 300u * 300u * 9 / 10) << "every quad covers about one pixel";
     EXPECT_EQ(differ, 0u) << "the clusters past the first 65535 must be drawn like the others";
 
-    // More than 65535 x 64 covered pixels in one material bin: its shading dispatch spills into Y as well.
+    // More than 65535 x 64 covered pixels in one material bin: its shading dispatch spills into Y as well, with a
+    // pixel per thread (a GPU's count: a CPU device's threads shade 16 each, in 16 times fewer workgroups).
+    setenv("TESSERA_SHADE_PIXELS_PER_THREAD", "1", 1);
+    Renderer perPixel(*device);
+    unsetenv("TESSERA_SHADE_PIXELS_PER_THREAD");
     RenderSettings large{2100, 2100, {0, 0, 0, 0}};
     large.occlusion = false;
     // A first frame from afar leaves "nothing here" in most of the output buffer: a pixel the second frame's bin
     // dispatch missed would keep it.
-    renderer.render(scene, camera_at(0, 0, 40.0), large, {Aov::PrimId});
-    const Image ids = renderer.render(scene, camera_at(0, 0, 1.0), large, {Aov::PrimId})[0];
+    perPixel.render(scene, camera_at(0, 0, 40.0), large, {Aov::PrimId});
+    const Image ids = perPixel.render(scene, camera_at(0, 0, 1.0), large, {Aov::PrimId})[0];
     size_t unshaded = 0;
     for (uint32_t y = 0; y < 2100; ++y)
         for (uint32_t x = 0; x < 2100; ++x) unshaded += id_at(ids, x, y) == 0xffffffffu;

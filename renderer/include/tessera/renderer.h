@@ -206,6 +206,7 @@ struct FrameStats {
     uint32_t swLargeClusters = 0;   // of those, clusters not certainly small on screen: drawn by the variant with 64-bit edge functions
     bool swSharedVertices = false;  // the compute rasterizer's variant this frame: RasterVertices::Shared (else PerTriangle)
     uint32_t cullGroupSize = 0;     // the cull's workgroup size on this device (TS_CULL_*GROUP_SIZE)
+    uint32_t shadePixelsPerThread = 0;   // pixels each resolve thread shades on this device (TS_SPEC_SHADE_PIXELS_PER_THREAD)
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
