@@ -200,8 +200,8 @@ void test_cluster(GpuFrame frame, uint step, uint instanceIndex, Instance instan
     draw_cluster(frame, step, instanceIndex, clusterIndex, cluster, center, radius, scale);
 }
 
-// Bounds on the projected errors of every cluster of an instance's mesh (its LOD radius's depth range): x at the
-// nearest depth, y at the farthest.
+// Pixels per unit of error at the nearest and at the farthest depth of the instance's LOD radius (orthographic: both
+// the same): every projected error of its mesh lies between error times these.
 struct LevelScales { float nearScale, farScale; };
 
 // False when the instance's distance rules a whole level out: all its clusters too coarse, or all its parents fine
