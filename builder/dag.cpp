@@ -9,6 +9,7 @@
 #include "cut.h"
 #include "edge_limit.h"
 #include "parallel.h"
+#include "phase_timer.h"
 #include "weld.h"
 
 #include <meshoptimizer.h>
@@ -304,6 +305,7 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
 
 BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     validate_settings(settings);
+    PhaseTimer phases;
     BuiltMesh out;
     const size_t vertexCount = mesh.positions.size() / 3;
     out.sourceTriangles = mesh.indices.size() / 3;
@@ -379,6 +381,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // Preserve Area adds moved vertices later: the welder gives them ids too.
     PositionWelder welder;  // kept only for Preserve Area (without it, the weld runs on every core)
     std::vector<uint32_t> positionId = weld_equal_positions(local.data(), vertexCount, settings.preserveArea ? &welder : nullptr);
+    phases.mark("bounds+grid+weld");
 
     // Texture coordinates on their grid (BuiltMesh::uvPrecision): at most 2^-16, and coarse enough that float holds
     // every grid point of the mesh's range exactly.
@@ -427,6 +430,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     constexpr int kMaxAttributes = 3 + kChannelComponents + 2;
     float weights[kMaxAttributes] = {kNormalWeight, kNormalWeight, kNormalWeight};
     for (size_t k = colorAttribute; hasColors && k < colorAttribute + kChannelComponents; ++k) weights[k] = kColorWeight;
+    phases.mark("attributes");
 
     std::vector<WorkCluster> clusters;
     std::vector<Group> groups;
@@ -516,6 +520,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
 
     // The edge length limit, from the source as welded on the grid.
     const double maxEdge = settings.maxEdgeLengthFactor > 0 ? settings.maxEdgeLengthFactor * mean_edge_length(sourceIndices, local) : 0.0;
+    phases.mark("grid weld+drop");
     // Where each vertex takes its normal and colour from (itself, or the vertex Preserve Area moved it from).
     std::vector<uint32_t> attributeOf(vertexCount);
     parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
@@ -524,6 +529,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
 
     std::vector<uint32_t> pending;
     add_clusters(split_level_zero(sourceIndices, local), nullptr, 0.0f, 0, -1, pending);
+    phases.mark("level0 clusters");
 
     std::vector<unsigned char> lock(vertexCount, 0);
     std::vector<int32_t> firstGroup(vertexCount, -1);
@@ -562,6 +568,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         }
         std::vector<std::vector<uint32_t>> members(groupCount);
         for (size_t i = 0; i < pending.size(); ++i) members[partition[i]].push_back(pending[i]);
+        phases.mark("round: partition");
 
         // Positions used by more than one group are the group borders: locked while simplifying. The locks are set
         // for the whole round; while the groups simplify in parallel, each writes only its own interior vertices' locks
@@ -585,6 +592,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
         };
         std::vector<Result> results(groupCount);
+        phases.mark("round: locks");
         parallel_for(groupCount, [&](size_t g) {
             std::vector<uint32_t> merged;
             for (uint32_t c : members[g]) merged.insert(merged.end(), clusters[c].indices.begin(), clusters[c].indices.end());
@@ -667,6 +675,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             result.pieces = split_into_clusters(simplified, position);
         });
 
+        phases.mark("round: simplify+split");
         // Record the groups in order, so the output does not depend on thread timing.
         std::vector<uint32_t> next;
         bool progress = false;
@@ -719,6 +728,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         parallel_for(pending.size(), [&](size_t i) {
             for (uint32_t v : clusters[pending[i]].indices) std::atomic_ref<unsigned char>(lock[v]).store(0, std::memory_order_relaxed);
         });
+        phases.mark("round: record");
         if (!progress) break;
         pending = std::move(next);
     }
@@ -737,6 +747,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     const TrimPlan plan = plan_trim(nodes, groups.size(), leafCut);
     out.groups = plan.groups;
     out.leafError = measure(nodes, leafCut).error;
+    phases.mark("cuts");
 
     // Emit: cluster-local vertex streams and 8-bit triangles, level 0 first (clusters were created in level order
     // per round; a stable sort by level keeps that order within a level), each cluster in page order. Trimmed
@@ -788,6 +799,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         clusterTriangles[i] = {};
         append_cluster(out, c);
     }
+    phases.mark("emit: order clusters");
     out.positions.resize(3 * size_t(vertexTotal));
     out.normals.resize(vertexTotal);
     out.colors.resize(hasColors ? 2 * size_t(vertexTotal) : 0);
@@ -820,6 +832,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.sphere = to_float(vertex_sphere(local, all.data(), all.size()));
     out.fallbackThreshold = fallbackCut.source ? -1.0f : fallbackCut.threshold;  // extracted on demand (fallback_mesh)
     out.fallbackError = measure(nodes, fallbackCut).error;
+    phases.mark("emit: vertices");
     return out;
 }
 

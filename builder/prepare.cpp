@@ -1,4 +1,5 @@
 // Input preparation: validation, triangulation (holes, orientation), attribute seams, normals.
+#include "phase_timer.h"
 #include "tessera/builder.h"
 
 #include "subdivide.h"
@@ -125,6 +126,7 @@ void channel_bits(const PrimvarLookup& primvar, int64_t index, uint32_t (&bits)[
 }  // namespace
 
 PreparedMesh prepare_mesh(const MeshView& mesh) {
+    PhaseTimer phases;
     PreparedMesh out;
     auto& warnings = out.warnings;
     const std::string& name = mesh.name;
@@ -258,7 +260,9 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
 
     // Weld exact duplicate positions: every point maps to the first point with bit-identical coordinates, so that
     // split authoring (UV-sphere poles, per-face copies) joins up; attribute values still decide seams below.
+    phases.mark("prepare: validate");
     const std::vector<uint32_t> canonical = weld_equal_positions(mesh.points.data(), pointCount);
+    phases.mark("prepare: weld");
 
     std::vector<uint8_t> isHole(mesh.faceVertexCounts.size());
     for (int32_t hole : mesh.holeIndices) {
@@ -367,6 +371,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         throw MeshError(name + ": no drawable faces" + (droppedFaces ? " (every face is invalid: " + firstBadReason + ")" : ""));
     (void)droppedDegenerate;  // zero-area triangles draw nothing; dropping them is not worth a warning
 
+    phases.mark("prepare: triangulate");
     // Vertex streams.
     const size_t vertexCount = vertexPoint.size();
     out.positions.resize(3 * vertexCount);
@@ -437,6 +442,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     out.indices.shrink_to_fit();
     out.triangleMaterials.shrink_to_fit();
     out.sourceFaces.shrink_to_fit();
+    phases.mark("prepare: vertex streams");
     return out;
 }
 
