@@ -222,23 +222,30 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
 }
 
 // Cluster-local vertex numbers by first use: returns the corners renumbered, and the mesh vertices in that order in
-// `vertices` (a small open-addressing table: clusters have at most 256 vertices).
+// `vertices` (a small open-addressing table: clusters have at most 256 vertices). The table is the thread's own, and
+// its slots are stamped with the call that filled them, so no call clears it.
 std::vector<uint32_t> number_by_first_use(const std::vector<uint32_t>& indices, std::vector<uint32_t>& vertices) {
-    constexpr uint32_t kSlots = 1024, kEmpty = UINT32_MAX;
-    std::array<uint32_t, kSlots> keys, numbers;
-    keys.fill(kEmpty);
+    constexpr uint32_t kSlots = 1024;
+    struct Slot {
+        uint32_t stamp, key, number;
+    };
+    thread_local std::array<Slot, kSlots> slots{};
+    thread_local uint32_t stamp = 0;
+    if (++stamp == 0) {  // wrapped: clear once every 4 billion calls
+        slots.fill({});
+        stamp = 1;
+    }
     std::vector<uint32_t> corners;
     corners.reserve(indices.size());
     vertices.clear();
     for (uint32_t v : indices) {
         uint32_t slot = (v * 0x9E3779B1u) >> 22;
-        while (keys[slot] != kEmpty && keys[slot] != v) slot = (slot + 1) % kSlots;
-        if (keys[slot] == kEmpty) {
-            keys[slot] = v;
-            numbers[slot] = uint32_t(vertices.size());
+        while (slots[slot].stamp == stamp && slots[slot].key != v) slot = (slot + 1) % kSlots;
+        if (slots[slot].stamp != stamp) {
+            slots[slot] = {stamp, v, uint32_t(vertices.size())};
             vertices.push_back(v);
         }
-        corners.push_back(numbers[slot]);
+        corners.push_back(slots[slot].number);
     }
     return corners;
 }
@@ -789,16 +796,20 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             c.parentGroup = kNoGroup;
         }
     });
-    uint32_t vertexTotal = 0;
+    uint32_t vertexTotal = 0, triangleTotal = 0;
     for (size_t i = 0; i < order.size(); ++i) {
         Cluster& c = emitted[i];
         c.vertexOffset = vertexTotal;
-        c.triangleOffset = uint32_t(out.triangles.size());
+        c.triangleOffset = triangleTotal;
         vertexTotal += c.vertexCount;
-        out.triangles.insert(out.triangles.end(), clusterTriangles[i].begin(), clusterTriangles[i].end());
-        clusterTriangles[i] = {};
+        triangleTotal += c.triangleCount;
         append_cluster(out, c);
     }
+    out.triangles.resize(triangleTotal);
+    parallel_for(order.size(), [&](size_t i) {
+        std::copy(clusterTriangles[i].begin(), clusterTriangles[i].end(), out.triangles.begin() + emitted[i].triangleOffset);
+        clusterTriangles[i] = {};
+    });
     phases.mark("emit: order clusters");
     out.positions.resize(3 * size_t(vertexTotal));
     out.normals.resize(vertexTotal);
@@ -827,9 +838,36 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         clusterVertices[i] = {};
     });
 
-    std::vector<uint32_t> all(totalVertices);
-    for (size_t i = 0; i < all.size(); ++i) all[i] = uint32_t(i);
-    out.sphere = to_float(vertex_sphere(local, all.data(), all.size()));
+    // The mesh's sphere, as vertex_sphere makes it from every vertex, over blocks on every core (minima, maxima and the largest distance
+    // do not depend on the blocks).
+    {
+        const size_t blocks = (totalVertices + kBlock - 1) / kBlock;
+        std::vector<std::array<double, 6>> blockBounds(blocks);
+        parallel_blocks(totalVertices, kBlock, [&](size_t begin, size_t end) {
+            std::array<double, 6> b{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+            for (size_t v = begin; v < end; ++v)
+                for (int k = 0; k < 3; ++k) {
+                    b[k] = std::min(b[k], double(local[3 * v + k]));
+                    b[3 + k] = std::max(b[3 + k], double(local[3 * v + k]));
+                }
+            blockBounds[begin / kBlock] = b;
+        });
+        std::array<double, 6> b{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+        for (const auto& block : blockBounds)
+            for (int k = 0; k < 3; ++k) b[k] = std::min(b[k], block[k]), b[3 + k] = std::max(b[3 + k], block[3 + k]);
+        Sphere sphere{(b[0] + b[3]) / 2, (b[1] + b[4]) / 2, (b[2] + b[5]) / 2, 0};
+        std::vector<double> blockRadius(blocks, 0.0);
+        parallel_blocks(totalVertices, kBlock, [&](size_t begin, size_t end) {
+            double r = 0;
+            for (size_t v = begin; v < end; ++v) {
+                const float* p = &local[3 * v];
+                r = std::max(r, std::sqrt((p[0] - sphere.x) * (p[0] - sphere.x) + (p[1] - sphere.y) * (p[1] - sphere.y) + (p[2] - sphere.z) * (p[2] - sphere.z)));
+            }
+            blockRadius[begin / kBlock] = r;
+        });
+        for (double r : blockRadius) sphere.r = std::max(sphere.r, r);
+        out.sphere = to_float(sphere);
+    }
     out.fallbackThreshold = fallbackCut.source ? -1.0f : fallbackCut.threshold;  // extracted on demand (fallback_mesh)
     out.fallbackError = measure(nodes, fallbackCut).error;
     phases.mark("emit: vertices");

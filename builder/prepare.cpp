@@ -3,6 +3,7 @@
 #include "tessera/builder.h"
 
 #include "subdivide.h"
+#include "parallel.h"
 #include "weld.h"
 
 #include <algorithm>
@@ -374,13 +375,17 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     phases.mark("prepare: triangulate");
     // Vertex streams.
     const size_t vertexCount = vertexPoint.size();
+    // (Loops over vertices run on every core, in blocks.)
+    constexpr size_t kBlock = 65536;
     out.positions.resize(3 * vertexCount);
-    for (size_t v = 0; v < vertexCount; ++v) {
-        Vec3 p = point(vertexPoint[v]);
-        out.positions[3 * v] = p.x;
-        out.positions[3 * v + 1] = p.y;
-        out.positions[3 * v + 2] = p.z;
-    }
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t v = begin; v < end; ++v) {
+            Vec3 p = point(vertexPoint[v]);
+            out.positions[3 * v] = p.x;
+            out.positions[3 * v + 1] = p.y;
+            out.positions[3 * v + 2] = p.z;
+        }
+    });
 
     // Smooth normals per point (area weighted) where none are authored, and as the fallback for bad ones.
     std::vector<float> pointNormals(3 * pointCount, 0.0f);
@@ -394,26 +399,28 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         }
     }
     out.normals.resize(3 * vertexCount);
-    for (size_t v = 0; v < vertexCount; ++v) {
-        Vec3 n{0, 0, 0};
-        if (vertexNormal[v] >= 0) {
-            const float* value = normals.value(vertexNormal[v]);
-            n = {value[0], value[1], value[2]};
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t v = begin; v < end; ++v) {
+            Vec3 n{0, 0, 0};
+            if (vertexNormal[v] >= 0) {
+                const float* value = normals.value(vertexNormal[v]);
+                n = {value[0], value[1], value[2]};
+            }
+            float len = length(n);
+            if (!(len > 0.0f) || !std::isfinite(len)) {
+                const float* accum = &pointNormals[3 * vertexPoint[v]];
+                n = {accum[0], accum[1], accum[2]};
+                len = length(n);
+            }
+            if (!(len > 0.0f) || !std::isfinite(len)) {
+                n = {0, 0, 1};
+                len = 1;
+            }
+            out.normals[3 * v] = n.x / len;
+            out.normals[3 * v + 1] = n.y / len;
+            out.normals[3 * v + 2] = n.z / len;
         }
-        float len = length(n);
-        if (!(len > 0.0f) || !std::isfinite(len)) {
-            const float* accum = &pointNormals[3 * vertexPoint[v]];
-            n = {accum[0], accum[1], accum[2]};
-            len = length(n);
-        }
-        if (!(len > 0.0f) || !std::isfinite(len)) {
-            n = {0, 0, 1};
-            len = 1;
-        }
-        out.normals[3 * v] = n.x / len;
-        out.normals[3 * v + 1] = n.y / len;
-        out.normals[3 * v + 2] = n.z / len;
-    }
+    });
 
     if (vertexColors) {
         out.colors.resize(kChannelComponents * vertexCount);
