@@ -796,20 +796,16 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             c.parentGroup = kNoGroup;
         }
     });
-    uint32_t vertexTotal = 0, triangleTotal = 0;
+    uint32_t vertexTotal = 0;
     for (size_t i = 0; i < order.size(); ++i) {
         Cluster& c = emitted[i];
         c.vertexOffset = vertexTotal;
-        c.triangleOffset = triangleTotal;
+        c.triangleOffset = uint32_t(out.triangles.size());
         vertexTotal += c.vertexCount;
-        triangleTotal += c.triangleCount;
+        out.triangles.insert(out.triangles.end(), clusterTriangles[i].begin(), clusterTriangles[i].end());
+        clusterTriangles[i] = {};
         append_cluster(out, c);
     }
-    out.triangles.resize(triangleTotal);
-    parallel_for(order.size(), [&](size_t i) {
-        std::copy(clusterTriangles[i].begin(), clusterTriangles[i].end(), out.triangles.begin() + emitted[i].triangleOffset);
-        clusterTriangles[i] = {};
-    });
     phases.mark("emit: order clusters");
     out.positions.resize(3 * size_t(vertexTotal));
     out.normals.resize(vertexTotal);
