@@ -132,7 +132,8 @@ namespace {
 // edge), else with one of the last few (whose edges the codec still remembers), else the walk starts afresh on the
 // unvisited region's border. Among candidates the one with the fewest unvisited neighbours goes first (walking along
 // the border leaves no islands behind). Linear in the triangles: meshoptimizer's vertex cache optimizer, used before,
-// cost a tenth of the build for clusters this small, for 1.7 % more bytes. Clusters have at most 256 vertices.
+// cost a tenth of the build for clusters this small and gave 1.7 % more bytes. Clusters have at most 256 vertices
+// and 128 triangles.
 void order_triangles_as_strips(const uint32_t* corners, size_t triangleCount, uint32_t* out) {
     // The triangle on each directed edge (a 256 x 256 table, cleared through the cells set).
     thread_local std::vector<uint16_t> edgeTriangle(256 * 256, 0);
@@ -189,7 +190,8 @@ void order_triangles_as_strips(const uint32_t* corners, size_t triangleCount, ui
 
 std::vector<uint32_t> order_cluster_for_pages(std::vector<uint32_t>& corners, uint32_t vertexCount) {
     std::vector<uint32_t> ordered(corners.size()), oldToNew(vertexCount, UINT32_MAX), newToOld;
-    if (vertexCount > 256) throw std::invalid_argument("a cluster has more than 256 vertices");
+    if (vertexCount > kClusterMaxVertices || corners.size() > 3 * size_t(kClusterMaxTriangles))
+        throw std::invalid_argument("a cluster has more vertices or triangles than the page format allows");
     order_triangles_as_strips(corners.data(), corners.size() / 3, ordered.data());
     newToOld.reserve(vertexCount);
     for (size_t i = 0; i < ordered.size(); ++i) {  // numbered by first use

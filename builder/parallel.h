@@ -1,4 +1,4 @@
-// Internal to the builder: one loop on every core (dag.cpp, pages.cpp).
+// Internal to the builder: one loop on every core (prepare.cpp, weld.h, dag.cpp, pages.cpp).
 #pragma once
 
 #include <algorithm>

@@ -288,7 +288,7 @@ FallbackMesh extract_fallback(const BuiltMesh& mesh, float threshold);
 // The mesh's fallback mesh (BuiltMesh::fallbackThreshold, error included); empty when it has none.
 FallbackMesh fallback_mesh(const BuiltMesh& mesh);
 
-// Reorders one cluster for the page file, the DAG unchanged: triangles in vertex cache order (meshoptimizer), vertices
+// Reorders one cluster for the page file, the DAG unchanged: triangles in strip order (an edge-adjacency walk), vertices
 // numbered by first use, each triangle rotated to its smallest rotation. `corners` (3 cluster-local indices per
 // triangle) is rewritten; returns, for each new vertex number, the old one.
 std::vector<uint32_t> order_cluster_for_pages(std::vector<uint32_t>& corners, uint32_t vertexCount);
