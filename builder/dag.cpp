@@ -10,6 +10,7 @@
 #include "cut.h"
 #include "edge_limit.h"
 #include "parallel.h"
+#include "phase_timer.h"
 #include "weld.h"
 
 #include <meshoptimizer.h>
@@ -222,23 +223,30 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
 }
 
 // Cluster-local vertex numbers by first use: returns the corners renumbered, and the mesh vertices in that order in
-// `vertices` (a small open-addressing table: clusters have at most 256 vertices).
+// `vertices` (a small open-addressing table: clusters have at most 256 vertices). The table is the thread's own, and
+// its slots are stamped with the call that filled them, so no call clears it.
 std::vector<uint32_t> number_by_first_use(const std::vector<uint32_t>& indices, std::vector<uint32_t>& vertices) {
-    constexpr uint32_t kSlots = 1024, kEmpty = UINT32_MAX;
-    std::array<uint32_t, kSlots> keys, numbers;
-    keys.fill(kEmpty);
+    constexpr uint32_t kSlots = 1024;
+    struct Slot {
+        uint32_t stamp, key, number;
+    };
+    thread_local std::array<Slot, kSlots> slots{};
+    thread_local uint32_t stamp = 0;
+    if (++stamp == 0) {  // wrapped: clear once every 4 billion calls
+        slots.fill({});
+        stamp = 1;
+    }
     std::vector<uint32_t> corners;
     corners.reserve(indices.size());
     vertices.clear();
     for (uint32_t v : indices) {
         uint32_t slot = (v * 0x9E3779B1u) >> 22;
-        while (keys[slot] != kEmpty && keys[slot] != v) slot = (slot + 1) % kSlots;
-        if (keys[slot] == kEmpty) {
-            keys[slot] = v;
-            numbers[slot] = uint32_t(vertices.size());
+        while (slots[slot].stamp == stamp && slots[slot].key != v) slot = (slot + 1) % kSlots;
+        if (slots[slot].stamp != stamp) {
+            slots[slot] = {stamp, v, uint32_t(vertices.size())};
             vertices.push_back(v);
         }
-        corners.push_back(numbers[slot]);
+        corners.push_back(slots[slot].number);
     }
     return corners;
 }
@@ -294,6 +302,7 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
 
 BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     validate_settings(settings);
+    PhaseTimer phases;
     BuiltMesh out;
     const size_t vertexCount = mesh.positions.size() / 3;
     out.sourceTriangles = mesh.indices.size() / 3;
@@ -369,6 +378,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // Preserve Area adds moved vertices later: the welder gives them ids too.
     PositionWelder welder;  // kept only for Preserve Area (without it, the weld runs on every core)
     std::vector<uint32_t> positionId = weld_equal_positions(local.data(), vertexCount, settings.preserveArea ? &welder : nullptr);
+    phases.mark("bounds+grid+weld");
 
     // Texture coordinates on their grid (BuiltMesh::uvPrecision): at most 2^-16, and coarse enough that float holds
     // every grid point of the mesh's range exactly.
@@ -417,6 +427,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     constexpr int kMaxAttributes = 3 + kChannelComponents + 2;
     float weights[kMaxAttributes] = {kNormalWeight, kNormalWeight, kNormalWeight};
     for (size_t k = colorAttribute; hasColors && k < colorAttribute + kChannelComponents; ++k) weights[k] = kColorWeight;
+    phases.mark("attributes");
 
     std::vector<WorkCluster> clusters;
     std::vector<Group> groups;
@@ -506,6 +517,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
 
     // The edge length limit, from the source as welded on the grid.
     const double maxEdge = settings.maxEdgeLengthFactor > 0 ? settings.maxEdgeLengthFactor * mean_edge_length(sourceIndices, local) : 0.0;
+    phases.mark("grid weld+drop");
     // Where each vertex takes its normal and colour from (itself, or the vertex Preserve Area moved it from).
     std::vector<uint32_t> attributeOf(vertexCount);
     parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
@@ -514,6 +526,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
 
     std::vector<uint32_t> pending;
     add_clusters(split_level_zero(sourceIndices, local), nullptr, 0.0f, 0, -1, pending);
+    phases.mark("level0 clusters");
 
     std::vector<unsigned char> lock(vertexCount, 0);
     std::vector<int32_t> firstGroup(vertexCount, -1);
@@ -552,6 +565,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         }
         std::vector<std::vector<uint32_t>> members(groupCount);
         for (size_t i = 0; i < pending.size(); ++i) members[partition[i]].push_back(pending[i]);
+        phases.mark("round: partition");
 
         // Positions used by more than one group are the group borders: locked while simplifying. The locks are set
         // for the whole round; while the groups simplify in parallel, each writes only its own interior vertices' locks
@@ -575,6 +589,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
         };
         std::vector<Result> results(groupCount);
+        phases.mark("round: locks");
         parallel_for(groupCount, [&](size_t g) {
             std::vector<uint32_t> merged;
             for (uint32_t c : members[g]) merged.insert(merged.end(), clusters[c].indices.begin(), clusters[c].indices.end());
@@ -657,6 +672,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             result.pieces = split_into_clusters(simplified, position);
         });
 
+        phases.mark("round: simplify+split");
         // Record the groups in order, so the output does not depend on thread timing.
         std::vector<uint32_t> next;
         bool progress = false;
@@ -709,6 +725,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         parallel_for(pending.size(), [&](size_t i) {
             for (uint32_t v : clusters[pending[i]].indices) std::atomic_ref<unsigned char>(lock[v]).store(0, std::memory_order_relaxed);
         });
+        phases.mark("round: record");
         if (!progress) break;
         pending = std::move(next);
     }
@@ -727,6 +744,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     const TrimPlan plan = plan_trim(nodes, groups.size(), leafCut);
     out.groups = plan.groups;
     out.leafError = measure(nodes, leafCut).error;
+    phases.mark("cuts");
 
     // Emit: cluster-local vertex streams and 8-bit triangles, level 0 first (clusters were created in level order
     // per round; a stable sort by level keeps that order within a level), each cluster in page order. Trimmed
@@ -778,6 +796,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         clusterTriangles[i] = {};
         append_cluster(out, c);
     }
+    phases.mark("emit: order clusters");
     out.positions.resize(3 * size_t(vertexTotal));
     out.normals.resize(vertexTotal);
     out.colors.resize(hasColors ? 2 * size_t(vertexTotal) : 0);
@@ -805,11 +824,39 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         clusterVertices[i] = {};
     });
 
-    std::vector<uint32_t> all(totalVertices);
-    for (size_t i = 0; i < all.size(); ++i) all[i] = uint32_t(i);
-    out.sphere = to_float(vertex_sphere(local, all.data(), all.size()));
+    // The mesh's sphere, as vertex_sphere makes it from every vertex, over blocks on every core (minima, maxima and the largest distance
+    // do not depend on the blocks).
+    {
+        const size_t blocks = (totalVertices + kBlock - 1) / kBlock;
+        std::vector<std::array<double, 6>> blockBounds(blocks);
+        parallel_blocks(totalVertices, kBlock, [&](size_t begin, size_t end) {
+            std::array<double, 6> b{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+            for (size_t v = begin; v < end; ++v)
+                for (int k = 0; k < 3; ++k) {
+                    b[k] = std::min(b[k], double(local[3 * v + k]));
+                    b[3 + k] = std::max(b[3 + k], double(local[3 * v + k]));
+                }
+            blockBounds[begin / kBlock] = b;
+        });
+        std::array<double, 6> b{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+        for (const auto& block : blockBounds)
+            for (int k = 0; k < 3; ++k) b[k] = std::min(b[k], block[k]), b[3 + k] = std::max(b[3 + k], block[3 + k]);
+        Sphere sphere{(b[0] + b[3]) / 2, (b[1] + b[4]) / 2, (b[2] + b[5]) / 2, 0};
+        std::vector<double> blockRadius(blocks, 0.0);
+        parallel_blocks(totalVertices, kBlock, [&](size_t begin, size_t end) {
+            double r = 0;
+            for (size_t v = begin; v < end; ++v) {
+                const float* p = &local[3 * v];
+                r = std::max(r, std::sqrt((p[0] - sphere.x) * (p[0] - sphere.x) + (p[1] - sphere.y) * (p[1] - sphere.y) + (p[2] - sphere.z) * (p[2] - sphere.z)));
+            }
+            blockRadius[begin / kBlock] = r;
+        });
+        for (double r : blockRadius) sphere.r = std::max(sphere.r, r);
+        out.sphere = to_float(sphere);
+    }
     out.fallbackThreshold = fallbackCut.source ? -1.0f : fallbackCut.threshold;  // extracted on demand (fallback_mesh)
     out.fallbackError = measure(nodes, fallbackCut).error;
+    phases.mark("emit: vertices");
     return out;
 }
 

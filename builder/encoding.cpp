@@ -125,13 +125,84 @@ void rotate_smallest_first(uint32_t* triangle) {
     std::copy(best, best + 3, triangle);
 }
 
+namespace {
+
+// A strip-like walk over a cluster's triangles: each next triangle shares an edge with the last one where it can
+// (the index codec stores such a triangle in about a byte, and the vertex codec predicts its new corner across that
+// edge), else with one of the last few (whose edges the codec still remembers), else the walk starts afresh on the
+// unvisited region's border. Among candidates the one with the fewest unvisited neighbours goes first (walking along
+// the border leaves no islands behind). Linear in the triangles: meshoptimizer's vertex cache optimizer, used before,
+// cost a tenth of the build for clusters this small and gave 1.7 % more bytes. Clusters have at most 256 vertices
+// and 128 triangles.
+void order_triangles_as_strips(const uint32_t* corners, size_t triangleCount, uint32_t* out) {
+    // The triangle on each directed edge (a 256 x 256 table, cleared through the cells set).
+    thread_local std::vector<uint16_t> edgeTriangle(256 * 256, 0);
+    constexpr uint32_t kNone = UINT32_MAX;
+    std::vector<uint32_t> neighbours(3 * triangleCount, kNone);  // across edge k (corner k to k + 1)
+    auto key = [&](size_t t, int k) { return corners[3 * t + k] << 8 | corners[3 * t + (k + 1) % 3]; };
+    for (size_t t = 0; t < triangleCount; ++t)
+        for (int k = 0; k < 3; ++k) edgeTriangle[key(t, k)] = uint16_t(t + 1);
+    for (size_t t = 0; t < triangleCount; ++t)
+        for (int k = 0; k < 3; ++k) {
+            const uint32_t reverse = corners[3 * t + (k + 1) % 3] << 8 | corners[3 * t + k];
+            if (edgeTriangle[reverse]) neighbours[3 * t + k] = edgeTriangle[reverse] - 1u;
+        }
+    for (size_t t = 0; t < triangleCount; ++t)
+        for (int k = 0; k < 3; ++k) edgeTriangle[key(t, k)] = 0;
+    std::vector<uint8_t> done(triangleCount, 0);
+    std::vector<uint32_t> order(triangleCount);
+    auto open_neighbours = [&](uint32_t t) {
+        int count = 0;
+        for (int k = 0; k < 3; ++k) count += neighbours[3 * t + k] != kNone && !done[neighbours[3 * t + k]];
+        return count;
+    };
+    // The best unvisited neighbour of triangle t: the one with the fewest unvisited neighbours of its own.
+    auto best_neighbour = [&](uint32_t t, uint32_t& next, int& nextScore) {
+        for (int k = 0; k < 3; ++k) {
+            const uint32_t candidate = neighbours[3 * t + k];
+            if (candidate == kNone || done[candidate]) continue;
+            const int score = open_neighbours(candidate);
+            if (score < nextScore) next = candidate, nextScore = score;
+        }
+    };
+    constexpr size_t kLookBack = 8;  // a restart first looks for a neighbour of the last few triangles (still in the codec's edge FIFO)
+    size_t restartFrom = 0;
+    for (size_t emitted = 0; emitted < triangleCount; ++emitted) {
+        uint32_t next = kNone;
+        int nextScore = 4;
+        for (size_t back = 1; back <= std::min(emitted, kLookBack) && next == kNone; ++back)
+            best_neighbour(order[emitted - back], next, nextScore);
+        if (next == kNone) {  // a fresh start: the first unvisited triangle on the unvisited region's border
+            while (done[restartFrom]) ++restartFrom;
+            for (size_t t = restartFrom; t < triangleCount && nextScore > 1; ++t) {
+                if (done[t]) continue;
+                const int score = open_neighbours(uint32_t(t));
+                if (score < nextScore) next = uint32_t(t), nextScore = score;
+            }
+        }
+        done[next] = 1;
+        order[emitted] = next;
+        std::copy_n(&corners[3 * next], 3, &out[3 * emitted]);
+    }
+}
+
+}  // namespace
+
 std::vector<uint32_t> order_cluster_for_pages(std::vector<uint32_t>& corners, uint32_t vertexCount) {
-    std::vector<uint32_t> ordered(corners.size()), oldToNew(vertexCount), newToOld(vertexCount);
-    meshopt_optimizeVertexCache(ordered.data(), corners.data(), corners.size(), vertexCount);
-    const size_t used = meshopt_optimizeVertexFetchRemap(oldToNew.data(), ordered.data(), ordered.size(), vertexCount);
-    if (used != vertexCount) throw std::invalid_argument("a cluster has vertices that no triangle uses");
-    for (uint32_t v = 0; v < vertexCount; ++v) newToOld[oldToNew[v]] = v;
-    for (size_t i = 0; i < ordered.size(); ++i) corners[i] = oldToNew[ordered[i]];
+    std::vector<uint32_t> ordered(corners.size()), oldToNew(vertexCount, UINT32_MAX), newToOld;
+    if (vertexCount > kClusterMaxVertices || corners.size() > 3 * size_t(kClusterMaxTriangles))
+        throw std::invalid_argument("a cluster has more vertices or triangles than the page format allows");
+    order_triangles_as_strips(corners.data(), corners.size() / 3, ordered.data());
+    newToOld.reserve(vertexCount);
+    for (size_t i = 0; i < ordered.size(); ++i) {  // numbered by first use
+        uint32_t& number = oldToNew[ordered[i]];
+        if (number == UINT32_MAX) {
+            number = uint32_t(newToOld.size());
+            newToOld.push_back(ordered[i]);
+        }
+        corners[i] = number;
+    }
+    if (newToOld.size() != vertexCount) throw std::invalid_argument("a cluster has vertices that no triangle uses");
     for (size_t i = 0; i < corners.size(); i += 3) rotate_smallest_first(&corners[i]);
     return newToOld;
 }

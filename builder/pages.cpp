@@ -15,6 +15,7 @@
 #include "byte_streams.h"
 #include "cluster_codec.h"
 #include "parallel.h"
+#include "phase_timer.h"
 
 #include <zstd.h>
 
@@ -120,6 +121,7 @@ uint32_t crc32(std::span<const uint8_t> bytes) {
 }
 
 std::vector<uint8_t> encode_pages(const BuiltMesh& mesh, PageLayout* layout) {
+    PhaseTimer phases;
     // Page units: the children of one parent group together; roots on their own, in root pages first.
     std::map<uint32_t, std::vector<uint32_t>> byParent;  // ordered: deterministic bytes
     for (uint32_t i = 0; i < mesh.clusters.size(); ++i) byParent[mesh.clusters[i].parentGroup].push_back(i);
@@ -138,6 +140,7 @@ std::vector<uint8_t> encode_pages(const BuiltMesh& mesh, PageLayout* layout) {
     };
     std::vector<PageStreams> unitStreams(units.size());  // units encode on every core, then fill pages in order
     parallel_for_rethrowing(units.size(), [&](size_t u) { encode_unit(mesh, units[u], unitStreams[u]); });
+    phases.mark("pages: encode units");
     std::vector<Page> pages;
     uint32_t rootPages = 0, written = 0;
     for (size_t u = 0; u < units.size(); ++u) {
@@ -161,6 +164,7 @@ std::vector<uint8_t> encode_pages(const BuiltMesh& mesh, PageLayout* layout) {
         pages[p].bytes = compress_page(pages[p].streams);
         pages[p].streams = {};
     });
+    phases.mark("pages: compress");
 
     ByteWriter header;
     for (char ch : kMagic) header.put(ch);
@@ -208,6 +212,7 @@ std::vector<uint8_t> encode_pages(const BuiltMesh& mesh, PageLayout* layout) {
         *layout = {uint32_t(pages.size()), rootPages, file.size(), {}};
         for (const Page& page : pages) layout->pageClusters.push_back(page.members);
     }
+    phases.mark("pages: file");
     return file;
 }
 

@@ -1,12 +1,17 @@
-// Internal to the builder: one loop on every core (dag.cpp, pages.cpp).
+// Internal to the builder: one loop on every core (prepare.cpp, weld.h, dag.cpp, pages.cpp).
 #pragma once
 
 #include <algorithm>
 #include <atomic>
+#include <condition_variable>
+#include <deque>
 #include <exception>
 #include <functional>
+#include <mutex>
 #include <thread>
 #include <vector>
+
+#include <unistd.h>
 
 namespace tessera {
 
@@ -17,21 +22,87 @@ inline size_t core_count() {
     return cores;
 }
 
+// Worker threads shared by every parallel_for of the process, started on first use: a build makes a hundred or
+// more parallel loops, and starting threads for each one cost more than a small mesh's loops themselves. The calling
+// thread always works on its own loop too, so a loop finishes even when every worker is busy elsewhere (several
+// builds at once, say from the plugin's build threads, or a loop inside a loop's body).
+class WorkerPool {
+public:
+    // The process's pool (made again in a forked child, which has none of its parent's threads). Never destroyed:
+    // the workers wait for work until the process ends.
+    static WorkerPool& instance() {
+        static std::atomic<WorkerPool*> pool{nullptr};
+        WorkerPool* current = pool.load(std::memory_order_acquire);
+        if (!current || current->pid_ != getpid()) {
+            static std::mutex creating;
+            std::lock_guard<std::mutex> lock(creating);
+            current = pool.load(std::memory_order_acquire);
+            if (!current || current->pid_ != getpid()) {
+                current = new WorkerPool(core_count() - 1);
+                pool.store(current, std::memory_order_release);
+            }
+        }
+        return *current;
+    }
+
+    void run(size_t count, const std::function<void(size_t)>& body) {
+        Loop loop{&body, count};
+        {
+            std::lock_guard<std::mutex> lock(mutex_);
+            loops_.push_back(&loop);
+        }
+        wake_.notify_all();
+        loop.work();
+        std::unique_lock<std::mutex> lock(mutex_);
+        if (const auto it = std::find(loops_.begin(), loops_.end(), &loop); it != loops_.end()) loops_.erase(it);  // no one joins now
+        finished_.wait(lock, [&] { return loop.helpers == 0; });
+    }
+
+private:
+    struct Loop {
+        const std::function<void(size_t)>* body;
+        size_t count;
+        std::atomic<size_t> next{0};
+        size_t helpers = 0;  // workers inside work(), counted under the pool's mutex
+        void work() {
+            for (size_t i = next++; i < count; i = next++) (*body)(i);
+        }
+    };
+
+    explicit WorkerPool(size_t workers) : pid_(getpid()) {
+        for (size_t w = 0; w < workers; ++w) std::thread([this] { serve(); }).detach();
+    }
+
+    void serve() {
+        std::unique_lock<std::mutex> lock(mutex_);
+        for (;;) {
+            wake_.wait(lock, [&] { return !loops_.empty(); });
+            Loop* loop = loops_.front();
+            if (loop->next.load() >= loop->count) {  // every index taken: its caller finishes it
+                loops_.pop_front();
+                continue;
+            }
+            ++loop->helpers;
+            lock.unlock();
+            loop->work();
+            lock.lock();
+            if (--loop->helpers == 0) finished_.notify_all();
+        }
+    }
+
+    const pid_t pid_;
+    std::mutex mutex_;
+    std::condition_variable wake_, finished_;
+    std::deque<Loop*> loops_;  // loops that may still have indices to hand out, oldest first
+};
+
 // Runs body(0..count-1) on every core. body must not throw (an exception on a worker thread ends the process).
 inline void parallel_for(size_t count, const std::function<void(size_t)>& body) {
-    if (count <= 1) {  // nothing to share
-        if (count == 1) body(0);
+    if (count <= 1 || core_count() == 1) {  // nothing to share
+        for (size_t i = 0; i < count; ++i) body(i);
         return;
     }
-    const size_t threads = std::min<size_t>(count, core_count());
-    std::atomic<size_t> nextIndex{0};
-    auto work = [&] {
-        for (size_t i = nextIndex++; i < count; i = nextIndex++) body(i);
-    };
-    std::vector<std::thread> pool;
-    for (size_t t = 1; t < threads; ++t) pool.emplace_back(work);
-    work();
-    for (auto& thread : pool) thread.join();
+    WorkerPool::instance().run(count, body);
 }
 
 // Runs body(begin, end) over consecutive ranges of at most `block` of 0..count-1, on every core.

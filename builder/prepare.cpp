@@ -1,7 +1,9 @@
 // Input preparation: validation, triangulation (holes, orientation), attribute seams, normals.
+#include "phase_timer.h"
 #include "tessera/builder.h"
 
 #include "subdivide.h"
+#include "parallel.h"
 #include "weld.h"
 
 #include <algorithm>
@@ -125,6 +127,7 @@ void channel_bits(const PrimvarLookup& primvar, int64_t index, uint32_t (&bits)[
 }  // namespace
 
 PreparedMesh prepare_mesh(const MeshView& mesh) {
+    PhaseTimer phases;
     PreparedMesh out;
     auto& warnings = out.warnings;
     const std::string& name = mesh.name;
@@ -258,7 +261,9 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
 
     // Weld exact duplicate positions: every point maps to the first point with bit-identical coordinates, so that
     // split authoring (UV-sphere poles, per-face copies) joins up; attribute values still decide seams below.
+    phases.mark("prepare: validate");
     const std::vector<uint32_t> canonical = weld_equal_positions(mesh.points.data(), pointCount);
+    phases.mark("prepare: weld");
 
     std::vector<uint8_t> isHole(mesh.faceVertexCounts.size());
     for (int32_t hole : mesh.holeIndices) {
@@ -367,15 +372,20 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         throw MeshError(name + ": no drawable faces" + (droppedFaces ? " (every face is invalid: " + firstBadReason + ")" : ""));
     (void)droppedDegenerate;  // zero-area triangles draw nothing; dropping them is not worth a warning
 
+    phases.mark("prepare: triangulate");
     // Vertex streams.
     const size_t vertexCount = vertexPoint.size();
+    // (Loops over vertices run on every core, in blocks.)
+    constexpr size_t kBlock = 65536;
     out.positions.resize(3 * vertexCount);
-    for (size_t v = 0; v < vertexCount; ++v) {
-        Vec3 p = point(vertexPoint[v]);
-        out.positions[3 * v] = p.x;
-        out.positions[3 * v + 1] = p.y;
-        out.positions[3 * v + 2] = p.z;
-    }
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t v = begin; v < end; ++v) {
+            Vec3 p = point(vertexPoint[v]);
+            out.positions[3 * v] = p.x;
+            out.positions[3 * v + 1] = p.y;
+            out.positions[3 * v + 2] = p.z;
+        }
+    });
 
     // Smooth normals per point (area weighted) where none are authored, and as the fallback for bad ones.
     std::vector<float> pointNormals(3 * pointCount, 0.0f);
@@ -389,26 +399,28 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         }
     }
     out.normals.resize(3 * vertexCount);
-    for (size_t v = 0; v < vertexCount; ++v) {
-        Vec3 n{0, 0, 0};
-        if (vertexNormal[v] >= 0) {
-            const float* value = normals.value(vertexNormal[v]);
-            n = {value[0], value[1], value[2]};
+    parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
+        for (size_t v = begin; v < end; ++v) {
+            Vec3 n{0, 0, 0};
+            if (vertexNormal[v] >= 0) {
+                const float* value = normals.value(vertexNormal[v]);
+                n = {value[0], value[1], value[2]};
+            }
+            float len = length(n);
+            if (!(len > 0.0f) || !std::isfinite(len)) {
+                const float* accum = &pointNormals[3 * vertexPoint[v]];
+                n = {accum[0], accum[1], accum[2]};
+                len = length(n);
+            }
+            if (!(len > 0.0f) || !std::isfinite(len)) {
+                n = {0, 0, 1};
+                len = 1;
+            }
+            out.normals[3 * v] = n.x / len;
+            out.normals[3 * v + 1] = n.y / len;
+            out.normals[3 * v + 2] = n.z / len;
         }
-        float len = length(n);
-        if (!(len > 0.0f) || !std::isfinite(len)) {
-            const float* accum = &pointNormals[3 * vertexPoint[v]];
-            n = {accum[0], accum[1], accum[2]};
-            len = length(n);
-        }
-        if (!(len > 0.0f) || !std::isfinite(len)) {
-            n = {0, 0, 1};
-            len = 1;
-        }
-        out.normals[3 * v] = n.x / len;
-        out.normals[3 * v + 1] = n.y / len;
-        out.normals[3 * v + 2] = n.z / len;
-    }
+    });
 
     if (vertexColors) {
         out.colors.resize(kChannelComponents * vertexCount);
@@ -437,6 +449,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     out.indices.shrink_to_fit();
     out.triangleMaterials.shrink_to_fit();
     out.sourceFaces.shrink_to_fit();
+    phases.mark("prepare: vertex streams");
     return out;
 }
 

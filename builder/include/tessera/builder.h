@@ -249,7 +249,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings = {
 constexpr uint32_t kPageFormatVersion = 4;  // 4: the constant vertex channel has 4 components
 // Bumped whenever the builder makes a different DAG from the same input and settings (simplifier weights, grouping,
 // error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
-constexpr uint32_t kBuilderRevision = 2;
+constexpr uint32_t kBuilderRevision = 3;  // 3: triangles within a cluster in strip order (encoding.cpp)
 constexpr uint32_t kPageBytes = 128 * 1024;
 constexpr uint32_t kPageHeaderBytes = 160;  // the fixed-size header; the page table follows it
 
@@ -288,7 +288,7 @@ FallbackMesh extract_fallback(const BuiltMesh& mesh, float threshold);
 // The mesh's fallback mesh (BuiltMesh::fallbackThreshold, error included); empty when it has none.
 FallbackMesh fallback_mesh(const BuiltMesh& mesh);
 
-// Reorders one cluster for the page file, the DAG unchanged: triangles in vertex cache order (meshoptimizer), vertices
+// Reorders one cluster for the page file, the DAG unchanged: triangles in strip order (an edge-adjacency walk), vertices
 // numbered by first use, each triangle rotated to its smallest rotation. `corners` (3 cluster-local indices per
 // triangle) is rewritten; returns, for each new vertex number, the old one.
 std::vector<uint32_t> order_cluster_for_pages(std::vector<uint32_t>& corners, uint32_t vertexCount);

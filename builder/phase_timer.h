@@ -1,0 +1,46 @@
+// Internal to the builder: with TESSERA_BUILD_PHASES set, each phase of a build prints its wall and CPU seconds to
+// stderr, and an estimate of the CPU seconds that ran on the calling thread alone (the serial part, which more cores
+// do not shorten). Off, a timer costs one getenv.
+#pragma once
+
+#include "parallel.h"
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <ctime>
+
+namespace tessera {
+
+class PhaseTimer {
+public:
+    PhaseTimer() : enabled_(std::getenv("TESSERA_BUILD_PHASES") != nullptr) { now(wall_, cpu_, thread_); }
+    // Prints the time since the last mark (or construction) under `name`.
+    void mark(const char* name) {
+        if (!enabled_) return;
+        double wall, cpu, thread;
+        now(wall, cpu, thread);
+        // The calling thread does the serial part and its 1/n share of the parallel part: serial = (n t - c) / (n - 1).
+        const double n = double(core_count()), own = thread - thread_, all = cpu - cpu_;
+        const double serial = n > 1 ? std::max(0.0, (n * own - all) / (n - 1)) : all;
+        std::fprintf(stderr, "phase %-24s wall %7.3f s  cpu %7.3f s  serial ~%6.3f s\n", name, wall - wall_, all, serial);
+        wall_ = wall, cpu_ = cpu, thread_ = thread;
+    }
+
+private:
+    void now(double& wall, double& cpu, double& thread) const {
+        if (!enabled_) return;
+        auto seconds = [](clockid_t clock) {
+            timespec t;
+            clock_gettime(clock, &t);
+            return double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
+        };
+        wall = std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+        cpu = seconds(CLOCK_PROCESS_CPUTIME_ID);
+        thread = seconds(CLOCK_THREAD_CPUTIME_ID);
+    }
+    bool enabled_;
+    double wall_ = 0, cpu_ = 0, thread_ = 0;
+};
+
+}  // namespace tessera
