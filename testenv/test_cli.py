@@ -119,6 +119,7 @@ def test_bench_build_prints_a_table_and_writes_json(tmp_path):
     assert row["dag_depth"] >= 3 and row["build_seconds"] > 0
     assert 0 < row["disk_bytes_per_input_triangle"] < 12 and row["decode_input_triangles_per_second"] > 0
     assert row["relative_error_per_level"][0] == 0 and row["relative_error_per_level"][-1] > 0
+    assert row["first_build_mib"] > 0 and row["peak_memory_bytes_per_input_triangle"] >= 0  # one-time costs apart
 
 
 def test_bench_render_prints_tables_and_writes_json(tmp_path):
