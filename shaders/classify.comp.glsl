@@ -1,6 +1,6 @@
 // Material bins, one thread per pixel. Count step: each covered pixel takes the next place in its bin (its material's,
 // and for a micro-triangle its kind's, TS_BIN_*: resolve has a variant per kind) and notes bin and place. Scatter step
-// (after bins.comp.glsl gave each bin its range): each covered pixel writes its index at its place in its bin's range.
+// (after bins.comp.glsl gave each bin its range): each covered pixel writes its coordinates at its place in its bin's range.
 // A frame with a single possible bin (one material, no displacement) runs the one-bin step alone: the place is the
 // pixel's entry, with nothing to decode and no second pass, and the uncovered pixels get the first AOV's background.
 #version 460
@@ -30,7 +30,7 @@ void main() {
     PixelBinRef places = PixelBinRef(frame.aovOutput);
     if (push.step == TS_CLASSIFY_SCATTER) {
         uvec2 place = places.data[index];
-        if (place.x != TS_NO_BIN) CounterRef(frame.binPixels).data[BinRef(frame.bins).data[place.x].offset + place.y] = index;
+        if (place.x != TS_NO_BIN) CounterRef(frame.binPixels).data[BinRef(frame.bins).data[place.x].offset + place.y] = pack_bin_pixel(pixel);
         return;
     }
     uint64_t value = VisibilityRef(frame.visibility).data[index];
@@ -43,6 +43,6 @@ void main() {
     }
     uint bin = push.step == TS_CLASSIFY_ONE_BIN ? 0u : pixel_bin(frame, value);
     uint place = atomicAdd(BinRef(frame.bins).data[bin].count, 1u);
-    if (push.step == TS_CLASSIFY_ONE_BIN) CounterRef(frame.binPixels).data[place] = index;  // the only bin starts at 0
+    if (push.step == TS_CLASSIFY_ONE_BIN) CounterRef(frame.binPixels).data[place] = pack_bin_pixel(pixel);  // the only bin starts at 0
     else places.data[index] = uvec2(bin, place);
 }

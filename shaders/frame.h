@@ -132,9 +132,10 @@ bool sphere_in_frustum(GpuFrame frame, vec3 center, float radius) {
 
 // HZB levels: level l has a texel per 2^(l+1) x 2^(l+1) pixels (partial at the right and bottom edges), down to 1x1;
 // the levels are stored one after another.
+// Shifts, not divisions: a CPU device divides integers one lane at a time (x86 has no vector integer division).
 uvec2 hzb_level_size(GpuFrame frame, uint level) {
     uint tile = 2u << level;
-    return (frame.viewport.xy + tile - 1u) / tile;
+    return (frame.viewport.xy + tile - 1u) >> (level + 1u);
 }
 
 uint hzb_level_offset(GpuFrame frame, uint level) {
@@ -145,6 +146,11 @@ uint hzb_level_offset(GpuFrame frame, uint level) {
     }
     return offset;
 }
+
+// frame.binPixels entries: a covered pixel's coordinates, x in the low 16 bits (resolutions are at most 16384 across).
+// Coordinates rather than the pixel's index, which resolve would have to divide by the width.
+uint pack_bin_pixel(uvec2 pixel) { return pixel.x | (pixel.y << 16u); }
+uvec2 unpack_bin_pixel(uint packed) { return uvec2(packed & 0xffffu, packed >> 16u); }
 
 // What an AOV holds where nothing covers the pixel (without a textured dome: background.comp.glsl draws that).
 void write_background(GpuFrame frame, uint index, uint aov) {

@@ -92,9 +92,11 @@ void rasterize_triangle(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, float za, flo
         zc = z;
         area = -area;
     }
-    int step = int(frame.raster.y), center = step / 2;
-    ivec2 lo = max((min(a, min(b, c)) - center + step - 1) / step, ivec2(0));
-    ivec2 hi = min((max(a, max(b, c)) - center) / step, ivec2(frame.viewport.xy) - 1);
+    // The pixels whose centres the box may hold. The sub-pixel step is a power of two: shifts (rounding down), not
+    // divisions, which a CPU device runs one lane at a time (no vector integer division on x86).
+    int step = int(frame.raster.y), center = step >> 1, shift = findLSB(step);
+    ivec2 lo = max((min(a, min(b, c)) - center + step - 1) >> shift, ivec2(0));
+    ivec2 hi = min((max(a, max(b, c)) - center) >> shift, ivec2(frame.viewport.xy) - 1);
     vec4 z = vec4(za, zb, zc, 1.0 / float(-area));
     if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload, masked);
     else if (mayBeLarge) scan_large(frame, a, b, c, lo, hi, step, center, z, payload, masked);

@@ -57,8 +57,8 @@ vec3 visualize(GpuFrame frame, uint mode, Instance instance, uvec2 visible, GpuC
 }
 
 // One covered pixel (visibility buffer value `value`, non-zero).
-void shade(GpuFrame frame, uint index, uint64_t value, uint aov) {
-    uvec2 pixel = uvec2(index % frame.viewport.x, index / frame.viewport.x);
+void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
+    uint index = pixel.y * frame.viewport.x + pixel.x;
     if (OUTPUT == TS_OUTPUT_VISUALIZE && frame.counts.w == TS_VIS_OVERDRAW) {
         uint fragments = CounterRef(frame.overdraw).data[index];
         OutputRef(frame.aovOutput).data[index] = vec4(level_color(max(fragments, 1u) - 1u), 1.0);
@@ -230,7 +230,7 @@ void main() {
     for (uint k = 0u; k < PIXELS_PER_THREAD; ++k) {
         uint i = first + k * TS_SHADE_GROUP_SIZE;
         if (i >= bin.count) return;
-        uint index = CounterRef(frame.binPixels).data[bin.offset + i];
-        shade(frame, index, VisibilityRef(frame.visibility).data[index], aov);
+        uvec2 pixel = unpack_bin_pixel(CounterRef(frame.binPixels).data[bin.offset + i]);
+        shade(frame, pixel, VisibilityRef(frame.visibility).data[pixel.y * frame.viewport.x + pixel.x], aov);
     }
 }

@@ -572,7 +572,7 @@ struct GpuFrame {
     address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
     address overdraw;        // uint[width * height]: fragments per pixel, only with TS_VIS_OVERDRAW (else 0)
     address bins;            // GpuBin[materials]
-    address binPixels;       // uint[width * height]: covered pixels, grouped by material
+    address binPixels;       // uint[width * height]: covered pixels (x | y << 16, frame.h pack_bin_pixel), grouped by material
     address textureSlots;    // GpuTextureSlot[], 0 when no material has a texture
     address textures;        // the texture pool: GpuTexture[] then texel words (uint); 0 when there are no textures
     // Displacement, 0 when no material displaces:
