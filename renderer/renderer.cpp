@@ -366,7 +366,7 @@ struct Renderer::Impl {
     // Pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD), chosen for the device
     // (default_shade_pixels_per_thread).
     uint32_t shadePixelsPerThread = 1;
-    VkPipeline classify = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
+    VkPipeline classify[3] = {}, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;  // classify: a pipeline per step (TS_CLASSIFY_*)
     // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
     // first needs them.
     VkPipeline rasterMasked[2] = {};
@@ -448,7 +448,7 @@ struct Renderer::Impl {
         vkDeviceWaitIdle(vk);
         vkDestroyPipeline(vk, cull, nullptr);
         vkDestroyPipeline(vk, hzb, nullptr);
-        vkDestroyPipeline(vk, classify, nullptr);
+        for (VkPipeline step : classify) vkDestroyPipeline(vk, step, nullptr);
         vkDestroyPipeline(vk, bins, nullptr);
         vkDestroyPipeline(vk, background, nullptr);
         for (VkPipeline variant : raster) vkDestroyPipeline(vk, variant, nullptr);
@@ -473,30 +473,34 @@ struct Renderer::Impl {
     // TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*), TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*),
     // TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it;
     // TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size); TS_SPEC_LARGE_TRIANGLES (the compute rasterizer's, a
-    // boolean); TS_SPEC_SHADE_PIXELS_PER_THREAD (resolve's and bins', the same for every pipeline). A shader ignores the
-    // entries it does not declare.
+    // boolean); TS_SPEC_SHADE_PIXELS_PER_THREAD (resolve's and bins', the same for every pipeline); TS_SPEC_CLASSIFY_STEP
+    // (classify's step). A shader ignores the entries it does not declare.
     struct Variant {
-        uint32_t values[10];
-        VkSpecializationMapEntry entries[10] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+        uint32_t values[11];
+        VkSpecializationMapEntry entries[11] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                                {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
-                                               {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4}};
-        VkSpecializationInfo info{10, entries, sizeof(values), values};
+                                               {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
+                                               {TS_SPEC_CLASSIFY_STEP, 40, 4}};
+        VkSpecializationInfo info{11, entries, sizeof(values), values};
         Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
                 uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t shadePixelsPerThread = 1,
-                bool doubleSided = false)
+                bool doubleSided = false, uint32_t classifyStep = TS_CLASSIFY_COUNT)
             : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
                      uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize,
-                     VkBool32(largeTriangles), VkBool32(doubleSided), shadePixelsPerThread} {}
+                     VkBool32(largeTriangles), VkBool32(doubleSided), shadePixelsPerThread, classifyStep} {}
         Variant(const Variant&) = delete;
     };
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, uint32_t pixels = TS_BIN_TRIANGLES,
                                 bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false) {
+                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false,
+                                uint32_t classifyStep = TS_CLASSIFY_COUNT) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize, largeTriangles, shadePixelsPerThread);
+        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize, largeTriangles, shadePixelsPerThread, false,
+                              classifyStep);
         const bool specialized = textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ||
-                                 cullGroupSize != TS_CULL_GROUP_SIZE || largeTriangles || shadePixelsPerThread != 1;
+                                 cullGroupSize != TS_CULL_GROUP_SIZE || largeTriangles || shadePixelsPerThread != 1 ||
+                                 classifyStep != TS_CLASSIFY_COUNT;
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
                       specialized ? &variant.info : nullptr};
@@ -546,7 +550,6 @@ struct Renderer::Impl {
         cull = compute_pipeline(cull_comp, sizeof(cull_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false, cullGroupSize);
         resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp));
         hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
-        classify = compute_pipeline(classify_comp, sizeof(classify_comp));
         bins = compute_pipeline(bins_comp, sizeof(bins_comp));
         background = compute_pipeline(background_comp, sizeof(background_comp));
         for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles);
@@ -621,6 +624,16 @@ struct Renderer::Impl {
         VkPipeline& variant = resolveVariants[size_t(textured) | size_t(pixels) << 1 | size_t(areaLights) << 3 | size_t(output) << 4];
         if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, pixels, areaLights, output);
         return variant;
+    }
+
+    // Classify's pipeline for one step (TS_CLASSIFY_*), made when a frame first needs it: one-material scenes list their
+    // pixels in a single step and never make the other two.
+    VkPipeline classify_step(uint32_t step) {
+        VkPipeline& pipeline = classify[step];
+        if (!pipeline)
+            pipeline = compute_pipeline(classify_comp, sizeof(classify_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false,
+                                        TS_CULL_GROUP_SIZE, false, step);
+        return pipeline;
     }
 
     // Kinds of material bins (TS_BIN_*): micro-triangles have bins of their own only in scenes with displacement.
@@ -1542,7 +1555,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 if (oneBin && step == TS_CLASSIFY_SCATTER) break;
                 PushConstants classifyPush{listingDrawsBackground ? uint32_t(aovs[0]) : TS_NO_AOV, step, 0};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(classifyPush), &classifyPush);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.classify);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.classify_step(step));
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 compute_barrier();
                 if (step != TS_CLASSIFY_SCATTER) {

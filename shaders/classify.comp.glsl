@@ -3,11 +3,14 @@
 // (after bins.comp.glsl gave each bin its range): each covered pixel writes its coordinates at its place in its bin's range.
 // A frame with a single possible bin (one material, no displacement) runs the one-bin step alone: the place is the
 // pixel's entry, with nothing to decode and no second pass, and the uncovered pixels get the first AOV's background.
+// Each step is a pipeline of its own (TS_SPEC_CLASSIFY_STEP), holding only that step's code.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
 
 layout(local_size_x = TS_PIXEL_TILE, local_size_y = TS_PIXEL_TILE) in;
+// This pipeline's step (TS_CLASSIFY_*): only its code is compiled in.
+layout(constant_id = TS_SPEC_CLASSIFY_STEP) const uint STEP = TS_CLASSIFY_COUNT;
 
 // The bin of a covered pixel's visibility value.
 uint pixel_bin(GpuFrame frame, uint64_t value) {
@@ -28,21 +31,21 @@ void main() {
     if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
     uint index = pixel.y * frame.viewport.x + pixel.x;
     PixelBinRef places = PixelBinRef(frame.aovOutput);
-    if (push.step == TS_CLASSIFY_SCATTER) {
+    if (STEP == TS_CLASSIFY_SCATTER) {
         uvec2 place = places.data[index];
         if (place.x != TS_NO_BIN) CounterRef(frame.binPixels).data[BinRef(frame.bins).data[place.x].offset + place.y] = pack_bin_pixel(pixel);
         return;
     }
     uint64_t value = VisibilityRef(frame.visibility).data[index];
     if (value == 0ul) {
-        if (push.step == TS_CLASSIFY_COUNT) places.data[index] = uvec2(TS_NO_BIN, 0u);
+        if (STEP == TS_CLASSIFY_COUNT) places.data[index] = uvec2(TS_NO_BIN, 0u);
         // The first AOV's background, saving background.comp.glsl's pass over the pixels (push.aov: that AOV, or
         // TS_NO_AOV where the background pass must draw it, a textured dome's).
         else if (push.aov != TS_NO_AOV) write_background(frame, index, push.aov);
         return;
     }
-    uint bin = push.step == TS_CLASSIFY_ONE_BIN ? 0u : pixel_bin(frame, value);
+    uint bin = STEP == TS_CLASSIFY_ONE_BIN ? 0u : pixel_bin(frame, value);
     uint place = atomicAdd(BinRef(frame.bins).data[bin].count, 1u);
-    if (push.step == TS_CLASSIFY_ONE_BIN) CounterRef(frame.binPixels).data[place] = pack_bin_pixel(pixel);  // the only bin starts at 0
+    if (STEP == TS_CLASSIFY_ONE_BIN) CounterRef(frame.binPixels).data[place] = pack_bin_pixel(pixel);  // the only bin starts at 0
     else places.data[index] = uvec2(bin, place);
 }
