@@ -360,7 +360,7 @@ struct Renderer::Impl {
     VkDescriptorSetLayout frameSetLayout = VK_NULL_HANDLE;
     VkDescriptorPool framePool = VK_NULL_HANDLE;
     VkDescriptorSet frameSet = VK_NULL_HANDLE;
-    VkPipeline cull = VK_NULL_HANDLE, hzb = VK_NULL_HANDLE;
+    VkPipeline cull[4] = {}, hzb = VK_NULL_HANDLE;  // cull: a pipeline per step (TS_CULL_*)
     VkPipeline raster[2] = {};  // hardware raster of clusters: [double-sided (TS_SPEC_DOUBLE_SIDED)]
     uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // its workgroup size, chosen for the device (default_cull_group_size)
     // Pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD), chosen for the device
@@ -446,7 +446,7 @@ struct Renderer::Impl {
     ~Impl() {
         VkDevice vk = device.handle();
         vkDeviceWaitIdle(vk);
-        vkDestroyPipeline(vk, cull, nullptr);
+        for (VkPipeline step : cull) vkDestroyPipeline(vk, step, nullptr);
         vkDestroyPipeline(vk, hzb, nullptr);
         for (VkPipeline step : classify) vkDestroyPipeline(vk, step, nullptr);
         vkDestroyPipeline(vk, bins, nullptr);
@@ -473,34 +473,31 @@ struct Renderer::Impl {
     // TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*), TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*),
     // TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it;
     // TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size); TS_SPEC_LARGE_TRIANGLES (the compute rasterizer's, a
-    // boolean); TS_SPEC_SHADE_PIXELS_PER_THREAD (resolve's and bins', the same for every pipeline); TS_SPEC_CLASSIFY_STEP
-    // (classify's step). A shader ignores the entries it does not declare.
+    // boolean); TS_SPEC_SHADE_PIXELS_PER_THREAD (resolve's and bins', the same for every pipeline); TS_SPEC_STEP
+    // (classify's and the cull's step). A shader ignores the entries it does not declare.
     struct Variant {
         uint32_t values[11];
         VkSpecializationMapEntry entries[11] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                                {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                                {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
-                                               {TS_SPEC_CLASSIFY_STEP, 40, 4}};
+                                               {TS_SPEC_STEP, 40, 4}};
         VkSpecializationInfo info{11, entries, sizeof(values), values};
         Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
                 uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t shadePixelsPerThread = 1,
-                bool doubleSided = false, uint32_t classifyStep = TS_CLASSIFY_COUNT)
+                bool doubleSided = false, uint32_t step = 0)
             : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
                      uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize,
-                     VkBool32(largeTriangles), VkBool32(doubleSided), shadePixelsPerThread, classifyStep} {}
+                     VkBool32(largeTriangles), VkBool32(doubleSided), shadePixelsPerThread, step} {}
         Variant(const Variant&) = delete;
     };
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, uint32_t pixels = TS_BIN_TRIANGLES,
                                 bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false,
-                                uint32_t classifyStep = TS_CLASSIFY_COUNT) {
+                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t step = 0) {
         VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize, largeTriangles, shadePixelsPerThread, false,
-                              classifyStep);
+        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize, largeTriangles, shadePixelsPerThread, false, step);
         const bool specialized = textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ||
-                                 cullGroupSize != TS_CULL_GROUP_SIZE || largeTriangles || shadePixelsPerThread != 1 ||
-                                 classifyStep != TS_CLASSIFY_COUNT;
+                                 cullGroupSize != TS_CULL_GROUP_SIZE || largeTriangles || shadePixelsPerThread != 1 || step != 0;
         VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
         info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
                       specialized ? &variant.info : nullptr};
@@ -547,7 +544,7 @@ struct Renderer::Impl {
         check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
         cullGroupSize = default_cull_group_size();
         shadePixelsPerThread = default_shade_pixels_per_thread();
-        cull = compute_pipeline(cull_comp, sizeof(cull_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false, cullGroupSize);
+        for (uint32_t step : {TS_CULL_MAIN_INSTANCES, TS_CULL_MAIN}) cull_step(step);  // the post pass's when first needed
         resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp));
         hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
         bins = compute_pipeline(bins_comp, sizeof(bins_comp));
@@ -624,6 +621,15 @@ struct Renderer::Impl {
         VkPipeline& variant = resolveVariants[size_t(textured) | size_t(pixels) << 1 | size_t(areaLights) << 3 | size_t(output) << 4];
         if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, pixels, areaLights, output);
         return variant;
+    }
+
+    // The cull's pipeline for one step (TS_CULL_*): the post pass's are made when a frame first has one.
+    VkPipeline cull_step(uint32_t step) {
+        VkPipeline& pipeline = cull[step];
+        if (!pipeline)
+            pipeline = compute_pipeline(cull_comp, sizeof(cull_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false, cullGroupSize, false,
+                                        step);
+        return pipeline;
     }
 
     // Classify's pipeline for one step (TS_CLASSIFY_*), made when a frame first needs it: one-material scenes list their
@@ -1483,6 +1489,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
             // Main pass: instances one per thread, then a workgroup per instance they listed.
             auto cull_step = [&](uint32_t step, const Buffer& hzb) {
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull_step(step));
                 PushConstants push{0, step, hzb.address};
                 vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
             };
@@ -1491,7 +1498,6 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
             };
-            vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
             cull_step(TS_CULL_MAIN_INSTANCES, s.hzbLevels);
             if (s.instanceCount) {
                 const uint32_t groups = (s.instanceCount + TS_CULL_INSTANCES_PER_GROUP - 1) / TS_CULL_INSTANCES_PER_GROUP;
@@ -1523,8 +1529,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 mark();
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull);
-                compute_to_indirect();
+                    compute_to_indirect();
                 cull_step(TS_CULL_POST_INSTANCES, s.hzbLevels);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postInstanceGroupsX));
                 compute_to_indirect();

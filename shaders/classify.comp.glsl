@@ -3,14 +3,14 @@
 // (after bins.comp.glsl gave each bin its range): each covered pixel writes its coordinates at its place in its bin's range.
 // A frame with a single possible bin (one material, no displacement) runs the one-bin step alone: the place is the
 // pixel's entry, with nothing to decode and no second pass, and the uncovered pixels get the first AOV's background.
-// Each step is a pipeline of its own (TS_SPEC_CLASSIFY_STEP), holding only that step's code.
+// Each step is a pipeline of its own (TS_SPEC_STEP), holding only that step's code.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
 
 layout(local_size_x = TS_PIXEL_TILE, local_size_y = TS_PIXEL_TILE) in;
 // This pipeline's step (TS_CLASSIFY_*): only its code is compiled in.
-layout(constant_id = TS_SPEC_CLASSIFY_STEP) const uint STEP = TS_CLASSIFY_COUNT;
+layout(constant_id = TS_SPEC_STEP) const uint STEP = TS_CLASSIFY_COUNT;
 
 // The bin of a covered pixel's visibility value.
 uint pixel_bin(GpuFrame frame, uint64_t value) {

@@ -1,4 +1,4 @@
-// Instance culling and the DAG cut, in two passes (push.step).
+// Instance culling and the DAG cut, in two passes, each of two steps (TS_CULL_*): a pipeline per step (TS_SPEC_STEP).
 // Main pass: instances are tested one per thread (frustum, previous HZB), then one workgroup per listed instance
 // tests the clusters of the DAG levels its distance allows; a cluster is drawn iff its own error, projected to the
 // screen, is within the threshold while its parent's is not, and its bounds touch the frustum. With two-pass occlusion, instances and clusters that the
@@ -12,6 +12,8 @@
 #include "occlusion.h"
 
 layout(local_size_x = TS_CULL_GROUP_SIZE, local_size_x_id = TS_SPEC_CULL_GROUP_SIZE) in;  // the device's size
+// This pipeline's step (TS_CULL_*): only its code is compiled in.
+layout(constant_id = TS_SPEC_STEP) const uint STEP = TS_CULL_MAIN;
 
 const float NEVER_FINE_ENOUGH = 3.4e38;
 
@@ -376,7 +378,7 @@ void post_pass(GpuFrame frame) {
 
 void main() {
     GpuFrame frame = frameConstants;
-    if (push.step == TS_CULL_MAIN) main_pass(frame);
-    else if (push.step == TS_CULL_POST) post_pass(frame);
-    else test_instances(frame, push.step);
+    if (STEP == TS_CULL_MAIN) main_pass(frame);
+    else if (STEP == TS_CULL_POST) post_pass(frame);
+    else test_instances(frame, STEP);
 }

@@ -234,10 +234,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // per-pixel branches a loop made dearer than the batches it saved (measured).
 #define TS_SPEC_SHADE_PIXELS_PER_THREAD 9
 #define TS_CPU_SHADE_PIXELS_PER_THREAD 16
-// Specialization constant of classify: its step (TS_CLASSIFY_*), a pipeline each. As a push constant, every step's
-// code ran masked for every pixel on lavapipe: the one-bin listing paid for decoding each pixel's bin, which it never
-// uses, and an empty 1080p frame cost 70-95 ms instead of 46-58 (docs/benchmarks.md).
-#define TS_SPEC_CLASSIFY_STEP 10
+// Specialization constant of the passes whose steps are pipelines of their own: classify (TS_CLASSIFY_*) and the cull
+// (TS_CULL_*). As a push constant, every step's code ran masked on lavapipe: classify's one-bin listing paid for
+// decoding each pixel's bin, which it never uses (an empty 1080p frame cost 70-95 ms instead of 46-58), and each cull
+// step ran the others' loops at least once, masked (docs/benchmarks.md).
+#define TS_SPEC_STEP 10
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
