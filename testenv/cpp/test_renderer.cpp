@@ -540,6 +540,30 @@ TEST_F(RendererTest, CutBlocksChangeWhatIsTestedNotTheCut) {
     }
     // Through the telephoto lens most blocks lie outside the frustum (measured: 2 357 clusters tested against 4 186).
     EXPECT_LT(telephotoWith * 3, telephotoWithout * 2) << "blocks outside the frustum must not be tested cluster by cluster";
+
+    // A displaced copy: the blocks' frustum spheres are widened by the instance's largest offset, as the clusters' are, so
+    // a surface displaced into the frustum from clusters just outside it is drawn (and diced) either way. Close up, its
+    // levels in the cut hold level 0's 800 clusters: more than the block path's threshold.
+    MaterialDesc bumpy;
+    bumpy.displacement = 1.0f;
+    bumpy.displacementMagnitude = 0.08f;
+    InstanceDesc displaced = identity_instance(mesh);
+    displaced.material = scene.add_material(bumpy);
+    scene.set_instances({displaced});
+    for (const CameraDesc& camera : {wide, camera_at(0.8, 0.3, 1.12), telephoto}) {
+        settings.pixelError = 1.0f;
+        FrameStats with, without;
+        settings.cutBlocks = true;
+        auto a = renderer.render(scene, camera, settings, {Aov::ClusterId, Aov::TriangleId, Aov::Depth}, &with);
+        settings.cutBlocks = false;
+        auto b = renderer.render(scene, camera, settings, {Aov::ClusterId, Aov::TriangleId, Aov::Depth}, &without);
+        EXPECT_GT(with.tessellatedClusters, 0u) << "displaced, blocks";
+        EXPECT_EQ(with.visibleClusters, without.visibleClusters) << "displaced";
+        EXPECT_EQ(with.tessellatedClusters, without.tessellatedClusters) << "displaced";
+        EXPECT_EQ(with.microTriangles, without.microTriangles) << "displaced";
+        EXPECT_LE(with.candidateClusters, without.candidateClusters) << "displaced";
+        expect_same_images(a, b, "displaced");
+    }
 }
 
 TEST_F(RendererTest, OcclusionCullingChangesCountsNotTheImage) {
