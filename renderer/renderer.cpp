@@ -1529,7 +1529,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 mark();
-                    compute_to_indirect();
+                compute_to_indirect();
                 cull_step(TS_CULL_POST_INSTANCES, s.hzbLevels);
                 vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, postInstanceGroupsX));
                 compute_to_indirect();
