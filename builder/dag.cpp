@@ -58,18 +58,56 @@ Sphere enclose(const std::vector<Sphere>& spheres) {
 }
 
 // Smallest sphere centred on the box centre that holds the vertices.
-Sphere vertex_sphere(const std::vector<float>& positions, const uint32_t* vertices, size_t count) {
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < count; ++i)
+// The two halves of a vertex sphere over the points point(i), i in [begin, end): their box (grown into lo, hi), and
+// the largest distance from a centre. Minima, maxima and the largest distance do not depend on how the range is split.
+template <class Point>
+void grow_box(Point point, size_t begin, size_t end, double lo[3], double hi[3]) {
+    for (size_t i = begin; i < end; ++i)
         for (int k = 0; k < 3; ++k) {
-            lo[k] = std::min(lo[k], double(positions[3 * vertices[i] + k]));
-            hi[k] = std::max(hi[k], double(positions[3 * vertices[i] + k]));
+            lo[k] = std::min(lo[k], double(point(i)[k]));
+            hi[k] = std::max(hi[k], double(point(i)[k]));
         }
-    Sphere s{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2, 0};
-    for (size_t i = 0; i < count; ++i) {
-        const float* p = &positions[3 * vertices[i]];
-        s.r = std::max(s.r, std::sqrt((p[0] - s.x) * (p[0] - s.x) + (p[1] - s.y) * (p[1] - s.y) + (p[2] - s.z) * (p[2] - s.z)));
+}
+template <class Point>
+double farthest(Point point, size_t begin, size_t end, const Sphere& c) {
+    double r = 0;
+    for (size_t i = begin; i < end; ++i) {
+        const float* p = point(i);
+        r = std::max(r, std::sqrt((p[0] - c.x) * (p[0] - c.x) + (p[1] - c.y) * (p[1] - c.y) + (p[2] - c.z) * (p[2] - c.z)));
     }
+    return r;
+}
+
+Sphere vertex_sphere(const std::vector<float>& positions, const uint32_t* vertices, size_t count) {
+    auto point = [&](size_t i) { return &positions[3 * vertices[i]]; };
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    grow_box(point, 0, count, lo, hi);
+    Sphere s{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2, 0};
+    s.r = farthest(point, 0, count, s);
+    return s;
+}
+
+// The box of every vertex (grown into lo, hi), over blocks of `block` vertices on every core.
+void all_vertices_box(const std::vector<float>& positions, size_t block, double lo[3], double hi[3]) {
+    const size_t count = positions.size() / 3;
+    std::vector<std::array<double, 6>> boxes((count + block - 1) / block, {INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY});
+    parallel_blocks(count, block, [&](size_t begin, size_t end) {
+        grow_box([&](size_t i) { return &positions[3 * i]; }, begin, end, &boxes[begin / block][0], &boxes[begin / block][3]);
+    });
+    for (const auto& box : boxes)
+        for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], box[k]), hi[k] = std::max(hi[k], box[3 + k]);
+}
+
+// vertex_sphere of every vertex, the same sphere, over blocks of `block` vertices on every core.
+Sphere all_vertices_sphere(const std::vector<float>& positions, size_t block) {
+    const size_t count = positions.size() / 3, blocks = (count + block - 1) / block;
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    all_vertices_box(positions, block, lo, hi);
+    Sphere s{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2, 0};
+    auto point = [&](size_t i) { return &positions[3 * i]; };
+    std::vector<double> radii(blocks, 0.0);
+    parallel_blocks(count, block, [&](size_t begin, size_t end) { radii[begin / block] = farthest(point, begin, end, s); });
+    for (double r : radii) s.r = std::max(s.r, r);
     return s;
 }
 
@@ -313,25 +351,8 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // The loops over every vertex or triangle before the DAG run on every core in blocks; minima and maxima do not
     // depend on the blocks.
     constexpr size_t kBlock = 65536;
-    const size_t vertexBlocks = (vertexCount + kBlock - 1) / kBlock;
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    {
-        std::vector<std::array<double, 6>> blockBounds(vertexBlocks);
-        parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
-            std::array<double, 6> b{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
-            for (size_t v = begin; v < end; ++v)
-                for (int k = 0; k < 3; ++k) {
-                    b[k] = std::min(b[k], double(mesh.positions[3 * v + k]));
-                    b[3 + k] = std::max(b[3 + k], double(mesh.positions[3 * v + k]));
-                }
-            blockBounds[begin / kBlock] = b;
-        });
-        for (const auto& b : blockBounds)
-            for (int k = 0; k < 3; ++k) {
-                lo[k] = std::min(lo[k], b[k]);
-                hi[k] = std::max(hi[k], b[3 + k]);
-            }
-    }
+    all_vertices_box(mesh.positions, kBlock, lo, hi);
     out.size = float(std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2])));
 
     // The position grid: a power-of-two step in object space, anchored at the object's origin.
@@ -754,7 +775,6 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     for (uint32_t i = 0; i < clusters.size(); ++i)
         if (plan.level[i] >= 0) order.push_back(i);
     std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return plan.level[a] < plan.level[b]; });
-    const size_t totalVertices = local.size() / 3;
     std::vector<std::vector<uint32_t>> clusterVertices(order.size()), clusterTriangles(order.size());  // mesh vertices; packed triangles
     std::vector<Cluster> emitted(order.size());
     parallel_for(order.size(), [&](size_t i) {
@@ -824,36 +844,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         clusterVertices[i] = {};
     });
 
-    // The mesh's sphere, as vertex_sphere makes it from every vertex, over blocks on every core (minima, maxima and the largest distance
-    // do not depend on the blocks).
-    {
-        const size_t blocks = (totalVertices + kBlock - 1) / kBlock;
-        std::vector<std::array<double, 6>> blockBounds(blocks);
-        parallel_blocks(totalVertices, kBlock, [&](size_t begin, size_t end) {
-            std::array<double, 6> b{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
-            for (size_t v = begin; v < end; ++v)
-                for (int k = 0; k < 3; ++k) {
-                    b[k] = std::min(b[k], double(local[3 * v + k]));
-                    b[3 + k] = std::max(b[3 + k], double(local[3 * v + k]));
-                }
-            blockBounds[begin / kBlock] = b;
-        });
-        std::array<double, 6> b{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
-        for (const auto& block : blockBounds)
-            for (int k = 0; k < 3; ++k) b[k] = std::min(b[k], block[k]), b[3 + k] = std::max(b[3 + k], block[3 + k]);
-        Sphere sphere{(b[0] + b[3]) / 2, (b[1] + b[4]) / 2, (b[2] + b[5]) / 2, 0};
-        std::vector<double> blockRadius(blocks, 0.0);
-        parallel_blocks(totalVertices, kBlock, [&](size_t begin, size_t end) {
-            double r = 0;
-            for (size_t v = begin; v < end; ++v) {
-                const float* p = &local[3 * v];
-                r = std::max(r, std::sqrt((p[0] - sphere.x) * (p[0] - sphere.x) + (p[1] - sphere.y) * (p[1] - sphere.y) + (p[2] - sphere.z) * (p[2] - sphere.z)));
-            }
-            blockRadius[begin / kBlock] = r;
-        });
-        for (double r : blockRadius) sphere.r = std::max(sphere.r, r);
-        out.sphere = to_float(sphere);
-    }
+    out.sphere = to_float(all_vertices_sphere(local, kBlock));
     out.fallbackThreshold = fallbackCut.source ? -1.0f : fallbackCut.threshold;  // extracted on demand (fallback_mesh)
     out.fallbackError = measure(nodes, fallbackCut).error;
     phases.mark("emit: vertices");
