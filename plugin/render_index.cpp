@@ -10,7 +10,7 @@
 
 namespace tessera::hd {
 
-RenderDelegate::RenderDelegate(const DeviceOptions& options) : device_(options), renderer_(device_) {}
+RenderDelegate::RenderDelegate(const DeviceOptions& options) : device_(Device::shared(options)), renderer_(*device_) {}
 
 const std::vector<std::string>& RenderDelegate::supported_rprim_types() {
     static const std::vector<std::string> types{"mesh"};

@@ -591,6 +591,9 @@ NB_MODULE(_tessera, m) {
         },
         "path"_a, "Reads an image as float32 RGBA (height, width, 4).");
 
+    m.def("release_shared_devices", &Device::release_shared_devices,
+          "Lets go of the devices sessions share (each goes when its last session does); called at exit.");
+
     nb::class_<RenderDelegate>(m, "RenderDelegate")
         .def(
             "__init__",

@@ -4,6 +4,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <iostream>
+#include <map>
 #include <utility>
 
 namespace tessera {
@@ -241,7 +242,51 @@ Device::Device(const DeviceOptions& options) {
     check_vk(vkCreateFence(device_, &fenceInfo, nullptr, &fence_), "vkCreateFence");
 }
 
+namespace {
+// Device::shared's devices, by options. Never destroyed by itself: a device must go before the Vulkan loader and driver,
+// which static destruction at exit does not promise; release_shared_devices lets go of them in time.
+std::mutex sharedDevicesMutex;
+auto& sharedDevices = *new std::map<std::pair<std::string, bool>, std::shared_ptr<Device>>;
+}  // namespace
+
+std::shared_ptr<Device> Device::shared(const DeviceOptions& options) {
+    const std::lock_guard<std::mutex> lock(sharedDevicesMutex);
+    std::shared_ptr<Device>& device = sharedDevices[{options.select, options.validation}];
+    if (!device) {
+        try {
+            device = std::make_shared<Device>(options);
+        } catch (...) {
+            sharedDevices.erase({options.select, options.validation});
+            throw;
+        }
+    }
+    return device;
+}
+
+void Device::release_shared_devices() {
+    std::map<std::pair<std::string, bool>, std::shared_ptr<Device>> released;
+    {
+        const std::lock_guard<std::mutex> lock(sharedDevicesMutex);
+        released.swap(sharedDevices);
+    }
+}
+
+std::shared_ptr<void> Device::shared_state(const std::string& key, const std::function<std::shared_ptr<void>()>& make) {
+    const std::lock_guard<std::mutex> lock(sharedStateMutex_);
+    std::shared_ptr<void>& state = sharedState_[key];
+    if (!state) {
+        try {
+            state = make();
+        } catch (...) {
+            sharedState_.erase(key);
+            throw;
+        }
+    }
+    return state;
+}
+
 Device::~Device() {
+    sharedState_.clear();  // what it holds was made on this device
     if (device_) {
         vkDeviceWaitIdle(device_);
         vkDestroyFence(device_, fence_, nullptr);
@@ -311,7 +356,13 @@ void Device::upload(Buffer& buffer, const void* data, size_t bytes) {
     });
 }
 
+void Device::wait_idle() {
+    const std::lock_guard<std::recursive_mutex> lock(runMutex_);
+    vkDeviceWaitIdle(device_);
+}
+
 void Device::run(const std::function<void(VkCommandBuffer)>& record) {
+    const std::lock_guard<std::recursive_mutex> lock(runMutex_);
     VkCommandBufferAllocateInfo allocate{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
     allocate.commandPool = commandPool_;
     allocate.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;

@@ -8,20 +8,8 @@
 
 #include "cut_blocks.h"
 #include "displacement.h"
+#include "pipelines.h"
 #include "shared.h"
-#include "spirv/background_comp.h"
-#include "spirv/bins_comp.h"
-#include "spirv/classify_comp.h"
-#include "spirv/dice_comp.h"
-#include "spirv/cull_comp.h"
-#include "spirv/hzb_comp.h"
-#include "spirv/patch_frag.h"
-#include "spirv/patch_vert.h"
-#include "spirv/raster_frag.h"
-#include "spirv/raster_sw_comp.h"
-#include "spirv/raster_vert.h"
-#include "spirv/resolve_comp.h"
-#include "spirv/tessellate_comp.h"
 
 #include <algorithm>
 #include <cmath>
@@ -80,19 +68,6 @@ bool aov_is_id(Aov aov) { return aov == Aov::PrimId || aov == Aov::InstanceId ||
 
 namespace {
 
-struct PushConstants {  // matches `Push` in shaders/frame.h
-    uint32_t aov;
-    uint32_t step;       // cull step (TS_CULL_*) or HZB level
-    gpu::address hzb;    // the HZB the step tests against or builds
-};
-
-// Resolve's: the same, then its bin's material (a constant for all the dispatch's pixels, which a CPU device would
-// otherwise load pixel by pixel).
-struct ResolvePushConstants {
-    PushConstants pass;
-    gpu::GpuMaterial material;
-};
-static_assert(offsetof(ResolvePushConstants, material) == 16 && sizeof(ResolvePushConstants) == 128, "layout of Push in shaders/frame.h");
 static_assert(vertex_input(MaterialInput::Occlusion, 1, true) == (TS_VERTEX_INPUT_SET | TS_VERTEX_INPUT_RGB | 1u) << (TS_VERTEX_INPUT_BITS * TS_INPUT_OCCLUSION) &&
                   int(MaterialInput::Occlusion) == TS_VERTEX_INPUT_LAST,
               "MaterialDesc::vertexInputs is GpuMaterial::vertexInputs");
@@ -302,14 +277,6 @@ ViewFrustum frustum_of(const CameraMatrices& cam) {
     return out;
 }
 
-VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes) {
-    VkShaderModuleCreateInfo info{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
-    info.codeSize = bytes;
-    info.pCode = code;
-    VkShaderModule module;
-    check_vk(vkCreateShaderModule(device, &info, nullptr, &module), "vkCreateShaderModule");
-    return module;
-}
 
 void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2 srcAccess, VkPipelineStageFlags2 dstStage, VkAccessFlags2 dstAccess) {
     VkMemoryBarrier2 memory{VK_STRUCTURE_TYPE_MEMORY_BARRIER_2};
@@ -353,36 +320,14 @@ bool ViewFrustum::touches_box(const Matrix4d& transform, const std::array<double
 
 struct Renderer::Impl {
     Device& device;
-    VkPipelineLayout layout = VK_NULL_HANDLE;
+    // The compiled pipelines, shared with every renderer on this device (pipelines.h).
+    std::shared_ptr<Pipelines> sharedPipelines;
+    Pipelines& pipelines;
     // The frame's constants (GpuFrame) as a uniform buffer, set 0 binding 0 of every pipeline: a CPU device (lavapipe)
     // loads a uniform block once for all of a SIMD batch's invocations, where a load through a buffer device address
     // goes lane by lane; on a GPU it is the usual path for constants. Everything else is reached by address.
-    VkDescriptorSetLayout frameSetLayout = VK_NULL_HANDLE;
     VkDescriptorPool framePool = VK_NULL_HANDLE;
     VkDescriptorSet frameSet = VK_NULL_HANDLE;
-    VkPipeline cull[4] = {}, hzb = VK_NULL_HANDLE;  // cull: a pipeline per step (TS_CULL_*)
-    VkPipeline raster[2] = {};  // hardware raster of clusters: [double-sided (TS_SPEC_DOUBLE_SIDED)]
-    uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // its workgroup size, chosen for the device (default_cull_group_size)
-    // Pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD), chosen for the device
-    // (default_shade_pixels_per_thread).
-    uint32_t shadePixelsPerThread = 1;
-    VkPipeline classify[3] = {}, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;  // classify: a pipeline per step (TS_CLASSIFY_*)
-    // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
-    // first needs them.
-    VkPipeline rasterMasked[2] = {};
-    // The compute rasterizer's variants, made on first use: [masks (TS_SPEC_TEXTURES)][own corners (TS_SPEC_OWN_CORNERS,
-    // RasterVertices::PerTriangle)][large triangles (TS_SPEC_LARGE_TRIANGLES: the back of the software list)].
-    VkPipeline rasterSoftware[2][2][2] = {};
-    VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
-    // Resolve's variants, made when a frame first needs them, by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 |
-    // TS_SPEC_AREA_LIGHTS << 2 (textured materials, displaced materials, frames with area lights or a textured dome) and
-    // TS_SPEC_OUTPUT (what it writes) * 8: on lavapipe each one's code, present but not run, cost every pixel of the
-    // frames that do not need it.
-    std::array<VkPipeline, 16 * TS_OUTPUT_KINDS> resolveVariants{};
-    // Runtime tessellation, made when a scene first displaces: the tessellate pass and the patch raster (and its mask
-    // variant).
-    VkPipeline tessellate = VK_NULL_HANDLE, dice = VK_NULL_HANDLE, diceMasked = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE,
-               patchRasterMasked = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
 
     // Scene streams.
@@ -441,81 +386,17 @@ struct Renderer::Impl {
     bool capacityPinned = false;  // set explicitly (tests): never sized from the scene
     uint32_t width = 0, height = 0;
 
-    explicit Impl(Device& d) : device(d) {}
+    Impl(Device& d, std::shared_ptr<Pipelines> shared) : device(d), sharedPipelines(std::move(shared)), pipelines(*sharedPipelines) {}
 
     ~Impl() {
+        device.wait_idle();
         VkDevice vk = device.handle();
-        vkDeviceWaitIdle(vk);
-        for (VkPipeline step : cull) vkDestroyPipeline(vk, step, nullptr);
-        vkDestroyPipeline(vk, hzb, nullptr);
-        for (VkPipeline step : classify) vkDestroyPipeline(vk, step, nullptr);
-        vkDestroyPipeline(vk, bins, nullptr);
-        vkDestroyPipeline(vk, background, nullptr);
-        for (VkPipeline variant : raster) vkDestroyPipeline(vk, variant, nullptr);
-        for (auto& byMasks : rasterSoftware)
-            for (auto& variants : byMasks)
-                for (VkPipeline variant : variants) vkDestroyPipeline(vk, variant, nullptr);
-        for (VkPipeline variant : rasterMasked) vkDestroyPipeline(vk, variant, nullptr);
-        vkDestroyPipeline(vk, tessellate, nullptr);
-        vkDestroyPipeline(vk, dice, nullptr);
-        vkDestroyPipeline(vk, diceMasked, nullptr);
-        vkDestroyPipeline(vk, patchRaster, nullptr);
-        vkDestroyPipeline(vk, patchRasterMasked, nullptr);
-        vkDestroyPipeline(vk, backgroundTextured, nullptr);
-        for (VkPipeline variant : resolveVariants) vkDestroyPipeline(vk, variant, nullptr);
-        vkDestroyPipelineLayout(vk, layout, nullptr);
         vkDestroyDescriptorPool(vk, framePool, nullptr);
-        vkDestroyDescriptorSetLayout(vk, frameSetLayout, nullptr);
         vkDestroyQueryPool(vk, timestamps, nullptr);
     }
 
-    // The specialization constants of a pipeline variant: TS_SPEC_TEXTURES and TS_SPEC_AREA_LIGHTS (booleans),
-    // TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*), TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*),
-    // TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it;
-    // TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size); TS_SPEC_LARGE_TRIANGLES (the compute rasterizer's, a
-    // boolean); TS_SPEC_SHADE_PIXELS_PER_THREAD (resolve's and bins', the same for every pipeline); TS_SPEC_STEP
-    // (classify's and the cull's step). A shader ignores the entries it does not declare.
-    struct Variant {
-        uint32_t values[11];
-        VkSpecializationMapEntry entries[11] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
-                                               {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
-                                               {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
-                                               {TS_SPEC_STEP, 40, 4}};
-        VkSpecializationInfo info{11, entries, sizeof(values), values};
-        Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t shadePixelsPerThread = 1,
-                bool doubleSided = false, uint32_t step = 0)
-            : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
-                     uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize,
-                     VkBool32(largeTriangles), VkBool32(doubleSided), shadePixelsPerThread, step} {}
-        Variant(const Variant&) = delete;
-    };
-
-    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, uint32_t pixels = TS_BIN_TRIANGLES,
-                                bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t step = 0) {
-        VkShaderModule module = create_module(device.handle(), code, bytes);
-        const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroupSize, largeTriangles, shadePixelsPerThread, false, step);
-        const bool specialized = textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ||
-                                 cullGroupSize != TS_CULL_GROUP_SIZE || largeTriangles || shadePixelsPerThread != 1 || step != 0;
-        VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
-        info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
-                      specialized ? &variant.info : nullptr};
-        info.layout = layout;
-        VkPipeline pipeline;
-        const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
-        vkDestroyShaderModule(device.handle(), module, nullptr);
-        check_vk(result, "vkCreateComputePipelines");
-        return pipeline;
-    }
-
-    void create_pipelines() {
-        VkPushConstantRange range{VK_SHADER_STAGE_ALL, 0, sizeof(ResolvePushConstants)};
-        VkDescriptorSetLayoutBinding frameBinding{0, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
-        VkDescriptorSetLayoutCreateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
-        setInfo.bindingCount = 1;
-        setInfo.pBindings = &frameBinding;
-        check_vk(vkCreateDescriptorSetLayout(device.handle(), &setInfo, nullptr, &frameSetLayout), "vkCreateDescriptorSetLayout");
+    // This renderer's own: the frame's uniform buffer and its descriptor set, and the timestamp queries.
+    void create_frame_resources() {
         VkDescriptorPoolSize poolSize{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1};
         VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
         poolInfo.maxSets = 1;
@@ -525,7 +406,7 @@ struct Renderer::Impl {
         VkDescriptorSetAllocateInfo allocateInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
         allocateInfo.descriptorPool = framePool;
         allocateInfo.descriptorSetCount = 1;
-        allocateInfo.pSetLayouts = &frameSetLayout;
+        allocateInfo.pSetLayouts = &pipelines.frameSetLayout;
         check_vk(vkAllocateDescriptorSets(device.handle(), &allocateInfo, &frameSet), "vkAllocateDescriptorSets");
         frame = device.create_buffer(sizeof(gpu::GpuFrame), MemoryUse::Upload, VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT);
         VkDescriptorBufferInfo frameInfo{frame.handle, 0, sizeof(gpu::GpuFrame)};
@@ -536,178 +417,14 @@ struct Renderer::Impl {
         write.pBufferInfo = &frameInfo;
         vkUpdateDescriptorSets(device.handle(), 1, &write, 0, nullptr);
 
-        VkPipelineLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
-        layoutInfo.setLayoutCount = 1;
-        layoutInfo.pSetLayouts = &frameSetLayout;
-        layoutInfo.pushConstantRangeCount = 1;
-        layoutInfo.pPushConstantRanges = &range;
-        check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
-        cullGroupSize = default_cull_group_size();
-        shadePixelsPerThread = default_shade_pixels_per_thread();
-        for (uint32_t step : {TS_CULL_MAIN_INSTANCES, TS_CULL_MAIN}) cull_step(step);  // the post pass's when first needed
-        resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp));
-        hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
-        bins = compute_pipeline(bins_comp, sizeof(bins_comp));
-        background = compute_pipeline(background_comp, sizeof(background_comp));
-        for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles);
-        for (bool doubleSided : {false, true}) raster[doubleSided] = graphics_pipeline(false, false, doubleSided);
-
         VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
         queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
         queryInfo.queryCount = kTimestamps;
         check_vk(vkCreateQueryPool(device.handle(), &queryInfo, nullptr, &timestamps), "vkCreateQueryPool");
     }
 
-    // The variants a scene's materials need, made once (a few tens of ms each on lavapipe, cold).
-    void ensure_texture_pipelines(bool textured, bool masks, bool texturedDome, bool areaLights) {
-        for (uint32_t pixels = 0; pixels < bin_kinds(); ++pixels)  // every resolve variant this scene's bins can ask for
-            for (bool light : {false, areaLights})
-                resolve_variant(textured, pixels, light, TS_OUTPUT_SHADE);
-        if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
-        if (masks && !rasterMasked[0])
-            for (bool doubleSided : {false, true}) rasterMasked[doubleSided] = graphics_pipeline(false, true, doubleSided);
-    }
-
-    // RasterVertices::Auto: each thread its own triangle's corners on a CPU device, shared vertices on a GPU;
-    // $TESSERA_RASTER_VERTICES (shared, per-triangle) overrides that, for tests and measurements.
-    bool default_own_corners() const {
-        if (const char* forced = std::getenv("TESSERA_RASTER_VERTICES"); forced && *forced) {
-            if (std::strcmp(forced, "shared") == 0) return false;
-            if (std::strcmp(forced, "per-triangle") == 0) return true;
-            throw std::invalid_argument(std::string("TESSERA_RASTER_VERTICES='") + forced + "': expected shared or per-triangle");
-        }
-        return device.is_software();
-    }
-
-    // The cull's workgroup size: TS_CULL_SOFTWARE_GROUP_SIZE on a CPU device, TS_CULL_GROUP_SIZE on a GPU;
-    // $TESSERA_CULL_GROUP_SIZE (16, 32, 64, 128 or 256) overrides that, for tests and measurements.
-    uint32_t default_cull_group_size() const {
-        if (const char* forced = std::getenv("TESSERA_CULL_GROUP_SIZE"); forced && *forced) {
-            for (uint32_t size : {16u, 32u, 64u, 128u, 256u})
-                if (std::to_string(size) == forced) return size;
-            throw std::invalid_argument(std::string("TESSERA_CULL_GROUP_SIZE='") + forced + "': expected 16, 32, 64, 128 or 256");
-        }
-        return device.is_software() ? TS_CULL_SOFTWARE_GROUP_SIZE : TS_CULL_GROUP_SIZE;
-    }
-
-    // Pixels each resolve thread shades: TS_CPU_SHADE_PIXELS_PER_THREAD on a CPU device, 1 on a GPU;
-    // $TESSERA_SHADE_PIXELS_PER_THREAD (1 to 64) overrides that, for tests and measurements.
-    uint32_t default_shade_pixels_per_thread() const {
-        if (const char* forced = std::getenv("TESSERA_SHADE_PIXELS_PER_THREAD"); forced && *forced) {
-            for (uint32_t count = 1; count <= 64; ++count)
-                if (std::to_string(count) == forced) return count;
-            throw std::invalid_argument(std::string("TESSERA_SHADE_PIXELS_PER_THREAD='") + forced + "': expected a whole number from 1 to 64");
-        }
-        return device.is_software() ? TS_CPU_SHADE_PIXELS_PER_THREAD : 1u;
-    }
-
-    bool own_corners(RasterVertices mode) const {
-        return mode == RasterVertices::Auto ? default_own_corners() : mode == RasterVertices::PerTriangle;
-    }
-
-    // The compute rasterizer's variant, made on first use (a few tens of ms on lavapipe, cold).
-    VkPipeline software_raster(bool masks, bool ownCorners, bool largeTriangles) {
-        VkPipeline& variant = rasterSoftware[masks][ownCorners][largeTriangles];
-        if (!variant)
-            variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), masks, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, ownCorners,
-                                       TS_CULL_GROUP_SIZE, largeTriangles);
-        return variant;
-    }
-
-    // Resolve's variant for a bin, made on first use. Textures and area lights only matter to shading.
-    VkPipeline resolve_variant(bool textured, uint32_t pixels, bool areaLights, uint32_t output) {
-        if (output != TS_OUTPUT_SHADE) textured = areaLights = false;
-        if (output == TS_OUTPUT_ID) pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
-        VkPipeline& variant = resolveVariants[size_t(textured) | size_t(pixels) << 1 | size_t(areaLights) << 3 | size_t(output) << 4];
-        if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, pixels, areaLights, output);
-        return variant;
-    }
-
-    // The cull's pipeline for one step (TS_CULL_*): the post pass's are made when a frame first has one.
-    VkPipeline cull_step(uint32_t step) {
-        VkPipeline& pipeline = cull[step];
-        if (!pipeline)
-            pipeline = compute_pipeline(cull_comp, sizeof(cull_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false, cullGroupSize, false,
-                                        step);
-        return pipeline;
-    }
-
-    // Classify's pipeline for one step (TS_CLASSIFY_*), made when a frame first needs it: one-material scenes list their
-    // pixels in a single step and never make the other two.
-    VkPipeline classify_step(uint32_t step) {
-        VkPipeline& pipeline = classify[step];
-        if (!pipeline)
-            pipeline = compute_pipeline(classify_comp, sizeof(classify_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false,
-                                        TS_CULL_GROUP_SIZE, false, step);
-        return pipeline;
-    }
-
     // Kinds of material bins (TS_BIN_*): micro-triangles have bins of their own only in scenes with displacement.
     uint32_t bin_kinds() const { return anyDisplaced ? TS_BIN_KINDS : 1u; }
-
-    void ensure_tessellation_pipelines(bool masks) {
-        if (!tessellate) {
-            tessellate = compute_pipeline(tessellate_comp, sizeof(tessellate_comp));
-            dice = compute_pipeline(dice_comp, sizeof(dice_comp));
-            patchRaster = graphics_pipeline(true, false);
-        }
-        if (masks && !patchRasterMasked) {
-            patchRasterMasked = graphics_pipeline(true, true);
-            diceMasked = compute_pipeline(dice_comp, sizeof(dice_comp), true);
-        }
-    }
-
-    // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
-    // Clusters (raster.vert.glsl, raster.frag.glsl) or patches (patch.vert.glsl, patch.frag.glsl). The cluster variant for
-    // single-sided instances culls back faces; patches come in one draw from instances of both kinds, which the fragment
-    // shader tells apart.
-    VkPipeline graphics_pipeline(bool patches, bool masks, bool doubleSided = true) {
-        VkShaderModule vert = patches ? create_module(device.handle(), patch_vert, sizeof(patch_vert)) : create_module(device.handle(), raster_vert, sizeof(raster_vert));
-        VkShaderModule frag = patches ? create_module(device.handle(), patch_frag, sizeof(patch_frag)) : create_module(device.handle(), raster_frag, sizeof(raster_frag));
-        VkPipelineShaderStageCreateInfo stages[2] = {
-            {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
-            {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
-        const Variant variant(masks, 0, false, TS_OUTPUT_SHADE, false, TS_CULL_GROUP_SIZE, false, 1, doubleSided);
-        stages[0].pSpecializationInfo = stages[1].pSpecializationInfo = &variant.info;
-        VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
-        VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
-        assembly.topology = VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST;
-        VkPipelineViewportStateCreateInfo viewport{VK_STRUCTURE_TYPE_PIPELINE_VIEWPORT_STATE_CREATE_INFO};
-        viewport.viewportCount = 1;
-        viewport.scissorCount = 1;
-        VkPipelineRasterizationStateCreateInfo rasterization{VK_STRUCTURE_TYPE_PIPELINE_RASTERIZATION_STATE_CREATE_INFO};
-        rasterization.polygonMode = VK_POLYGON_MODE_FILL;
-        rasterization.cullMode = doubleSided ? VK_CULL_MODE_NONE : VK_CULL_MODE_BACK_BIT;
-        rasterization.frontFace = VK_FRONT_FACE_COUNTER_CLOCKWISE;
-        rasterization.lineWidth = 1.0f;
-        VkPipelineMultisampleStateCreateInfo multisample{VK_STRUCTURE_TYPE_PIPELINE_MULTISAMPLE_STATE_CREATE_INFO};
-        multisample.rasterizationSamples = VK_SAMPLE_COUNT_1_BIT;
-        VkPipelineColorBlendStateCreateInfo blend{VK_STRUCTURE_TYPE_PIPELINE_COLOR_BLEND_STATE_CREATE_INFO};
-        VkPipelineDepthStencilStateCreateInfo depth{VK_STRUCTURE_TYPE_PIPELINE_DEPTH_STENCIL_STATE_CREATE_INFO};
-        VkDynamicState dynamicStates[] = {VK_DYNAMIC_STATE_VIEWPORT, VK_DYNAMIC_STATE_SCISSOR};
-        VkPipelineDynamicStateCreateInfo dynamic{VK_STRUCTURE_TYPE_PIPELINE_DYNAMIC_STATE_CREATE_INFO};
-        dynamic.dynamicStateCount = 2;
-        dynamic.pDynamicStates = dynamicStates;
-        VkPipelineRenderingCreateInfo rendering{VK_STRUCTURE_TYPE_PIPELINE_RENDERING_CREATE_INFO};
-        VkGraphicsPipelineCreateInfo info{VK_STRUCTURE_TYPE_GRAPHICS_PIPELINE_CREATE_INFO, &rendering};
-        info.stageCount = 2;
-        info.pStages = stages;
-        info.pVertexInputState = &vertexInput;
-        info.pInputAssemblyState = &assembly;
-        info.pViewportState = &viewport;
-        info.pRasterizationState = &rasterization;
-        info.pMultisampleState = &multisample;
-        info.pDepthStencilState = &depth;
-        info.pColorBlendState = &blend;
-        info.pDynamicState = &dynamic;
-        info.layout = layout;
-        VkPipeline pipeline;
-        const VkResult result = vkCreateGraphicsPipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
-        vkDestroyShaderModule(device.handle(), vert, nullptr);
-        vkDestroyShaderModule(device.handle(), frag, nullptr);
-        check_vk(result, "vkCreateGraphicsPipelines");
-        return pipeline;
-    }
 
     void upload_geometry(GpuScene& scene) {
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
@@ -1189,9 +906,9 @@ struct Renderer::Impl {
     // `when` (TS_HZB_AFTER_MAIN, TS_HZB_FINAL) names the build, whose dispatch arguments a first one-workgroup step writes
     // from the draw state (no workgroups for a build that would change nothing; hzb.comp.glsl).
     void build_hzb(VkCommandBuffer cmd, uint32_t when) {
-        vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, hzb);
+        vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.hzb);
         PushConstants decide{0, when, hzbDispatch.address};
-        vkCmdPushConstants(cmd, layout, VK_SHADER_STAGE_ALL, 0, sizeof(decide), &decide);
+        vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(decide), &decide);
         vkCmdDispatch(cmd, 1, 1, 1);
         barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT,
                 VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
@@ -1199,7 +916,7 @@ struct Renderer::Impl {
         const uint64_t first = (when == TS_HZB_FINAL ? 32 : 0) * sizeof(VkDispatchIndirectCommand);
         for (uint32_t l = 0; l < levels.size(); ++l) {
             PushConstants push{0, l, hzbLevels.address};
-            vkCmdPushConstants(cmd, layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+            vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
             vkCmdDispatchIndirect(cmd, hzbDispatch.handle, first + l * sizeof(VkDispatchIndirectCommand));
             barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                     VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
@@ -1207,7 +924,9 @@ struct Renderer::Impl {
     }
 };
 
-Renderer::Renderer(Device& device) : device_(device), impl_(std::make_unique<Impl>(device)) { impl_->create_pipelines(); }
+Renderer::Renderer(Device& device) : device_(device), impl_(std::make_unique<Impl>(device, Pipelines::for_device(device))) {
+    impl_->create_frame_resources();
+}
 Renderer::~Renderer() = default;
 
 void Renderer::set_visible_cluster_capacity(uint32_t capacity) {
@@ -1225,6 +944,7 @@ void Renderer::set_point_capacity(uint32_t points) {
 
 std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs, FrameStats* stats) {
     Impl& s = *impl_;
+    const std::lock_guard<std::mutex> lock(s.pipelines.mutex);  // other renderers on the device share the pipelines
     if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
         throw std::invalid_argument("resolution must be between 1x1 and 16384x16384");
     const auto uploadStarted = std::chrono::steady_clock::now();
@@ -1257,18 +977,20 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     }
     areaLights = areaLights || texturedDome;
     if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages));
-    s.ensure_texture_pipelines(std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(), s.anyMasked,
-                               texturedDome, areaLights);
-    if (s.anyDisplaced) s.ensure_tessellation_pipelines(s.anyMasked);
-    const bool ownCorners = s.own_corners(settings.rasterVertices);
-    const VkPipeline softwareRaster = s.software_raster(s.anyMasked, ownCorners, false);
-    const VkPipeline softwareRasterLarge = s.software_raster(s.anyMasked, ownCorners, true);
+    Pipelines& pipelines = s.pipelines;
+    pipelines.ensure_texture_pipelines(s.bin_kinds(), std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(),
+                                       s.anyMasked, texturedDome, areaLights);
+    if (s.anyDisplaced) pipelines.ensure_tessellation_pipelines(s.anyMasked);
+    const bool ownCorners = settings.rasterVertices == RasterVertices::Auto ? pipelines.default_own_corners()
+                                                                              : settings.rasterVertices == RasterVertices::PerTriangle;
+    const VkPipeline softwareRaster = pipelines.software_raster(s.anyMasked, ownCorners, false);
+    const VkPipeline softwareRasterLarge = pipelines.software_raster(s.anyMasked, ownCorners, true);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
     frameStats.swSharedVertices = !ownCorners;
-    frameStats.cullGroupSize = s.cullGroupSize;
-    frameStats.shadePixelsPerThread = s.shadePixelsPerThread;
+    frameStats.cullGroupSize = pipelines.cullGroupSize;
+    frameStats.shadePixelsPerThread = pipelines.shadePixelsPerThread;
     frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
     frameStats.instances = s.instanceCount;
     frameStats.instanceBatches = uint32_t(s.gpuBatches.size());
@@ -1393,7 +1115,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         device_.run([&](VkCommandBuffer cmd) {
             vkCmdResetQueryPool(cmd, s.timestamps, 0, Impl::kTimestamps);
             for (VkPipelineBindPoint point : {VK_PIPELINE_BIND_POINT_COMPUTE, VK_PIPELINE_BIND_POINT_GRAPHICS})
-                vkCmdBindDescriptorSets(cmd, point, s.layout, 0, 1, &s.frameSet, 0, nullptr);
+                vkCmdBindDescriptorSets(cmd, point, pipelines.layout, 0, 1, &s.frameSet, 0, nullptr);
             // Every mark waits for all the work before it. Lavapipe defers draws, so its figures per pass are rough;
             // their sum is right.
             uint32_t timestamp = 0;
@@ -1444,7 +1166,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdSetViewport(cmd, 0, 1, &viewport);
                 vkCmdSetScissor(cmd, 0, 1, &scissor);
                 for (bool doubleSided : {false, true}) {  // single-sided instances with back faces culled, then the others
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, (s.anyMasked ? s.rasterMasked : s.raster)[doubleSided]);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, (s.anyMasked ? pipelines.rasterMasked : pipelines.raster)[doubleSided]);
                     vkCmdDrawIndirect(cmd, s.drawState.handle, doubleSided ? offsetof(gpu::GpuDrawState, doubleSidedVertexCount) : 0, 1,
                                       sizeof(VkDrawIndirectCommand));
                 }
@@ -1453,29 +1175,29 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 // Displaced clusters: patches (one workgroup per cluster, indirect); the small ones diced and scanned in
                 // compute (one workgroup per patch, indirect), the rest by one indirect draw per patch.
                 if (s.anyDisplaced) {
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.tessellate);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.tessellate);
                     vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessGroupsX));
                     if (post) {  // the patches the main pass deferred, against this frame's HZB
                         barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                                 VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                         PushConstants push{0, TS_TESS_DEFERRED_PATCHES, s.hzbLevels.address};
-                        vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+                        vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
                         vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, deferredPatchGroupsX));
                         push.step = TS_CULL_POST;
-                        vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+                        vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
                     }
                     barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                             VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
                                 VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.anyMasked ? s.diceMasked : s.dice);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.anyMasked ? pipelines.diceMasked : pipelines.dice);
                     vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatchGroupsX));
                     barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                     vkCmdBeginRendering(cmd, &rendering);
                     vkCmdSetViewport(cmd, 0, 1, &viewport);
                     vkCmdSetScissor(cmd, 0, 1, &scissor);
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.anyMasked ? s.patchRasterMasked : s.patchRaster);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.anyMasked ? pipelines.patchRasterMasked : pipelines.patchRaster);
                     vkCmdDrawIndirectCount(cmd, s.patchDraws.handle, 0, s.drawState.handle, offsetof(gpu::GpuDrawState, patchDraws), s.patchCapacity,
                                            sizeof(VkDrawIndirectCommand));
                     vkCmdEndRendering(cmd);
@@ -1489,9 +1211,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
             // Main pass: instances one per thread, then a workgroup per instance they listed.
             auto cull_step = [&](uint32_t step, const Buffer& hzb) {
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.cull_step(step));
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.cull_step(step));
                 PushConstants push{0, step, hzb.address};
-                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
+                vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
             };
             auto compute_to_indirect = [&]() {
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
@@ -1559,12 +1281,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             for (uint32_t step : {oneBin ? TS_CLASSIFY_ONE_BIN : TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
                 if (oneBin && step == TS_CLASSIFY_SCATTER) break;
                 PushConstants classifyPush{listingDrawsBackground ? uint32_t(aovs[0]) : TS_NO_AOV, step, 0};
-                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(classifyPush), &classifyPush);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.classify_step(step));
+                vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(classifyPush), &classifyPush);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.classify_step(step));
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 compute_barrier();
                 if (step != TS_CLASSIFY_SCATTER) {
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.bins);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.bins);
                     vkCmdDispatch(cmd, 1, 1, 1);
                     compute_barrier();
                 }
@@ -1576,8 +1298,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                     barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 PushConstants background{uint32_t(aovs[i]), 0, 0};
-                vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, texturedDome && aovs[i] == Aov::Color ? s.backgroundTextured : s.background);
+                vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, texturedDome && aovs[i] == Aov::Color ? pipelines.backgroundTextured : pipelines.background);
                 if (i > 0 || !listingDrawsBackground) vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 const uint32_t output = aovs[i] == Aov::Color ? (settings.visualize == Visualize::None ? TS_OUTPUT_SHADE : TS_OUTPUT_VISUALIZE)
                                       : aovs[i] == Aov::Depth  ? TS_OUTPUT_DEPTH
@@ -1589,11 +1311,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         if (pixels != TS_BIN_TRIANGLES && !s.material_displaced(m)) continue;  // micro-triangles: displaced only
                         // Materials with textures through the variant that samples them; only the colour AOV shades.
                         const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
-                        const VkPipeline pipeline = s.resolve_variant(textured, pixels, areaLights, output);
+                        const VkPipeline pipeline = pipelines.resolve_variant(textured, pixels, areaLights, output);
                         if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                         const uint32_t bin = pixels * s.materialCount + m;
                         ResolvePushConstants shade{{uint32_t(aovs[i]), bin, 0}, s.materialRecords[m]};
-                        vkCmdPushConstants(cmd, s.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
+                        vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
                         vkCmdDispatchIndirect(cmd, s.shadingBins.handle, bin * sizeof(gpu::GpuBin));
                     }
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,

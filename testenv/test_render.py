@@ -98,6 +98,28 @@ def test_renders_are_deterministic(render):
         assert first[aov].pixels.tobytes() == second[aov].pixels.tobytes(), aov
 
 
+def test_sessions_share_the_device_not_their_scenes():
+    """Sessions of one process share its device and compiled pipelines (Device::shared); each keeps its own scene, and
+    after the process lets go of the device, the next session makes a new one that draws the same."""
+    cube, instancer = TESTENV / "testCube" / "cube.usda", TESTENV / "testPointInstancer" / "point_instancer.usda"
+    aovs = ("color", "primId", "triangleId")
+
+    def frame(session):
+        result = session.render(camera=session.camera_paths()[0], resolution=(160, 120), aovs=aovs)
+        assert not result.errors, result.errors
+        return [result[aov].pixels.tobytes() for aov in aovs]
+
+    first = tessera.Session(cube, validation=True)
+    first_alone = frame(first)
+    second = tessera.Session(instancer, validation=True)  # alive beside the first
+    second_alone = frame(second)
+    assert second_alone != first_alone
+    assert frame(first) == first_alone and frame(second) == second_alone
+    del first, second
+    tessera._tessera.release_shared_devices()
+    assert frame(tessera.Session(cube, validation=True)) == first_alone
+
+
 def test_tiny_visible_cluster_list_grows_and_redraws_the_same_image(render):
     import tessera
 

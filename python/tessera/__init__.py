@@ -22,9 +22,16 @@ if "pxr" in _sys.modules:
 
     _Plug.Registry().RegisterPlugins(SCHEMA_PATH)  # registering twice does nothing
 
+import atexit as _atexit
+
 from ._tessera import DeviceError, ImageIoError, MeshError, read_image
+from ._tessera import release_shared_devices as _release_shared_devices
 from .build import BuildSettings, build_mesh
 from .session import AOVS, VISUALIZATIONS, RenderResult, Session, StageError, ocio_config_path
+
+# Sessions share the process's device and its compiled pipelines (only the first one waits for them); they must be
+# destroyed while Python is still whole, not by static destruction after the Vulkan driver may be gone.
+_atexit.register(_release_shared_devices)
 
 __version__ = "0.1.0"
 __all__ = ["SCHEMA_PATH", "Session", "RenderResult", "StageError", "DeviceError", "MeshError", "ImageIoError", "read_image", "ocio_config_path",

@@ -12,6 +12,7 @@
 #include <cstring>
 #include <set>
 #include <string>
+#include <thread>
 
 using namespace tessera;
 
@@ -881,4 +882,62 @@ TEST_F(RendererTest, MoreThan65535WorkgroupsSpillIntoTheSecondDimension) {
     for (uint32_t y = 0; y < 2100; ++y)
         for (uint32_t x = 0; x < 2100; ++x) unshaded += id_at(ids, x, y) == 0xffffffffu;
     EXPECT_EQ(unshaded, 0u) << "the field fills the frame: every pixel is covered and shaded";
+}
+
+// Renderers on one device share its compiled pipelines (renderer/pipelines.h) and nothing else: two of them drawing
+// different scenes on two threads at once give, bit for bit, what each gives alone.
+TEST_F(RendererTest, RenderersSharingADeviceDrawTheirOwnScenesOnSeparateThreads) {
+    GpuScene grid, sphere;
+    InstanceDesc flat = identity_instance(grid.add_mesh(grid_mesh(48)));
+    flat.primId = 1;
+    grid.set_instances({flat});
+    InstanceDesc round = identity_instance(sphere.add_mesh(bumpy_sphere(40)));
+    round.primId = 2;
+    sphere.set_instances({round});
+    RenderSettings settings{96, 96, {0, 0, 0, 0}};
+    const std::vector<Aov> aovs{Aov::PrimId, Aov::TriangleId, Aov::Depth};
+    auto draw = [&](Renderer& renderer, GpuScene& scene, double distance) { return renderer.render(scene, camera_at(0, 0, distance), settings, aovs); };
+    std::vector<Image> gridAlone, sphereAlone;
+    {
+        Renderer first(*device);
+        gridAlone = draw(first, grid, 2.0);
+    }
+    {
+        Renderer second(*device);
+        sphereAlone = draw(second, sphere, 4.0);
+    }
+    ASSERT_EQ(id_at(gridAlone[0], 48, 48), 1u);
+    ASSERT_EQ(id_at(sphereAlone[0], 48, 48), 2u);
+
+    Renderer gridRenderer(*device), sphereRenderer(*device);
+    std::vector<std::vector<Image>> gridFrames(3), sphereFrames(3);
+    std::thread other([&] {
+        for (auto& frame : sphereFrames) frame = draw(sphereRenderer, sphere, 4.0);
+    });
+    for (auto& frame : gridFrames) frame = draw(gridRenderer, grid, 2.0);
+    other.join();
+    auto same_bits = [](const Image& a, const Image& b) {  // ids are bits (NaN as floats), compared as such
+        return a.pixels.size() == b.pixels.size() && std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(float)) == 0;
+    };
+    for (size_t f = 0; f < 3; ++f)
+        for (size_t a = 0; a < aovs.size(); ++a) {
+            EXPECT_TRUE(same_bits(gridFrames[f][a], gridAlone[a])) << "grid frame " << f << " " << aov_name(aovs[a]);
+            EXPECT_TRUE(same_bits(sphereFrames[f][a], sphereAlone[a])) << "sphere frame " << f << " " << aov_name(aovs[a]);
+        }
+}
+
+// The process's devices (Device::shared): one per options, until released; a device that cannot be made is not kept.
+TEST(SharedDevice, OnePerOptionsUntilReleased) {
+    const DeviceOptions options = DeviceOptions::from_environment();
+    const std::shared_ptr<Device> first = Device::shared(options), again = Device::shared(options);
+    EXPECT_EQ(first.get(), again.get());
+    DeviceOptions missing = options;
+    missing.select = "no device is called this";
+    EXPECT_THROW(Device::shared(missing), DeviceError);
+    EXPECT_THROW(Device::shared(missing), DeviceError) << "a failure is not remembered as a device";
+    Device::release_shared_devices();
+    const std::shared_ptr<Device> after = Device::shared(options);
+    EXPECT_NE(after.get(), first.get()) << "a released device is not handed out again";
+    EXPECT_EQ(first->validation_error_count(), 0u);
+    Device::release_shared_devices();
 }

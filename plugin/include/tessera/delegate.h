@@ -285,7 +285,8 @@ public:
     std::shared_ptr<const Image> image;
 };
 
-// Creates prims of the types it supports and owns the device, renderer and GPU scene they feed.
+// Creates prims of the types it supports and owns the renderer and GPU scene they feed. The device (with the renderer's
+// compiled pipelines) is the process's for these options (Device::shared): delegates after the first start at once.
 class RenderDelegate {
 public:
     explicit RenderDelegate(const DeviceOptions& options = DeviceOptions::from_environment());
@@ -299,7 +300,7 @@ public:
     std::unique_ptr<Prim> create_sprim(const std::string& type, const PrimId& id);
     std::unique_ptr<RenderBuffer> create_bprim(const std::string& type, const PrimId& id);
 
-    Device& device() { return device_; }
+    Device& device() { return *device_; }
     Renderer& renderer() { return renderer_; }
     GpuScene& scene() { return scene_; }
     MeshTable& meshes() { return meshes_; }
@@ -308,7 +309,7 @@ public:
 
 private:
     MeshCache cache_ = MeshCache::from_environment();
-    Device device_;
+    std::shared_ptr<Device> device_;
     Renderer renderer_;
     GpuScene scene_;
     MeshTable meshes_{scene_, cache_};

@@ -5,6 +5,8 @@
 
 #include <cstdint>
 #include <functional>
+#include <map>
+#include <memory>
 #include <mutex>
 #include <stdexcept>
 #include <string>
@@ -55,6 +57,16 @@ public:
     Device(const Device&) = delete;
     Device& operator=(const Device&) = delete;
 
+    // The process's device for `options`: made by the first caller, then shared by every later one with the same
+    // options, so that a process that opens many stages (a script, a test suite) creates the instance, the device and
+    // the renderer's pipelines once. Held until release_shared_devices(); then each goes when its last user does.
+    static std::shared_ptr<Device> shared(const DeviceOptions& options);
+    static void release_shared_devices();
+
+    // State made once per device and shared by its users (the renderer's compiled pipelines), by key: made by `make`
+    // on the first call for the key; destroyed with the device, before it.
+    std::shared_ptr<void> shared_state(const std::string& key, const std::function<std::shared_ptr<void>()>& make);
+
     VkDevice handle() const { return device_; }
     VkPhysicalDevice physical() const { return physical_; }
     const std::string& name() const { return name_; }
@@ -67,8 +79,10 @@ public:
     // Copies `bytes` into a Device buffer (directly when mapped, else through a staging buffer).
     void upload(Buffer& buffer, const void* data, size_t bytes);
 
-    // Records commands into a one-time command buffer, submits it and waits.
+    // Records commands into a one-time command buffer, submits it and waits. Callers on several threads take turns.
     void run(const std::function<void(VkCommandBuffer)>& record);
+    // Waits until the device is idle, taking its turn with run() (the queue is the device's, not the caller's).
+    void wait_idle();
 
     // Validation messages (errors and warnings) since the last call; empty when validation is off.
     std::vector<std::string> take_validation_messages();
@@ -95,6 +109,9 @@ private:
     float timestampPeriod_ = 1.0f;
     uint32_t subPixelBits_ = 8;
 
+    std::recursive_mutex runMutex_;  // the command pool and the queue are used by one thread at a time
+    std::mutex sharedStateMutex_;
+    std::map<std::string, std::shared_ptr<void>> sharedState_;
     std::mutex messagesMutex_;
     std::vector<std::string> messages_;
     size_t validationErrors_ = 0;

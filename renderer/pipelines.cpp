@@ -1,0 +1,267 @@
+// The renderer's pipelines on one device (pipelines.h): made once per device and choice of sizes, shared by renderers.
+#include "pipelines.h"
+
+#include "spirv/background_comp.h"
+#include "spirv/bins_comp.h"
+#include "spirv/classify_comp.h"
+#include "spirv/cull_comp.h"
+#include "spirv/dice_comp.h"
+#include "spirv/hzb_comp.h"
+#include "spirv/patch_frag.h"
+#include "spirv/patch_vert.h"
+#include "spirv/raster_frag.h"
+#include "spirv/raster_sw_comp.h"
+#include "spirv/raster_vert.h"
+#include "spirv/resolve_comp.h"
+#include "spirv/tessellate_comp.h"
+
+#include <cstdlib>
+#include <cstring>
+#include <stdexcept>
+#include <string>
+
+namespace tessera {
+
+namespace {
+
+// The cull's workgroup size: TS_CULL_SOFTWARE_GROUP_SIZE on a CPU device, TS_CULL_GROUP_SIZE on a GPU;
+// $TESSERA_CULL_GROUP_SIZE (16, 32, 64, 128 or 256) overrides that, for tests and measurements.
+uint32_t default_cull_group_size(const Device& device) {
+    if (const char* forced = std::getenv("TESSERA_CULL_GROUP_SIZE"); forced && *forced) {
+        for (uint32_t size : {16u, 32u, 64u, 128u, 256u})
+            if (std::to_string(size) == forced) return size;
+        throw std::invalid_argument(std::string("TESSERA_CULL_GROUP_SIZE='") + forced + "': expected 16, 32, 64, 128 or 256");
+    }
+    return device.is_software() ? TS_CULL_SOFTWARE_GROUP_SIZE : TS_CULL_GROUP_SIZE;
+}
+
+// Pixels each resolve thread shades: TS_CPU_SHADE_PIXELS_PER_THREAD on a CPU device, 1 on a GPU;
+// $TESSERA_SHADE_PIXELS_PER_THREAD (1 to 64) overrides that, for tests and measurements.
+uint32_t default_shade_pixels_per_thread(const Device& device) {
+    if (const char* forced = std::getenv("TESSERA_SHADE_PIXELS_PER_THREAD"); forced && *forced) {
+        for (uint32_t count = 1; count <= 64; ++count)
+            if (std::to_string(count) == forced) return count;
+        throw std::invalid_argument(std::string("TESSERA_SHADE_PIXELS_PER_THREAD='") + forced + "': expected a whole number from 1 to 64");
+    }
+    return device.is_software() ? TS_CPU_SHADE_PIXELS_PER_THREAD : 1u;
+}
+
+VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes) {
+    VkShaderModuleCreateInfo info{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
+    info.codeSize = bytes;
+    info.pCode = code;
+    VkShaderModule module;
+    check_vk(vkCreateShaderModule(device, &info, nullptr, &module), "vkCreateShaderModule");
+    return module;
+}
+
+// The specialization constants of a pipeline variant: TS_SPEC_TEXTURES and TS_SPEC_AREA_LIGHTS (booleans),
+// TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*), TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*),
+// TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it;
+// TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size); TS_SPEC_LARGE_TRIANGLES (the compute rasterizer's, a
+// boolean); TS_SPEC_SHADE_PIXELS_PER_THREAD (resolve's and bins', the same for every pipeline); TS_SPEC_STEP
+// (classify's and the cull's step). A shader ignores the entries it does not declare.
+struct Variant {
+    uint32_t values[11];
+    VkSpecializationMapEntry entries[11] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+                                           {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
+                                           {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
+                                           {TS_SPEC_STEP, 40, 4}};
+    VkSpecializationInfo info{11, entries, sizeof(values), values};
+    Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
+            uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t shadePixelsPerThread = 1,
+            bool doubleSided = false, uint32_t step = 0)
+        : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
+                 uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize,
+                 VkBool32(largeTriangles), VkBool32(doubleSided), shadePixelsPerThread, step} {}
+    Variant(const Variant&) = delete;
+};
+
+}  // namespace
+
+std::shared_ptr<Pipelines> Pipelines::for_device(Device& device) {
+    const uint32_t cullGroupSize = default_cull_group_size(device), shadePixelsPerThread = default_shade_pixels_per_thread(device);
+    const std::string key = "tessera.pipelines cull " + std::to_string(cullGroupSize) + " shade " + std::to_string(shadePixelsPerThread);
+    return std::static_pointer_cast<Pipelines>(
+        device.shared_state(key, [&] { return std::make_shared<Pipelines>(device, cullGroupSize, shadePixelsPerThread); }));
+}
+
+Pipelines::Pipelines(Device& d, uint32_t cullGroups, uint32_t shadePixels)
+    : device(d), cullGroupSize(cullGroups), shadePixelsPerThread(shadePixels) {
+    VkDescriptorSetLayoutBinding frameBinding{0, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
+    VkDescriptorSetLayoutCreateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
+    setInfo.bindingCount = 1;
+    setInfo.pBindings = &frameBinding;
+    check_vk(vkCreateDescriptorSetLayout(device.handle(), &setInfo, nullptr, &frameSetLayout), "vkCreateDescriptorSetLayout");
+    VkPushConstantRange range{VK_SHADER_STAGE_ALL, 0, sizeof(ResolvePushConstants)};
+    VkPipelineLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
+    layoutInfo.setLayoutCount = 1;
+    layoutInfo.pSetLayouts = &frameSetLayout;
+    layoutInfo.pushConstantRangeCount = 1;
+    layoutInfo.pPushConstantRanges = &range;
+    check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
+
+    for (uint32_t step : {TS_CULL_MAIN_INSTANCES, TS_CULL_MAIN}) cull_step(step);
+    resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp));
+    hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
+    bins = compute_pipeline(bins_comp, sizeof(bins_comp));
+    background = compute_pipeline(background_comp, sizeof(background_comp));
+    for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles);
+    for (bool doubleSided : {false, true}) raster[doubleSided] = graphics_pipeline(false, false, doubleSided);
+}
+
+Pipelines::~Pipelines() {
+    device.wait_idle();
+    VkDevice vk = device.handle();
+    for (VkPipeline step : cull) vkDestroyPipeline(vk, step, nullptr);
+    vkDestroyPipeline(vk, hzb, nullptr);
+    for (VkPipeline step : classify) vkDestroyPipeline(vk, step, nullptr);
+    vkDestroyPipeline(vk, bins, nullptr);
+    vkDestroyPipeline(vk, background, nullptr);
+    for (VkPipeline variant : raster) vkDestroyPipeline(vk, variant, nullptr);
+    for (auto& byMasks : rasterSoftware)
+        for (auto& variants : byMasks)
+            for (VkPipeline variant : variants) vkDestroyPipeline(vk, variant, nullptr);
+    for (VkPipeline variant : rasterMasked) vkDestroyPipeline(vk, variant, nullptr);
+    vkDestroyPipeline(vk, tessellate, nullptr);
+    vkDestroyPipeline(vk, dice, nullptr);
+    vkDestroyPipeline(vk, diceMasked, nullptr);
+    vkDestroyPipeline(vk, patchRaster, nullptr);
+    vkDestroyPipeline(vk, patchRasterMasked, nullptr);
+    vkDestroyPipeline(vk, backgroundTextured, nullptr);
+    for (VkPipeline variant : resolveVariants) vkDestroyPipeline(vk, variant, nullptr);
+    vkDestroyPipelineLayout(vk, layout, nullptr);
+    vkDestroyDescriptorSetLayout(vk, frameSetLayout, nullptr);
+}
+
+VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, bool textures, uint32_t pixels, bool areaLights, uint32_t output,
+                                       bool ownCorners, uint32_t cullGroups, bool largeTriangles, uint32_t step) {
+    VkShaderModule module = create_module(device.handle(), code, bytes);
+    const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroups, largeTriangles, shadePixelsPerThread, false, step);
+    const bool specialized = textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ||
+                             cullGroups != TS_CULL_GROUP_SIZE || largeTriangles || shadePixelsPerThread != 1 || step != 0;
+    VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
+    info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
+                  specialized ? &variant.info : nullptr};
+    info.layout = layout;
+    VkPipeline pipeline;
+    const VkResult result = vkCreateComputePipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
+    vkDestroyShaderModule(device.handle(), module, nullptr);
+    check_vk(result, "vkCreateComputePipelines");
+    return pipeline;
+}
+
+void Pipelines::ensure_texture_pipelines(uint32_t binKinds, bool textured, bool masks, bool texturedDome, bool areaLights) {
+    for (uint32_t pixels = 0; pixels < binKinds; ++pixels)  // every resolve variant this scene's bins can ask for
+        for (bool light : {false, areaLights})
+            resolve_variant(textured, pixels, light, TS_OUTPUT_SHADE);
+    if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
+    if (masks && !rasterMasked[0])
+        for (bool doubleSided : {false, true}) rasterMasked[doubleSided] = graphics_pipeline(false, true, doubleSided);
+}
+
+bool Pipelines::default_own_corners() const {
+    if (const char* forced = std::getenv("TESSERA_RASTER_VERTICES"); forced && *forced) {
+        if (std::strcmp(forced, "shared") == 0) return false;
+        if (std::strcmp(forced, "per-triangle") == 0) return true;
+        throw std::invalid_argument(std::string("TESSERA_RASTER_VERTICES='") + forced + "': expected shared or per-triangle");
+    }
+    return device.is_software();
+}
+
+VkPipeline Pipelines::software_raster(bool masks, bool ownCorners, bool largeTriangles) {
+    VkPipeline& variant = rasterSoftware[masks][ownCorners][largeTriangles];
+    if (!variant)
+        variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), masks, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, ownCorners,
+                                   TS_CULL_GROUP_SIZE, largeTriangles);
+    return variant;
+}
+
+VkPipeline Pipelines::resolve_variant(bool textured, uint32_t pixels, bool areaLights, uint32_t output) {
+    if (output != TS_OUTPUT_SHADE) textured = areaLights = false;
+    if (output == TS_OUTPUT_ID) pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
+    VkPipeline& variant = resolveVariants[size_t(textured) | size_t(pixels) << 1 | size_t(areaLights) << 3 | size_t(output) << 4];
+    if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, pixels, areaLights, output);
+    return variant;
+}
+
+VkPipeline Pipelines::cull_step(uint32_t step) {
+    VkPipeline& pipeline = cull[step];
+    if (!pipeline)
+        pipeline = compute_pipeline(cull_comp, sizeof(cull_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false, cullGroupSize, false, step);
+    return pipeline;
+}
+
+VkPipeline Pipelines::classify_step(uint32_t step) {
+    VkPipeline& pipeline = classify[step];
+    if (!pipeline)
+        pipeline = compute_pipeline(classify_comp, sizeof(classify_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false,
+                                    TS_CULL_GROUP_SIZE, false, step);
+    return pipeline;
+}
+
+void Pipelines::ensure_tessellation_pipelines(bool masks) {
+    if (!tessellate) {
+        tessellate = compute_pipeline(tessellate_comp, sizeof(tessellate_comp));
+        dice = compute_pipeline(dice_comp, sizeof(dice_comp));
+        patchRaster = graphics_pipeline(true, false);
+    }
+    if (masks && !patchRasterMasked) {
+        patchRasterMasked = graphics_pipeline(true, true);
+        diceMasked = compute_pipeline(dice_comp, sizeof(dice_comp), true);
+    }
+}
+
+// Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
+// Clusters (raster.vert.glsl, raster.frag.glsl) or patches (patch.vert.glsl, patch.frag.glsl). The cluster variant for
+// single-sided instances culls back faces; patches come in one draw from instances of both kinds, which the fragment
+// shader tells apart.
+VkPipeline Pipelines::graphics_pipeline(bool patches, bool masks, bool doubleSided) {
+    VkShaderModule vert = patches ? create_module(device.handle(), patch_vert, sizeof(patch_vert)) : create_module(device.handle(), raster_vert, sizeof(raster_vert));
+    VkShaderModule frag = patches ? create_module(device.handle(), patch_frag, sizeof(patch_frag)) : create_module(device.handle(), raster_frag, sizeof(raster_frag));
+    VkPipelineShaderStageCreateInfo stages[2] = {
+        {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
+        {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
+    const Variant variant(masks, 0, false, TS_OUTPUT_SHADE, false, TS_CULL_GROUP_SIZE, false, 1, doubleSided);
+    stages[0].pSpecializationInfo = stages[1].pSpecializationInfo = &variant.info;
+    VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
+    VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
+    assembly.topology = VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST;
+    VkPipelineViewportStateCreateInfo viewport{VK_STRUCTURE_TYPE_PIPELINE_VIEWPORT_STATE_CREATE_INFO};
+    viewport.viewportCount = 1;
+    viewport.scissorCount = 1;
+    VkPipelineRasterizationStateCreateInfo rasterization{VK_STRUCTURE_TYPE_PIPELINE_RASTERIZATION_STATE_CREATE_INFO};
+    rasterization.polygonMode = VK_POLYGON_MODE_FILL;
+    rasterization.cullMode = doubleSided ? VK_CULL_MODE_NONE : VK_CULL_MODE_BACK_BIT;
+    rasterization.frontFace = VK_FRONT_FACE_COUNTER_CLOCKWISE;
+    rasterization.lineWidth = 1.0f;
+    VkPipelineMultisampleStateCreateInfo multisample{VK_STRUCTURE_TYPE_PIPELINE_MULTISAMPLE_STATE_CREATE_INFO};
+    multisample.rasterizationSamples = VK_SAMPLE_COUNT_1_BIT;
+    VkPipelineColorBlendStateCreateInfo blend{VK_STRUCTURE_TYPE_PIPELINE_COLOR_BLEND_STATE_CREATE_INFO};
+    VkPipelineDepthStencilStateCreateInfo depth{VK_STRUCTURE_TYPE_PIPELINE_DEPTH_STENCIL_STATE_CREATE_INFO};
+    VkDynamicState dynamicStates[] = {VK_DYNAMIC_STATE_VIEWPORT, VK_DYNAMIC_STATE_SCISSOR};
+    VkPipelineDynamicStateCreateInfo dynamic{VK_STRUCTURE_TYPE_PIPELINE_DYNAMIC_STATE_CREATE_INFO};
+    dynamic.dynamicStateCount = 2;
+    dynamic.pDynamicStates = dynamicStates;
+    VkPipelineRenderingCreateInfo rendering{VK_STRUCTURE_TYPE_PIPELINE_RENDERING_CREATE_INFO};
+    VkGraphicsPipelineCreateInfo info{VK_STRUCTURE_TYPE_GRAPHICS_PIPELINE_CREATE_INFO, &rendering};
+    info.stageCount = 2;
+    info.pStages = stages;
+    info.pVertexInputState = &vertexInput;
+    info.pInputAssemblyState = &assembly;
+    info.pViewportState = &viewport;
+    info.pRasterizationState = &rasterization;
+    info.pMultisampleState = &multisample;
+    info.pDepthStencilState = &depth;
+    info.pColorBlendState = &blend;
+    info.pDynamicState = &dynamic;
+    info.layout = layout;
+    VkPipeline pipeline;
+    const VkResult result = vkCreateGraphicsPipelines(device.handle(), VK_NULL_HANDLE, 1, &info, nullptr, &pipeline);
+    vkDestroyShaderModule(device.handle(), vert, nullptr);
+    vkDestroyShaderModule(device.handle(), frag, nullptr);
+    check_vk(result, "vkCreateGraphicsPipelines");
+    return pipeline;
+}
+
+}  // namespace tessera

@@ -1,0 +1,99 @@
+// Internal to the renderer: its compiled pipelines on one device, shared by every Renderer on that device.
+// Compiling is most of what starting a renderer costs (on lavapipe about 1.5 s for the pipelines every frame uses, and
+// more for the variants a scene asks for), so a process that opens many stages, or a test suite, pays it once per
+// device (Device::shared_state), not once per session. Pipelines are immutable once made; the variants a frame needs
+// are made when it first needs them, under `mutex`, which a render holds throughout.
+#pragma once
+
+#include "shared.h"
+#include "tessera/device.h"
+
+#include <array>
+#include <cstddef>
+#include <memory>
+#include <mutex>
+
+namespace tessera {
+
+struct PushConstants {  // matches `Push` in shaders/frame.h
+    uint32_t aov;
+    uint32_t step;       // cull step (TS_CULL_*) or HZB level
+    gpu::address hzb;    // the HZB the step tests against or builds
+};
+
+// Resolve's: the same, then its bin's material (a constant for all the dispatch's pixels, which a CPU device would
+// otherwise load pixel by pixel).
+struct ResolvePushConstants {
+    PushConstants pass;
+    gpu::GpuMaterial material;
+};
+static_assert(offsetof(ResolvePushConstants, material) == 16 && sizeof(ResolvePushConstants) == 128, "layout of Push in shaders/frame.h");
+
+struct Pipelines {
+    // The set for `device` (made by the first renderer on it), with the choices the environment makes now
+    // ($TESSERA_CULL_GROUP_SIZE and $TESSERA_SHADE_PIXELS_PER_THREAD select different sets).
+    static std::shared_ptr<Pipelines> for_device(Device& device);
+
+    Pipelines(Device& device, uint32_t cullGroupSize, uint32_t shadePixelsPerThread);
+    ~Pipelines();
+    Pipelines(const Pipelines&) = delete;
+    Pipelines& operator=(const Pipelines&) = delete;
+
+    Device& device;
+    std::mutex mutex;  // held by a render: it may make variants
+
+    // Every pipeline's layout: the frame's constants (GpuFrame) as a uniform buffer at set 0 binding 0 (each renderer
+    // has its own set), and ResolvePushConstants.
+    VkDescriptorSetLayout frameSetLayout = VK_NULL_HANDLE;
+    VkPipelineLayout layout = VK_NULL_HANDLE;
+    const uint32_t cullGroupSize;         // the cull's workgroup size, chosen for the device (TS_SPEC_CULL_GROUP_SIZE)
+    const uint32_t shadePixelsPerThread;  // pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD)
+
+    VkPipeline hzb = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
+    VkPipeline raster[2] = {};  // hardware raster of clusters: [double-sided (TS_SPEC_DOUBLE_SIDED)]
+    // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
+    // first needs them.
+    VkPipeline rasterMasked[2] = {};
+    VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
+    // Runtime tessellation, made when a scene first displaces: the tessellate pass and the patch raster (and its mask
+    // variant).
+    VkPipeline tessellate = VK_NULL_HANDLE, dice = VK_NULL_HANDLE, diceMasked = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE,
+               patchRasterMasked = VK_NULL_HANDLE;
+
+    // The cull's pipeline for one step (TS_CULL_*): the main pass's are made at once, the post pass's when a frame
+    // first has one.
+    VkPipeline cull_step(uint32_t step);
+    // Classify's pipeline for one step (TS_CLASSIFY_*), made when a frame first needs it: one-material scenes list their
+    // pixels in a single step and never make the other two.
+    VkPipeline classify_step(uint32_t step);
+    // The compute rasterizer's variant, made on first use (a few tens of ms on lavapipe, cold).
+    VkPipeline software_raster(bool masks, bool ownCorners, bool largeTriangles);
+    // Resolve's variant for a bin, made on first use. Textures and area lights only matter to shading.
+    VkPipeline resolve_variant(bool textured, uint32_t pixels, bool areaLights, uint32_t output);
+    // The variants a scene's materials need (for `binKinds` kinds of bins), made once.
+    void ensure_texture_pipelines(uint32_t binKinds, bool textured, bool masks, bool texturedDome, bool areaLights);
+    void ensure_tessellation_pipelines(bool masks);
+
+    // RasterVertices::Auto: each thread its own triangle's corners on a CPU device, shared vertices on a GPU;
+    // $TESSERA_RASTER_VERTICES (shared, per-triangle) overrides that, for tests and measurements.
+    bool default_own_corners() const;
+
+private:
+    VkPipeline cull[4] = {};      // a pipeline per step (TS_CULL_*)
+    VkPipeline classify[3] = {};  // a pipeline per step (TS_CLASSIFY_*)
+    // The compute rasterizer's variants: [masks (TS_SPEC_TEXTURES)][own corners (TS_SPEC_OWN_CORNERS,
+    // RasterVertices::PerTriangle)][large triangles (TS_SPEC_LARGE_TRIANGLES: the back of the software list)].
+    VkPipeline rasterSoftware[2][2][2] = {};
+    // Resolve's variants by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 | TS_SPEC_AREA_LIGHTS << 3 (textured materials,
+    // displaced materials, frames with area lights or a textured dome) and TS_SPEC_OUTPUT (what it writes) << 4: on
+    // lavapipe each one's code, present but not run, cost every pixel of the frames that do not need it.
+    std::array<VkPipeline, 16 * TS_OUTPUT_KINDS> resolveVariants{};
+
+    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, uint32_t pixels = TS_BIN_TRIANGLES,
+                                bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
+                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t step = 0);
+    // Hardware raster of clusters or of tessellation's patches.
+    VkPipeline graphics_pipeline(bool patches, bool masks, bool doubleSided = true);
+};
+
+}  // namespace tessera
