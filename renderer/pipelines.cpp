@@ -55,26 +55,20 @@ VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes
     return module;
 }
 
-// The specialization constants of a pipeline variant: TS_SPEC_TEXTURES and TS_SPEC_AREA_LIGHTS (booleans),
-// TS_SPEC_DISPLACEMENT (resolve's kind of pixels, TS_BIN_*), TS_SPEC_OUTPUT (resolve's TS_OUTPUT_*),
-// TS_SPEC_OWN_CORNERS (the compute rasterizer's, a boolean) and TS_SPEC_RASTER_GROUP_SIZE, which follows it;
-// TS_SPEC_CULL_GROUP_SIZE (the cull's workgroup size); TS_SPEC_LARGE_TRIANGLES (the compute rasterizer's, a
-// boolean); TS_SPEC_SHADE_PIXELS_PER_THREAD (resolve's and bins', the same for every pipeline); TS_SPEC_STEP
-// (classify's and the cull's step). A shader ignores the entries it does not declare.
-struct Variant {
-    uint32_t values[11];
-    VkSpecializationMapEntry entries[11] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+// A Specialization as Vulkan takes it, with the pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD, the
+// same for every pipeline of a set) and the compute rasterizer's workgroup size, which follows its variant.
+struct SpecializationInfo {
+    uint32_t values[12];
+    VkSpecializationMapEntry entries[12] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                            {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
-                                           {TS_SPEC_STEP, 40, 4}};
-    VkSpecializationInfo info{11, entries, sizeof(values), values};
-    Variant(bool textures, uint32_t pixels, bool areaLights, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-            uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t shadePixelsPerThread = 1,
-            bool doubleSided = false, uint32_t step = 0)
-        : values{VkBool32(textures), pixels, VkBool32(areaLights), output, VkBool32(ownCorners),
-                 uint32_t(ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), cullGroupSize,
-                 VkBool32(largeTriangles), VkBool32(doubleSided), shadePixelsPerThread, step} {}
-    Variant(const Variant&) = delete;
+                                           {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}};
+    VkSpecializationInfo info{12, entries, sizeof(values), values};
+    SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread)
+        : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
+                 uint32_t(s.ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), s.cullGroupSize,
+                 VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs)} {}
+    SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
 }  // namespace
@@ -134,12 +128,10 @@ Pipelines::~Pipelines() {
     vkDestroyDescriptorSetLayout(vk, frameSetLayout, nullptr);
 }
 
-VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, bool textures, uint32_t pixels, bool areaLights, uint32_t output,
-                                       bool ownCorners, uint32_t cullGroups, bool largeTriangles, uint32_t step) {
+VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization) {
     VkShaderModule module = create_module(device.handle(), code, bytes);
-    const Variant variant(textures, pixels, areaLights, output, ownCorners, cullGroups, largeTriangles, shadePixelsPerThread, false, step);
-    const bool specialized = textures || pixels != TS_BIN_TRIANGLES || areaLights || output != TS_OUTPUT_SHADE || ownCorners ||
-                             cullGroups != TS_CULL_GROUP_SIZE || largeTriangles || shadePixelsPerThread != 1 || step != 0;
+    const SpecializationInfo variant(specialization, shadePixelsPerThread);
+    const bool specialized = !(specialization == Specialization{}) || shadePixelsPerThread != 1;
     VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
     info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
                   specialized ? &variant.info : nullptr};
@@ -151,11 +143,11 @@ VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, bool 
     return pipeline;
 }
 
-void Pipelines::ensure_texture_pipelines(uint32_t binKinds, bool textured, bool masks, bool texturedDome, bool areaLights) {
+void Pipelines::ensure_texture_pipelines(uint32_t binKinds, bool textured, bool vertexInputs, bool masks, bool texturedDome, bool areaLights) {
     for (uint32_t pixels = 0; pixels < binKinds; ++pixels)  // every resolve variant this scene's bins can ask for
         for (bool light : {false, areaLights})
-            resolve_variant(textured, pixels, light, TS_OUTPUT_SHADE);
-    if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), true);
+            for (bool inputs : {false, vertexInputs}) resolve_variant(textured, pixels, light, inputs, TS_OUTPUT_SHADE);
+    if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), {.textures = true});
     if (masks && !rasterMasked[0])
         for (bool doubleSided : {false, true}) rasterMasked[doubleSided] = graphics_pipeline(false, true, doubleSided);
 }
@@ -172,31 +164,32 @@ bool Pipelines::default_own_corners() const {
 VkPipeline Pipelines::software_raster(bool masks, bool ownCorners, bool largeTriangles) {
     VkPipeline& variant = rasterSoftware[masks][ownCorners][largeTriangles];
     if (!variant)
-        variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), masks, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, ownCorners,
-                                   TS_CULL_GROUP_SIZE, largeTriangles);
+        variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), {.textures = masks, .ownCorners = ownCorners, .largeTriangles = largeTriangles});
     return variant;
 }
 
-VkPipeline Pipelines::resolve_variant(bool textured, uint32_t pixels, bool areaLights, uint32_t output) {
-    if (output != TS_OUTPUT_SHADE) textured = areaLights = false;
+VkPipeline Pipelines::resolve_variant(bool textured, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output) {
+    if (output != TS_OUTPUT_SHADE) textured = areaLights = vertexInputs = false;
     if (output == TS_OUTPUT_ID) pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
-    VkPipeline& variant = resolveVariants[size_t(textured) | size_t(pixels) << 1 | size_t(areaLights) << 3 | size_t(output) << 4];
-    if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), textured, pixels, areaLights, output);
+    VkPipeline& variant =
+        resolveVariants[size_t(textured) | size_t(pixels) << 1 | size_t(areaLights) << 3 | size_t(vertexInputs) << 4 | size_t(output) << 5];
+    if (!variant)
+        variant = compute_pipeline(resolve_comp, sizeof(resolve_comp),
+                                   {.textures = textured, .pixels = pixels, .areaLights = areaLights, .vertexInputs = vertexInputs, .output = output});
     return variant;
 }
 
 VkPipeline Pipelines::cull_step(uint32_t step) {
     VkPipeline& pipeline = cull[step];
     if (!pipeline)
-        pipeline = compute_pipeline(cull_comp, sizeof(cull_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false, cullGroupSize, false, step);
+        pipeline = compute_pipeline(cull_comp, sizeof(cull_comp), {.cullGroupSize = cullGroupSize, .step = step});
     return pipeline;
 }
 
 VkPipeline Pipelines::classify_step(uint32_t step) {
     VkPipeline& pipeline = classify[step];
     if (!pipeline)
-        pipeline = compute_pipeline(classify_comp, sizeof(classify_comp), false, TS_BIN_TRIANGLES, false, TS_OUTPUT_SHADE, false,
-                                    TS_CULL_GROUP_SIZE, false, step);
+        pipeline = compute_pipeline(classify_comp, sizeof(classify_comp), {.step = step});
     return pipeline;
 }
 
@@ -208,7 +201,7 @@ void Pipelines::ensure_tessellation_pipelines(bool masks) {
     }
     if (masks && !patchRasterMasked) {
         patchRasterMasked = graphics_pipeline(true, true);
-        diceMasked = compute_pipeline(dice_comp, sizeof(dice_comp), true);
+        diceMasked = compute_pipeline(dice_comp, sizeof(dice_comp), {.textures = true});
     }
 }
 
@@ -222,7 +215,7 @@ VkPipeline Pipelines::graphics_pipeline(bool patches, bool masks, bool doubleSid
     VkPipelineShaderStageCreateInfo stages[2] = {
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
-    const Variant variant(masks, 0, false, TS_OUTPUT_SHADE, false, TS_CULL_GROUP_SIZE, false, 1, doubleSided);
+    const SpecializationInfo variant({.textures = masks, .doubleSided = doubleSided}, 1);
     stages[0].pSpecializationInfo = stages[1].pSpecializationInfo = &variant.info;
     VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
     VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};

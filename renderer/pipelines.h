@@ -29,6 +29,22 @@ struct ResolvePushConstants {
 };
 static_assert(offsetof(ResolvePushConstants, material) == 16 && sizeof(ResolvePushConstants) == 128, "layout of Push in shaders/frame.h");
 
+// A pipeline variant's specialization constants (shared.h TS_SPEC_*), named: each at the value the shaders declare by
+// default unless set. A shader ignores the ones it does not declare.
+struct Specialization {
+    bool textures = false;                 // TS_SPEC_TEXTURES: resolve's textured materials, the rasterizers' opacity masks
+    uint32_t pixels = TS_BIN_TRIANGLES;    // TS_SPEC_DISPLACEMENT: resolve's kind of pixels (TS_BIN_*)
+    bool areaLights = false;               // TS_SPEC_AREA_LIGHTS: resolve, frames with area lights or a textured dome
+    bool vertexInputs = false;             // TS_SPEC_VERTEX_INPUTS: resolve, materials with inputs from the vertex channel
+    uint32_t output = TS_OUTPUT_SHADE;     // TS_SPEC_OUTPUT: what resolve writes (TS_OUTPUT_*)
+    bool ownCorners = false;               // TS_SPEC_OWN_CORNERS (and TS_SPEC_RASTER_GROUP_SIZE): the compute rasterizer's
+    bool largeTriangles = false;           // TS_SPEC_LARGE_TRIANGLES: the compute rasterizer's back of the software list
+    bool doubleSided = false;              // TS_SPEC_DOUBLE_SIDED: hardware raster without face culling
+    uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // TS_SPEC_CULL_GROUP_SIZE
+    uint32_t step = 0;                     // TS_SPEC_STEP: classify's and the cull's step
+    bool operator==(const Specialization&) const = default;
+};
+
 struct Pipelines {
     // The set for `device` (made by the first renderer on it), with the choices the environment makes now
     // ($TESSERA_CULL_GROUP_SIZE and $TESSERA_SHADE_PIXELS_PER_THREAD select different sets).
@@ -68,10 +84,10 @@ struct Pipelines {
     VkPipeline classify_step(uint32_t step);
     // The compute rasterizer's variant, made on first use (a few tens of ms on lavapipe, cold).
     VkPipeline software_raster(bool masks, bool ownCorners, bool largeTriangles);
-    // Resolve's variant for a bin, made on first use. Textures and area lights only matter to shading.
-    VkPipeline resolve_variant(bool textured, uint32_t pixels, bool areaLights, uint32_t output);
+    // Resolve's variant for a bin, made on first use. Textures, area lights and vertex inputs only matter to shading.
+    VkPipeline resolve_variant(bool textured, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output);
     // The variants a scene's materials need (for `binKinds` kinds of bins), made once.
-    void ensure_texture_pipelines(uint32_t binKinds, bool textured, bool masks, bool texturedDome, bool areaLights);
+    void ensure_texture_pipelines(uint32_t binKinds, bool textured, bool vertexInputs, bool masks, bool texturedDome, bool areaLights);
     void ensure_tessellation_pipelines(bool masks);
 
     // RasterVertices::Auto: each thread its own triangle's corners on a CPU device, shared vertices on a GPU;
@@ -84,14 +100,13 @@ private:
     // The compute rasterizer's variants: [masks (TS_SPEC_TEXTURES)][own corners (TS_SPEC_OWN_CORNERS,
     // RasterVertices::PerTriangle)][large triangles (TS_SPEC_LARGE_TRIANGLES: the back of the software list)].
     VkPipeline rasterSoftware[2][2][2] = {};
-    // Resolve's variants by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 | TS_SPEC_AREA_LIGHTS << 3 (textured materials,
-    // displaced materials, frames with area lights or a textured dome) and TS_SPEC_OUTPUT (what it writes) << 4: on
-    // lavapipe each one's code, present but not run, cost every pixel of the frames that do not need it.
-    std::array<VkPipeline, 16 * TS_OUTPUT_KINDS> resolveVariants{};
+    // Resolve's variants by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 | TS_SPEC_AREA_LIGHTS << 3 |
+    // TS_SPEC_VERTEX_INPUTS << 4 (textured materials, displaced materials, frames with area lights or a textured dome,
+    // materials with vertex inputs) and TS_SPEC_OUTPUT (what it writes) << 5: on lavapipe each one's code, present but
+    // not run, cost every pixel of the frames that do not need it.
+    std::array<VkPipeline, 32 * TS_OUTPUT_KINDS> resolveVariants{};
 
-    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, bool textures = false, uint32_t pixels = TS_BIN_TRIANGLES,
-                                bool areaLights = false, uint32_t output = TS_OUTPUT_SHADE, bool ownCorners = false,
-                                uint32_t cullGroupSize = TS_CULL_GROUP_SIZE, bool largeTriangles = false, uint32_t step = 0);
+    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
     // Hardware raster of clusters or of tessellation's patches.
     VkPipeline graphics_pipeline(bool patches, bool masks, bool doubleSided = true);
 };

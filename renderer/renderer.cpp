@@ -978,8 +978,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     areaLights = areaLights || texturedDome;
     if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages));
     Pipelines& pipelines = s.pipelines;
+    const bool anyVertexInputs = std::any_of(s.materialRecords.begin(), s.materialRecords.end(), [](const gpu::GpuMaterial& m) { return m.vertexInputs != 0; });
     pipelines.ensure_texture_pipelines(s.bin_kinds(), std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(),
-                                       s.anyMasked, texturedDome, areaLights);
+                                       anyVertexInputs, s.anyMasked, texturedDome, areaLights);
     if (s.anyDisplaced) pipelines.ensure_tessellation_pipelines(s.anyMasked);
     const bool ownCorners = settings.rasterVertices == RasterVertices::Auto ? pipelines.default_own_corners()
                                                                               : settings.rasterVertices == RasterVertices::PerTriangle;
@@ -1311,7 +1312,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         if (pixels != TS_BIN_TRIANGLES && !s.material_displaced(m)) continue;  // micro-triangles: displaced only
                         // Materials with textures through the variant that samples them; only the colour AOV shades.
                         const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
-                        const VkPipeline pipeline = pipelines.resolve_variant(textured, pixels, areaLights, output);
+                        const VkPipeline pipeline = pipelines.resolve_variant(textured, pixels, areaLights, s.materialRecords[m].vertexInputs != 0, output);
                         if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                         const uint32_t bin = pixels * s.materialCount + m;
                         ResolvePushConstants shade{{uint32_t(aovs[i]), bin, 0}, s.materialRecords[m]};

@@ -21,6 +21,8 @@ layout(constant_id = TS_SPEC_DISPLACEMENT) const uint PIXELS = TS_BIN_TRIANGLES;
 layout(constant_id = TS_SPEC_AREA_LIGHTS) const bool AREA_LIGHTS = false;
 // What this variant writes (TS_OUTPUT_*): only that AOV's code is compiled in.
 layout(constant_id = TS_SPEC_OUTPUT) const uint OUTPUT = TS_OUTPUT_SHADE;
+// The variant for materials with inputs from the vertex channel (GpuMaterial.vertexInputs != 0).
+layout(constant_id = TS_SPEC_VERTEX_INPUTS) const bool VERTEX_INPUTS = false;
 
 // A well-spread colour for an id (integer hash, then three 8-bit channels lifted away from black).
 vec3 id_color(uint id) {
@@ -168,7 +170,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
     vec3 emission = material.emissiveColor.rgb, f0 = material.specular.rgb;
     float occlusion = material.emissiveColor.a, roughness = material.specular.a, metallic = material.metallic;
     // Inputs the mesh's vertex channel drives (displayColor, primvar readers), interpolated over the surface.
-    if (PIXELS != TS_BIN_KEPT_MICRO && material.vertexInputs != 0u && mesh.colorOffset != TS_NO_STREAM) {
+    if (VERTEX_INPUTS && PIXELS != TS_BIN_KEPT_MICRO && mesh.colorOffset != TS_NO_STREAM) {
         vec4 channel = interpolated_channel(frame, mesh, sourceBary, v0, v1, v2);
         uint inputs = material.vertexInputs;
         albedo = vertex_input(inputs, TS_INPUT_DIFFUSE_COLOR, channel, albedo);

@@ -239,6 +239,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // decoding each pixel's bin, which it never uses (an empty 1080p frame cost 70-95 ms instead of 46-58), and each cull
 // step ran the others' loops at least once, masked (docs/benchmarks.md).
 #define TS_SPEC_STEP 10
+// Specialization constant of resolve's variant for materials with inputs from the mesh's vertex channel
+// (GpuMaterial.vertexInputs: displayColor, primvar readers). Its interpolation, present but not run, cost lavapipe 7-10 %
+// of a screen-filling resolve with plain materials (docs/benchmarks.md).
+#define TS_SPEC_VERTEX_INPUTS 11
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
