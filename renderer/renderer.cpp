@@ -1017,12 +1017,16 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             f.frustumPlanes[i] = gpu::vec4{float(p[0]), float(p[1]), float(p[2]), float(p[3])};
         }
         f.background = {settings.background[0], settings.background[1], settings.background[2], settings.background[3]};
-        const auto& lights = scene.lights_;
+        // Distant lights first (shaded by a loop of their own: GpuFrame.lightKinds), then the others in the scene's order.
+        std::vector<const LightDesc*> lights;
+        for (const LightDesc& l : scene.lights_) lights.push_back(&l);
+        std::stable_partition(lights.begin(), lights.end(), [](const LightDesc* l) { return l->type == LightType::Distant; });
         const uint32_t lightCount = uint32_t(std::min<size_t>(lights.size(), TS_MAX_LIGHTS));
         f.viewport = {settings.width, settings.height, s.materialCount, lightCount};
+        f.lightKinds = {uint32_t(std::count_if(lights.begin(), lights.begin() + lightCount, [](const LightDesc* l) { return l->type == LightType::Distant; })), 0, 0, 0};
         bool environmentSet = false;
         for (uint32_t i = 0; i < lightCount; ++i) {
-            const LightDesc& l = lights[i];
+            const LightDesc& l = *lights[i];
             double d[3] = {l.direction[0], l.direction[1], l.direction[2]};
             const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
             for (double& x : d) x /= (len > 0 ? len : 1);

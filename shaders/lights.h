@@ -99,14 +99,19 @@ vec3 dome_direction(GpuLight light, vec3 world) {
     return vec3(dot(world, light.axisX.xyz), dot(world, light.axisY.xyz), dot(world, z));
 }
 
-// Light one light sends towards the eye from the surface point `p` (camera-relative), normal n. `areaLights` (a
-// specialization constant in resolve) false: the frame has only distant lights and untextured domes, and none of
-// the other code is compiled in.
-vec3 light_contribution(GpuFrame frame, GpuLight light, vec3 p, vec3 n, vec3 toEye, vec3 albedo, vec3 f0, float roughness, float occlusion,
-                        bool areaLights) {
+// Light a distant light sends towards the eye from a surface point of normal n.
+vec3 distant_light_contribution(GpuLight light, vec3 n, vec3 toEye, vec3 albedo, vec3 f0, float roughness) {
+    return light.radiance.rgb * direct_light(n, toEye, -light.directionType.xyz, albedo, f0, roughness);
+}
+
+// Light any other light (dome, sphere, rect) sends towards the eye from the surface point `p` (camera-relative),
+// normal n. Apart from the distant lights' (which the frame lists first, GpuFrame.lightKinds), so that a loop over one
+// kind runs only its code: lavapipe runs every branch of a shader, masked. `areaLights` (a specialization constant in
+// resolve) false: the frame has only distant lights and untextured domes, and none of the other code is compiled in.
+vec3 other_light_contribution(GpuFrame frame, GpuLight light, vec3 p, vec3 n, vec3 toEye, vec3 albedo, vec3 f0, float roughness, float occlusion,
+                              bool areaLights) {
     uint type = uint(light.directionType.w);
     vec3 radiance = light.radiance.rgb;
-    if (type == TS_LIGHT_DISTANT) return radiance * direct_light(n, toEye, -light.directionType.xyz, albedo, f0, roughness);
     float nv = max(dot(n, toEye), 0.0);
     if (!areaLights || (type == TS_LIGHT_DOME && light.texture == TS_NO_TEXTURE))  // a uniform dome; occlusion scales it
         return radiance * occlusion * (albedo + environment_reflectance(f0, roughness, nv));

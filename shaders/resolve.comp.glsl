@@ -218,8 +218,11 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
     vec3 color = emission;
     // Each light read from the uniform block itself: indexing the local copy `frame` by a variable made the compiler
     // copy every light of it for each pixel (on lavapipe half of resolve's time, with two lights).
-    for (uint i = 0u; i < frame.viewport.w; ++i)  // no shadowing yet
-        color += light_contribution(frame, frameConstants.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
+    // Distant lights first, then the others, each loop with only its kind's code (no shadowing yet).
+    for (uint i = 0u; i < frame.lightKinds.x; ++i)
+        color += distant_light_contribution(frameConstants.lights[i], n, toEye, albedo, f0, roughness);
+    for (uint i = frame.lightKinds.x; i < frame.viewport.w; ++i)
+        color += other_light_contribution(frame, frameConstants.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }
 

@@ -547,6 +547,7 @@ struct GpuFrame {
     uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels);
                              // y: capacity of the cut list; z: capacity of the deferred-instance list
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count
+    uvec4 lightKinds;        // x: distant lights (the first x of `lights`; the others follow in the scene's order)
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     vec4 tessellation;       // x: dicing rate (pixels per micro-edge); y: patch capacity (exact: at most 2^23); z: point pool
                              // capacity (points)
@@ -596,7 +597,7 @@ struct GpuFrame {
     address clusterDisplacement; // float[]: per cluster of a displaced batch's mesh, the largest offset its materials move
                                  // it by (mesh units; GpuInstanceBatch.displacementBounds)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 7 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 38);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 38);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu
