@@ -165,8 +165,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
 #define TS_VISIBLE_SOFTWARE 0x80000000u
 // The compute rasterizer takes clusters whose bounding sphere projects to at most this radius in pixels (estimated at
-// the sphere's nearest depth) and that lie beyond the near plane.
-#define TS_SW_MAX_RADIUS_PIXELS 64.0
+// the sphere's nearest depth) and that lie beyond the near plane. Their triangles' size decides the rest (frame.raster.x);
+// at 64 px, clusters of small but spread-out triangles went to hardware raster (the 9.76 M sphere at 1 px: 77 k
+// triangles there instead of 35 k, its frame 5 % dearer on lavapipe; docs/benchmarks.md).
+#define TS_SW_MAX_RADIUS_PIXELS 128.0
 // A triangle less than this many sub-pixels across (E) is scanned with 32-bit edge functions (raster.h), far cheaper
 // where 64-bit multiplies are emulated (lavapipe); a larger one needs 64-bit ones. Exact: the scan's edge functions
 // stay within 2 E (E + step) (points at most one step past the triangle's box), below 2^31 for E < 2^15 - 2 * 256 and
