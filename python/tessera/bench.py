@@ -415,7 +415,7 @@ def render(args) -> int:
 
 
 # The raster split: grids of triangles of one size each, drawn by each rasterizer alone.
-RASTER_AREAS = (1, 2, 4, 8, 16, 32, 64)  # pixels per triangle; past 64 a cluster outgrows the compute rasterizer's limit
+RASTER_AREAS = (1, 2, 4, 8, 16, 32, 64, 128, 256)  # pixels per triangle; the largest outgrow the compute rasterizer's cluster radius
 RASTER_COLUMNS = [("area_px", "px per triangle"), ("triangles", "triangles"), ("software_share", "SW share"),
                   ("software_ms", "SW GPU ms"), ("hardware_ms", "HW GPU ms"), ("faster", "faster")]
 
