@@ -654,9 +654,13 @@ NB_MODULE(_tessera, m) {
             "execute",
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
                const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
-               const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate, const std::string& rasterVertices) {
+               const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate, const std::string& rasterVertices,
+               float softwareRasterArea) {
                 RenderPassSettings settings;
                 if (!(dicingRate > 0.0f)) throw nb::value_error("the dicing rate must be a number of pixels > 0");
+                if (!(softwareRasterArea > 0.0f) || !std::isfinite(softwareRasterArea))
+                    throw nb::value_error("the software raster area must be a number of pixels > 0");
+                settings.render.softwareRasterArea = softwareRasterArea;
                 settings.render.dicingRate = dicingRate;
                 settings.render.pixelError = pixelError;
                 settings.render.lod = lod;
@@ -682,7 +686,8 @@ NB_MODULE(_tessera, m) {
                 return std::make_pair(std::move(images), stats_dict(stats));
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
-            "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f, "raster_vertices"_a = "auto")
+            "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f, "raster_vertices"_a = "auto",
+            "software_raster_area"_a = RenderSettings{}.softwareRasterArea)
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
         .def_prop_ro(

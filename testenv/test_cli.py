@@ -1,6 +1,7 @@
 """The `tessera` command: outputs, options, and one-line errors for bad input."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -9,6 +10,7 @@ import pytest
 
 import tessera
 from conftest import TESTENV
+from tessera import raster_split
 
 CUBE = TESTENV / "testCube" / "cube.usda"
 
@@ -145,11 +147,17 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
 
 
 def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):
-    rows_file = tmp_path / "rows.json"
-    done = run("bench", "raster", "--resolution", "96x54", "--frames", "1", "--stages-dir", tmp_path, "--json", rows_file)
+    rows_file, cache = tmp_path / "rows.json", tmp_path / "cache"
+    # --record writes into the cache it runs with: its own here, so that no other test's sessions find the record.
+    done = subprocess.run([sys.executable, "-m", "tessera.cli", "bench", "raster", "--resolution", "96x54", "--frames", "1",
+                           "--stages-dir", str(tmp_path), "--json", str(rows_file), "--record"],
+                          capture_output=True, text=True, timeout=300, env={**os.environ, "TESSERA_CACHE": str(cache)})
     assert done.returncode == 0, done.stderr + done.stdout
     assert "crossover:" in done.stdout and "SW GPU ms" in done.stdout
     rows = json.loads(rows_file.read_text())
+    records = json.loads((cache / "raster_split.json").read_text())
+    assert list(records) == [rows[0]["device_key"]] and f"recorded for {rows[0]['device_key']}" in done.stdout
+    assert records[rows[0]["device_key"]]["area_px"] == raster_split.crossover(rows)
     assert [r["area_px"] for r in rows] == [1, 2, 4, 8, 16, 32, 64, 128, 256]
     assert all(r["software_ms"] > 0 and r["hardware_ms"] > 0 and r["faster"] in ("software", "hardware") for r in rows)
     # Triangles of one pixel fill the frame about once: twice as many triangles as pixels, all through software raster.

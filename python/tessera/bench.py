@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from . import raster_split
 
 
 def _in_child(target, *args):
@@ -281,7 +282,8 @@ def _row(table, label, result, wall, gpu, reference=None, **extra):
            "cull_ms": round(gpu["cull"], 1), "sw_raster_ms": round(gpu["sw_raster"], 1), "hw_raster_ms": round(gpu["hw_raster"], 1),
            "hzb_ms": round(gpu["hzb"], 1), "resolve_ms": round(gpu["resolve"], 1), "sw_triangles": s["sw_triangles"],
            "hw_triangles": s["hw_triangles"], "occlusion": s["occlusion_tested"], "occluded_instances": s["occluded_instances"],
-           "occluded_clusters": s["occluded_clusters"]}
+           "occluded_clusters": s["occluded_clusters"], "sw_raster_area": s["sw_raster_area"],
+           "sw_raster_area_source": s["sw_raster_area_source"]}
     if reference is not None:
         color, ref_color = result["color"].pixels, reference["color"].pixels
         row["psnr_db"] = psnr(color, ref_color)
@@ -407,7 +409,8 @@ def render(args) -> int:
     if args.plot and sweep:
         _write_plot(sweep, args.plot)
     if rows:
-        print(f"device: {rows[0]['device']}, {rows[0]['resolution']}, median of {args.frames} frames after one warm-up")
+        print(f"device: {rows[0]['device']}, {rows[0]['resolution']}, median of {args.frames} frames after one warm-up; "
+              f"raster split {rows[0]['sw_raster_area']:g} px per triangle ({rows[0]['sw_raster_area_source']})")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=2)
@@ -474,7 +477,8 @@ def _raster_case(queue, stages, resolution, frames, device):
                          "software_share": round(software_stats["sw_triangles"] / max(software_stats["visible_triangles"], 1), 3),
                          "software_ms": round(software_ms, 1), "hardware_ms": round(hardware_ms, 1),
                          "faster": "software" if software_ms < hardware_ms else "hardware", "device": session.device_name,
-                         "resolution": f"{resolution[0]}x{resolution[1]}"})
+                         "device_key": raster_split.device_key(session.delegate.device_name, session.delegate.software_device),
+                         "cache_directory": session.delegate.cache_directory, "resolution": f"{resolution[0]}x{resolution[1]}"})
         queue.put(rows)
     except Exception as error:  # reported by the parent
         queue.put(error)
@@ -482,7 +486,8 @@ def _raster_case(queue, stages, resolution, frames, device):
 
 def raster(args) -> int:
     """The triangle size below which the compute rasterizer beats hardware raster on this device (RenderSettings::
-    softwareRasterArea, 45 px by default, was measured this way on lavapipe)."""
+    softwareRasterArea, 45 px by default, was measured this way on lavapipe); `--record` keeps it for the device's
+    sessions (tessera.raster_split)."""
     from pathlib import Path
 
     width, height = args.resolution
@@ -504,14 +509,15 @@ def raster(args) -> int:
         print(" | ".join(str(row[key]) for key, _ in RASTER_COLUMNS))
     # Only sizes the compute rasterizer really drew count: past them its clusters outgrow TS_SW_MAX_RADIUS_PIXELS and
     # go to hardware raster even when software is asked for.
-    measured = [row for row in outcome if row["software_share"] >= 0.9]
-    hardware_wins = [row["area_px"] for row in measured if row["faster"] == "hardware"]
     print(f"device: {outcome[0]['device']}, {outcome[0]['resolution']}, median of {args.frames} frames after one warm-up")
-    if hardware_wins:
-        print(f"crossover: hardware raster is faster from {min(hardware_wins)} px per triangle")
-    elif measured:
-        print(f"crossover: the compute rasterizer is faster at every size it can take here (up to {measured[-1]['area_px']} px "
-              f"per triangle; larger clusters go to hardware raster anyway)")
+    split = raster_split.crossover(outcome)
+    if split is None:
+        print(f"crossover: not measured (the compute rasterizer drew less than {raster_split.MIN_SOFTWARE_SHARE:.0%} at every size)")
+    else:
+        print(f"crossover: {split:g} px per triangle (the default is {raster_split.DEFAULT_AREA:g})")
+        if args.record:
+            path = raster_split.record(outcome[0]["cache_directory"], outcome[0]["device_key"], split, outcome)
+            print(f"recorded for {outcome[0]['device_key']} in {path}")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(outcome, f, indent=2)

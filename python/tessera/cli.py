@@ -146,6 +146,9 @@ def _parser() -> argparse.ArgumentParser:
     bench_raster.add_argument("--stages-dir", default="out/bench", help="where the generated stages are kept (default out/bench)")
     bench_raster.add_argument("--device", help="Vulkan device, as for render")
     bench_raster.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
+    bench_raster.add_argument("--record", action="store_true",
+                              help="keep the measured split for this device in the Tessera cache, where every later session on it "
+                                   "finds it (tessera.raster_split)")
     bench_textures = benches.add_parser("textures", help="texture loads (read, mips, bytes) and the shading cost of textured materials")
     bench_textures.add_argument("--resolution", type=_resolution, default=(1920, 1080), help="WIDTHxHEIGHT (default 1920x1080)")
     bench_textures.add_argument("--frames", type=int, default=5, help="frames measured after one warm-up; the median is reported")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _tessera
+from . import _tessera, raster_split
 
 AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triangleId")
 # Debug views the color AOV can show instead of shading (renderer.h: Visualize).
@@ -97,6 +97,9 @@ class Session:
         self.stage = _open_stage(stage)
         self.time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
         self.delegate = _tessera.RenderDelegate(device=device, validation=validation)
+        # The raster split recorded for this device (`tessera bench raster --record`), else the default.
+        self.software_raster_area, self.software_raster_area_source = raster_split.for_device(
+            self.delegate.cache_directory, raster_split.device_key(self.delegate.device_name, self.delegate.software_device))
         self.index = _tessera.RenderIndex(self.delegate)
         if isinstance(build_settings, dict):
             build_settings = _tessera.BuildSettings(**build_settings)
@@ -144,7 +147,7 @@ class Session:
     def render(self, *, camera: str | None = None, resolution: tuple[int, int] = (960, 540),
                aovs=("color",), background=(0.0, 0.0, 0.0, 0.0), pixel_error: float = 1.0, lod: bool = True,
                vis: str | None = None, raster: str = "auto", occlusion: bool = True, dicing_rate: float = 1.0,
-               complexity: float | None = None, raster_vertices: str = "auto") -> RenderResult:
+               complexity: float | None = None, raster_vertices: str = "auto", software_raster_area: float | None = None) -> RenderResult:
         """Renders the stage at the session's time. `pixel_error` is the DAG cut's screen-space error bound in
         pixels; `lod=False` draws every source triangle (the full-detail reference); `vis` replaces shading in
         the color AOV by a debug view (VISUALIZATIONS); `raster` forces one rasterizer (RASTER_MODES); `occlusion`
@@ -154,7 +157,9 @@ class Session:
         `complexity` (None: the session's) refines subdivision surfaces (see Session): a render at another refine
         level than the last rebuilds the meshes that have a subdivision scheme, and no others; `raster_vertices`
         picks the compute rasterizer's variant (RASTER_VERTICES; the same pixels either way, a matter of speed: auto
-        is per-triangle on a CPU device, shared on a GPU, or $TESSERA_RASTER_VERTICES)."""
+        is per-triangle on a CPU device, shared on a GPU, or $TESSERA_RASTER_VERTICES); `software_raster_area` (None:
+        the session's, recorded for its device or the default; see tessera.raster_split) sends clusters of triangles
+        smaller than that many pixels to the compute rasterizer (the same pixels either way, a matter of speed)."""
         from .usd import framing_camera
 
         width, height = resolution
@@ -189,8 +194,11 @@ class Session:
         # Without a stage camera, frame the stage's bounds (computed only when needed: bounds touch every prim).
         fallback = (framing_camera(self.stage, self.time, width, height, self.purposes, self.scene.instancer_cycles)
                     if not camera_id else _tessera.CameraDesc())
+        area = self.software_raster_area if software_raster_area is None else float(software_raster_area)
+        if not (area > 0.0) or area == float("inf"):
+            raise StageError(f"software raster area must be a number of pixels > 0, not {software_raster_area}")
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
-                                           vis or "none", raster, bool(occlusion), float(dicing_rate), raster_vertices)
+                                           vis or "none", raster, bool(occlusion), float(dicing_rate), raster_vertices, area)
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)
@@ -201,6 +209,8 @@ class Session:
         if messages:
             errors = list(errors) + messages
         stats["device"] = self.delegate.device_name
+        stats["sw_raster_area"] = area  # the raster split, and whether it was recorded for this device, the default or given
+        stats["sw_raster_area_source"] = self.software_raster_area_source if software_raster_area is None else "given"
         stats["pixel_error"] = float(pixel_error) if lod else 0.0
         stats["lod"] = lod
         stats["complexity"] = complexity
