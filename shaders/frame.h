@@ -153,11 +153,13 @@ uint pack_bin_pixel(uvec2 pixel) { return pixel.x | (pixel.y << 16u); }
 uvec2 unpack_bin_pixel(uint packed) { return uvec2(packed & 0xffffu, packed >> 16u); }
 
 // What an AOV holds where nothing covers the pixel (without a textured dome: background.comp.glsl draws that).
+// One store of the value's bits whatever the AOV: lavapipe runs every branch's store, masked and lane by lane.
 void write_background(GpuFrame frame, uint index, uint aov) {
-    if (aov >= TS_AOV_PRIM_ID) OutputIdRef(frame.aovOutput).data[index] = uvec4(0xffffffffu);
-    else if (aov == TS_AOV_COLOR) OutputRef(frame.aovOutput).data[index] = frame.background;
-    else if (aov == TS_AOV_DEPTH) OutputRef(frame.aovOutput).data[index] = vec4(uintBitsToFloat(0x7f800000u));
-    else OutputRef(frame.aovOutput).data[index] = vec4(0.0);
+    uvec4 bits = aov >= TS_AOV_PRIM_ID ? uvec4(0xffffffffu)
+               : aov == TS_AOV_COLOR   ? floatBitsToUint(frame.background)
+               : aov == TS_AOV_DEPTH   ? uvec4(0x7f800000u)  // infinity
+                                       : uvec4(0u);
+    OutputIdRef(frame.aovOutput).data[index] = bits;
 }
 
 // Both rasterizers record each fragment they write (the overdraw view).
