@@ -17,6 +17,7 @@
 
 #include <cstdlib>
 #include <cstring>
+#include <span>
 #include <stdexcept>
 #include <string>
 
@@ -58,16 +59,17 @@ VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes
 // A Specialization as Vulkan takes it, with the pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD, the
 // same for every pipeline of a set) and the compute rasterizer's workgroup size, which follows its variant.
 struct SpecializationInfo {
-    uint32_t values[12];
-    VkSpecializationMapEntry entries[12] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+    uint32_t values[13];
+    VkSpecializationMapEntry entries[13] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                            {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
-                                           {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}};
-    VkSpecializationInfo info{12, entries, sizeof(values), values};
+                                           {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4}};
+    VkSpecializationInfo info{13, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
                  uint32_t(s.ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), s.cullGroupSize,
-                 VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs)} {}
+                 VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
+                 VkBool32(s.countFragments)} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
@@ -100,8 +102,8 @@ Pipelines::Pipelines(Device& d, uint32_t cullGroups, uint32_t shadePixels)
     hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
     bins = compute_pipeline(bins_comp, sizeof(bins_comp));
     background = compute_pipeline(background_comp, sizeof(background_comp));
-    for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles);
-    for (bool doubleSided : {false, true}) raster[doubleSided] = graphics_pipeline(false, false, doubleSided);
+    for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles, false);
+    for (bool doubleSided : {false, true}) hardware_raster(false, doubleSided, false);
 }
 
 Pipelines::~Pipelines() {
@@ -112,16 +114,11 @@ Pipelines::~Pipelines() {
     for (VkPipeline step : classify) vkDestroyPipeline(vk, step, nullptr);
     vkDestroyPipeline(vk, bins, nullptr);
     vkDestroyPipeline(vk, background, nullptr);
-    for (VkPipeline variant : raster) vkDestroyPipeline(vk, variant, nullptr);
-    for (auto& byMasks : rasterSoftware)
-        for (auto& variants : byMasks)
-            for (VkPipeline variant : variants) vkDestroyPipeline(vk, variant, nullptr);
-    for (VkPipeline variant : rasterMasked) vkDestroyPipeline(vk, variant, nullptr);
-    vkDestroyPipeline(vk, tessellate, nullptr);
-    vkDestroyPipeline(vk, dice, nullptr);
-    vkDestroyPipeline(vk, diceMasked, nullptr);
-    vkDestroyPipeline(vk, patchRaster, nullptr);
-    vkDestroyPipeline(vk, patchRasterMasked, nullptr);
+    for (VkPipeline variant : std::span(&rasterSoftware[0][0][0][0], sizeof(rasterSoftware) / sizeof(VkPipeline))) vkDestroyPipeline(vk, variant, nullptr);
+    for (VkPipeline variant : std::span(&rasterHardware[0][0][0], sizeof(rasterHardware) / sizeof(VkPipeline))) vkDestroyPipeline(vk, variant, nullptr);
+    for (VkPipeline variant : std::span(&diceVariants[0][0], 4)) vkDestroyPipeline(vk, variant, nullptr);
+    for (VkPipeline variant : std::span(&patchRasterVariants[0][0], 4)) vkDestroyPipeline(vk, variant, nullptr);
+    vkDestroyPipeline(vk, tessellatePatches, nullptr);
     vkDestroyPipeline(vk, backgroundTextured, nullptr);
     for (VkPipeline variant : resolveVariants) vkDestroyPipeline(vk, variant, nullptr);
     vkDestroyPipelineLayout(vk, layout, nullptr);
@@ -148,8 +145,8 @@ void Pipelines::ensure_texture_pipelines(uint32_t binKinds, bool textured, bool 
         for (bool light : {false, areaLights})
             for (bool inputs : {false, vertexInputs}) resolve_variant(textured, pixels, light, inputs, TS_OUTPUT_SHADE);
     if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), {.textures = true});
-    if (masks && !rasterMasked[0])
-        for (bool doubleSided : {false, true}) rasterMasked[doubleSided] = graphics_pipeline(false, true, doubleSided);
+    if (masks)
+        for (bool doubleSided : {false, true}) hardware_raster(true, doubleSided, false);
 }
 
 bool Pipelines::default_own_corners() const {
@@ -161,10 +158,35 @@ bool Pipelines::default_own_corners() const {
     return device.is_software();
 }
 
-VkPipeline Pipelines::software_raster(bool masks, bool ownCorners, bool largeTriangles) {
-    VkPipeline& variant = rasterSoftware[masks][ownCorners][largeTriangles];
+VkPipeline Pipelines::software_raster(bool masks, bool ownCorners, bool largeTriangles, bool countFragments) {
+    VkPipeline& variant = rasterSoftware[masks][countFragments][ownCorners][largeTriangles];
     if (!variant)
-        variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp), {.textures = masks, .ownCorners = ownCorners, .largeTriangles = largeTriangles});
+        variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp),
+                                   {.textures = masks, .ownCorners = ownCorners, .largeTriangles = largeTriangles, .countFragments = countFragments});
+    return variant;
+}
+
+VkPipeline Pipelines::hardware_raster(bool masks, bool doubleSided, bool countFragments) {
+    VkPipeline& variant = rasterHardware[masks][countFragments][doubleSided];
+    if (!variant) variant = graphics_pipeline(false, {.textures = masks, .doubleSided = doubleSided, .countFragments = countFragments});
+    return variant;
+}
+
+VkPipeline Pipelines::tessellate() {
+    if (!tessellatePatches) tessellatePatches = compute_pipeline(tessellate_comp, sizeof(tessellate_comp));
+    return tessellatePatches;
+}
+
+VkPipeline Pipelines::dice(bool masks, bool countFragments) {
+    VkPipeline& variant = diceVariants[masks][countFragments];
+    if (!variant) variant = compute_pipeline(dice_comp, sizeof(dice_comp), {.textures = masks, .countFragments = countFragments});
+    return variant;
+}
+
+VkPipeline Pipelines::patch_raster(bool masks, bool countFragments) {
+    // Patches come in one draw from instances of both kinds, which the fragment shader tells apart: no face culling.
+    VkPipeline& variant = patchRasterVariants[masks][countFragments];
+    if (!variant) variant = graphics_pipeline(true, {.textures = masks, .doubleSided = true, .countFragments = countFragments});
     return variant;
 }
 
@@ -193,29 +215,17 @@ VkPipeline Pipelines::classify_step(uint32_t step) {
     return pipeline;
 }
 
-void Pipelines::ensure_tessellation_pipelines(bool masks) {
-    if (!tessellate) {
-        tessellate = compute_pipeline(tessellate_comp, sizeof(tessellate_comp));
-        dice = compute_pipeline(dice_comp, sizeof(dice_comp));
-        patchRaster = graphics_pipeline(true, false);
-    }
-    if (masks && !patchRasterMasked) {
-        patchRasterMasked = graphics_pipeline(true, true);
-        diceMasked = compute_pipeline(dice_comp, sizeof(dice_comp), {.textures = true});
-    }
-}
-
 // Hardware raster: no attachments at all; the fragment shader writes the visibility buffer.
 // Clusters (raster.vert.glsl, raster.frag.glsl) or patches (patch.vert.glsl, patch.frag.glsl). The cluster variant for
 // single-sided instances culls back faces; patches come in one draw from instances of both kinds, which the fragment
 // shader tells apart.
-VkPipeline Pipelines::graphics_pipeline(bool patches, bool masks, bool doubleSided) {
+VkPipeline Pipelines::graphics_pipeline(bool patches, const Specialization& specialization) {
     VkShaderModule vert = patches ? create_module(device.handle(), patch_vert, sizeof(patch_vert)) : create_module(device.handle(), raster_vert, sizeof(raster_vert));
     VkShaderModule frag = patches ? create_module(device.handle(), patch_frag, sizeof(patch_frag)) : create_module(device.handle(), raster_frag, sizeof(raster_frag));
     VkPipelineShaderStageCreateInfo stages[2] = {
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
-    const SpecializationInfo variant({.textures = masks, .doubleSided = doubleSided}, 1);
+    const SpecializationInfo variant(specialization, 1);
     stages[0].pSpecializationInfo = stages[1].pSpecializationInfo = &variant.info;
     VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
     VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};
@@ -225,7 +235,7 @@ VkPipeline Pipelines::graphics_pipeline(bool patches, bool masks, bool doubleSid
     viewport.scissorCount = 1;
     VkPipelineRasterizationStateCreateInfo rasterization{VK_STRUCTURE_TYPE_PIPELINE_RASTERIZATION_STATE_CREATE_INFO};
     rasterization.polygonMode = VK_POLYGON_MODE_FILL;
-    rasterization.cullMode = doubleSided ? VK_CULL_MODE_NONE : VK_CULL_MODE_BACK_BIT;
+    rasterization.cullMode = specialization.doubleSided ? VK_CULL_MODE_NONE : VK_CULL_MODE_BACK_BIT;
     rasterization.frontFace = VK_FRONT_FACE_COUNTER_CLOCKWISE;
     rasterization.lineWidth = 1.0f;
     VkPipelineMultisampleStateCreateInfo multisample{VK_STRUCTURE_TYPE_PIPELINE_MULTISAMPLE_STATE_CREATE_INFO};

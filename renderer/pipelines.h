@@ -42,6 +42,7 @@ struct Specialization {
     bool doubleSided = false;              // TS_SPEC_DOUBLE_SIDED: hardware raster without face culling
     uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // TS_SPEC_CULL_GROUP_SIZE
     uint32_t step = 0;                     // TS_SPEC_STEP: classify's and the cull's step
+    bool countFragments = false;           // TS_SPEC_COUNT_FRAGMENTS: the rasterizers' for the overdraw view
     bool operator==(const Specialization&) const = default;
 };
 
@@ -66,15 +67,7 @@ struct Pipelines {
     const uint32_t shadePixelsPerThread;  // pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD)
 
     VkPipeline hzb = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
-    VkPipeline raster[2] = {};  // hardware raster of clusters: [double-sided (TS_SPEC_DOUBLE_SIDED)]
-    // The rasterizers' variants with texture code (TS_SPEC_TEXTURES) for frames with opacity masks, made when a scene
-    // first needs them.
-    VkPipeline rasterMasked[2] = {};
     VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
-    // Runtime tessellation, made when a scene first displaces: the tessellate pass and the patch raster (and its mask
-    // variant).
-    VkPipeline tessellate = VK_NULL_HANDLE, dice = VK_NULL_HANDLE, diceMasked = VK_NULL_HANDLE, patchRaster = VK_NULL_HANDLE,
-               patchRasterMasked = VK_NULL_HANDLE;
 
     // The cull's pipeline for one step (TS_CULL_*): the main pass's are made at once, the post pass's when a frame
     // first has one.
@@ -82,13 +75,22 @@ struct Pipelines {
     // Classify's pipeline for one step (TS_CLASSIFY_*), made when a frame first needs it: one-material scenes list their
     // pixels in a single step and never make the other two.
     VkPipeline classify_step(uint32_t step);
-    // The compute rasterizer's variant, made on first use (a few tens of ms on lavapipe, cold).
-    VkPipeline software_raster(bool masks, bool ownCorners, bool largeTriangles);
+    // The rasterizers' variants, made on first use (a few tens of ms each on lavapipe, cold): `masks` with texture code
+    // (TS_SPEC_TEXTURES) for frames with opacity masks; `countFragments` (TS_SPEC_COUNT_FRAGMENTS) for the overdraw
+    // view only, whose count per fragment, present but not run, cost lavapipe 6 % of the compute raster.
+    // The compute rasterizer (RasterVertices: `ownCorners`; `largeTriangles`: the back of the software list).
+    VkPipeline software_raster(bool masks, bool ownCorners, bool largeTriangles, bool countFragments);
+    // Hardware raster of clusters; single-sided instances' variant culls back faces (TS_SPEC_DOUBLE_SIDED).
+    VkPipeline hardware_raster(bool masks, bool doubleSided, bool countFragments);
+    // Runtime tessellation, made when a scene first displaces: the pass that makes the patches, and the patches diced
+    // and scanned in compute or drawn by hardware raster.
+    VkPipeline tessellate();
+    VkPipeline dice(bool masks, bool countFragments);
+    VkPipeline patch_raster(bool masks, bool countFragments);
     // Resolve's variant for a bin, made on first use. Textures, area lights and vertex inputs only matter to shading.
     VkPipeline resolve_variant(bool textured, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output);
     // The variants a scene's materials need (for `binKinds` kinds of bins), made once.
     void ensure_texture_pipelines(uint32_t binKinds, bool textured, bool vertexInputs, bool masks, bool texturedDome, bool areaLights);
-    void ensure_tessellation_pipelines(bool masks);
 
     // RasterVertices::Auto: each thread its own triangle's corners on a CPU device, shared vertices on a GPU;
     // $TESSERA_RASTER_VERTICES (shared, per-triangle) overrides that, for tests and measurements.
@@ -97,9 +99,11 @@ struct Pipelines {
 private:
     VkPipeline cull[4] = {};      // a pipeline per step (TS_CULL_*)
     VkPipeline classify[3] = {};  // a pipeline per step (TS_CLASSIFY_*)
-    // The compute rasterizer's variants: [masks (TS_SPEC_TEXTURES)][own corners (TS_SPEC_OWN_CORNERS,
-    // RasterVertices::PerTriangle)][large triangles (TS_SPEC_LARGE_TRIANGLES: the back of the software list)].
-    VkPipeline rasterSoftware[2][2][2] = {};
+    // The rasterizers' variants, by [masks][countFragments] and, for the compute rasterizer, [own corners][large
+    // triangles]; for hardware raster, [double-sided].
+    VkPipeline rasterSoftware[2][2][2][2] = {};
+    VkPipeline rasterHardware[2][2][2] = {};
+    VkPipeline tessellatePatches = VK_NULL_HANDLE, diceVariants[2][2] = {}, patchRasterVariants[2][2] = {};
     // Resolve's variants by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 | TS_SPEC_AREA_LIGHTS << 3 |
     // TS_SPEC_VERTEX_INPUTS << 4 (textured materials, displaced materials, frames with area lights or a textured dome,
     // materials with vertex inputs) and TS_SPEC_OUTPUT (what it writes) << 5: on lavapipe each one's code, present but
@@ -108,7 +112,7 @@ private:
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
     // Hardware raster of clusters or of tessellation's patches.
-    VkPipeline graphics_pipeline(bool patches, bool masks, bool doubleSided = true);
+    VkPipeline graphics_pipeline(bool patches, const Specialization& specialization);
 };
 
 }  // namespace tessera

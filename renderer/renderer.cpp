@@ -981,11 +981,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     const bool anyVertexInputs = std::any_of(s.materialRecords.begin(), s.materialRecords.end(), [](const gpu::GpuMaterial& m) { return m.vertexInputs != 0; });
     pipelines.ensure_texture_pipelines(s.bin_kinds(), std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(),
                                        anyVertexInputs, s.anyMasked, texturedDome, areaLights);
-    if (s.anyDisplaced) pipelines.ensure_tessellation_pipelines(s.anyMasked);
     const bool ownCorners = settings.rasterVertices == RasterVertices::Auto ? pipelines.default_own_corners()
                                                                               : settings.rasterVertices == RasterVertices::PerTriangle;
-    const VkPipeline softwareRaster = pipelines.software_raster(s.anyMasked, ownCorners, false);
-    const VkPipeline softwareRasterLarge = pipelines.software_raster(s.anyMasked, ownCorners, true);
+    const bool countFragments = settings.visualize == Visualize::Overdraw;  // the rasterizers' variants that count
+    const VkPipeline softwareRaster = pipelines.software_raster(s.anyMasked, ownCorners, false, countFragments);
+    const VkPipeline softwareRasterLarge = pipelines.software_raster(s.anyMasked, ownCorners, true, countFragments);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
@@ -1099,9 +1099,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.aovOutput = s.aovOutput.address;
         f.deferredInstances = occlusion ? s.deferredInstances.address : 0;
         f.deferredClusters = occlusion ? s.deferredClusters.address : 0;
-        const bool countOverdraw = settings.visualize == Visualize::Overdraw;
-        if (countOverdraw && s.overdraw.size < pixels * 4) s.overdraw = device_.create_buffer(pixels * 4, MemoryUse::Device);
-        f.overdraw = countOverdraw ? s.overdraw.address : 0;
+        if (countFragments && s.overdraw.size < pixels * 4) s.overdraw = device_.create_buffer(pixels * 4, MemoryUse::Device);
+        f.overdraw = countFragments ? s.overdraw.address : 0;
         f.bins = s.shadingBins.address;
         f.binPixels = s.binPixels.address;
         f.textureSlots = s.textureSlots.address;
@@ -1138,7 +1137,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             initial.postInstanceGroupsY = initial.postInstanceGroupsZ = 1;
             vkCmdUpdateBuffer(cmd, s.drawState.handle, 0, sizeof(initial), &initial);
             vkCmdFillBuffer(cmd, s.visibility.handle, 0, pixels * 8, 0);
-            if (countOverdraw) vkCmdFillBuffer(cmd, s.overdraw.handle, 0, pixels * 4, 0);
+            if (countFragments) vkCmdFillBuffer(cmd, s.overdraw.handle, 0, pixels * 4, 0);
             vkCmdFillBuffer(cmd, s.shadingBins.handle, 0, uint64_t(s.materialCount) * s.bin_kinds() * sizeof(gpu::GpuBin), 0);
             barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT,
                     VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
@@ -1171,7 +1170,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdSetViewport(cmd, 0, 1, &viewport);
                 vkCmdSetScissor(cmd, 0, 1, &scissor);
                 for (bool doubleSided : {false, true}) {  // single-sided instances with back faces culled, then the others
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, (s.anyMasked ? pipelines.rasterMasked : pipelines.raster)[doubleSided]);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, pipelines.hardware_raster(s.anyMasked, doubleSided, countFragments));
                     vkCmdDrawIndirect(cmd, s.drawState.handle, doubleSided ? offsetof(gpu::GpuDrawState, doubleSidedVertexCount) : 0, 1,
                                       sizeof(VkDrawIndirectCommand));
                 }
@@ -1180,7 +1179,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 // Displaced clusters: patches (one workgroup per cluster, indirect); the small ones diced and scanned in
                 // compute (one workgroup per patch, indirect), the rest by one indirect draw per patch.
                 if (s.anyDisplaced) {
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.tessellate);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.tessellate());
                     vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, tessGroupsX));
                     if (post) {  // the patches the main pass deferred, against this frame's HZB
                         barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
@@ -1195,14 +1194,14 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                             VK_PIPELINE_STAGE_2_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_2_VERTEX_SHADER_BIT | VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT |
                                 VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, s.anyMasked ? pipelines.diceMasked : pipelines.dice);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.dice(s.anyMasked, countFragments));
                     vkCmdDispatchIndirect(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatchGroupsX));
                     barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_FRAGMENT_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                     vkCmdBeginRendering(cmd, &rendering);
                     vkCmdSetViewport(cmd, 0, 1, &viewport);
                     vkCmdSetScissor(cmd, 0, 1, &scissor);
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, s.anyMasked ? pipelines.patchRasterMasked : pipelines.patchRaster);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_GRAPHICS, pipelines.patch_raster(s.anyMasked, countFragments));
                     vkCmdDrawIndirectCount(cmd, s.patchDraws.handle, 0, s.drawState.handle, offsetof(gpu::GpuDrawState, patchDraws), s.patchCapacity,
                                            sizeof(VkDrawIndirectCommand));
                     vkCmdEndRendering(cmd);

@@ -162,9 +162,10 @@ void write_background(GpuFrame frame, uint index, uint aov) {
     OutputIdRef(frame.aovOutput).data[index] = bits;
 }
 
-// Both rasterizers record each fragment they write (the overdraw view).
+// Both rasterizers record each fragment they write (the overdraw view), in their variants for it only.
+layout(constant_id = TS_SPEC_COUNT_FRAGMENTS) const bool COUNT_FRAGMENTS = false;
 void count_fragment(GpuFrame frame, uint pixel) {
-    if (frame.counts.w == TS_VIS_OVERDRAW) atomicAdd(CounterRef(frame.overdraw).data[pixel], 1u);
+    if (COUNT_FRAGMENTS) atomicAdd(CounterRef(frame.overdraw).data[pixel], 1u);
 }
 
 vec3 decode_octahedral(uint packed) {

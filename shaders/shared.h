@@ -245,6 +245,9 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // (GpuMaterial.vertexInputs: displayColor, primvar readers). Its interpolation, present but not run, cost lavapipe 7-10 %
 // of a screen-filling resolve with plain materials (docs/benchmarks.md).
 #define TS_SPEC_VERTEX_INPUTS 11
+// Specialization constant of the rasterizers' variants for the overdraw view (TS_VIS_OVERDRAW), which count every
+// fragment: the count, present but not run, cost lavapipe 6 % of the compute raster (docs/benchmarks.md).
+#define TS_SPEC_COUNT_FRAGMENTS 12
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64
