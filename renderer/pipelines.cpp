@@ -140,13 +140,9 @@ VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, const
     return pipeline;
 }
 
-void Pipelines::ensure_texture_pipelines(uint32_t binKinds, bool textured, bool vertexInputs, bool masks, bool texturedDome, bool areaLights) {
-    for (uint32_t pixels = 0; pixels < binKinds; ++pixels)  // every resolve variant this scene's bins can ask for
-        for (bool light : {false, areaLights})
-            for (bool inputs : {false, vertexInputs}) resolve_variant(textured, pixels, light, inputs, TS_OUTPUT_SHADE);
-    if (texturedDome && !backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), {.textures = true});
-    if (masks)
-        for (bool doubleSided : {false, true}) hardware_raster(true, doubleSided, false);
+VkPipeline Pipelines::textured_background() {
+    if (!backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), {.textures = true});
+    return backgroundTextured;
 }
 
 bool Pipelines::default_own_corners() const {

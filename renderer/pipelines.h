@@ -67,7 +67,6 @@ struct Pipelines {
     const uint32_t shadePixelsPerThread;  // pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD)
 
     VkPipeline hzb = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
-    VkPipeline backgroundTextured = VK_NULL_HANDLE;  // the background of a textured dome light
 
     // The cull's pipeline for one step (TS_CULL_*): the main pass's are made at once, the post pass's when a frame
     // first has one.
@@ -89,8 +88,8 @@ struct Pipelines {
     VkPipeline patch_raster(bool masks, bool countFragments);
     // Resolve's variant for a bin, made on first use. Textures, area lights and vertex inputs only matter to shading.
     VkPipeline resolve_variant(bool textured, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output);
-    // The variants a scene's materials need (for `binKinds` kinds of bins), made once.
-    void ensure_texture_pipelines(uint32_t binKinds, bool textured, bool vertexInputs, bool masks, bool texturedDome, bool areaLights);
+    // The background of a textured dome light, made on first use.
+    VkPipeline textured_background();
 
     // RasterVertices::Auto: each thread its own triangle's corners on a CPU device, shared vertices on a GPU;
     // $TESSERA_RASTER_VERTICES (shared, per-triangle) overrides that, for tests and measurements.
@@ -103,7 +102,7 @@ private:
     // triangles]; for hardware raster, [double-sided].
     VkPipeline rasterSoftware[2][2][2][2] = {};
     VkPipeline rasterHardware[2][2][2] = {};
-    VkPipeline tessellatePatches = VK_NULL_HANDLE, diceVariants[2][2] = {}, patchRasterVariants[2][2] = {};
+    VkPipeline backgroundTextured = VK_NULL_HANDLE, tessellatePatches = VK_NULL_HANDLE, diceVariants[2][2] = {}, patchRasterVariants[2][2] = {};
     // Resolve's variants by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 | TS_SPEC_AREA_LIGHTS << 3 |
     // TS_SPEC_VERTEX_INPUTS << 4 (textured materials, displaced materials, frames with area lights or a textured dome,
     // materials with vertex inputs) and TS_SPEC_OUTPUT (what it writes) << 5: on lavapipe each one's code, present but

@@ -978,9 +978,6 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     areaLights = areaLights || texturedDome;
     if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages));
     Pipelines& pipelines = s.pipelines;
-    const bool anyVertexInputs = std::any_of(s.materialRecords.begin(), s.materialRecords.end(), [](const gpu::GpuMaterial& m) { return m.vertexInputs != 0; });
-    pipelines.ensure_texture_pipelines(s.bin_kinds(), std::find(s.texturedMaterials.begin(), s.texturedMaterials.end(), true) != s.texturedMaterials.end(),
-                                       anyVertexInputs, s.anyMasked, texturedDome, areaLights);
     const bool ownCorners = settings.rasterVertices == RasterVertices::Auto ? pipelines.default_own_corners()
                                                                               : settings.rasterVertices == RasterVertices::PerTriangle;
     const bool countFragments = settings.visualize == Visualize::Overdraw;  // the rasterizers' variants that count
@@ -1303,7 +1300,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                             VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 PushConstants background{uint32_t(aovs[i]), 0, 0};
                 vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, texturedDome && aovs[i] == Aov::Color ? pipelines.backgroundTextured : pipelines.background);
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, texturedDome && aovs[i] == Aov::Color ? pipelines.textured_background() : pipelines.background);
                 if (i > 0 || !listingDrawsBackground) vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 const uint32_t output = aovs[i] == Aov::Color ? (settings.visualize == Visualize::None ? TS_OUTPUT_SHADE : TS_OUTPUT_VISUALIZE)
                                       : aovs[i] == Aov::Depth  ? TS_OUTPUT_DEPTH
