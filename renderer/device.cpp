@@ -200,6 +200,7 @@ Device::Device(const DeviceOptions& options) {
     software_ = chosen->properties.deviceType == VK_PHYSICAL_DEVICE_TYPE_CPU;
     timestampPeriod_ = chosen->properties.limits.timestampPeriod;
     subPixelBits_ = std::min<uint32_t>(chosen->properties.limits.subPixelPrecisionBits, 8);
+    maxTexelBufferElements_ = chosen->properties.limits.maxTexelBufferElements;
     vkGetPhysicalDeviceMemoryProperties(physical_, &memoryProperties_);
 
     uint32_t familyCount = 0;
@@ -321,8 +322,9 @@ Buffer Device::create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlag
     buffer.size = std::max<VkDeviceSize>(size, 16);
     VkBufferCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO};
     info.size = buffer.size;
+    // Any buffer may be read through a texel buffer view (the renderer's views of its streams, shared.h TS_VIEW_*).
     info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
-                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | extraUsage;
+                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT | extraUsage;
     check_vk(vkCreateBuffer(device_, &info, nullptr, &buffer.handle), "vkCreateBuffer");
     VkMemoryRequirements requirements;
     vkGetBufferMemoryRequirements(device_, buffer.handle, &requirements);

@@ -56,38 +56,44 @@ VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes
     return module;
 }
 
-// A Specialization as Vulkan takes it, with the pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD, the
-// same for every pipeline of a set) and the compute rasterizer's workgroup size, which follows its variant.
+// A Specialization as Vulkan takes it, with what is the same for every pipeline of a set (the pixels each resolve thread
+// shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, and reads through texel views, TS_SPEC_TEXEL_VIEWS) and the compute
+// rasterizer's workgroup size, which follows its variant.
 struct SpecializationInfo {
-    uint32_t values[13];
-    VkSpecializationMapEntry entries[13] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+    uint32_t values[14];
+    VkSpecializationMapEntry entries[14] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                            {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
-                                           {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4}};
-    VkSpecializationInfo info{13, entries, sizeof(values), values};
-    SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread)
+                                           {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4},
+                                           {TS_SPEC_TEXEL_VIEWS, 52, 4}};
+    VkSpecializationInfo info{14, entries, sizeof(values), values};
+    SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
                  uint32_t(s.ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
-                 VkBool32(s.countFragments)} {}
+                 VkBool32(s.countFragments), VkBool32(texelViews)} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
 }  // namespace
 
-std::shared_ptr<Pipelines> Pipelines::for_device(Device& device) {
+std::shared_ptr<Pipelines> Pipelines::for_device(Device& device, bool texelViews) {
     const uint32_t cullGroupSize = default_cull_group_size(device), shadePixelsPerThread = default_shade_pixels_per_thread(device);
-    const std::string key = "tessera.pipelines cull " + std::to_string(cullGroupSize) + " shade " + std::to_string(shadePixelsPerThread);
+    const std::string key = "tessera.pipelines cull " + std::to_string(cullGroupSize) + " shade " + std::to_string(shadePixelsPerThread) +
+                            (texelViews ? " views" : " addresses");
     return std::static_pointer_cast<Pipelines>(
-        device.shared_state(key, [&] { return std::make_shared<Pipelines>(device, cullGroupSize, shadePixelsPerThread); }));
+        device.shared_state(key, [&] { return std::make_shared<Pipelines>(device, cullGroupSize, shadePixelsPerThread, texelViews); }));
 }
 
-Pipelines::Pipelines(Device& d, uint32_t cullGroups, uint32_t shadePixels)
-    : device(d), cullGroupSize(cullGroups), shadePixelsPerThread(shadePixels) {
-    VkDescriptorSetLayoutBinding frameBinding{0, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
+Pipelines::Pipelines(Device& d, uint32_t cullGroups, uint32_t shadePixels, bool views)
+    : device(d), cullGroupSize(cullGroups), shadePixelsPerThread(shadePixels), texelViews(views) {
+    // The same layout in every set, so a renderer's frame set serves either (identically defined layouts are compatible).
+    VkDescriptorSetLayoutBinding bindings[1 + TS_VIEW_COUNT];
+    bindings[0] = {TS_BINDING_FRAME, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
+    for (uint32_t view = 1; view <= TS_VIEW_COUNT; ++view) bindings[view] = {view, VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
     VkDescriptorSetLayoutCreateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
-    setInfo.bindingCount = 1;
-    setInfo.pBindings = &frameBinding;
+    setInfo.bindingCount = 1 + TS_VIEW_COUNT;
+    setInfo.pBindings = bindings;
     check_vk(vkCreateDescriptorSetLayout(device.handle(), &setInfo, nullptr, &frameSetLayout), "vkCreateDescriptorSetLayout");
     VkPushConstantRange range{VK_SHADER_STAGE_ALL, 0, sizeof(ResolvePushConstants)};
     VkPipelineLayoutCreateInfo layoutInfo{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
@@ -127,8 +133,8 @@ Pipelines::~Pipelines() {
 
 VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization) {
     VkShaderModule module = create_module(device.handle(), code, bytes);
-    const SpecializationInfo variant(specialization, shadePixelsPerThread);
-    const bool specialized = !(specialization == Specialization{}) || shadePixelsPerThread != 1;
+    const SpecializationInfo variant(specialization, shadePixelsPerThread, texelViews);
+    const bool specialized = !(specialization == Specialization{}) || shadePixelsPerThread != 1 || texelViews;
     VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
     info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
                   specialized ? &variant.info : nullptr};
@@ -221,7 +227,7 @@ VkPipeline Pipelines::graphics_pipeline(bool patches, const Specialization& spec
     VkPipelineShaderStageCreateInfo stages[2] = {
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
-    const SpecializationInfo variant(specialization, 1);
+    const SpecializationInfo variant(specialization, 1, texelViews);
     stages[0].pSpecializationInfo = stages[1].pSpecializationInfo = &variant.info;
     VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
     VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};

@@ -48,10 +48,12 @@ struct Specialization {
 
 struct Pipelines {
     // The set for `device` (made by the first renderer on it), with the choices the environment makes now
-    // ($TESSERA_CULL_GROUP_SIZE and $TESSERA_SHADE_PIXELS_PER_THREAD select different sets).
-    static std::shared_ptr<Pipelines> for_device(Device& device);
+    // ($TESSERA_CULL_GROUP_SIZE and $TESSERA_SHADE_PIXELS_PER_THREAD select different sets), reading the scene's streams
+    // through texel views or through their addresses (TS_SPEC_TEXEL_VIEWS: a frame whose streams outgrow the device's
+    // views takes the second).
+    static std::shared_ptr<Pipelines> for_device(Device& device, bool texelViews);
 
-    Pipelines(Device& device, uint32_t cullGroupSize, uint32_t shadePixelsPerThread);
+    Pipelines(Device& device, uint32_t cullGroupSize, uint32_t shadePixelsPerThread, bool texelViews);
     ~Pipelines();
     Pipelines(const Pipelines&) = delete;
     Pipelines& operator=(const Pipelines&) = delete;
@@ -59,12 +61,13 @@ struct Pipelines {
     Device& device;
     std::mutex mutex;  // held by a render: it may make variants
 
-    // Every pipeline's layout: the frame's constants (GpuFrame) as a uniform buffer at set 0 binding 0 (each renderer
-    // has its own set), and ResolvePushConstants.
+    // Every pipeline's layout: set 0 holds the frame's constants (GpuFrame) as a uniform buffer and the texel views of
+    // its streams (shared.h TS_BINDING_FRAME, TS_VIEW_*; each renderer has its own set), and ResolvePushConstants.
     VkDescriptorSetLayout frameSetLayout = VK_NULL_HANDLE;
     VkPipelineLayout layout = VK_NULL_HANDLE;
     const uint32_t cullGroupSize;         // the cull's workgroup size, chosen for the device (TS_SPEC_CULL_GROUP_SIZE)
     const uint32_t shadePixelsPerThread;  // pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD)
+    const bool texelViews;                // every pipeline reads the streams through texel views (TS_SPEC_TEXEL_VIEWS)
 
     VkPipeline hzb = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
 

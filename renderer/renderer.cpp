@@ -279,6 +279,8 @@ ViewFrustum frustum_of(const CameraMatrices& cam) {
 
 
 void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2 srcAccess, VkPipelineStageFlags2 dstStage, VkAccessFlags2 dstAccess) {
+    // What a shader reads from storage it may read through a texel view of the same buffer (TS_VIEW_*): a sampled read.
+    if (dstAccess & VK_ACCESS_2_SHADER_STORAGE_READ_BIT) dstAccess |= VK_ACCESS_2_SHADER_SAMPLED_READ_BIT;
     VkMemoryBarrier2 memory{VK_STRUCTURE_TYPE_MEMORY_BARRIER_2};
     memory.srcStageMask = srcStage;
     memory.srcAccessMask = srcAccess;
@@ -320,15 +322,22 @@ bool ViewFrustum::touches_box(const Matrix4d& transform, const std::array<double
 
 struct Renderer::Impl {
     Device& device;
-    // The compiled pipelines, shared with every renderer on this device (pipelines.h).
+    // The compiled pipelines, shared with every renderer on this device (pipelines.h): the set reading the streams
+    // through texel views, and (made when a frame first needs it) the set reading them through their addresses.
     std::shared_ptr<Pipelines> sharedPipelines;
     Pipelines& pipelines;
+    std::shared_ptr<Pipelines> addressPipelines;
     // The frame's constants (GpuFrame) as a uniform buffer, set 0 binding 0 of every pipeline: a CPU device (lavapipe)
     // loads a uniform block once for all of a SIMD batch's invocations, where a load through a buffer device address
     // goes lane by lane; on a GPU it is the usual path for constants. Everything else is reached by address.
     VkDescriptorPool framePool = VK_NULL_HANDLE;
     VkDescriptorSet frameSet = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;
+    // The texel views of the frame set (shared.h TS_VIEW_*), made again for each frame over the buffers as they are then:
+    // buffers are replaced as they grow, and a destroyed buffer's handle may be reused. The last frame has finished by
+    // then (Device::run waits for it). `viewStandIn` is viewed where the scene lacks a stream: every binding needs a view.
+    std::array<VkBufferView, TS_VIEW_COUNT> texelViews{};
+    Buffer viewStandIn;
 
     // Scene streams.
     // start; main pass: cull, software raster, hardware raster, tessellation; HZB; post pass: cull, software, hardware
@@ -391,17 +400,18 @@ struct Renderer::Impl {
     ~Impl() {
         device.wait_idle();
         VkDevice vk = device.handle();
+        for (VkBufferView view : texelViews) vkDestroyBufferView(vk, view, nullptr);
         vkDestroyDescriptorPool(vk, framePool, nullptr);
         vkDestroyQueryPool(vk, timestamps, nullptr);
     }
 
     // This renderer's own: the frame's uniform buffer and its descriptor set, and the timestamp queries.
     void create_frame_resources() {
-        VkDescriptorPoolSize poolSize{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1};
+        const VkDescriptorPoolSize poolSizes[] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1}, {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, TS_VIEW_COUNT}};
         VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
         poolInfo.maxSets = 1;
-        poolInfo.poolSizeCount = 1;
-        poolInfo.pPoolSizes = &poolSize;
+        poolInfo.poolSizeCount = 2;
+        poolInfo.pPoolSizes = poolSizes;
         check_vk(vkCreateDescriptorPool(device.handle(), &poolInfo, nullptr, &framePool), "vkCreateDescriptorPool");
         VkDescriptorSetAllocateInfo allocateInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
         allocateInfo.descriptorPool = framePool;
@@ -412,6 +422,7 @@ struct Renderer::Impl {
         VkDescriptorBufferInfo frameInfo{frame.handle, 0, sizeof(gpu::GpuFrame)};
         VkWriteDescriptorSet write{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
         write.dstSet = frameSet;
+        write.dstBinding = TS_BINDING_FRAME;
         write.descriptorCount = 1;
         write.descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER;
         write.pBufferInfo = &frameInfo;
@@ -421,6 +432,71 @@ struct Renderer::Impl {
         queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
         queryInfo.queryCount = kTimestamps;
         check_vk(vkCreateQueryPool(device.handle(), &queryInfo, nullptr, &timestamps), "vkCreateQueryPool");
+    }
+
+    // A stream of the frame set's texel views (shared.h TS_VIEW_*): its buffer, the view's format and the texels a frame
+    // of `pixels` may read from it.
+    struct ViewedStream {
+        const Buffer& buffer;
+        VkFormat format;
+        uint64_t texelBytes;
+        uint64_t texels;
+    };
+    std::array<ViewedStream, TS_VIEW_COUNT> viewed_streams(uint64_t pixels) const {
+        auto whole = [](const Buffer& b, uint64_t texelBytes) { return b.handle ? b.size / texelBytes : 0; };
+        return {{{instances, VK_FORMAT_R32G32B32A32_UINT, 16, whole(instances, 16)},
+                 {batches, VK_FORMAT_R32G32B32A32_UINT, 16, whole(batches, 16)},
+                 {instanceBatches, VK_FORMAT_R32_UINT, 4, whole(instanceBatches, 4)},
+                 {clusters, VK_FORMAT_R32G32B32A32_UINT, 16, whole(clusters, 16)},
+                 {meshes, VK_FORMAT_R32G32B32A32_UINT, 16, whole(meshes, 16)},
+                 {positions, VK_FORMAT_R32_UINT, 4, whole(positions, 4)},
+                 {normals, VK_FORMAT_R32_UINT, 4, whole(normals, 4)},
+                 {triangles, VK_FORMAT_R32_UINT, 4, whole(triangles, 4)},
+                 {visibleClusters, VK_FORMAT_R32G32_UINT, 8, TS_VIS_MAX_VISIBLE_CLUSTERS},  // the most a frame may grow it to
+                 {visibility, VK_FORMAT_R32G32_UINT, 8, pixels},
+                 {binPixels, VK_FORMAT_R32_UINT, 4, pixels}}};
+    }
+
+    // Whether a frame of `pixels` can read every stream through a view on this device.
+    bool streams_fit_views(uint64_t pixels) const {
+        for (const ViewedStream& stream : viewed_streams(pixels))
+            if (stream.texels > device.max_texel_buffer_elements()) return false;
+        return true;
+    }
+
+    // The views over the buffers as they are now, written into the frame set. A view spans at most what the device allows
+    // (a frame whose streams are longer reads them through their addresses: streams_fit_views).
+    void write_texel_views(uint64_t pixels) {
+        if (!viewStandIn.handle) viewStandIn = device.create_buffer(16, MemoryUse::Device);
+        const auto streams = viewed_streams(pixels);
+        VkBufferView views[TS_VIEW_COUNT];
+        VkWriteDescriptorSet writes[TS_VIEW_COUNT];
+        for (uint32_t i = 0; i < TS_VIEW_COUNT; ++i) {
+            const ViewedStream& stream = streams[i];
+            const Buffer& buffer = stream.buffer.handle ? stream.buffer : viewStandIn;
+            VkBufferViewCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO};
+            info.buffer = buffer.handle;
+            info.format = stream.format;
+            info.range = std::max<uint64_t>(1, std::min<uint64_t>(buffer.size / stream.texelBytes, device.max_texel_buffer_elements())) * stream.texelBytes;
+            check_vk(vkCreateBufferView(device.handle(), &info, nullptr, &views[i]), "vkCreateBufferView");
+            writes[i] = {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
+            writes[i].dstSet = frameSet;
+            writes[i].dstBinding = TS_VIEW_INSTANCES + i;
+            writes[i].descriptorCount = 1;
+            writes[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+            writes[i].pTexelBufferView = &views[i];
+        }
+        vkUpdateDescriptorSets(device.handle(), TS_VIEW_COUNT, writes, 0, nullptr);
+        for (uint32_t i = 0; i < TS_VIEW_COUNT; ++i) {
+            vkDestroyBufferView(device.handle(), texelViews[i], nullptr);
+            texelViews[i] = views[i];
+        }
+    }
+
+    // The set reading the streams through their addresses, made on first use (pipelines.h).
+    Pipelines& address_pipelines() {
+        if (!addressPipelines) addressPipelines = Pipelines::for_device(device, false);
+        return *addressPipelines;
     }
 
     // Kinds of material bins (TS_BIN_*): micro-triangles have bins of their own only in scenes with displacement.
@@ -905,7 +981,7 @@ struct Renderer::Impl {
     // Builds every HZB level from the visibility buffer, one dispatch per level, if the GPU finds the build needed:
     // `when` (TS_HZB_AFTER_MAIN, TS_HZB_FINAL) names the build, whose dispatch arguments a first one-workgroup step writes
     // from the draw state (no workgroups for a build that would change nothing; hzb.comp.glsl).
-    void build_hzb(VkCommandBuffer cmd, uint32_t when) {
+    void build_hzb(VkCommandBuffer cmd, Pipelines& pipelines, uint32_t when) {
         vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.hzb);
         PushConstants decide{0, when, hzbDispatch.address};
         vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(decide), &decide);
@@ -924,7 +1000,7 @@ struct Renderer::Impl {
     }
 };
 
-Renderer::Renderer(Device& device) : device_(device), impl_(std::make_unique<Impl>(device, Pipelines::for_device(device))) {
+Renderer::Renderer(Device& device) : device_(device), impl_(std::make_unique<Impl>(device, Pipelines::for_device(device, true))) {
     impl_->create_frame_resources();
 }
 Renderer::~Renderer() = default;
@@ -977,7 +1053,13 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     }
     areaLights = areaLights || texturedDome;
     if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages));
-    Pipelines& pipelines = s.pipelines;
+    // Every pass reads the streams through texel views where they fit (the views set, whose lock is held), else through
+    // their addresses (that set's lock too).
+    const uint64_t pixels = uint64_t(settings.width) * settings.height;
+    const bool texelViews = settings.texelViews && s.streams_fit_views(pixels);
+    Pipelines& pipelines = texelViews ? s.pipelines : s.address_pipelines();
+    std::unique_lock<std::mutex> addressLock;
+    if (&pipelines != &s.pipelines) addressLock = std::unique_lock<std::mutex>(pipelines.mutex);
     const bool ownCorners = settings.rasterVertices == RasterVertices::Auto ? pipelines.default_own_corners()
                                                                               : settings.rasterVertices == RasterVertices::PerTriangle;
     const bool countFragments = settings.visualize == Visualize::Overdraw;  // the rasterizers' variants that count
@@ -989,6 +1071,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.swSharedVertices = !ownCorners;
     frameStats.cullGroupSize = pipelines.cullGroupSize;
     frameStats.shadePixelsPerThread = pipelines.shadePixelsPerThread;
+    frameStats.texelViews = texelViews;
     frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
     frameStats.instances = s.instanceCount;
     frameStats.instanceBatches = uint32_t(s.gpuBatches.size());
@@ -998,11 +1081,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.textureBytes = s.texturePool.size + s.textureSlots.size;
     frameStats.geometryBytes = s.meshes.size + s.levels.size + s.cutBlocks.size + s.blockClusters.size + s.clusters.size + s.positions.size + s.normals.size + s.colors.size + s.uvs.size +
                                s.triangles.size;
-    const uint64_t pixels = uint64_t(settings.width) * settings.height;
 
     for (;;) {
         s.ensure_frame_buffers(settings.width, settings.height, aovs.size());
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
+        s.write_texel_views(pixels);
 
         gpu::GpuFrame f{};
         f.viewProjection = to_gpu(cam.viewProjection);
@@ -1248,7 +1331,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, patchDraws), 4, 0);
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatchGroupsX), 8, 0);  // X and Y
                 vkCmdFillBuffer(cmd, s.drawState.handle, offsetof(gpu::GpuDrawState, dicePatches), 4, 0);
-                s.build_hzb(cmd, TS_HZB_AFTER_MAIN);
+                s.build_hzb(cmd, pipelines, TS_HZB_AFTER_MAIN);
                 barrier(cmd, VK_PIPELINE_STAGE_2_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 mark();
@@ -1265,7 +1348,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             }
             // The whole frame's HZB, for the next frame's main pass: unless the HZB of the main pass already is that (the
             // post pass drew nothing).
-            if (occlusion) s.build_hzb(cmd, TS_HZB_FINAL);
+            if (occlusion) s.build_hzb(cmd, pipelines, TS_HZB_FINAL);
             mark();
 
             // Material bins: count covered pixels per material, give each bin its range and dispatch arguments, scatter

@@ -38,7 +38,7 @@ void main() {
     uvec2 pixel = gl_GlobalInvocationID.xy;
     if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
     uint index = pixel.y * frame.viewport.x + pixel.x;
-    if (VisibilityRef(frame.visibility).data[index] != 0ul) return;
+    if (visibility_value(frame, index) != 0ul) return;
     uint aov = push.aov;
     if (TEXTURED && aov == TS_AOV_COLOR) {
         for (uint i = 0u; i < frame.viewport.w; ++i)

@@ -36,7 +36,7 @@ void main() {
         if (place.x != TS_NO_BIN) CounterRef(frame.binPixels).data[BinRef(frame.bins).data[place.x].offset + place.y] = pack_bin_pixel(pixel);
         return;
     }
-    uint64_t value = VisibilityRef(frame.visibility).data[index];
+    uint64_t value = visibility_value(frame, index);
     if (value == 0ul) {
         if (STEP == TS_CLASSIFY_COUNT) places.data[index] = uvec2(TS_NO_BIN, 0u);
         // The first AOV's background, saving background.comp.glsl's pass over the pixels (push.aov: that AOV, or

@@ -182,7 +182,7 @@ void test_cluster(GpuFrame frame, uint step, uint instanceIndex, Instance instan
     DrawStateRef draw = DrawStateRef(frame.drawState);
     float threshold = frame.lod.y;
     uint clusterIndex = mesh.clusterOffset + clusterInMesh;
-    GpuCluster cluster = ClusterRef(frame.clusters).data[clusterIndex];
+    GpuCluster cluster = load_cluster(frame, clusterIndex);
     if (lod) {
         if (projected_error(frame, instance, translation, scale, cluster.lodSphere, cluster.lodError) > threshold) return;
         if (projected_error(frame, instance, translation, scale, cluster.parentSphere, cluster.parentError) <= threshold) return;
@@ -254,7 +254,7 @@ void cut_by_blocks(GpuFrame frame, uint step, uint instanceIndex, Instance insta
 // clusters, a masked pass of the block code on every level (twice the cull of the 1e10 field).
 void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     Instance instance = load_instance(frame, instanceIndex);
-    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    GpuMesh mesh = load_mesh(frame, instance.meshIndex);
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
     vec3 meshCenter = to_camera_relative(instance, translation, mesh.sphere.xyz);
@@ -277,7 +277,7 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
 }
 
 vec4 instance_sphere(GpuFrame frame, Instance instance) {
-    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    GpuMesh mesh = load_mesh(frame, instance.meshIndex);
     float scale = instance_scale(instance);
     return vec4(to_camera_relative(instance, camera_relative_translation(instance), mesh.sphere.xyz),
                 mesh.sphere.w * scale + instance_displacement(frame, instance) * scale);
@@ -365,11 +365,11 @@ void post_pass(GpuFrame frame) {
     for (uint i = gl_GlobalInvocationID.x; i < clusters; i += gl_NumWorkGroups.x * gl_WorkGroupSize.x) {
         uvec2 entry = VisibleClusterRef(frame.deferredClusters).data[i];
         Instance instance = load_instance(frame, entry.x);
-        GpuCluster cluster = ClusterRef(frame.clusters).data[entry.y];
+        GpuCluster cluster = load_cluster(frame, entry.y);
         float scale = instance_scale(instance);
         vec3 center = to_camera_relative(instance, camera_relative_translation(instance), cluster.sphere.xyz);
         float displacement = (instance.flags & TS_INSTANCE_DISPLACED) != 0u
-            ? cluster_displacement(frame, instance, entry.y - MeshRef(frame.meshes).data[instance.meshIndex].clusterOffset) : 0.0;
+            ? cluster_displacement(frame, instance, entry.y - load_mesh(frame, instance.meshIndex).clusterOffset) : 0.0;
         float radius = (cluster.sphere.w + displacement) * scale;
         if (hidden(frame, TS_CULL_POST, center, radius)) atomicAdd(draw.state.occludedClusters, 1u);
         else draw_cluster(frame, TS_CULL_POST, entry.x, entry.y, cluster, center, radius, scale);

@@ -58,10 +58,114 @@ struct Instance {
     uint displacementBounds;  // GpuInstanceBatch.displacementBounds
 };
 
+// The streams read per pixel, per triangle or per vertex, through texel buffer views (shared.h TS_VIEW_*) in the
+// variants with TEXEL_VIEWS, else through their addresses. Every loader below gives the same bits either way; the
+// struct loaders follow shared.h's layouts, 16 bytes a texel (a fetch the caller's code leaves unused is dropped).
+layout(constant_id = TS_SPEC_TEXEL_VIEWS) const bool TEXEL_VIEWS = false;
+layout(set = 0, binding = TS_VIEW_INSTANCES) uniform usamplerBuffer instanceTexels;
+layout(set = 0, binding = TS_VIEW_BATCHES) uniform usamplerBuffer batchTexels;
+layout(set = 0, binding = TS_VIEW_INSTANCE_BATCHES) uniform usamplerBuffer instanceBatchTexels;
+layout(set = 0, binding = TS_VIEW_CLUSTERS) uniform usamplerBuffer clusterTexels;
+layout(set = 0, binding = TS_VIEW_MESHES) uniform usamplerBuffer meshTexels;
+layout(set = 0, binding = TS_VIEW_POSITIONS) uniform usamplerBuffer positionTexels;
+layout(set = 0, binding = TS_VIEW_NORMALS) uniform usamplerBuffer normalTexels;
+layout(set = 0, binding = TS_VIEW_TRIANGLES) uniform usamplerBuffer triangleTexels;
+layout(set = 0, binding = TS_VIEW_VISIBLE_CLUSTERS) uniform usamplerBuffer visibleClusterTexels;
+layout(set = 0, binding = TS_VIEW_VISIBILITY) uniform usamplerBuffer visibilityTexels;
+layout(set = 0, binding = TS_VIEW_BIN_PIXELS) uniform usamplerBuffer binPixelTexels;
+
+GpuCluster load_cluster(GpuFrame frame, uint index) {
+    if (!TEXEL_VIEWS) return ClusterRef(frame.clusters).data[index];
+    int at = int(6u * index);
+    uvec4 t3 = texelFetch(clusterTexels, at + 3), t4 = texelFetch(clusterTexels, at + 4), t5 = texelFetch(clusterTexels, at + 5);
+    GpuCluster c;
+    c.sphere = uintBitsToFloat(texelFetch(clusterTexels, at));
+    c.lodSphere = uintBitsToFloat(texelFetch(clusterTexels, at + 1));
+    c.parentSphere = uintBitsToFloat(texelFetch(clusterTexels, at + 2));
+    c.lodError = uintBitsToFloat(t3.x);
+    c.parentError = uintBitsToFloat(t3.y);
+    c.vertexOffset = t3.z;
+    c.triangleOffset = t3.w;
+    c.triangleCount = t4.x;
+    c.meshIndex = t4.y;
+    c.levelVertices = t4.z;
+    c.group = t4.w;
+    c.meanTriangleArea = uintBitsToFloat(t5.x);
+    c.normalCone = t5.y;
+    c.pad0 = t5.z;
+    c.pad1 = t5.w;
+    return c;
+}
+
+GpuMesh load_mesh(GpuFrame frame, uint index) {
+    if (!TEXEL_VIEWS) return MeshRef(frame.meshes).data[index];
+    int at = int(4u * index);
+    uvec4 t1 = texelFetch(meshTexels, at + 1), t2 = texelFetch(meshTexels, at + 2), t3 = texelFetch(meshTexels, at + 3);
+    GpuMesh m;
+    m.sphere = uintBitsToFloat(texelFetch(meshTexels, at));
+    m.clusterOffset = t1.x;
+    m.clusterCount = t1.y;
+    m.colorOffset = t1.z;
+    m.vertexOffset = t1.w;
+    m.levelOffset = t2.x;
+    m.levelCount = t2.y;
+    m.leafClusterCount = t2.z;
+    m.lodRadius = uintBitsToFloat(t2.w);
+    m.uvOffset = t3.x;
+    m.displacementNormalOffset = t3.y;
+    m.seamVertexOffset = t3.z;
+    m.seamTriangleOffset = t3.w;
+    return m;
+}
+
+GpuInstance load_gpu_instance(GpuFrame frame, uint index) {
+    if (!TEXEL_VIEWS) return InstanceRef(frame.instances).data[index];
+    GpuInstance g;
+    for (int k = 0; k < 3; ++k) g.rows[k] = uintBitsToFloat(texelFetch(instanceTexels, int(3u * index) + k));
+    return g;
+}
+
+uint instance_batch_word(GpuFrame frame, uint index) {
+    return TEXEL_VIEWS ? texelFetch(instanceBatchTexels, int(index)).x : UintRef(frame.instanceBatches).data[index];
+}
+
+GpuInstanceBatch load_batch(GpuFrame frame, uint index) {
+    if (!TEXEL_VIEWS) return InstanceBatchRef(frame.batches).data[index];
+    int at = int(4u * index);
+    uvec4 t2 = texelFetch(batchTexels, at + 2), t3 = texelFetch(batchTexels, at + 3);
+    GpuInstanceBatch b;
+    b.originHigh = uintBitsToFloat(texelFetch(batchTexels, at));
+    b.originLow = uintBitsToFloat(texelFetch(batchTexels, at + 1));
+    b.meshIndex = t2.x;
+    b.primId = t2.y;
+    b.materialIndex = t2.z;
+    b.flags = t2.w;
+    b.displacementBounds = t3.x;
+    b.pad0 = t3.y;
+    b.pad1 = t3.z;
+    b.pad2 = t3.w;
+    return b;
+}
+
+// The packed normal of a vertex (decode_octahedral).
+uint vertex_normal_bits(GpuFrame frame, uint vertex) {
+    return TEXEL_VIEWS ? texelFetch(normalTexels, int(vertex)).x : UintRef(frame.normals).data[vertex];
+}
+
+// A pixel's visibility value (the rasterizers write it with atomics, through its address).
+uint64_t visibility_value(GpuFrame frame, uint pixel) {
+    return TEXEL_VIEWS ? packUint2x32(texelFetch(visibilityTexels, int(pixel)).xy) : VisibilityRef(frame.visibility).data[pixel];
+}
+
+// Entry i of frame.binPixels (pack_bin_pixel).
+uint bin_pixel_entry(GpuFrame frame, uint i) {
+    return TEXEL_VIEWS ? texelFetch(binPixelTexels, int(i)).x : CounterRef(frame.binPixels).data[i];
+}
+
 Instance load_instance(GpuFrame frame, uint index) {
-    GpuInstance g = InstanceRef(frame.instances).data[index];
-    uint batchWord = UintRef(frame.instanceBatches).data[index];
-    GpuInstanceBatch batch = InstanceBatchRef(frame.batches).data[batchWord & TS_INSTANCE_BATCH_MASK];
+    GpuInstance g = load_gpu_instance(frame, index);
+    uint batchWord = instance_batch_word(frame, index);
+    GpuInstanceBatch batch = load_batch(frame, batchWord & TS_INSTANCE_BATCH_MASK);
     Instance instance;
     instance.rows = g.rows;
     // The batch origin's high and low parts first (both large), then the instance's offset from it.
@@ -84,15 +188,24 @@ vec3 to_camera_relative(Instance instance, vec3 translation, vec3 p) {
 }
 
 vec3 vertex_position(GpuFrame frame, uint vertex) {
+    if (TEXEL_VIEWS) {
+        int at = int(3u * vertex);
+        return uintBitsToFloat(uvec3(texelFetch(positionTexels, at).x, texelFetch(positionTexels, at + 1).x, texelFetch(positionTexels, at + 2).x));
+    }
     FloatRef positions = FloatRef(frame.positions);
     return vec3(positions.data[3 * vertex], positions.data[3 * vertex + 1], positions.data[3 * vertex + 2]);
+}
+
+// A packed triangle of the scene's triangle stream: three 8-bit cluster-local corners, the material slot above.
+uint triangle_word(GpuFrame frame, uint index) {
+    return TEXEL_VIEWS ? texelFetch(triangleTexels, int(index)).x : UintRef(frame.triangles).data[index];
 }
 
 // The vertices of a triangle's three corners. The winding is reversed for flipped instances so that every triangle
 // reaches the rasterizer counter-clockwise when seen from its front. All three from one load of the packed triangle,
 // not one load per corner (on a CPU device every load of a per-pixel address is a loop over the lanes).
 uvec3 triangle_vertices(GpuFrame frame, GpuCluster cluster, uint triangle, bool flip) {
-    uint packed = UintRef(frame.triangles).data[cluster.triangleOffset + triangle];
+    uint packed = triangle_word(frame, cluster.triangleOffset + triangle);
     uvec3 v = cluster.vertexOffset + (uvec3(packed, packed >> 8u, packed >> 16u) & 0xffu);
     return flip ? v.xzy : v;
 }
@@ -198,7 +311,7 @@ Payload decode_payload(GpuFrame frame, uint payload) {
 
 // The instance and cluster behind a visible-cluster slot (TS_VISIBLE_SOFTWARE left in x).
 uvec2 visible_cluster(GpuFrame frame, uint slot) {
-    return VisibleClusterRef(frame.visibleClusters).data[slot];
+    return TEXEL_VIEWS ? texelFetch(visibleClusterTexels, int(slot)).xy : VisibleClusterRef(frame.visibleClusters).data[slot];
 }
 
 // How far a displaced instance's surface may move from its mesh (mesh units: times instance_scale in the world); 0
@@ -223,6 +336,6 @@ float cluster_displacement(GpuFrame frame, Instance instance, uint clusterInMesh
 // (GeomSubsets), the slot's entry in the instance's material table.
 uint pixel_material(GpuFrame frame, Instance instance, uint cluster, uint triangle) {
     if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u) return instance.materialIndex;
-    uint slot = UintRef(frame.triangles).data[ClusterRef(frame.clusters).data[cluster].triangleOffset + triangle] >> 24;
+    uint slot = triangle_word(frame, load_cluster(frame, cluster).triangleOffset + triangle) >> 24;
     return UintRef(frame.materialTables).data[instance.materialIndex + slot];
 }

@@ -50,10 +50,9 @@ void main() {
         uvec2 p0 = min(texel * 2u, below - 1u), p1 = min(texel * 2u + 1u, below - 1u);
         float farthest;
         if (level == 0u) {
-            VisibilityRef visibility = VisibilityRef(frame.visibility);
             uint row0 = p0.y * below.x, row1 = p1.y * below.x;
-            farthest = min(min(uintBitsToFloat(uint(visibility.data[row0 + p0.x] >> 32)), uintBitsToFloat(uint(visibility.data[row0 + p1.x] >> 32))),
-                           min(uintBitsToFloat(uint(visibility.data[row1 + p0.x] >> 32)), uintBitsToFloat(uint(visibility.data[row1 + p1.x] >> 32))));
+            farthest = min(min(uintBitsToFloat(uint(visibility_value(frame, row0 + p0.x) >> 32)), uintBitsToFloat(uint(visibility_value(frame, row0 + p1.x) >> 32))),
+                           min(uintBitsToFloat(uint(visibility_value(frame, row1 + p0.x) >> 32)), uintBitsToFloat(uint(visibility_value(frame, row1 + p1.x) >> 32))));
         } else {
             uint row0 = belowOffset + p0.y * below.x, row1 = row0 + (p1.y - p0.y) * below.x;
             farthest = min(min(push.hzb.data[row0 + p0.x], push.hzb.data[row0 + p1.x]), min(push.hzb.data[row1 + p0.x], push.hzb.data[row1 + p1.x]));

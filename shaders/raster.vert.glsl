@@ -13,8 +13,8 @@ layout(location = 1) flat out uint outFlags;
 void main() {
     GpuFrame frame = frameConstants;
     uint slot = SlotListRef(frame.hardwareList).data[DOUBLE_SIDED ? frame.counts.y - 1u - gl_InstanceIndex : gl_InstanceIndex];
-    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
-    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    uvec2 visible = visible_cluster(frame, slot);
+    GpuCluster cluster = load_cluster(frame, visible.y);
     uint triangle = uint(gl_VertexIndex) / 3u;
     if (triangle >= cluster.triangleCount) {
         gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // outside the clip volume: the triangle is discarded

@@ -45,9 +45,9 @@ void main() {
     uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
     if (k >= count) return;  // the whole workgroup: no barrier is skipped by some threads only
     uint slot = SlotListRef(frame.softwareList).data[LARGE_TRIANGLES ? frame.counts.y - 1u - k : k];
-    uvec2 visible = VisibleClusterRef(frame.visibleClusters).data[slot];
+    uvec2 visible = visible_cluster(frame, slot);
     Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
-    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    GpuCluster cluster = load_cluster(frame, visible.y);
     vec3 translation = camera_relative_translation(instance);
 
     if (!OWN_CORNERS) {

@@ -76,7 +76,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
     bool software = (visible.x & TS_VISIBLE_SOFTWARE) != 0u;
     visible.x &= ~TS_VISIBLE_SOFTWARE;
     Instance instance = load_instance(frame, visible.x);
-    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    GpuCluster cluster = load_cluster(frame, visible.y);
     if (OUTPUT == TS_OUTPUT_ID) {
         uint id = aov == TS_AOV_PRIM_ID ? instance.primId
                 : aov == TS_AOV_INSTANCE_ID ? visible.x
@@ -86,7 +86,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
         return;
     }
 
-    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    GpuMesh mesh = load_mesh(frame, instance.meshIndex);
     // The pixel's ray and where it meets the triangle's plane (the rasterizers' masks use the same code); for a
     // micro-triangle of a displaced surface, the micro-triangle rebuilt as the patch raster made it.
     PixelTriangle hitTriangle;
@@ -134,9 +134,8 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
         mat3 toWorld = transpose(mat3(instance.rows[0].xyz, instance.rows[1].xyz, instance.rows[2].xyz));
         vec3 a = toWorld[0], b = toWorld[1], c = toWorld[2];
         mat3 normalMatrix = mat3(cross(b, c), cross(c, a), cross(a, b)) * (dot(a, cross(b, c)) < 0.0 ? -1.0 : 1.0);
-        UintRef normals = UintRef(frame.normals);
-        vec3 objectNormal = bary.x * decode_octahedral(normals.data[v0]) + bary.y * decode_octahedral(normals.data[v1]) +
-                            bary.z * decode_octahedral(normals.data[v2]);
+        vec3 objectNormal = bary.x * decode_octahedral(vertex_normal_bits(frame, v0)) + bary.y * decode_octahedral(vertex_normal_bits(frame, v1)) +
+                            bary.z * decode_octahedral(vertex_normal_bits(frame, v2));
         n = normalize(normalMatrix * objectNormal);
     }
     if (dot(geometric, direction) > 0.0) {  // the back of a double-sided surface: shade its other side
@@ -235,7 +234,7 @@ void main() {
     for (uint k = 0u; k < PIXELS_PER_THREAD; ++k) {
         uint i = first + k * TS_SHADE_GROUP_SIZE;
         if (i >= bin.count) return;
-        uvec2 pixel = unpack_bin_pixel(CounterRef(frame.binPixels).data[bin.offset + i]);
-        shade(frame, pixel, VisibilityRef(frame.visibility).data[pixel.y * frame.viewport.x + pixel.x], aov);
+        uvec2 pixel = unpack_bin_pixel(bin_pixel_entry(frame, bin.offset + i));
+        shade(frame, pixel, visibility_value(frame, pixel.y * frame.viewport.x + pixel.x), aov);
     }
 }

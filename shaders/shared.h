@@ -248,6 +248,28 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Specialization constant of the rasterizers' variants for the overdraw view (TS_VIS_OVERDRAW), which count every
 // fragment: the count, present but not run, cost lavapipe 6 % of the compute raster (docs/benchmarks.md).
 #define TS_SPEC_COUNT_FRAGMENTS 12
+// Specialization constant: the passes read the streams below through texel buffer views (frame set bindings
+// TS_VIEW_*) rather than through buffer addresses. lavapipe (Mesa 22.3) loads through an address lane by lane, in a loop
+// with a branch per lane for each component; a texel fetch is one unrolled gather for all four components (a
+// screen-filling resolve 190 -> ~70 ms, docs/benchmarks.md). The renderer picks it per frame: on where every view fits
+// the device's maxTexelBufferElements (RenderSettings::texelViews).
+#define TS_SPEC_TEXEL_VIEWS 13
+
+// Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
+// streams read per pixel, per triangle or per vertex. The format of each: TS_VIEW_FORMAT_* (renderer.cpp).
+#define TS_BINDING_FRAME 0
+#define TS_VIEW_INSTANCES 1          // GpuInstance: 3 RGBA32UI texels each
+#define TS_VIEW_BATCHES 2            // GpuInstanceBatch: 4 RGBA32UI texels each
+#define TS_VIEW_INSTANCE_BATCHES 3   // uint per instance: R32UI
+#define TS_VIEW_CLUSTERS 4           // GpuCluster: 6 RGBA32UI texels each
+#define TS_VIEW_MESHES 5             // GpuMesh: 4 RGBA32UI texels each
+#define TS_VIEW_POSITIONS 6          // float bits, 3 per vertex: R32UI
+#define TS_VIEW_NORMALS 7            // octahedral normal per vertex: R32UI
+#define TS_VIEW_TRIANGLES 8          // packed triangle: R32UI
+#define TS_VIEW_VISIBLE_CLUSTERS 9   // uvec2 (instance, cluster): RG32UI
+#define TS_VIEW_VISIBILITY 10        // 64-bit visibility value per pixel: RG32UI (low word first)
+#define TS_VIEW_BIN_PIXELS 11        // packed pixel per binned pixel: R32UI
+#define TS_VIEW_COUNT 11
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64

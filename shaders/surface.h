@@ -124,12 +124,12 @@ PixelTriangle pixel_triangle(GpuFrame frame, Instance instance, GpuCluster clust
 bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
     uvec2 visible = visible_cluster(frame, payload >> TS_VIS_TRIANGLE_BITS);
     Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
-    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    GpuCluster cluster = load_cluster(frame, visible.y);
     uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
     GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
     bool textured = (material.textureInputs & (1u << TS_INPUT_OPACITY)) != 0u;
     if (!textured && !vertex_opacity(material)) return false;  // another slot of the mesh's materials
-    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    GpuMesh mesh = load_mesh(frame, instance.meshIndex);
     PixelTriangle t = pixel_triangle(frame, instance, cluster, triangle, pixel);
     if (!textured) {  // a primvar reader's opacity, per vertex
         if (mesh.colorOffset == TS_NO_STREAM) return false;

@@ -58,7 +58,7 @@ uint route_patch(GpuFrame frame, uint index, vec3 p[3], float reach, uint n, Ins
         // The vertex channel (colours, primvar readers) is blended with the micro-triangle's corner weights, which the pool does not hold: resolve
         // dices such patches again (TS_BIN_DICED_MICRO), so their points are not kept.
         bool weights = (material.flags & TS_MATERIAL_VERTEX_CHANNEL) != 0u &&
-                       MeshRef(frame.meshes).data[instance.meshIndex].colorOffset != TS_NO_STREAM;
+                       load_mesh(frame, instance.meshIndex).colorOffset != TS_NO_STREAM;
         uint count = weights ? 0u : (n + 1u) * (n + 2u) / 2u;
         uint at = atomicAdd(draw.state.patchPoints, count);
         if (!weights && at + count <= uint(frame.tessellation.z)) PatchRef(frame.patches).data[index].points = at;
@@ -77,7 +77,7 @@ uint route_patch(GpuFrame frame, uint index, vec3 p[3], float reach, uint n, Ins
 // How far displacement can move a triangle of a cluster: its material's bound, or its cluster's where that is tighter
 // (mesh units times the instance's scale).
 float displacement_reach(GpuFrame frame, Instance instance, GpuMaterial material, uint clusterIndex, float scale) {
-    uint clusterInMesh = clusterIndex - MeshRef(frame.meshes).data[instance.meshIndex].clusterOffset;
+    uint clusterInMesh = clusterIndex - load_mesh(frame, instance.meshIndex).clusterOffset;
     return min(material.displacement.w, cluster_displacement(frame, instance, clusterInMesh)) * scale;
 }
 
@@ -110,7 +110,7 @@ void tessellate_triangle(GpuFrame frame) {
     if (k >= draw.state.tessClusters) return;
     uint slot = SlotListRef(frame.tessellationList).data[k];
     uvec2 visible = visible_cluster(frame, slot);
-    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    GpuCluster cluster = load_cluster(frame, visible.y);
     uint triangle = gl_LocalInvocationIndex;
     if (triangle >= cluster.triangleCount) return;
     Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);

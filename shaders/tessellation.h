@@ -37,7 +37,7 @@ struct DisplacedTriangle {
 
 DisplacedTriangle displaced_triangle(GpuFrame frame, Instance instance, GpuCluster cluster, uint triangle) {
     DisplacedTriangle t;
-    GpuMesh mesh = MeshRef(frame.meshes).data[instance.meshIndex];
+    GpuMesh mesh = load_mesh(frame, instance.meshIndex);
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
     uvec3 corners = triangle_vertices(frame, cluster, triangle, flip);
     for (uint k = 0u; k < 3u; ++k) {
@@ -46,7 +46,7 @@ DisplacedTriangle displaced_triangle(GpuFrame frame, Instance instance, GpuClust
         t.p[k] = vertex_position(frame, v);
         t.n[k] = decode_octahedral(mesh.displacementNormalOffset != TS_NO_STREAM
                                        ? UintRef(frame.displacementNormals).data[v - mesh.vertexOffset + mesh.displacementNormalOffset]
-                                       : UintRef(frame.normals).data[v]);
+                                       : vertex_normal_bits(frame, v));
         t.uv[k] = mesh.uvOffset != TS_NO_STREAM ? vertex_uv(frame, mesh, v) : vec2(0.0);
         t.seamVertex[k] = mesh.seamVertexOffset != TS_NO_STREAM ? UintRef(frame.seams).data[mesh.seamVertexOffset + v - mesh.vertexOffset] : TS_NO_STREAM;
         t.twin[k] = vec4(uintBitsToFloat(0x7fc00000u));
@@ -245,7 +245,7 @@ DicedPatch load_patch(GpuFrame frame, uint index) {
     uvec2 visible = visible_cluster(frame, d.slot);
     d.clusterIndex = visible.y;
     d.instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
-    GpuCluster cluster = ClusterRef(frame.clusters).data[visible.y];
+    GpuCluster cluster = load_cluster(frame, visible.y);
     d.material = MaterialRef(frame.materials).data[pixel_material(frame, d.instance, visible.y, d.triangleIndex)];
     d.triangle = displaced_triangle(frame, d.instance, cluster, d.triangleIndex);
     d.translation = camera_relative_translation(d.instance);
@@ -362,7 +362,7 @@ bool micro_masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
     MicroTriangle m = pixel_micro_triangle(frame, p.patchIndex, p.micro, pixel);
     if ((m.material.textureInputs & (1u << TS_INPUT_OPACITY)) == 0u) {
         if (!vertex_opacity(m.material)) return false;
-        GpuMesh mesh = MeshRef(frame.meshes).data[m.meshIndex];
+        GpuMesh mesh = load_mesh(frame, m.meshIndex);
         if (mesh.colorOffset == TS_NO_STREAM) return false;
         vec3 bary = m.t.bary.x * m.w[0] + m.t.bary.y * m.w[1] + m.t.bary.z * m.w[2];  // on the cluster's triangle
         vec4 channel = interpolated_channel(frame, mesh, bary, m.t.v0, m.t.v1, m.t.v2);

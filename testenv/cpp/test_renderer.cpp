@@ -696,6 +696,82 @@ TEST_F(RendererTest, ShadePixelsPerThreadDrawTheSameFrames) {
     EXPECT_GT(covered, 1000u);
 }
 
+// The passes read the scene's streams through texel views (shared.h TS_SPEC_TEXEL_VIEWS) or through their addresses:
+// the same frames bit for bit, for every AOV, both rasterizers, several material bins, a mirrored instance, the
+// occlusion passes of a second frame, the visualizations that read clusters and counts, and displaced surfaces (their
+// dicing, patch raster and micro-triangle resolve read the same streams). A loader that read a struct's field from the
+// wrong place in its texels changes one of them.
+TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
+    GpuScene spheres;
+    const uint32_t wall = spheres.add_mesh(grid_mesh(16)), sphere = spheres.add_mesh(bumpy_sphere(48));
+    std::vector<InstanceDesc> instances = wall_and_spheres(wall, sphere);
+    for (size_t i = 0; i < instances.size(); ++i) {
+        MaterialDesc material;
+        material.diffuseColor = {0.3f + 0.1f * float(i % 3), 0.5f, 0.2f};
+        material.roughness = 0.3f;
+        instances[i].material = spheres.add_material(material);
+    }
+    spheres.set_instances(instances);
+    spheres.set_lights({{LightType::Distant, {0.3, -0.5, -1}, {2, 2, 2}}, {LightType::Dome, {0, 0, -1}, {0.2f, 0.3f, 0.4f}}});
+
+    GpuScene displaced;
+    const uint32_t bumpy = displaced.add_mesh(bumpy_sphere(24));
+    MaterialDesc displacing;
+    displacing.displacement = 1.0f;
+    displacing.displacementMagnitude = 0.08f;
+    InstanceDesc instance = identity_instance(bumpy);
+    instance.material = displaced.add_material(displacing);
+    displaced.set_instances({instance});
+    displaced.set_lights({{LightType::Distant, {0.3, -0.5, -1}, {2, 2, 2}}});
+
+    const std::vector<Aov> aovs = {Aov::Color, Aov::Depth, Aov::Normal, Aov::PrimId, Aov::InstanceId, Aov::ClusterId, Aov::TriangleId};
+    struct Case {
+        const char* name;
+        GpuScene* scene;
+        CameraDesc camera;
+        RasterMode raster;
+        Visualize visualize;
+        float pixelError = 1.0f;
+    };
+    const Case cases[] = {{"spheres", &spheres, camera_at(0, 0.5, 7), RasterMode::Auto, Visualize::None},
+                          {"spheres, source clusters (normal cones cull)", &spheres, camera_at(0, 0, 6), RasterMode::Auto, Visualize::None, 0.0f},
+                          {"spheres, hardware raster", &spheres, camera_at(0.3, 0.2, 4), RasterMode::Hardware, Visualize::None},
+                          {"spheres, compute raster", &spheres, camera_at(0.3, 0.2, 4), RasterMode::Software, Visualize::None},
+                          {"spheres, groups", &spheres, camera_at(0, 0.5, 7), RasterMode::Auto, Visualize::Groups},
+                          {"spheres, overdraw", &spheres, camera_at(0, 0.5, 7), RasterMode::Auto, Visualize::Overdraw},
+                          {"displaced", &displaced, camera_at(0.8, 0.3, 1.4), RasterMode::Auto, Visualize::None},
+                          {"displaced, tessellation", &displaced, camera_at(0.8, 0.3, 1.4), RasterMode::Auto, Visualize::Tessellation}};
+    for (const Case& c : cases) {
+        RenderSettings settings{160, 96, {0.25f, 0.5f, 0.75f, 1}};
+        settings.raster = c.raster;
+        settings.visualize = c.visualize;
+        settings.pixelError = c.pixelError;
+        std::vector<Image> frames[2][2];
+        FrameStats stats[2][2];
+        for (int views = 0; views < 2; ++views) {
+            Renderer renderer(*device);  // its own previous frame: the second render tests against the first's HZB
+            settings.texelViews = views == 1;
+            for (int frame = 0; frame < 2; ++frame) frames[views][frame] = renderer.render(*c.scene, c.camera, settings, aovs, &stats[views][frame]);
+        }
+        for (int frame = 0; frame < 2; ++frame) {
+            const std::string what = std::string(c.name) + (frame ? ", second frame" : ", first frame");
+            EXPECT_FALSE(stats[0][frame].texelViews) << what;
+            EXPECT_TRUE(stats[1][frame].texelViews) << what;
+            EXPECT_GT(stats[1][frame].visibleClusters, 0u) << what;
+            EXPECT_EQ(stats[0][frame].visibleClusters, stats[1][frame].visibleClusters) << what;
+            EXPECT_EQ(stats[0][frame].swTriangles, stats[1][frame].swTriangles) << what;
+            EXPECT_EQ(stats[0][frame].hwTriangles, stats[1][frame].hwTriangles) << what;
+            EXPECT_EQ(stats[0][frame].microTriangles, stats[1][frame].microTriangles) << what;
+            EXPECT_EQ(stats[0][frame].backfaceClusters, stats[1][frame].backfaceClusters) << what;
+            EXPECT_EQ(stats[0][frame].occludedClusters, stats[1][frame].occludedClusters) << what;
+            expect_same_images(frames[0][frame], frames[1][frame], what.c_str());
+        }
+        EXPECT_TRUE(stats[1][1].occlusionTested) << c.name;
+        if (c.pixelError == 0.0f) EXPECT_GT(stats[1][0].backfaceClusters, 0u) << c.name;
+        if (c.scene == &displaced) EXPECT_GT(stats[1][0].microTriangles, 0u) << c.name;
+    }
+}
+
 TEST_F(RendererTest, ThePostPassDrawsWhatTheLastFrameHid) {
     GpuScene scene;
     scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));

@@ -74,6 +74,8 @@ public:
     float timestamp_period_ns() const { return timestampPeriod_; }
     // Sub-pixel bits of the hardware rasterizer's vertex snapping; the compute rasterizer snaps the same way.
     uint32_t sub_pixel_bits() const { return subPixelBits_; }
+    // The most texels a texel buffer view may span (the renderer's views of its streams, shared.h TS_VIEW_*).
+    uint32_t max_texel_buffer_elements() const { return maxTexelBufferElements_; }
 
     Buffer create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlags extraUsage = 0);
     // Copies `bytes` into a Device buffer (directly when mapped, else through a staging buffer).
@@ -108,6 +110,7 @@ private:
     bool software_ = false;
     float timestampPeriod_ = 1.0f;
     uint32_t subPixelBits_ = 8;
+    uint32_t maxTexelBufferElements_ = 65536;
 
     std::recursive_mutex runMutex_;  // the command pool and the queue are used by one thread at a time
     std::mutex sharedStateMutex_;

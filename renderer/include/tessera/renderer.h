@@ -187,6 +187,11 @@ struct RenderSettings {
     // The cut skips whole blocks of clusters that cannot be drawn (GpuCutBlock, renderer/cut_blocks.cpp). Blocks change the clusters tested and
     // the time, never the cut: false tests each cluster of the levels not ruled out, to compare (tests, measurements).
     bool cutBlocks = true;
+    // The passes read the scene's streams (instances, clusters, vertices, triangles, the visibility buffer...) through
+    // texel buffer views where every one fits the device's maxTexelBufferElements, else through their addresses. The
+    // same image either way; on lavapipe views are much faster (shared.h TS_SPEC_TEXEL_VIEWS). False: addresses only,
+    // to compare (tests, measurements).
+    bool texelViews = true;
     // Displaced surfaces are diced into micro-triangles whose edges project to about this many pixels.
     float dicingRate = 1.0f;
 };
@@ -207,6 +212,7 @@ struct FrameStats {
     bool swSharedVertices = false;  // the compute rasterizer's variant this frame: RasterVertices::Shared (else PerTriangle)
     uint32_t cullGroupSize = 0;     // the cull's workgroup size on this device (TS_CULL_*GROUP_SIZE)
     uint32_t shadePixelsPerThread = 0;   // pixels each resolve thread shades on this device (TS_SPEC_SHADE_PIXELS_PER_THREAD)
+    bool texelViews = false;        // the passes read the streams through texel views (RenderSettings::texelViews)
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
