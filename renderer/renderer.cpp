@@ -454,7 +454,10 @@ struct Renderer::Impl {
                  {triangles, VK_FORMAT_R32_UINT, 4, whole(triangles, 4)},
                  {visibleClusters, VK_FORMAT_R32G32_UINT, 8, TS_VIS_MAX_VISIBLE_CLUSTERS},  // the most a frame may grow it to
                  {visibility, VK_FORMAT_R32G32_UINT, 8, pixels},
-                 {binPixels, VK_FORMAT_R32_UINT, 4, pixels}}};
+                 {binPixels, VK_FORMAT_R32_UINT, 4, pixels},
+                 {levels, VK_FORMAT_R32G32_UINT, 8, whole(levels, 8)},
+                 {cutBlocks, VK_FORMAT_R32G32B32A32_UINT, 16, whole(cutBlocks, 16)},
+                 {blockClusters, VK_FORMAT_R32_UINT, 4, whole(blockClusters, 4)}}};
     }
 
     // Whether a frame of `pixels` can read every stream through a view on this device.

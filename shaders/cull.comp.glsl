@@ -220,7 +220,7 @@ void cut_by_clusters(GpuFrame frame, uint step, uint instanceIndex, Instance ins
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint levelCount = lod ? mesh.levelCount : 1u;
     for (uint l = 0u; l < levelCount; ++l) {
-        GpuLevel level = LevelRef(frame.levels).data[mesh.levelOffset + l];
+        GpuLevel level = load_level(frame, mesh.levelOffset + l);
         if (lod && !level_in_cut(frame, level, scale, s)) continue;
         if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.candidateClusters, level.clusterCount);
         for (uint c = gl_LocalInvocationIndex; c < level.clusterCount; c += gl_WorkGroupSize.x)
@@ -235,14 +235,14 @@ void cut_by_blocks(GpuFrame frame, uint step, uint instanceIndex, Instance insta
     DrawStateRef draw = DrawStateRef(frame.drawState);
     float extra = instance_displacement(frame, instance);  // bounds every cluster's own (cluster_displacement)
     for (uint l = 0u; l < mesh.levelCount; ++l) {
-        GpuLevel level = LevelRef(frame.levels).data[mesh.levelOffset + l];
+        GpuLevel level = load_level(frame, mesh.levelOffset + l);
         if (!level_in_cut(frame, level, scale, s)) continue;
         for (uint b = gl_LocalInvocationIndex; b < level.blockCount; b += gl_WorkGroupSize.x) {
-            GpuCutBlock block = CutBlockRef(frame.cutBlocks).data[level.blockOffset + b];
+            GpuCutBlock block = load_cut_block(frame, level.blockOffset + b);
             if (!block_may_draw(frame, instance, translation, scale, block, extra)) continue;
             atomicAdd(draw.state.candidateClusters, block.clusterCount);
             for (uint k = 0u; k < block.clusterCount; ++k)
-                test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, true, UintRef(frame.blockClusters).data[block.firstCluster + k]);
+                test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, true, block_cluster(frame, block.firstCluster + k));
         }
     }
 }
@@ -269,7 +269,7 @@ void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
     uint inCut = 0u;
     if (lod && (frame.counts.z & TS_FRAME_NO_CUT_BLOCKS) == 0u)
         for (uint l = 0u; l < mesh.levelCount; ++l) {
-            GpuLevel level = LevelRef(frame.levels).data[mesh.levelOffset + l];
+            GpuLevel level = load_level(frame, mesh.levelOffset + l);
             if (level_in_cut(frame, level, scale, s)) inCut += level.clusterCount;
         }
     if (inCut > TS_CUT_BLOCKS_FROM * gl_WorkGroupSize.x) cut_by_blocks(frame, step, instanceIndex, instance, mesh, translation, scale, s);

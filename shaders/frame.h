@@ -73,6 +73,9 @@ layout(set = 0, binding = TS_VIEW_TRIANGLES) uniform usamplerBuffer triangleTexe
 layout(set = 0, binding = TS_VIEW_VISIBLE_CLUSTERS) uniform usamplerBuffer visibleClusterTexels;
 layout(set = 0, binding = TS_VIEW_VISIBILITY) uniform usamplerBuffer visibilityTexels;
 layout(set = 0, binding = TS_VIEW_BIN_PIXELS) uniform usamplerBuffer binPixelTexels;
+layout(set = 0, binding = TS_VIEW_LEVELS) uniform usamplerBuffer levelTexels;
+layout(set = 0, binding = TS_VIEW_CUT_BLOCKS) uniform usamplerBuffer cutBlockTexels;
+layout(set = 0, binding = TS_VIEW_BLOCK_CLUSTERS) uniform usamplerBuffer blockClusterTexels;
 
 GpuCluster load_cluster(GpuFrame frame, uint index) {
     if (!TEXEL_VIEWS) return ClusterRef(frame.clusters).data[index];
@@ -116,6 +119,40 @@ GpuMesh load_mesh(GpuFrame frame, uint index) {
     m.seamVertexOffset = t3.z;
     m.seamTriangleOffset = t3.w;
     return m;
+}
+
+GpuLevel load_level(GpuFrame frame, uint index) {
+    if (!TEXEL_VIEWS) return LevelRef(frame.levels).data[index];
+    int at = int(3u * index);
+    uvec2 t0 = texelFetch(levelTexels, at).xy, t1 = texelFetch(levelTexels, at + 1).xy, t2 = texelFetch(levelTexels, at + 2).xy;
+    GpuLevel l;
+    l.clusterOffset = t0.x;
+    l.clusterCount = t0.y;
+    l.minLodError = uintBitsToFloat(t1.x);
+    l.maxParentError = uintBitsToFloat(t1.y);
+    l.blockOffset = t2.x;
+    l.blockCount = t2.y;
+    return l;
+}
+
+GpuCutBlock load_cut_block(GpuFrame frame, uint index) {
+    if (!TEXEL_VIEWS) return CutBlockRef(frame.cutBlocks).data[index];
+    int at = int(4u * index);
+    uvec4 t3 = texelFetch(cutBlockTexels, at + 3);
+    GpuCutBlock b;
+    b.sphere = uintBitsToFloat(texelFetch(cutBlockTexels, at));
+    b.lodSphere = uintBitsToFloat(texelFetch(cutBlockTexels, at + 1));
+    b.parentSphere = uintBitsToFloat(texelFetch(cutBlockTexels, at + 2));
+    b.minLodError = uintBitsToFloat(t3.x);
+    b.maxParentError = uintBitsToFloat(t3.y);
+    b.firstCluster = t3.z;
+    b.clusterCount = t3.w;
+    return b;
+}
+
+// Entry i of frame.blockClusters: a cluster of a cut block, counted from its mesh's first.
+uint block_cluster(GpuFrame frame, uint i) {
+    return TEXEL_VIEWS ? texelFetch(blockClusterTexels, int(i)).x : UintRef(frame.blockClusters).data[i];
 }
 
 GpuInstance load_gpu_instance(GpuFrame frame, uint index) {

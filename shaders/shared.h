@@ -269,7 +269,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_VISIBLE_CLUSTERS 9   // uvec2 (instance, cluster): RG32UI
 #define TS_VIEW_VISIBILITY 10        // 64-bit visibility value per pixel: RG32UI (low word first)
 #define TS_VIEW_BIN_PIXELS 11        // packed pixel per binned pixel: R32UI
-#define TS_VIEW_COUNT 11
+#define TS_VIEW_LEVELS 12            // GpuLevel: 3 RG32UI texels each
+#define TS_VIEW_CUT_BLOCKS 13        // GpuCutBlock: 4 RGBA32UI texels each
+#define TS_VIEW_BLOCK_CLUSTERS 14    // uint per block entry: R32UI
+#define TS_VIEW_COUNT 14
 
 // Workgroup sizes.
 #define TS_CULL_GROUP_SIZE 64

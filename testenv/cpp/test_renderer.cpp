@@ -700,7 +700,8 @@ TEST_F(RendererTest, ShadePixelsPerThreadDrawTheSameFrames) {
 // the same frames bit for bit, for every AOV, both rasterizers, several material bins, a mirrored instance, the
 // occlusion passes of a second frame, the visualizations that read clusters and counts, and displaced surfaces (their
 // dicing, patch raster and micro-triangle resolve read the same streams). A loader that read a struct's field from the
-// wrong place in its texels changes one of them.
+// wrong place in its texels changes one of them (the cut blocks' loader: CutBlocksChangeWhatIsTestedNotTheCut, whose
+// block path must agree with the per-cluster one).
 TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
     GpuScene spheres;
     const uint32_t wall = spheres.add_mesh(grid_mesh(16)), sphere = spheres.add_mesh(bumpy_sphere(48));
