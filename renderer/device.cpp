@@ -73,6 +73,8 @@ int type_rank(VkPhysicalDeviceType type) {
     }
 }
 
+constexpr VkSubgroupFeatureFlags kSubgroupOperations = VK_SUBGROUP_FEATURE_BASIC_BIT | VK_SUBGROUP_FEATURE_VOTE_BIT | VK_SUBGROUP_FEATURE_BALLOT_BIT;
+
 // The features Tessera needs; returns the names of those the device lacks.
 std::vector<std::string> missing_features(VkPhysicalDevice device) {
     VkPhysicalDeviceVulkan13Features f13{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_3_FEATURES};
@@ -91,6 +93,13 @@ std::vector<std::string> missing_features(VkPhysicalDevice device) {
     need(f.features.multiDrawIndirect, "multiDrawIndirect");
     need(f.features.drawIndirectFirstInstance, "drawIndirectFirstInstance");
     need(f12.drawIndirectCount, "drawIndirectCount");
+    // Classify takes its pixels' places in a bin with one atomic per subgroup (frame.h bin_places).
+    VkPhysicalDeviceSubgroupProperties subgroup{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES};
+    VkPhysicalDeviceProperties2 properties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &subgroup};
+    vkGetPhysicalDeviceProperties2(device, &properties);
+    need((subgroup.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) != 0 &&
+             (subgroup.supportedOperations & kSubgroupOperations) == kSubgroupOperations,
+         "subgroup basic, vote and ballot operations in compute shaders");
     return missing;
 }
 
