@@ -151,6 +151,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["sw_raster_vertices"] = s.swSharedVertices ? "shared" : "per-triangle";
     d["cull_group_size"] = s.cullGroupSize;
     d["shade_pixels_per_thread"] = s.shadePixelsPerThread;
+    d["texel_views"] = s.texelViews;
     d["overflow_redraws"] = s.overflowRedraws;
     d["visible_cluster_capacity"] = s.visibleClusterCapacity;
     d["occlusion_tested"] = s.occlusionTested;

@@ -329,7 +329,8 @@ struct Renderer::Impl {
     std::shared_ptr<Pipelines> addressPipelines;
     // The frame's constants (GpuFrame) as a uniform buffer, set 0 binding 0 of every pipeline: a CPU device (lavapipe)
     // loads a uniform block once for all of a SIMD batch's invocations, where a load through a buffer device address
-    // goes lane by lane; on a GPU it is the usual path for constants. Everything else is reached by address.
+    // goes lane by lane; on a GPU it is the usual path for constants. Everything else is reached by address, and the
+    // streams read per pixel, triangle or vertex also through the set's texel views.
     VkDescriptorPool framePool = VK_NULL_HANDLE;
     VkDescriptorSet frameSet = VK_NULL_HANDLE;
     VkQueryPool timestamps = VK_NULL_HANDLE;

@@ -52,6 +52,7 @@ def test_stats_and_camera_options(tmp_path):
     assert {"occluded_instances", "occluded_clusters", "backface_clusters", "post_pass_clusters"} <= set(stats)
     assert stats["sw_triangles"] + stats["hw_triangles"] == stats["visible_triangles"]
     assert stats["pixel_error"] == 1.0 and stats["lod"] is True and stats["candidate_clusters"] >= stats["visible_clusters"]
+    assert stats["texel_views"] is True, "a small stage's streams fit the device's texel views"
 
 
 def test_lod_options(tmp_path):
