@@ -943,14 +943,17 @@ struct Renderer::Impl {
         const uint64_t pixels = uint64_t(w) * h;
         if (w != width || h != height || !visibility.handle) {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
-            aovOutput = device.create_buffer(pixels * 16, MemoryUse::Device);
+            // On a CPU device the output is host memory that the last AOV is read from directly: no copy of it into the
+            // readback buffer (33 MB at 1080p; Renderer::render). A GPU writes device memory and copies.
+            aovOutput = device.create_buffer(pixels * 16, device.is_software() ? MemoryUse::Readback : MemoryUse::Device);
             binPixels = device.create_buffer(pixels * 4, MemoryUse::Device);
             hzbLevels = Buffer{};
             previousValid = false;
             width = w;
             height = h;
         }
-        const uint64_t readbackBytes = sizeof(gpu::GpuDrawState) + aovCount * pixels * 16;
+        const uint64_t copiedAovs = aovCount - (aovOutput.mapped && aovCount > 0 ? 1 : 0);  // the last one read in place
+        const uint64_t readbackBytes = sizeof(gpu::GpuDrawState) + copiedAovs * pixels * 16;
         if (readback.size < readbackBytes) readback = device.create_buffer(readbackBytes, MemoryUse::Readback);
     }
 
@@ -1406,6 +1409,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
                         vkCmdDispatchIndirect(cmd, s.shadingBins.handle, bin * sizeof(gpu::GpuBin));
                     }
+                if (i + 1 == aovs.size() && s.aovOutput.mapped) break;  // read where resolve wrote it
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
                         VK_ACCESS_2_TRANSFER_READ_BIT);
                 VkBufferCopy region{0, sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
@@ -1416,7 +1420,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                     VK_ACCESS_2_TRANSFER_READ_BIT);
             VkBufferCopy stateRegion{0, 0, sizeof(gpu::GpuDrawState)};
             vkCmdCopyBuffer(cmd, s.drawState.handle, s.readback.handle, 1, &stateRegion);
-            barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_READ_BIT);
+            barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
+                    VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_READ_BIT);
         });
         // The HZB just built is of this camera (an overflowing frame's HZB lacks some geometry: farther, still safe).
         s.previousValid = occlusion;
@@ -1511,8 +1516,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         image.width = settings.width;
         image.height = settings.height;
         image.aov = aovs[i];
-        // Copied straight from the mapped readback (resize then memcpy would write every byte twice: 33 MB at 1080p).
-        const float* rgba = reinterpret_cast<const float*>(static_cast<const char*>(s.readback.mapped) + sizeof(gpu::GpuDrawState) + i * pixels * 16);
+        // Copied straight from the mapped readback (resize then memcpy would write every byte twice: 33 MB at 1080p), or,
+        // for a CPU device's last AOV, from the output itself.
+        const bool direct = i + 1 == aovs.size() && s.aovOutput.mapped;
+        const float* rgba = direct ? static_cast<const float*>(s.aovOutput.mapped)
+                                   : reinterpret_cast<const float*>(static_cast<const char*>(s.readback.mapped) + sizeof(gpu::GpuDrawState) + i * pixels * 16);
         image.pixels.assign(rgba, rgba + pixels * 4);
         images.push_back(std::move(image));
     }
