@@ -469,6 +469,16 @@ std::vector<InstanceDesc> wall_and_spheres(uint32_t wall, uint32_t sphere) {
     return instances;
 }
 
+// One copy of `mesh` with a constant displacement of 0.08 units (runtime tessellation draws it).
+InstanceDesc displaced_instance(GpuScene& scene, uint32_t mesh) {
+    MaterialDesc bumpy;
+    bumpy.displacement = 1.0f;
+    bumpy.displacementMagnitude = 0.08f;
+    InstanceDesc instance = identity_instance(mesh);
+    instance.material = scene.add_material(bumpy);
+    return instance;
+}
+
 // Both renders must agree bit for bit on these AOVs.
 void expect_same_images(const std::vector<Image>& a, const std::vector<Image>& b, const char* what) {
     ASSERT_EQ(a.size(), b.size());
@@ -545,12 +555,7 @@ TEST_F(RendererTest, CutBlocksChangeWhatIsTestedNotTheCut) {
     // A displaced copy: the blocks' frustum spheres are widened by the instance's largest offset, as the clusters' are, so
     // a surface displaced into the frustum from clusters just outside it is drawn (and diced) either way. Close up, its
     // levels in the cut hold level 0's 800 clusters: more than the block path's threshold.
-    MaterialDesc bumpy;
-    bumpy.displacement = 1.0f;
-    bumpy.displacementMagnitude = 0.08f;
-    InstanceDesc displaced = identity_instance(mesh);
-    displaced.material = scene.add_material(bumpy);
-    scene.set_instances({displaced});
+    scene.set_instances({displaced_instance(scene, mesh)});
     for (const CameraDesc& camera : {wide, camera_at(0.8, 0.3, 1.12), telephoto}) {
         settings.pixelError = 1.0f;
         FrameStats with, without;
@@ -716,13 +721,7 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
     spheres.set_lights({{LightType::Distant, {0.3, -0.5, -1}, {2, 2, 2}}, {LightType::Dome, {0, 0, -1}, {0.2f, 0.3f, 0.4f}}});
 
     GpuScene displaced;
-    const uint32_t bumpy = displaced.add_mesh(bumpy_sphere(24));
-    MaterialDesc displacing;
-    displacing.displacement = 1.0f;
-    displacing.displacementMagnitude = 0.08f;
-    InstanceDesc instance = identity_instance(bumpy);
-    instance.material = displaced.add_material(displacing);
-    displaced.set_instances({instance});
+    displaced.set_instances({displaced_instance(displaced, displaced.add_mesh(bumpy_sphere(24)))});
     displaced.set_lights({{LightType::Distant, {0.3, -0.5, -1}, {2, 2, 2}}});
 
     const std::vector<Aov> aovs = {Aov::Color, Aov::Depth, Aov::Normal, Aov::PrimId, Aov::InstanceId, Aov::ClusterId, Aov::TriangleId};
