@@ -150,6 +150,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["sw_large_clusters"] = s.swLargeClusters;
     d["sw_raster_vertices"] = s.swSharedVertices ? "shared" : "per-triangle";
     d["cull_group_size"] = s.cullGroupSize;
+    d["sw_raster_group_size"] = s.swRasterGroupSize;
     d["shade_pixels_per_thread"] = s.shadePixelsPerThread;
     d["texel_views"] = s.texelViews;
     d["overflow_redraws"] = s.overflowRedraws;

@@ -210,6 +210,10 @@ Device::Device(const DeviceOptions& options) {
     timestampPeriod_ = chosen->properties.limits.timestampPeriod;
     subPixelBits_ = std::min<uint32_t>(chosen->properties.limits.subPixelPrecisionBits, 8);
     maxTexelBufferElements_ = chosen->properties.limits.maxTexelBufferElements;
+    VkPhysicalDeviceSubgroupProperties subgroup{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES};
+    VkPhysicalDeviceProperties2 properties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &subgroup};
+    vkGetPhysicalDeviceProperties2(physical_, &properties);
+    subgroupSize_ = subgroup.subgroupSize;
     vkGetPhysicalDeviceMemoryProperties(physical_, &memoryProperties_);
 
     uint32_t familyCount = 0;

@@ -15,6 +15,7 @@
 #include "spirv/resolve_comp.h"
 #include "spirv/tessellate_comp.h"
 
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 #include <span>
@@ -25,15 +26,33 @@ namespace tessera {
 
 namespace {
 
-// The cull's workgroup size: TS_CULL_SOFTWARE_GROUP_SIZE on a CPU device, TS_CULL_GROUP_SIZE on a GPU;
-// $TESSERA_CULL_GROUP_SIZE (16, 32, 64, 128 or 256) overrides that, for tests and measurements.
+// A workgroup size the environment variable `name` forces (8, 16, ... up to `largest`), for tests and measurements;
+// 0 when it is not set.
+uint32_t forced_group_size(const char* name, uint32_t largest) {
+    const char* forced = std::getenv(name);
+    if (!forced || !*forced) return 0;
+    for (uint32_t size = 8; size <= largest; size *= 2)
+        if (std::to_string(size) == forced) return size;
+    throw std::invalid_argument(std::string(name) + "='" + forced + "': expected a power of two from 8 to " + std::to_string(largest));
+}
+
+// A CPU device's workgroup for the passes that load per-workgroup inputs (the cull, the compute rasterizer): one
+// subgroup. lavapipe runs a workgroup as coroutines of one subgroup each (8 invocations at 256 bits), every one of which
+// loads those inputs again and switches to the next at a barrier (docs/benchmarks.md).
+uint32_t one_subgroup(const Device& device, uint32_t largest) { return std::clamp(device.subgroup_size(), 1u, largest); }
+
+// The cull's workgroup size: one subgroup on a CPU device, TS_CULL_GROUP_SIZE on a GPU; $TESSERA_CULL_GROUP_SIZE
+// overrides that.
 uint32_t default_cull_group_size(const Device& device) {
-    if (const char* forced = std::getenv("TESSERA_CULL_GROUP_SIZE"); forced && *forced) {
-        for (uint32_t size : {16u, 32u, 64u, 128u, 256u})
-            if (std::to_string(size) == forced) return size;
-        throw std::invalid_argument(std::string("TESSERA_CULL_GROUP_SIZE='") + forced + "': expected 16, 32, 64, 128 or 256");
-    }
-    return device.is_software() ? TS_CULL_SOFTWARE_GROUP_SIZE : TS_CULL_GROUP_SIZE;
+    if (uint32_t forced = forced_group_size("TESSERA_CULL_GROUP_SIZE", 256)) return forced;
+    return device.is_software() ? one_subgroup(device, TS_CULL_GROUP_SIZE) : TS_CULL_GROUP_SIZE;
+}
+
+// The compute rasterizer's workgroup size (its shared-vertices variant): one subgroup on a CPU device,
+// TS_SW_RASTER_GROUP_SIZE on a GPU; $TESSERA_SW_RASTER_GROUP_SIZE overrides that.
+uint32_t default_sw_raster_group_size(const Device& device) {
+    if (uint32_t forced = forced_group_size("TESSERA_SW_RASTER_GROUP_SIZE", TS_SW_RASTER_GROUP_SIZE)) return forced;
+    return device.is_software() ? one_subgroup(device, TS_SW_RASTER_GROUP_SIZE) : TS_SW_RASTER_GROUP_SIZE;
 }
 
 // Pixels each resolve thread shades: TS_CPU_SHADE_PIXELS_PER_THREAD on a CPU device, 1 on a GPU;
@@ -57,8 +76,7 @@ VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes
 }
 
 // A Specialization as Vulkan takes it, with what is the same for every pipeline of a set (the pixels each resolve thread
-// shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, and reads through texel views, TS_SPEC_TEXEL_VIEWS) and the compute
-// rasterizer's workgroup size, which follows its variant.
+// shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, and reads through texel views, TS_SPEC_TEXEL_VIEWS).
 struct SpecializationInfo {
     uint32_t values[14];
     VkSpecializationMapEntry entries[14] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
@@ -69,7 +87,7 @@ struct SpecializationInfo {
     VkSpecializationInfo info{14, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
-                 uint32_t(s.ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : TS_SW_RASTER_GROUP_SIZE), s.cullGroupSize,
+                 s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
                  VkBool32(s.countFragments), VkBool32(texelViews)} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
@@ -78,15 +96,16 @@ struct SpecializationInfo {
 }  // namespace
 
 std::shared_ptr<Pipelines> Pipelines::for_device(Device& device, bool texelViews) {
-    const uint32_t cullGroupSize = default_cull_group_size(device), shadePixelsPerThread = default_shade_pixels_per_thread(device);
-    const std::string key = "tessera.pipelines cull " + std::to_string(cullGroupSize) + " shade " + std::to_string(shadePixelsPerThread) +
-                            (texelViews ? " views" : " addresses");
-    return std::static_pointer_cast<Pipelines>(
-        device.shared_state(key, [&] { return std::make_shared<Pipelines>(device, cullGroupSize, shadePixelsPerThread, texelViews); }));
+    const uint32_t cullGroupSize = default_cull_group_size(device), swRasterGroupSize = default_sw_raster_group_size(device);
+    const uint32_t shadePixelsPerThread = default_shade_pixels_per_thread(device);
+    const std::string key = "tessera.pipelines cull " + std::to_string(cullGroupSize) + " raster " + std::to_string(swRasterGroupSize) +
+                            " shade " + std::to_string(shadePixelsPerThread) + (texelViews ? " views" : " addresses");
+    return std::static_pointer_cast<Pipelines>(device.shared_state(
+        key, [&] { return std::make_shared<Pipelines>(device, cullGroupSize, swRasterGroupSize, shadePixelsPerThread, texelViews); }));
 }
 
-Pipelines::Pipelines(Device& d, uint32_t cullGroups, uint32_t shadePixels, bool views)
-    : device(d), cullGroupSize(cullGroups), shadePixelsPerThread(shadePixels), texelViews(views) {
+Pipelines::Pipelines(Device& d, uint32_t cullGroups, uint32_t swRasterGroups, uint32_t shadePixels, bool views)
+    : device(d), cullGroupSize(cullGroups), swRasterGroupSize(swRasterGroups), shadePixelsPerThread(shadePixels), texelViews(views) {
     // The same layout in every set, so a renderer's frame set serves either (identically defined layouts are compatible).
     VkDescriptorSetLayoutBinding bindings[1 + TS_VIEW_COUNT];
     bindings[0] = {TS_BINDING_FRAME, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
@@ -157,14 +176,15 @@ bool Pipelines::default_own_corners() const {
         if (std::strcmp(forced, "per-triangle") == 0) return true;
         throw std::invalid_argument(std::string("TESSERA_RASTER_VERTICES='") + forced + "': expected shared or per-triangle");
     }
-    return device.is_software();
+    return false;
 }
 
 VkPipeline Pipelines::software_raster(bool masks, bool ownCorners, bool largeTriangles, bool countFragments) {
     VkPipeline& variant = rasterSoftware[masks][countFragments][ownCorners][largeTriangles];
     if (!variant)
         variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp),
-                                   {.textures = masks, .ownCorners = ownCorners, .largeTriangles = largeTriangles, .countFragments = countFragments});
+                                   {.textures = masks, .ownCorners = ownCorners, .rasterGroupSize = ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : swRasterGroupSize,
+                                    .largeTriangles = largeTriangles, .countFragments = countFragments});
     return variant;
 }
 

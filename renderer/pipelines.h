@@ -37,7 +37,8 @@ struct Specialization {
     bool areaLights = false;               // TS_SPEC_AREA_LIGHTS: resolve, frames with area lights or a textured dome
     bool vertexInputs = false;             // TS_SPEC_VERTEX_INPUTS: resolve, materials with inputs from the vertex channel
     uint32_t output = TS_OUTPUT_SHADE;     // TS_SPEC_OUTPUT: what resolve writes (TS_OUTPUT_*)
-    bool ownCorners = false;               // TS_SPEC_OWN_CORNERS (and TS_SPEC_RASTER_GROUP_SIZE): the compute rasterizer's
+    bool ownCorners = false;               // TS_SPEC_OWN_CORNERS: the compute rasterizer's variant (RasterVertices)
+    uint32_t rasterGroupSize = TS_SW_RASTER_GROUP_SIZE;  // TS_SPEC_RASTER_GROUP_SIZE: its workgroup
     bool largeTriangles = false;           // TS_SPEC_LARGE_TRIANGLES: the compute rasterizer's back of the software list
     bool doubleSided = false;              // TS_SPEC_DOUBLE_SIDED: hardware raster without face culling
     uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // TS_SPEC_CULL_GROUP_SIZE
@@ -48,12 +49,12 @@ struct Specialization {
 
 struct Pipelines {
     // The set for `device` (made by the first renderer on it), with the choices the environment makes now
-    // ($TESSERA_CULL_GROUP_SIZE and $TESSERA_SHADE_PIXELS_PER_THREAD select different sets), reading the scene's streams
+    // ($TESSERA_CULL_GROUP_SIZE, $TESSERA_SW_RASTER_GROUP_SIZE and $TESSERA_SHADE_PIXELS_PER_THREAD select different sets), reading the scene's streams
     // through texel views or through their addresses (TS_SPEC_TEXEL_VIEWS: a frame whose streams outgrow the device's
     // views takes the second).
     static std::shared_ptr<Pipelines> for_device(Device& device, bool texelViews);
 
-    Pipelines(Device& device, uint32_t cullGroupSize, uint32_t shadePixelsPerThread, bool texelViews);
+    Pipelines(Device& device, uint32_t cullGroupSize, uint32_t swRasterGroupSize, uint32_t shadePixelsPerThread, bool texelViews);
     ~Pipelines();
     Pipelines(const Pipelines&) = delete;
     Pipelines& operator=(const Pipelines&) = delete;
@@ -66,6 +67,7 @@ struct Pipelines {
     VkDescriptorSetLayout frameSetLayout = VK_NULL_HANDLE;
     VkPipelineLayout layout = VK_NULL_HANDLE;
     const uint32_t cullGroupSize;         // the cull's workgroup size, chosen for the device (TS_SPEC_CULL_GROUP_SIZE)
+    const uint32_t swRasterGroupSize;     // the compute rasterizer's, shared-vertices variant (TS_SPEC_RASTER_GROUP_SIZE)
     const uint32_t shadePixelsPerThread;  // pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD)
     const bool texelViews;                // every pipeline reads the streams through texel views (TS_SPEC_TEXEL_VIEWS)
 
@@ -94,8 +96,8 @@ struct Pipelines {
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
 
-    // RasterVertices::Auto: each thread its own triangle's corners on a CPU device, shared vertices on a GPU;
-    // $TESSERA_RASTER_VERTICES (shared, per-triangle) overrides that, for tests and measurements.
+    // RasterVertices::Auto: shared vertices; $TESSERA_RASTER_VERTICES (shared, per-triangle) overrides that, for tests
+    // and measurements.
     bool default_own_corners() const;
 
 private:

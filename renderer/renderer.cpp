@@ -1077,6 +1077,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     FrameStats frameStats;
     frameStats.swSharedVertices = !ownCorners;
     frameStats.cullGroupSize = pipelines.cullGroupSize;
+    frameStats.swRasterGroupSize = ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : pipelines.swRasterGroupSize;
     frameStats.shadePixelsPerThread = pipelines.shadePixelsPerThread;
     frameStats.texelViews = texelViews;
     frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();

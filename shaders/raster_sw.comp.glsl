@@ -14,12 +14,13 @@ layout(local_size_x = TS_SW_RASTER_GROUP_SIZE, local_size_x_id = TS_SPEC_RASTER_
 // The pipeline variant for frames with textured opacity masks (the others carry no mask code).
 layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
 
-// Two variants (RasterVertices, chosen per device in renderer.cpp), the same pixels bit for bit. Shared (a GPU's): 128
-// threads transform each vertex once into shared memory, a barrier, then one thread per triangle. Own corners
-// (TS_SPEC_OWN_CORNERS, a CPU device's): 16 threads (local_size_x_id), each transforming the corners of every 16th triangle
-// itself, with no shared memory and no barrier. lavapipe runs a workgroup as coroutines of 8 invocations, each loading
-// the cluster and instance again, and switches between them at a barrier: two batches per cluster instead of sixteen, and
-// no barrier, halve its raster time though each vertex is transformed about six times (docs/benchmarks.md).
+// Two variants (RasterVertices), the same pixels bit for bit. Shared (the default): the workgroup transforms each vertex
+// once into shared memory, a barrier, then a thread per triangle; 128 threads on a GPU, one subgroup on a CPU device
+// (local_size_x_id, Pipelines::software_raster_group_size): lavapipe runs a workgroup as coroutines of one subgroup each,
+// loading the cluster and instance again in each and switching between them at a barrier, so one subgroup loads them once
+// and its barrier switches nothing. Own corners (TS_SPEC_OWN_CORNERS, for measurements): 16 threads, each transforming
+// the corners of every 16th triangle itself (about six transforms per vertex), with no shared memory and no barrier; on
+// lavapipe 8-16 % dearer than one subgroup sharing its vertices (docs/benchmarks.md).
 layout(constant_id = TS_SPEC_OWN_CORNERS) const bool OWN_CORNERS = false;
 
 // Which end of the software list this variant draws: the front, clusters the cull found certainly small on screen (every
@@ -27,8 +28,9 @@ layout(constant_id = TS_SPEC_OWN_CORNERS) const bool OWN_CORNERS = false;
 // the back (LARGE_TRIANGLES: each triangle picks its scan). Both draw the same pixels for the same triangle.
 layout(constant_id = TS_SPEC_LARGE_TRIANGLES) const bool LARGE_TRIANGLES = false;
 
-shared ivec2 screen[TS_CLUSTER_MAX_VERTICES];  // sub-pixel position
-shared float depth[TS_CLUSTER_MAX_VERTICES];   // reversed-Z depth (z / w)
+// A vertex on screen: sub-pixel position and reversed-Z depth bits (z / w), one word each, read by a triangle's corner as
+// one load (on lavapipe, two arrays cost a load each: 5 % of its compute raster).
+shared ivec4 corner[TS_CLUSTER_MAX_VERTICES];
 
 // Vertex (index into the vertex streams) -> framebuffer sub-pixels and depth (Vulkan viewport transform:
 // (ndc * 0.5 + 0.5) * size): the same arithmetic in both variants, so they cover the same pixels bit for bit.
@@ -53,8 +55,12 @@ void main() {
     if (!OWN_CORNERS) {
         // Each vertex once, into shared memory, for every triangle that uses it.
         uint vertexCount = cluster.levelVertices & 0xffffu;
-        for (uint v = gl_LocalInvocationIndex; v < vertexCount; v += gl_WorkGroupSize.x)
-            transform_vertex(frame, instance, translation, cluster.vertexOffset + v, screen[v], depth[v]);
+        for (uint v = gl_LocalInvocationIndex; v < vertexCount; v += gl_WorkGroupSize.x) {
+            ivec2 sv;
+            float dv;
+            transform_vertex(frame, instance, translation, cluster.vertexOffset + v, sv, dv);
+            corner[v] = ivec4(sv, floatBitsToInt(dv), 0);
+        }
         barrier();
     }
 
@@ -72,12 +78,13 @@ void main() {
             i0 -= cluster.vertexOffset;
             i1 -= cluster.vertexOffset;
             i2 -= cluster.vertexOffset;
-            a = screen[i0];
-            b = screen[i1];
-            c = screen[i2];
-            za = depth[i0];
-            zb = depth[i1];
-            zc = depth[i2];
+            ivec4 ca = corner[i0], cb = corner[i1], cc = corner[i2];
+            a = ca.xy;
+            b = cb.xy;
+            c = cc.xy;
+            za = intBitsToFloat(ca.z);
+            zb = intBitsToFloat(cb.z);
+            zc = intBitsToFloat(cc.z);
         }
         uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
         bool masked = MASKS && (instance.flags & TS_INSTANCE_MASKED) != 0u;

@@ -215,11 +215,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_OUTPUT_KINDS 5u
 // Specialization constants of the compute rasterizer (raster_sw.comp.glsl): its variant where each thread transforms its
 // own triangles' corners, with no shared memory and no barrier, in workgroups of TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE
-// (RasterVertices::PerTriangle, for CPU devices), and the workgroup size (local_size_x_id), which follows the variant.
+// (RasterVertices::PerTriangle), and the workgroup size (local_size_x_id), which follows the variant and the device.
 #define TS_SPEC_OWN_CORNERS 4
 #define TS_SPEC_RASTER_GROUP_SIZE 5
-// The cull's workgroup size (cull.comp.glsl, local_size_x_id): TS_CULL_GROUP_SIZE on a GPU, TS_CULL_SOFTWARE_GROUP_SIZE on
-// a CPU device.
+// The cull's workgroup size (cull.comp.glsl, local_size_x_id): TS_CULL_GROUP_SIZE on a GPU, one subgroup on a CPU device
+// (renderer/pipelines.cpp).
 #define TS_SPEC_CULL_GROUP_SIZE 6
 // The compute rasterizer's variant for the software clusters whose triangles may be large (boolean; the back of the
 // software list, GpuDrawState.swLarge*). The other variant has no 64-bit scan at all: lavapipe runs both sides of a
@@ -275,11 +275,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_COUNT 14
 
 // Workgroup sizes.
+// On a CPU device the cull's workgroup is one subgroup: lavapipe runs a workgroup 8 invocations at a time, each batch
+// loading the instance and its level table again; 16 threads striding over a level's clusters cost about a fifth of 64's
+// cull time on the 1e6 field and a third on the 1e10 one, and 8 (one batch) a third less again (docs/benchmarks.md).
 #define TS_CULL_GROUP_SIZE 64
-// On a CPU device: lavapipe runs a workgroup 8 invocations at a time, each batch loading the instance and its level
-// table again; 16 threads striding over a level's clusters cost about a fifth of 64's cull time on the 1e6 field and a
-// third on the 1e10 one (docs/benchmarks.md).
-#define TS_CULL_SOFTWARE_GROUP_SIZE 16
 #define TS_CULL_INSTANCES_PER_GROUP 2048  // the cull's instance steps: instances tested per workgroup
 // A first frame (no previous HZB) draws in its main pass only the instances likely to hide others: those whose bounds
 // project at least this fraction of the viewport's smaller side across (radius), or reach the camera plane. The post
@@ -289,10 +288,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // resolve: threads per workgroup, each shading the bin's pixels TS_SHADE_GROUP_SIZE apart (TS_SPEC_SHADE_PIXELS_PER_THREAD
 // of them): a workgroup shades TS_SHADE_GROUP_SIZE times that many pixels of its bin.
 #define TS_SHADE_GROUP_SIZE 64
-#define TS_SW_RASTER_GROUP_SIZE 128  // one workgroup per cluster, one thread per triangle
-// The compute rasterizer's variant for CPU devices: one workgroup of 16 per cluster, each thread every 16th triangle.
-// lavapipe runs a workgroup 8 invocations at a time and loads the cluster and instance again in each batch: 16 triangles
-// per thread cost 0.5x the 128-thread workgroup's raster time, 8 or 32 threads more (docs/benchmarks.md).
+// The compute rasterizer's workgroup on a GPU: one per cluster, one thread per triangle (a CPU device's is one subgroup).
+#define TS_SW_RASTER_GROUP_SIZE 128
+// Its own-corners variant (RasterVertices::PerTriangle): one workgroup of 16 per cluster, each thread every 16th
+// triangle. lavapipe runs a workgroup 8 invocations at a time and loads the cluster and instance again in each batch: 16
+// triangles per thread cost 0.5x the 128-thread workgroup's raster time, 8 or 32 threads more (docs/benchmarks.md).
 #define TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE 16
 #define TS_TESS_GROUP_SIZE 128       // tessellate: one workgroup per cluster, one thread per triangle
 #define TS_DICE_GROUP_SIZE 64        // dice: one workgroup per patch, its lattice points (<= 153), then its micro-triangles

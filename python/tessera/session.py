@@ -157,7 +157,7 @@ class Session:
         `complexity` (None: the session's) refines subdivision surfaces (see Session): a render at another refine
         level than the last rebuilds the meshes that have a subdivision scheme, and no others; `raster_vertices`
         picks the compute rasterizer's variant (RASTER_VERTICES; the same pixels either way, a matter of speed: auto
-        is per-triangle on a CPU device, shared on a GPU, or $TESSERA_RASTER_VERTICES); `software_raster_area` (None:
+        is shared, or $TESSERA_RASTER_VERTICES); `software_raster_area` (None:
         the session's, recorded for its device or the default; see tessera.raster_split) sends clusters of triangles
         smaller than that many pixels to the compute rasterizer (the same pixels either way, a matter of speed)."""
         from .usd import framing_camera

@@ -324,9 +324,13 @@ TEST_F(RendererTest, ComputeRasterOfTrianglesTooLargeForItsSmallVariantMatchesHa
 
 // The compute rasterizer's two variants (vertices shared through workgroup memory, or each thread transforming its own
 // triangle's corners) snap with the same arithmetic, so they draw the same visibility buffer bit for bit: triangle ids
-// and depths, for plain, mirrored (winding flipped) and double-sided instances.
+// and depths, for plain, mirrored (winding flipped) and double-sided instances. The shared variant's workgroup is the
+// device's (one subgroup on a CPU device) and a GPU's 128 threads, which stride differently over vertices and triangles.
 TEST_F(RendererTest, ComputeRasterVariantsDrawTheSameVisibility) {
     Renderer renderer(*device);
+    setenv("TESSERA_SW_RASTER_GROUP_SIZE", "128", 1);
+    Renderer gpuSized(*device);  // the size is chosen when the pipelines are made
+    unsetenv("TESSERA_SW_RASTER_GROUP_SIZE");
     GpuScene scene;
     const uint32_t sphere = scene.add_mesh(bumpy_sphere(48)), grid = scene.add_mesh(grid_mesh(24));
     InstanceDesc plain = identity_instance(sphere), mirrored = identity_instance(sphere), sheet = identity_instance(grid);
@@ -347,25 +351,30 @@ TEST_F(RendererTest, ComputeRasterVariantsDrawTheSameVisibility) {
     settings.raster = RasterMode::Software;
     settings.lod = false;  // every source triangle, to the compute rasterizer (but for clusters that are large on screen)
     for (double distance : {4.0, 12.0}) {
-        std::vector<Image> images[2];
-        FrameStats stats[2];
-        for (int own = 0; own < 2; ++own) {
-            settings.rasterVertices = own ? RasterVertices::PerTriangle : RasterVertices::Shared;
-            images[own] = renderer.render(scene, camera_at(0, 0.2, distance), settings, {Aov::TriangleId, Aov::Depth, Aov::PrimId}, &stats[own]);
-            EXPECT_EQ(stats[own].swSharedVertices, !own);
-            EXPECT_GT(stats[own].swTriangles, 1000u) << "the compute rasterizer must draw the scene";
+        std::vector<Image> images[3];
+        FrameStats stats[3];
+        for (int k = 0; k < 3; ++k) {  // shared (the device's workgroup), own corners, shared in 128-thread workgroups
+            settings.rasterVertices = k == 1 ? RasterVertices::PerTriangle : RasterVertices::Shared;
+            images[k] = (k == 2 ? gpuSized : renderer).render(scene, camera_at(0, 0.2, distance), settings, {Aov::TriangleId, Aov::Depth, Aov::PrimId}, &stats[k]);
+            EXPECT_EQ(stats[k].swSharedVertices, k != 1);
+            EXPECT_GT(stats[k].swTriangles, 1000u) << "the compute rasterizer must draw the scene";
         }
+        EXPECT_EQ(stats[0].swRasterGroupSize, device->is_software() ? device->subgroup_size() : uint32_t(TS_SW_RASTER_GROUP_SIZE));
+        EXPECT_EQ(stats[1].swRasterGroupSize, uint32_t(TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE));
+        EXPECT_EQ(stats[2].swRasterGroupSize, 128u);
         std::set<uint32_t> prims;
         for (uint32_t y = 0; y < images[0][2].height; ++y)
             for (uint32_t x = 0; x < images[0][2].width; ++x) prims.insert(id_at(images[0][2], x, y));
         EXPECT_EQ(prims, (std::set<uint32_t>{0u, 1u, 2u, 0xffffffffu})) << "every instance and the background in view at " << distance;
-        for (size_t aov = 0; aov < 2; ++aov) {
-            ASSERT_EQ(images[0][aov].pixels.size(), images[1][aov].pixels.size());
-            size_t differing = 0;
-            for (size_t i = 0; i < images[0][aov].pixels.size(); ++i)
-                differing += std::memcmp(&images[0][aov].pixels[i], &images[1][aov].pixels[i], 4) != 0;  // as bits
-            EXPECT_EQ(differing, 0u) << (aov == 0 ? "triangle ids" : "depths") << " at distance " << distance;
-        }
+        for (int k = 1; k < 3; ++k)
+            for (size_t aov = 0; aov < 2; ++aov) {
+                ASSERT_EQ(images[0][aov].pixels.size(), images[k][aov].pixels.size());
+                size_t differing = 0;
+                for (size_t i = 0; i < images[0][aov].pixels.size(); ++i)
+                    differing += std::memcmp(&images[0][aov].pixels[i], &images[k][aov].pixels[i], 4) != 0;  // as bits
+                EXPECT_EQ(differing, 0u) << (aov == 0 ? "triangle ids" : "depths") << " at distance " << distance
+                                         << (k == 1 ? ", own corners" : ", 128-thread workgroups");
+            }
     }
 }
 
@@ -609,7 +618,7 @@ TEST_F(RendererTest, OcclusionCullingChangesCountsNotTheImage) {
     EXPECT_TRUE(movedStats.occlusionTested);
 }
 
-// The cull's workgroup size is chosen per device (TS_CULL_GROUP_SIZE on a GPU, TS_CULL_SOFTWARE_GROUP_SIZE on a CPU):
+// The cull's workgroup size is chosen per device (TS_CULL_GROUP_SIZE on a GPU, one subgroup on a CPU: 8 on lavapipe):
 // every size culls, cuts and defers the same clusters, so the frames are the same bit for bit.
 TEST_F(RendererTest, CullWorkgroupSizesDrawTheSameFrames) {
     GpuScene scene;
@@ -628,7 +637,7 @@ TEST_F(RendererTest, CullWorkgroupSizesDrawTheSameFrames) {
     const std::vector<Aov> aovs = {Aov::PrimId, Aov::ClusterId, Aov::TriangleId, Aov::Depth};
     std::vector<Image> frames[2][2];
     FrameStats stats[2][2];
-    const uint32_t sizes[2] = {TS_CULL_GROUP_SIZE, TS_CULL_SOFTWARE_GROUP_SIZE};
+    const uint32_t sizes[2] = {TS_CULL_GROUP_SIZE, 8};
     for (int k = 0; k < 2; ++k) {
         setenv("TESSERA_CULL_GROUP_SIZE", std::to_string(sizes[k]).c_str(), 1);
         Renderer renderer(*device);  // the size is chosen when the pipelines are made

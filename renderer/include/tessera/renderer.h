@@ -156,10 +156,10 @@ enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primit
 // near plane or cover a large area to hardware raster).
 enum class RasterMode { Auto, Hardware, Software };
 // How the compute rasterizer's workgroup gets its cluster's vertices on screen (both cover the same pixels, bit for bit).
-// Shared: each vertex transformed once into shared memory, then a barrier, then one thread per triangle (the GPU way).
-// PerTriangle: each thread transforms its own triangle's three corners, no shared memory, no barrier: on a CPU device
-// (lavapipe) a barrier makes a workgroup run as coroutines, which costs more than the repeated transforms
-// (docs/benchmarks.md). Auto: PerTriangle on a CPU device, Shared on a GPU; $TESSERA_RASTER_VERTICES (shared,
+// Shared: each vertex transformed once into shared memory, then a barrier, then one thread per triangle, in workgroups of
+// 128 on a GPU and of one subgroup on a CPU device (lavapipe: a barrier in a larger workgroup switches between its
+// subgroups as coroutines). PerTriangle: each thread transforms its own triangle's three corners, no shared memory, no
+// barrier, 16 threads (8-16 % dearer on lavapipe; docs/benchmarks.md). Auto: Shared; $TESSERA_RASTER_VERTICES (shared,
 // per-triangle) overrides Auto, for tests and measurements.
 enum class RasterVertices { Auto, Shared, PerTriangle };
 const char* visualize_name(Visualize mode);
@@ -210,7 +210,8 @@ struct FrameStats {
     uint32_t swClusters = 0;
     uint32_t swLargeClusters = 0;   // of those, clusters not certainly small on screen: drawn by the variant with 64-bit edge functions
     bool swSharedVertices = false;  // the compute rasterizer's variant this frame: RasterVertices::Shared (else PerTriangle)
-    uint32_t cullGroupSize = 0;     // the cull's workgroup size on this device (TS_CULL_*GROUP_SIZE)
+    uint32_t cullGroupSize = 0;     // the cull's workgroup size on this device (TS_CULL_GROUP_SIZE on a GPU, one subgroup on a CPU)
+    uint32_t swRasterGroupSize = 0; // the compute rasterizer's workgroup size this frame (by device and variant)
     uint32_t shadePixelsPerThread = 0;   // pixels each resolve thread shades on this device (TS_SPEC_SHADE_PIXELS_PER_THREAD)
     bool texelViews = false;        // the passes read the streams through texel views (RenderSettings::texelViews)
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
