@@ -48,11 +48,12 @@ uint32_t default_cull_group_size(const Device& device) {
     return device.is_software() ? one_subgroup(device, TS_CULL_GROUP_SIZE) : TS_CULL_GROUP_SIZE;
 }
 
-// The compute rasterizer's workgroup size (its shared-vertices variant): one subgroup on a CPU device,
-// TS_SW_RASTER_GROUP_SIZE on a GPU; $TESSERA_SW_RASTER_GROUP_SIZE overrides that.
-uint32_t default_sw_raster_group_size(const Device& device) {
+// A compute rasterizer's workgroup size (the cluster rasterizer's shared-vertices variant: `gpuSize`
+// TS_SW_RASTER_GROUP_SIZE; the patch rasterizer: TS_DICE_GROUP_SIZE): one subgroup on a CPU device, `gpuSize` on a GPU;
+// $TESSERA_SW_RASTER_GROUP_SIZE forces one size for both.
+uint32_t default_raster_group_size(const Device& device, uint32_t gpuSize) {
     if (uint32_t forced = forced_group_size("TESSERA_SW_RASTER_GROUP_SIZE", TS_SW_RASTER_GROUP_SIZE)) return forced;
-    return device.is_software() ? one_subgroup(device, TS_SW_RASTER_GROUP_SIZE) : TS_SW_RASTER_GROUP_SIZE;
+    return device.is_software() ? one_subgroup(device, gpuSize) : gpuSize;
 }
 
 // Pixels each resolve thread shades: TS_CPU_SHADE_PIXELS_PER_THREAD on a CPU device, 1 on a GPU;
@@ -96,16 +97,18 @@ struct SpecializationInfo {
 }  // namespace
 
 std::shared_ptr<Pipelines> Pipelines::for_device(Device& device, bool texelViews) {
-    const uint32_t cullGroupSize = default_cull_group_size(device), swRasterGroupSize = default_sw_raster_group_size(device);
+    const GroupSizes sizes{default_cull_group_size(device), default_raster_group_size(device, TS_SW_RASTER_GROUP_SIZE),
+                           default_raster_group_size(device, TS_DICE_GROUP_SIZE)};
     const uint32_t shadePixelsPerThread = default_shade_pixels_per_thread(device);
-    const std::string key = "tessera.pipelines cull " + std::to_string(cullGroupSize) + " raster " + std::to_string(swRasterGroupSize) +
-                            " shade " + std::to_string(shadePixelsPerThread) + (texelViews ? " views" : " addresses");
-    return std::static_pointer_cast<Pipelines>(device.shared_state(
-        key, [&] { return std::make_shared<Pipelines>(device, cullGroupSize, swRasterGroupSize, shadePixelsPerThread, texelViews); }));
+    const std::string key = "tessera.pipelines cull " + std::to_string(sizes.cull) + " raster " + std::to_string(sizes.swRaster) + " dice " +
+                            std::to_string(sizes.dice) + " shade " + std::to_string(shadePixelsPerThread) + (texelViews ? " views" : " addresses");
+    return std::static_pointer_cast<Pipelines>(
+        device.shared_state(key, [&] { return std::make_shared<Pipelines>(device, sizes, shadePixelsPerThread, texelViews); }));
 }
 
-Pipelines::Pipelines(Device& d, uint32_t cullGroups, uint32_t swRasterGroups, uint32_t shadePixels, bool views)
-    : device(d), cullGroupSize(cullGroups), swRasterGroupSize(swRasterGroups), shadePixelsPerThread(shadePixels), texelViews(views) {
+Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool views)
+    : device(d), cullGroupSize(sizes.cull), swRasterGroupSize(sizes.swRaster), diceGroupSize(sizes.dice), shadePixelsPerThread(shadePixels),
+      texelViews(views) {
     // The same layout in every set, so a renderer's frame set serves either (identically defined layouts are compatible).
     VkDescriptorSetLayoutBinding bindings[1 + TS_VIEW_COUNT];
     bindings[0] = {TS_BINDING_FRAME, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
@@ -201,7 +204,8 @@ VkPipeline Pipelines::tessellate() {
 
 VkPipeline Pipelines::dice(bool masks, bool countFragments) {
     VkPipeline& variant = diceVariants[masks][countFragments];
-    if (!variant) variant = compute_pipeline(dice_comp, sizeof(dice_comp), {.textures = masks, .countFragments = countFragments});
+    if (!variant)
+        variant = compute_pipeline(dice_comp, sizeof(dice_comp), {.textures = masks, .rasterGroupSize = diceGroupSize, .countFragments = countFragments});
     return variant;
 }
 

@@ -38,7 +38,7 @@ struct Specialization {
     bool vertexInputs = false;             // TS_SPEC_VERTEX_INPUTS: resolve, materials with inputs from the vertex channel
     uint32_t output = TS_OUTPUT_SHADE;     // TS_SPEC_OUTPUT: what resolve writes (TS_OUTPUT_*)
     bool ownCorners = false;               // TS_SPEC_OWN_CORNERS: the compute rasterizer's variant (RasterVertices)
-    uint32_t rasterGroupSize = TS_SW_RASTER_GROUP_SIZE;  // TS_SPEC_RASTER_GROUP_SIZE: its workgroup
+    uint32_t rasterGroupSize = TS_SW_RASTER_GROUP_SIZE;  // TS_SPEC_RASTER_GROUP_SIZE: its workgroup, or the patch rasterizer's
     bool largeTriangles = false;           // TS_SPEC_LARGE_TRIANGLES: the compute rasterizer's back of the software list
     bool doubleSided = false;              // TS_SPEC_DOUBLE_SIDED: hardware raster without face culling
     uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // TS_SPEC_CULL_GROUP_SIZE
@@ -54,7 +54,11 @@ struct Pipelines {
     // views takes the second).
     static std::shared_ptr<Pipelines> for_device(Device& device, bool texelViews);
 
-    Pipelines(Device& device, uint32_t cullGroupSize, uint32_t swRasterGroupSize, uint32_t shadePixelsPerThread, bool texelViews);
+    // Workgroup sizes chosen per device: the cull's, the cluster rasterizer's (shared vertices) and the patch rasterizer's.
+    struct GroupSizes {
+        uint32_t cull, swRaster, dice;
+    };
+    Pipelines(Device& device, GroupSizes sizes, uint32_t shadePixelsPerThread, bool texelViews);
     ~Pipelines();
     Pipelines(const Pipelines&) = delete;
     Pipelines& operator=(const Pipelines&) = delete;
@@ -68,6 +72,7 @@ struct Pipelines {
     VkPipelineLayout layout = VK_NULL_HANDLE;
     const uint32_t cullGroupSize;         // the cull's workgroup size, chosen for the device (TS_SPEC_CULL_GROUP_SIZE)
     const uint32_t swRasterGroupSize;     // the compute rasterizer's, shared-vertices variant (TS_SPEC_RASTER_GROUP_SIZE)
+    const uint32_t diceGroupSize;         // the patch rasterizer's (dice.comp.glsl, TS_SPEC_RASTER_GROUP_SIZE)
     const uint32_t shadePixelsPerThread;  // pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD)
     const bool texelViews;                // every pipeline reads the streams through texel views (TS_SPEC_TEXEL_VIEWS)
 

@@ -215,7 +215,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_OUTPUT_KINDS 5u
 // Specialization constants of the compute rasterizer (raster_sw.comp.glsl): its variant where each thread transforms its
 // own triangles' corners, with no shared memory and no barrier, in workgroups of TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE
-// (RasterVertices::PerTriangle), and the workgroup size (local_size_x_id), which follows the variant and the device.
+// (RasterVertices::PerTriangle), and the workgroup size (local_size_x_id), which follows the variant and the device;
+// the patch rasterizer's workgroup size too (dice.comp.glsl: one subgroup on a CPU device, TS_DICE_GROUP_SIZE on a GPU).
 #define TS_SPEC_OWN_CORNERS 4
 #define TS_SPEC_RASTER_GROUP_SIZE 5
 // The cull's workgroup size (cull.comp.glsl, local_size_x_id): TS_CULL_GROUP_SIZE on a GPU, one subgroup on a CPU device
@@ -295,7 +296,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // triangles per thread cost 0.5x the 128-thread workgroup's raster time, 8 or 32 threads more (docs/benchmarks.md).
 #define TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE 16
 #define TS_TESS_GROUP_SIZE 128       // tessellate: one workgroup per cluster, one thread per triangle
-#define TS_DICE_GROUP_SIZE 64        // dice: one workgroup per patch, its lattice points (<= 153), then its micro-triangles
+#define TS_DICE_GROUP_SIZE 64       // dice on a GPU: one workgroup per patch, its lattice points (<= 153), then its micro-triangles
                                      // (<= 256), 64 at a time
 #define TS_DICE_MAX_POINTS 153       // (16 + 1)(16 + 2) / 2
 #define TS_HZB_TILE 8

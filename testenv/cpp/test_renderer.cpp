@@ -498,6 +498,29 @@ void expect_same_images(const std::vector<Image>& a, const std::vector<Image>& b
 }
 }  // namespace
 
+// The patch rasterizer (dice.comp.glsl) runs in workgroups of one subgroup on a CPU device and of TS_DICE_GROUP_SIZE on a
+// GPU; its threads stride over a patch's points and micro-triangles by the workgroup's size, and every size draws the
+// same micro-triangles to the same pixels.
+TEST_F(RendererTest, PatchRasterWorkgroupSizesDrawTheSameFrames) {
+    Renderer renderer(*device);
+    setenv("TESSERA_SW_RASTER_GROUP_SIZE", "64", 1);
+    Renderer gpuSized(*device);  // the size is chosen when the pipelines are made
+    unsetenv("TESSERA_SW_RASTER_GROUP_SIZE");
+    GpuScene scene;
+    scene.set_instances({displaced_instance(scene, scene.add_mesh(bumpy_sphere(24)))});
+    RenderSettings settings{160, 96, {0, 0, 0, 0}};
+    settings.dicingRate = 0.5f;  // patches of many micro-triangles: several per thread
+    const std::vector<Aov> aovs = {Aov::TriangleId, Aov::Depth, Aov::Normal};
+    FrameStats stats[2];
+    const std::vector<Image> a = renderer.render(scene, camera_at(0.8, 0.3, 1.4), settings, aovs, &stats[0]);
+    const std::vector<Image> b = gpuSized.render(scene, camera_at(0.8, 0.3, 1.4), settings, aovs, &stats[1]);
+    EXPECT_GT(stats[0].computePatches, 100u) << "the compute patch rasterizer must draw the scene";
+    EXPECT_GT(stats[0].microTriangles, 20u * stats[0].computePatches) << "patches of many micro-triangles";
+    EXPECT_EQ(stats[0].microTriangles, stats[1].microTriangles);
+    EXPECT_EQ(stats[0].computePatches, stats[1].computePatches);
+    expect_same_images(a, b, "patch raster in workgroups of 64");
+}
+
 // The cut's blocks (GpuCutBlock) only spare tests: with and without them the same clusters are drawn, through the
 // same rasterizers, to the same pixels, for views that mix levels, cut the mesh with the frustum, look from inside the
 // LOD spheres, are orthographic, or sit far from the origin under a stretching transform.
