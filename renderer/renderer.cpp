@@ -345,7 +345,7 @@ struct Renderer::Impl {
     // raster, tessellation; the frame's HZB; resolve.
     static constexpr uint32_t kTimestamps = 12;
     Buffer hardwareList, softwareList;
-    Buffer instances, meshes, levels, cutBlocks, blockClusters, clusters, positions, normals, colors, uvs, triangles, materials, materialTables;
+    Buffer instances, meshes, levels, cutBlocks, blockClusters, clusters, vertices, colors, uvs, triangles, materials, materialTables;
     Buffer instanceBatches, batches;
     uint32_t instanceCount = 0;
     uint64_t clusterCount = 0, sourceTriangles = 0;
@@ -450,8 +450,7 @@ struct Renderer::Impl {
                  {instanceBatches, VK_FORMAT_R32_UINT, 4, whole(instanceBatches, 4)},
                  {clusters, VK_FORMAT_R32G32B32A32_UINT, 16, whole(clusters, 16)},
                  {meshes, VK_FORMAT_R32G32B32A32_UINT, 16, whole(meshes, 16)},
-                 {positions, VK_FORMAT_R32_UINT, 4, whole(positions, 4)},
-                 {normals, VK_FORMAT_R32_UINT, 4, whole(normals, 4)},
+                 {vertices, VK_FORMAT_R32G32B32A32_UINT, 16, whole(vertices, 16)},
                  {triangles, VK_FORMAT_R32_UINT, 4, whole(triangles, 4)},
                  {visibleClusters, VK_FORMAT_R32G32_UINT, 8, TS_VIS_MAX_VISIBLE_CLUSTERS},  // the most a frame may grow it to
                  {visibility, VK_FORMAT_R32G32_UINT, 8, pixels},
@@ -512,8 +511,9 @@ struct Renderer::Impl {
         std::vector<gpu::GpuLevel> gpuLevels;
         std::vector<gpu::GpuCutBlock> gpuBlocks;
         std::vector<uint32_t> gpuBlockClusters;
-        std::vector<float> gpuPositions, gpuUvs;
-        std::vector<uint32_t> gpuNormals, gpuColors, gpuTriangles, gpuDisplacementNormals, gpuSeams;
+        std::vector<float> gpuUvs;
+        std::vector<gpu::GpuVertex> gpuVertices;
+        std::vector<uint32_t> gpuColors, gpuTriangles, gpuDisplacementNormals, gpuSeams;
         uvBoxes.assign(scene.meshes_.size(), {});
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
             const BuiltMesh* mesh = scene.meshes_[m].get();
@@ -521,7 +521,7 @@ struct Renderer::Impl {
             g = {};
             g.colorOffset = g.uvOffset = g.displacementNormalOffset = g.seamVertexOffset = g.seamTriangleOffset = TS_NO_STREAM;
             if (!mesh) continue;
-            const uint32_t vertexBase = uint32_t(gpuPositions.size() / 3), triangleBase = uint32_t(gpuTriangles.size());
+            const uint32_t vertexBase = uint32_t(gpuVertices.size()), triangleBase = uint32_t(gpuTriangles.size());
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
             g.clusterOffset = uint32_t(gpuClusters.size());
             g.vertexOffset = vertexBase;
@@ -576,8 +576,12 @@ struct Renderer::Impl {
                 level.blockCount = uint32_t(gpuBlocks.size()) - level.blockOffset;
             }
             g.lodRadius = float(lodRadius * (1 + 1e-6));
-            gpuPositions.insert(gpuPositions.end(), mesh->positions.begin(), mesh->positions.end());
-            gpuNormals.insert(gpuNormals.end(), mesh->normals.begin(), mesh->normals.end());
+            for (size_t v = 0; v < mesh->normals.size(); ++v) {
+                gpu::GpuVertex vertex;
+                std::memcpy(&vertex.bits, &mesh->positions[3 * v], 12);
+                vertex.bits.w = mesh->normals[v];
+                gpuVertices.push_back(vertex);
+            }
             gpuColors.insert(gpuColors.end(), mesh->colors.begin(), mesh->colors.end());
             gpuUvs.insert(gpuUvs.end(), mesh->uvs.begin(), mesh->uvs.end());
             gpuTriangles.insert(gpuTriangles.end(), mesh->triangles.begin(), mesh->triangles.end());
@@ -589,8 +593,7 @@ struct Renderer::Impl {
         upload_vector(device, cutBlocks, gpuBlocks);
         upload_vector(device, blockClusters, gpuBlockClusters);
         upload_vector(device, clusters, gpuClusters);
-        upload_vector(device, positions, gpuPositions);
-        upload_vector(device, normals, gpuNormals);
+        upload_vector(device, vertices, gpuVertices);
         upload_vector(device, colors, gpuColors);
         upload_vector(device, uvs, gpuUvs);
         upload_vector(device, triangles, gpuTriangles);
@@ -1087,7 +1090,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.sourceTriangles = s.sourceTriangles;
     frameStats.textures = uint32_t(s.poolImages.size());
     frameStats.textureBytes = s.texturePool.size + s.textureSlots.size;
-    frameStats.geometryBytes = s.meshes.size + s.levels.size + s.cutBlocks.size + s.blockClusters.size + s.clusters.size + s.positions.size + s.normals.size + s.colors.size + s.uvs.size +
+    frameStats.geometryBytes = s.meshes.size + s.levels.size + s.cutBlocks.size + s.blockClusters.size + s.clusters.size + s.vertices.size + s.colors.size + s.uvs.size +
                                s.triangles.size;
 
     for (;;) {
@@ -1172,8 +1175,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.cutBlocks = s.cutBlocks.address;
         f.blockClusters = s.blockClusters.address;
         f.clusters = s.clusters.address;
-        f.positions = s.positions.address;
-        f.normals = s.normals.address;
+        f.vertices = s.vertices.address;
         f.colors = s.colors.address;
         f.uvs = s.uvs.address;
         f.triangles = s.triangles.address;

@@ -8,6 +8,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer In
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceBatchRef { GpuInstanceBatch data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MeshRef { GpuMesh data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer ClusterRef { GpuCluster data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer VertexRef { GpuVertex data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer LevelRef { GpuLevel data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer CutBlockRef { GpuCutBlock data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer MaterialRef { GpuMaterial data[]; };
@@ -68,8 +69,7 @@ layout(set = 0, binding = TS_VIEW_BATCHES) uniform usamplerBuffer batchTexels;
 layout(set = 0, binding = TS_VIEW_INSTANCE_BATCHES) uniform usamplerBuffer instanceBatchTexels;
 layout(set = 0, binding = TS_VIEW_CLUSTERS) uniform usamplerBuffer clusterTexels;
 layout(set = 0, binding = TS_VIEW_MESHES) uniform usamplerBuffer meshTexels;
-layout(set = 0, binding = TS_VIEW_POSITIONS) uniform usamplerBuffer positionTexels;
-layout(set = 0, binding = TS_VIEW_NORMALS) uniform usamplerBuffer normalTexels;
+layout(set = 0, binding = TS_VIEW_VERTICES) uniform usamplerBuffer vertexTexels;
 layout(set = 0, binding = TS_VIEW_TRIANGLES) uniform usamplerBuffer triangleTexels;
 layout(set = 0, binding = TS_VIEW_VISIBLE_CLUSTERS) uniform usamplerBuffer visibleClusterTexels;
 layout(set = 0, binding = TS_VIEW_VISIBILITY) uniform usamplerBuffer visibilityTexels;
@@ -185,10 +185,14 @@ GpuInstanceBatch load_batch(GpuFrame frame, uint index) {
     return b;
 }
 
-// The packed normal of a vertex (decode_octahedral).
-uint vertex_normal_bits(GpuFrame frame, uint vertex) {
-    return TEXEL_VIEWS ? texelFetch(normalTexels, int(vertex)).x : UintRef(frame.normals).data[vertex];
+// A vertex's position bits and packed normal (GpuVertex): one texel, which a caller reading the position and the normal
+// of one vertex fetches once.
+uvec4 vertex_bits(GpuFrame frame, uint vertex) {
+    return TEXEL_VIEWS ? texelFetch(vertexTexels, int(vertex)) : VertexRef(frame.vertices).data[vertex].bits;
 }
+
+// The packed normal of a vertex (decode_octahedral).
+uint vertex_normal_bits(GpuFrame frame, uint vertex) { return vertex_bits(frame, vertex).w; }
 
 // A pixel's visibility value (the rasterizers write it with atomics, through its address).
 uint64_t visibility_value(GpuFrame frame, uint pixel) {
@@ -225,14 +229,7 @@ vec3 to_camera_relative(Instance instance, vec3 translation, vec3 p) {
     return vec3(dot(instance.rows[0].xyz, p), dot(instance.rows[1].xyz, p), dot(instance.rows[2].xyz, p)) + translation;
 }
 
-vec3 vertex_position(GpuFrame frame, uint vertex) {
-    if (TEXEL_VIEWS) {
-        int at = int(3u * vertex);
-        return uintBitsToFloat(uvec3(texelFetch(positionTexels, at).x, texelFetch(positionTexels, at + 1).x, texelFetch(positionTexels, at + 2).x));
-    }
-    FloatRef positions = FloatRef(frame.positions);
-    return vec3(positions.data[3 * vertex], positions.data[3 * vertex + 1], positions.data[3 * vertex + 2]);
-}
+vec3 vertex_position(GpuFrame frame, uint vertex) { return uintBitsToFloat(vertex_bits(frame, vertex).xyz); }
 
 // A packed triangle of the scene's triangle stream: three 8-bit cluster-local corners, the material slot above.
 uint triangle_word(GpuFrame frame, uint index) {

@@ -264,16 +264,15 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_INSTANCE_BATCHES 3   // uint per instance: R32UI
 #define TS_VIEW_CLUSTERS 4           // GpuCluster: 6 RGBA32UI texels each
 #define TS_VIEW_MESHES 5             // GpuMesh: 4 RGBA32UI texels each
-#define TS_VIEW_POSITIONS 6          // float bits, 3 per vertex: R32UI
-#define TS_VIEW_NORMALS 7            // octahedral normal per vertex: R32UI
-#define TS_VIEW_TRIANGLES 8          // packed triangle: R32UI
-#define TS_VIEW_VISIBLE_CLUSTERS 9   // uvec2 (instance, cluster): RG32UI
-#define TS_VIEW_VISIBILITY 10        // 64-bit visibility value per pixel: RG32UI (low word first)
-#define TS_VIEW_BIN_PIXELS 11        // packed pixel per binned pixel: R32UI
-#define TS_VIEW_LEVELS 12            // GpuLevel: 3 RG32UI texels each
-#define TS_VIEW_CUT_BLOCKS 13        // GpuCutBlock: 4 RGBA32UI texels each
-#define TS_VIEW_BLOCK_CLUSTERS 14    // uint per block entry: R32UI
-#define TS_VIEW_COUNT 14
+#define TS_VIEW_VERTICES 6           // GpuVertex: one RGBA32UI texel each
+#define TS_VIEW_TRIANGLES 7          // packed triangle: R32UI
+#define TS_VIEW_VISIBLE_CLUSTERS 8   // uvec2 (instance, cluster): RG32UI
+#define TS_VIEW_VISIBILITY 9         // 64-bit visibility value per pixel: RG32UI (low word first)
+#define TS_VIEW_BIN_PIXELS 10        // packed pixel per binned pixel: R32UI
+#define TS_VIEW_LEVELS 11            // GpuLevel: 3 RG32UI texels each
+#define TS_VIEW_CUT_BLOCKS 12        // GpuCutBlock: 4 RGBA32UI texels each
+#define TS_VIEW_BLOCK_CLUSTERS 13    // uint per block entry: R32UI
+#define TS_VIEW_COUNT 13
 
 // Workgroup sizes.
 // On a CPU device the cull's workgroup is one subgroup: lavapipe runs a workgroup 8 invocations at a time, each batch
@@ -407,6 +406,14 @@ struct GpuInstance {
     vec4 rows[3];
 };
 TS_CHECK_SIZE(GpuInstance, 48);
+
+// A mesh vertex: position and normal side by side, so that a pass reading both (resolve, tessellation) or the position
+// alone (the rasterizers) reads one 16-byte texel: on lavapipe four single-word fetches per vertex, from two streams,
+// cost a screen-filling resolve a sixth of its time (docs/benchmarks.md).
+struct GpuVertex {
+    uvec4 bits;  // x, y, z: the mesh-space position's float bits; w: the octahedral normal (snorm16x2)
+};
+TS_CHECK_SIZE(GpuVertex, 16);
 
 // frame.instanceBatches[i]: the batch of instance i, with these flags of its transform in the top bits.
 #define TS_INSTANCE_BATCH_MASK 0x3fffffffu
@@ -594,8 +601,7 @@ struct GpuFrame {
     address cutBlocks;       // GpuCutBlock[]
     address blockClusters;   // uint[clusters]: each block's clusters (GpuCutBlock.firstCluster), counted from the mesh's first
     address clusters;        // GpuCluster[]
-    address positions;       // float[3 * vertices], mesh space
-    address normals;         // uint[vertices], octahedral snorm16x2
+    address vertices;        // GpuVertex[]
     address colors;          // uint[2 * colours], rgba16f
     address uvs;             // vec2[texture coordinates]
     address triangles;       // uint[triangles], 3 x 8-bit cluster-local indices
@@ -628,7 +634,7 @@ struct GpuFrame {
     address clusterDisplacement; // float[]: per cluster of a displaced batch's mesh, the largest offset its materials move
                                  // it by (mesh units; GpuInstanceBatch.displacementBounds)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 38);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 37);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu
