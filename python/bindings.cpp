@@ -181,6 +181,7 @@ nb::dict stats_dict(const FrameStats& s) {
     gpuMs["hw_raster"] = s.rasterMs;
     gpuMs["tessellation"] = s.tessellationMs;
     gpuMs["hzb"] = s.hzbMs;
+    gpuMs["classify"] = s.classifyMs;
     gpuMs["resolve"] = s.resolveMs;
     d["gpu_ms"] = gpuMs;
     d["upload_ms"] = s.uploadMs;

@@ -343,7 +343,7 @@ struct Renderer::Impl {
     // Scene streams.
     // start; main pass: cull, software raster, hardware raster, tessellation; HZB; post pass: cull, software, hardware
     // raster, tessellation; the frame's HZB; resolve.
-    static constexpr uint32_t kTimestamps = 12;
+    static constexpr uint32_t kTimestamps = 13;
     Buffer hardwareList, softwareList;
     Buffer instances, meshes, levels, cutBlocks, blockClusters, clusters, vertices, colors, uvs, triangles, materials, materialTables;
     Buffer instanceBatches, batches;
@@ -1210,10 +1210,14 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             vkCmdResetQueryPool(cmd, s.timestamps, 0, Impl::kTimestamps);
             for (VkPipelineBindPoint point : {VK_PIPELINE_BIND_POINT_COMPUTE, VK_PIPELINE_BIND_POINT_GRAPHICS})
                 vkCmdBindDescriptorSets(cmd, point, pipelines.layout, 0, 1, &s.frameSet, 0, nullptr);
-            // Every mark waits for all the work before it. Lavapipe defers draws, so its figures per pass are rough;
-            // their sum is right.
+            // Every mark waits for all the work before it. lavapipe writes a timestamp only when it next flushes, which a
+            // barrier does: on a CPU device each mark is followed by an execution barrier, else a mark before a dispatch
+            // with no barrier between them (classify's, the HZB's) took that dispatch's time into the span before it.
             uint32_t timestamp = 0;
-            auto mark = [&]() { vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, timestamp++); };
+            auto mark = [&]() {
+                vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, timestamp++);
+                if (device_.is_software()) barrier(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0);
+            };
             mark();
             gpu::GpuDrawState initial{};
             initial.vertexCount = initial.doubleSidedVertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
@@ -1386,6 +1390,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 }
             }
 
+            mark();
+
             // Each AOV: the background, then one indirect dispatch per material over its bin's pixels.
             for (size_t i = 0; i < aovs.size(); ++i) {
                 if (i > 0)  // the previous copy must finish reading before the next resolve overwrites
@@ -1506,7 +1512,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             frameStats.rasterMs = span(2, 3) + span(7, 8);
             frameStats.tessellationMs = span(3, 4) + span(8, 9);
             frameStats.hzbMs = span(4, 5) + span(9, 10);
-            frameStats.resolveMs = span(10, 11);
+            frameStats.classifyMs = span(10, 11);
+            frameStats.resolveMs = span(11, 12);
+            if (getenv("TS_PRINT_MARKS")) { for (int i = 1; i < Impl::kTimestamps; ++i) fprintf(stderr, "%d:%.1f ", i, span(i - 1, i)); fprintf(stderr, "\n"); }
         }
         break;
     }

@@ -46,7 +46,7 @@ def test_stats_and_camera_options(tmp_path):
     stats = json.loads(stats_file.read_text())
     assert stats["camera"] == "/World/Camera" and stats["resolution"] == [80, 60]
     assert stats["instances"] == 1 and stats["visible_clusters"] == 1 and stats["errors"] == []
-    assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "tessellation", "hzb", "resolve"}
+    assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "tessellation", "hzb", "classify", "resolve"}
     assert stats["micro_triangles"] == 0 and stats["tessellation_bytes"] == 0, "nothing displaces: no tessellation work or memory"
     assert stats["occlusion_tested"] is False, "a first frame has no previous HZB"
     assert {"occluded_instances", "occluded_clusters", "backface_clusters", "post_pass_clusters"} <= set(stats)

@@ -238,8 +238,9 @@ struct FrameStats {
                                    // colours, or a full point pool)
     uint64_t tessellatedTriangles = 0, microTriangles = 0;
     uint64_t tessellationBytes = 0;
-    // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids.
-    double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, tessellationMs = 0, hzbMs = 0, resolveMs = 0;
+    // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids; classifyMs:
+    // the material bins (classify and bins); resolveMs: backgrounds, resolve and the AOV copies.
+    double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, tessellationMs = 0, hzbMs = 0, classifyMs = 0, resolveMs = 0;
     double uploadMs = 0;  // CPU time spent uploading what changed in the scene (instances, geometry, materials) this frame
 };
 
