@@ -36,8 +36,8 @@ uint32_t forced_group_size(const char* name, uint32_t largest) {
     throw std::invalid_argument(std::string(name) + "='" + forced + "': expected a power of two from 8 to " + std::to_string(largest));
 }
 
-// A CPU device's workgroup for the passes that load per-workgroup inputs (the cull, the compute rasterizer): one
-// subgroup. lavapipe runs a workgroup as coroutines of one subgroup each (8 invocations at 256 bits), every one of which
+// A CPU device's workgroup for the passes that load per-workgroup inputs (the cull, the compute rasterizers of clusters
+// and of patches): one subgroup. lavapipe runs a workgroup as coroutines of one subgroup each (8 invocations at 256 bits), every one of which
 // loads those inputs again and switches to the next at a barrier (docs/benchmarks.md).
 uint32_t one_subgroup(const Device& device, uint32_t largest) { return std::clamp(device.subgroup_size(), 1u, largest); }
 
@@ -186,8 +186,11 @@ VkPipeline Pipelines::software_raster(bool masks, bool ownCorners, bool largeTri
     VkPipeline& variant = rasterSoftware[masks][countFragments][ownCorners][largeTriangles];
     if (!variant)
         variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp),
-                                   {.textures = masks, .ownCorners = ownCorners, .rasterGroupSize = ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : swRasterGroupSize,
-                                    .largeTriangles = largeTriangles, .countFragments = countFragments});
+                                   {.textures = masks,
+                                    .ownCorners = ownCorners,
+                                    .rasterGroupSize = ownCorners ? uint32_t(TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE) : swRasterGroupSize,
+                                    .largeTriangles = largeTriangles,
+                                    .countFragments = countFragments});
     return variant;
 }
 

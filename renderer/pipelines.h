@@ -49,9 +49,9 @@ struct Specialization {
 
 struct Pipelines {
     // The set for `device` (made by the first renderer on it), with the choices the environment makes now
-    // ($TESSERA_CULL_GROUP_SIZE, $TESSERA_SW_RASTER_GROUP_SIZE and $TESSERA_SHADE_PIXELS_PER_THREAD select different sets), reading the scene's streams
-    // through texel views or through their addresses (TS_SPEC_TEXEL_VIEWS: a frame whose streams outgrow the device's
-    // views takes the second).
+    // ($TESSERA_CULL_GROUP_SIZE, $TESSERA_SW_RASTER_GROUP_SIZE and $TESSERA_SHADE_PIXELS_PER_THREAD select different
+    // sets), reading the scene's streams through texel views or through their addresses (TS_SPEC_TEXEL_VIEWS: a frame
+    // whose streams outgrow the device's views takes the second).
     static std::shared_ptr<Pipelines> for_device(Device& device, bool texelViews);
 
     // Workgroup sizes chosen per device: the cull's, the cluster rasterizer's (shared vertices) and the patch rasterizer's.
