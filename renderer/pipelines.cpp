@@ -129,7 +129,6 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp));
     hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
     bins = compute_pipeline(bins_comp, sizeof(bins_comp));
-    background = compute_pipeline(background_comp, sizeof(background_comp));
     for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles, false);
     for (bool doubleSided : {false, true}) hardware_raster(false, doubleSided, false);
 }
@@ -141,7 +140,6 @@ Pipelines::~Pipelines() {
     vkDestroyPipeline(vk, hzb, nullptr);
     for (VkPipeline step : classify) vkDestroyPipeline(vk, step, nullptr);
     vkDestroyPipeline(vk, bins, nullptr);
-    vkDestroyPipeline(vk, background, nullptr);
     for (VkPipeline variant : std::span(&rasterSoftware[0][0][0][0], sizeof(rasterSoftware) / sizeof(VkPipeline))) vkDestroyPipeline(vk, variant, nullptr);
     for (VkPipeline variant : std::span(&rasterHardware[0][0][0], sizeof(rasterHardware) / sizeof(VkPipeline))) vkDestroyPipeline(vk, variant, nullptr);
     for (VkPipeline variant : std::span(&diceVariants[0][0], 4)) vkDestroyPipeline(vk, variant, nullptr);
@@ -169,7 +167,7 @@ VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, const
 }
 
 VkPipeline Pipelines::textured_background() {
-    if (!backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp), {.textures = true});
+    if (!backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp));
     return backgroundTextured;
 }
 

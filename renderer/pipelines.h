@@ -76,7 +76,7 @@ struct Pipelines {
     const uint32_t shadePixelsPerThread;  // pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD)
     const bool texelViews;                // every pipeline reads the streams through texel views (TS_SPEC_TEXEL_VIEWS)
 
-    VkPipeline hzb = VK_NULL_HANDLE, bins = VK_NULL_HANDLE, background = VK_NULL_HANDLE;
+    VkPipeline hzb = VK_NULL_HANDLE, bins = VK_NULL_HANDLE;
 
     // The cull's pipeline for one step (TS_CULL_*): the main pass's are made at once, the post pass's when a frame
     // first has one.

@@ -12,6 +12,7 @@
 #include "shared.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstddef>
 #include <atomic>
@@ -278,6 +279,17 @@ ViewFrustum frustum_of(const CameraMatrices& cam) {
 }
 
 
+// What an AOV holds where nothing covers a pixel, as the four words of its output texel: the background colour, infinite
+// depth, a zero normal, no id (a textured dome's colour is drawn per pixel instead: background.comp.glsl).
+std::array<uint32_t, 4> background_words(Aov aov, const std::array<float, 4>& color) {
+    if (aov_is_id(aov)) return {~0u, ~0u, ~0u, ~0u};
+    if (aov == Aov::Depth) return {0x7f800000u, 0x7f800000u, 0x7f800000u, 0x7f800000u};
+    if (aov == Aov::Normal) return {0u, 0u, 0u, 0u};
+    std::array<uint32_t, 4> words;
+    std::memcpy(words.data(), color.data(), 16);
+    return words;
+}
+
 void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2 srcAccess, VkPipelineStageFlags2 dstStage, VkAccessFlags2 dstAccess) {
     // What a shader reads from storage it may read through a texel view of the same buffer (TS_VIEW_*): a sampled read.
     if (dstAccess & VK_ACCESS_2_SHADER_STORAGE_READ_BIT) dstAccess |= VK_ACCESS_2_SHADER_SAMPLED_READ_BIT;
@@ -358,6 +370,7 @@ struct Renderer::Impl {
     uint64_t geometryVersion = 0, instancesVersion = 0, materialsVersion = 0;
     // Frame resources.
     Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
+    Buffer backgroundRow;  // one row of a plain background whose words differ (fill_background)
     Buffer deferredInstances, deferredClusters;
     Buffer cutList;  // instances the cut step walks (those the instance step did not cull); grows on overflow
     uint32_t cutCapacity = 1u << 12;
@@ -949,6 +962,7 @@ struct Renderer::Impl {
             // On a CPU device the output is host memory that the last AOV is read from directly: no copy of it into the
             // readback buffer (33 MB at 1080p; Renderer::render). A GPU writes device memory and copies.
             aovOutput = device.create_buffer(pixels * 16, device.is_software() ? MemoryUse::Readback : MemoryUse::Device);
+            backgroundRow = device.create_buffer(uint64_t(w) * 16, MemoryUse::Device);
             binPixels = device.create_buffer(pixels * 4, MemoryUse::Device);
             hzbLevels = Buffer{};
             previousValid = false;
@@ -1374,11 +1388,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             };
             const uint32_t tilesX = (settings.width + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE, tilesY = (settings.height + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE;
             const bool oneBin = s.materialCount * s.bin_kinds() == 1;  // nothing to sort: list the covered pixels
-            // A one-bin frame's listing pass also writes the first AOV's background (unless that is a textured dome's).
-            const bool listingDrawsBackground = oneBin && !(texturedDome && aovs[0] == Aov::Color);
             for (uint32_t step : {oneBin ? TS_CLASSIFY_ONE_BIN : TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
                 if (oneBin && step == TS_CLASSIFY_SCATTER) break;
-                PushConstants classifyPush{listingDrawsBackground ? uint32_t(aovs[0]) : TS_NO_AOV, step, 0};
+                PushConstants classifyPush{0, step, 0};
                 vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(classifyPush), &classifyPush);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.classify_step(step));
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
@@ -1392,15 +1404,44 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
             mark();
 
+            // A plain background into every pixel of the output, before resolve writes the covered ones: a fill where its
+            // four words are equal, else one row, written once and copied to every row. A shader storing the uncovered
+            // pixels cost lavapipe a loop over the lanes per word (about 20 ms of a 1080p frame on one core).
+            auto fill_background = [&](Aov aov) {
+                const std::array<uint32_t, 4> words = background_words(aov, settings.background);
+                if (words[0] == words[1] && words[0] == words[2] && words[0] == words[3]) {
+                    vkCmdFillBuffer(cmd, s.aovOutput.handle, 0, pixels * 16, words[0]);
+                    return;
+                }
+                std::vector<std::array<uint32_t, 4>> row(settings.width, words);
+                constexpr size_t kMostPerUpdate = 65536;  // vkCmdUpdateBuffer's limit
+                const size_t rowBytes = size_t(settings.width) * 16;
+                for (size_t at = 0; at < rowBytes; at += kMostPerUpdate)
+                    vkCmdUpdateBuffer(cmd, s.backgroundRow.handle, at, std::min(kMostPerUpdate, rowBytes - at), reinterpret_cast<const char*>(row.data()) + at);
+                barrier(cmd, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT,
+                        VK_ACCESS_2_TRANSFER_READ_BIT);
+                std::vector<VkBufferCopy> rows(settings.height);
+                for (uint32_t y = 0; y < settings.height; ++y) rows[y] = {0, y * rowBytes, rowBytes};
+                vkCmdCopyBuffer(cmd, s.backgroundRow.handle, s.aovOutput.handle, settings.height, rows.data());
+            };
+
             // Each AOV: the background, then one indirect dispatch per material over its bin's pixels.
             for (size_t i = 0; i < aovs.size(); ++i) {
-                if (i > 0)  // the previous copy must finish reading before the next resolve overwrites
-                    barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT, VK_ACCESS_2_TRANSFER_READ_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
-                            VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                PushConstants background{uint32_t(aovs[i]), 0, 0};
-                vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, texturedDome && aovs[i] == Aov::Color ? pipelines.textured_background() : pipelines.background);
-                if (i > 0 || !listingDrawsBackground) vkCmdDispatch(cmd, tilesX, tilesY, 1);
+                // Classify (its count step keeps places in the output) and the previous AOV's copy are done with the output.
+                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_COPY_BIT,
+                        VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_TRANSFER_READ_BIT,
+                        VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                        VK_ACCESS_2_TRANSFER_WRITE_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                if (texturedDome && aovs[i] == Aov::Color) {  // the dome's image where nothing covers a pixel
+                    PushConstants background{uint32_t(aovs[i]), 0, 0};
+                    vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.textured_background());
+                    vkCmdDispatch(cmd, tilesX, tilesY, 1);
+                } else {
+                    fill_background(aovs[i]);
+                    barrier(cmd, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                            VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                }
                 const uint32_t output = aovs[i] == Aov::Color ? (settings.visualize == Visualize::None ? TS_OUTPUT_SHADE : TS_OUTPUT_VISUALIZE)
                                       : aovs[i] == Aov::Depth  ? TS_OUTPUT_DEPTH
                                       : aovs[i] == Aov::Normal ? TS_OUTPUT_NORMAL

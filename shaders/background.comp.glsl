@@ -1,7 +1,7 @@
-// The pixels nothing covers, for the AOV being resolved (push.aov); resolve.comp.glsl shades the others, bin by bin.
-// A shader of its own: on a CPU device (lavapipe) the shading code beside it would cost every pixel, covered or not.
-// Its textured variant (a stage with a textured dome light) shows the dome's image there. A frame with one material
-// bin has its first AOV's plain background written by classify.comp.glsl instead, in its pass over the pixels.
+// The colour of the pixels nothing covers in a frame with a textured dome light: the dome's image seen through each
+// pixel; resolve.comp.glsl shades the others, bin by bin. Every other background is a constant, which the renderer fills
+// in before resolve (renderer.cpp fill_background). A shader of its own: on a CPU device (lavapipe) the shading code
+// beside it would cost every pixel, covered or not.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #include "frame.h"
@@ -9,9 +9,6 @@
 #include "lights.h"
 
 layout(local_size_x = TS_PIXEL_TILE, local_size_y = TS_PIXEL_TILE) in;
-
-// The pipeline variant for a textured dome (the renderer binds it for the colour AOV of such frames).
-layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
 
 // Lat-long coordinates (st, t up) of a direction in the dome's frame, in OpenEXR's convention: longitude
 // atan2(x, z), +pi at the left edge; latitude asin(y), +pi/2 at the top.
@@ -39,14 +36,11 @@ void main() {
     if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
     uint index = pixel.y * frame.viewport.x + pixel.x;
     if (visibility_value(frame, index) != 0ul) return;
-    uint aov = push.aov;
-    if (TEXTURED && aov == TS_AOV_COLOR) {
-        for (uint i = 0u; i < frame.viewport.w; ++i)
-            if (uint(frameConstants.lights[i].directionType.w) == TS_LIGHT_DOME && frameConstants.lights[i].texture != TS_NO_TEXTURE) {
-                // frameConstants.lights[i], not frame.lights[i]: resolve.comp.glsl
-                OutputRef(frame.aovOutput).data[index] = vec4(dome_background(frame, frameConstants.lights[i], vec2(pixel)), 1.0);
-                return;
-            }
-    }
-    write_background(frame, index, aov);
+    for (uint i = 0u; i < frame.viewport.w; ++i)
+        if (uint(frameConstants.lights[i].directionType.w) == TS_LIGHT_DOME && frameConstants.lights[i].texture != TS_NO_TEXTURE) {
+            // frameConstants.lights[i], not frame.lights[i]: resolve.comp.glsl
+            OutputRef(frame.aovOutput).data[index] = vec4(dome_background(frame, frameConstants.lights[i], vec2(pixel)), 1.0);
+            return;
+        }
+    OutputRef(frame.aovOutput).data[index] = frame.background;  // no textured dome after all: the plain colour
 }

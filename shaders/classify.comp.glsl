@@ -2,7 +2,7 @@
 // and for a micro-triangle its kind's, TS_BIN_*: resolve has a variant per kind) and notes bin and place. Scatter step
 // (after bins.comp.glsl gave each bin its range): each covered pixel writes its coordinates at its place in its bin's range.
 // A frame with a single possible bin (one material, no displacement) runs the one-bin step alone: the place is the
-// pixel's entry, with nothing to decode and no second pass, and the uncovered pixels get the first AOV's background.
+// pixel's entry, with nothing to decode and no second pass.
 // Each step is a pipeline of its own (TS_SPEC_STEP), holding only that step's code.
 #version 460
 #extension GL_GOOGLE_include_directive : require
@@ -54,9 +54,6 @@ void main() {
     uint64_t value = visibility_value(frame, index);
     if (value == 0ul) {
         if (STEP == TS_CLASSIFY_COUNT) places.data[index] = uvec2(TS_NO_BIN, 0u);
-        // The first AOV's background, saving background.comp.glsl's pass over the pixels (push.aov: that AOV, or
-        // TS_NO_AOV where the background pass must draw it, a textured dome's).
-        else if (push.aov != TS_NO_AOV) write_background(frame, index, push.aov);
         return;
     }
     uint bin = STEP == TS_CLASSIFY_ONE_BIN ? 0u : pixel_bin(frame, value);

@@ -300,18 +300,6 @@ uint hzb_level_offset(GpuFrame frame, uint level) {
 uint pack_bin_pixel(uvec2 pixel) { return pixel.x | (pixel.y << 16u); }
 uvec2 unpack_bin_pixel(uint packed) { return uvec2(packed & 0xffffu, packed >> 16u); }
 
-// What an AOV holds where nothing covers the pixel (without a textured dome: background.comp.glsl draws that).
-// One store of the value's bits whatever the AOV: lavapipe runs every branch's store, masked and lane by lane. As two
-// 64-bit words: lavapipe stores through an address in a loop over the lanes for each component, so two loops, not four
-// (an empty 1080p frame 40-45 -> 35-38 ms). Resolve's own stores stay four words: two 64-bit ones were slower there.
-void write_background(GpuFrame frame, uint index, uint aov) {
-    uvec4 bits = aov >= TS_AOV_PRIM_ID ? uvec4(0xffffffffu)
-               : aov == TS_AOV_COLOR   ? floatBitsToUint(frame.background)
-               : aov == TS_AOV_DEPTH   ? uvec4(0x7f800000u)  // infinity
-                                       : uvec4(0u);
-    OutputWideRef(frame.aovOutput).data[index] = u64vec2(packUint2x32(bits.xy), packUint2x32(bits.zw));
-}
-
 // Both rasterizers record each fragment they write (the overdraw view), in their variants for it only.
 layout(constant_id = TS_SPEC_COUNT_FRAGMENTS) const bool COUNT_FRAGMENTS = false;
 void count_fragment(GpuFrame frame, uint pixel) {

@@ -160,7 +160,6 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_CLASSIFY_SCATTER 1u
 #define TS_CLASSIFY_ONE_BIN 2u  // a frame whose pixels can only fall in one bin: listed at once, no count or scatter
 #define TS_NO_BIN 0xffffffffu   // classify's mark for a pixel nothing covers
-#define TS_NO_AOV 0xffffffffu   // classify's push.aov when it writes no background
 
 // Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
 #define TS_VISIBLE_SOFTWARE 0x80000000u
