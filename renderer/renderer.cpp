@@ -470,7 +470,8 @@ struct Renderer::Impl {
                  {binPixels, VK_FORMAT_R32_UINT, 4, pixels},
                  {levels, VK_FORMAT_R32G32_UINT, 8, whole(levels, 8)},
                  {cutBlocks, VK_FORMAT_R32G32B32A32_UINT, 16, whole(cutBlocks, 16)},
-                 {blockClusters, VK_FORMAT_R32_UINT, 4, whole(blockClusters, 4)}}};
+                 {blockClusters, VK_FORMAT_R32_UINT, 4, whole(blockClusters, 4)},
+                 {hzbLevels, VK_FORMAT_R32_UINT, 4, whole(hzbLevels, 4)}}};
     }
 
     // Whether a frame of `pixels` can read every stream through a view on this device.
@@ -1110,7 +1111,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     for (;;) {
         s.ensure_frame_buffers(settings.width, settings.height, aovs.size());
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
-        s.write_texel_views(pixels);
+        const bool occlusion = settings.occlusion && settings.lod;  // --no-lod: every source triangle, the classic way
+        if (occlusion) s.ensure_occlusion_buffers();
+        s.write_texel_views(pixels);  // after every buffer a view covers is made (the HZB's too)
 
         gpu::GpuFrame f{};
         f.viewProjection = to_gpu(cam.viewProjection);
@@ -1166,9 +1169,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const uint32_t rasterFlags = hardwareOnly ? TS_FRAME_HARDWARE_ONLY : settings.raster == RasterMode::Software ? TS_FRAME_SOFTWARE_FIRST : 0u;
         // The main pass defers what the previous frame's HZB hides or, in a first frame, the instances too small on screen
         // to hide much (cull.comp.glsl likely_occluder); the post pass tests those against this frame's HZB.
-        const bool occlusion = settings.occlusion && settings.lod;  // --no-lod: every source triangle, the classic way
         const bool postPass = occlusion, previous = occlusion && s.previousValid;
-        if (occlusion) s.ensure_occlusion_buffers();
         f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags | (previous ? TS_FRAME_PREVIOUS_HZB : 0u) |
                         (occlusion ? TS_FRAME_OCCLUSION : 0u) | (s.anyDisplaced ? TS_FRAME_MICRO_BINS : 0u) |
                         (settings.cutBlocks ? 0u : TS_FRAME_NO_CUT_BLOCKS),

@@ -77,6 +77,7 @@ layout(set = 0, binding = TS_VIEW_BIN_PIXELS) uniform usamplerBuffer binPixelTex
 layout(set = 0, binding = TS_VIEW_LEVELS) uniform usamplerBuffer levelTexels;
 layout(set = 0, binding = TS_VIEW_CUT_BLOCKS) uniform usamplerBuffer cutBlockTexels;
 layout(set = 0, binding = TS_VIEW_BLOCK_CLUSTERS) uniform usamplerBuffer blockClusterTexels;
+layout(set = 0, binding = TS_VIEW_HZB) uniform usamplerBuffer hzbTexels;
 
 GpuCluster load_cluster(GpuFrame frame, uint index) {
     if (!TEXEL_VIEWS) return ClusterRef(frame.clusters).data[index];
@@ -198,6 +199,9 @@ uint vertex_normal_bits(GpuFrame frame, uint vertex) { return vertex_bits(frame,
 uint64_t visibility_value(GpuFrame frame, uint pixel) {
     return TEXEL_VIEWS ? packUint2x32(texelFetch(visibilityTexels, int(pixel)).xy) : VisibilityRef(frame.visibility).data[pixel];
 }
+
+// Texel i of the HZB the step tests against or builds (push.hzb: every level, level 0 first).
+float hzb_texel(uint i) { return TEXEL_VIEWS ? uintBitsToFloat(texelFetch(hzbTexels, int(i)).x) : push.hzb.data[i]; }
 
 // Entry i of frame.binPixels (pack_bin_pixel).
 uint bin_pixel_entry(GpuFrame frame, uint i) {

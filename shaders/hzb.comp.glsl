@@ -55,7 +55,7 @@ void main() {
                            min(uintBitsToFloat(uint(visibility_value(frame, row1 + p0.x) >> 32)), uintBitsToFloat(uint(visibility_value(frame, row1 + p1.x) >> 32))));
         } else {
             uint row0 = belowOffset + p0.y * below.x, row1 = row0 + (p1.y - p0.y) * below.x;
-            farthest = min(min(push.hzb.data[row0 + p0.x], push.hzb.data[row0 + p1.x]), min(push.hzb.data[row1 + p0.x], push.hzb.data[row1 + p1.x]));
+            farthest = min(min(hzb_texel(row0 + p0.x), hzb_texel(row0 + p1.x)), min(hzb_texel(row1 + p0.x), hzb_texel(row1 + p1.x)));
         }
         push.hzb.data[offset + texel.y * size.x + texel.x] = farthest;
     }

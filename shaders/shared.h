@@ -271,7 +271,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_LEVELS 11            // GpuLevel: 3 RG32UI texels each
 #define TS_VIEW_CUT_BLOCKS 12        // GpuCutBlock: 4 RGBA32UI texels each
 #define TS_VIEW_BLOCK_CLUSTERS 13    // uint per block entry: R32UI
-#define TS_VIEW_COUNT 13
+#define TS_VIEW_HZB 14               // the HZB's levels, float bits per texel: R32UI
+#define TS_VIEW_COUNT 14
 
 // Workgroup sizes.
 // On a CPU device the cull's workgroup is one subgroup: lavapipe runs a workgroup 8 invocations at a time, each batch
