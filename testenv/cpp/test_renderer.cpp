@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <set>
+#include <memory>
 #include <string>
 #include <thread>
 
@@ -21,6 +22,15 @@ uint32_t id_at(const Image& image, uint32_t x, uint32_t y) {
     uint32_t bits;
     std::memcpy(&bits, &image.pixels[4 * (y * image.width + x)], 4);
     return bits;
+}
+
+// A renderer whose pipelines are made while the environment variable `variable` is `value`: the sizes and counts it
+// forces ($TESSERA_CULL_GROUP_SIZE, ...) are chosen then.
+std::unique_ptr<Renderer> renderer_with(Device& device, const char* variable, const std::string& value) {
+    setenv(variable, value.c_str(), 1);
+    auto renderer = std::make_unique<Renderer>(device);
+    unsetenv(variable);
+    return renderer;
 }
 
 std::shared_ptr<BuiltMesh> grid_mesh(int n) {
@@ -328,9 +338,7 @@ TEST_F(RendererTest, ComputeRasterOfTrianglesTooLargeForItsSmallVariantMatchesHa
 // device's (one subgroup on a CPU device) and a GPU's 128 threads, which stride differently over vertices and triangles.
 TEST_F(RendererTest, ComputeRasterVariantsDrawTheSameVisibility) {
     Renderer renderer(*device);
-    setenv("TESSERA_SW_RASTER_GROUP_SIZE", "128", 1);
-    Renderer gpuSized(*device);  // the size is chosen when the pipelines are made
-    unsetenv("TESSERA_SW_RASTER_GROUP_SIZE");
+    const std::unique_ptr<Renderer> gpuSized = renderer_with(*device, "TESSERA_SW_RASTER_GROUP_SIZE", "128");
     GpuScene scene;
     const uint32_t sphere = scene.add_mesh(bumpy_sphere(48)), grid = scene.add_mesh(grid_mesh(24));
     InstanceDesc plain = identity_instance(sphere), mirrored = identity_instance(sphere), sheet = identity_instance(grid);
@@ -355,7 +363,7 @@ TEST_F(RendererTest, ComputeRasterVariantsDrawTheSameVisibility) {
         FrameStats stats[3];
         for (int k = 0; k < 3; ++k) {  // shared (the device's workgroup), own corners, shared in 128-thread workgroups
             settings.rasterVertices = k == 1 ? RasterVertices::PerTriangle : RasterVertices::Shared;
-            images[k] = (k == 2 ? gpuSized : renderer).render(scene, camera_at(0, 0.2, distance), settings, {Aov::TriangleId, Aov::Depth, Aov::PrimId}, &stats[k]);
+            images[k] = (k == 2 ? *gpuSized : renderer).render(scene, camera_at(0, 0.2, distance), settings, {Aov::TriangleId, Aov::Depth, Aov::PrimId}, &stats[k]);
             EXPECT_EQ(stats[k].swSharedVertices, k != 1);
             EXPECT_GT(stats[k].swTriangles, 1000u) << "the compute rasterizer must draw the scene";
         }
@@ -503,9 +511,7 @@ void expect_same_images(const std::vector<Image>& a, const std::vector<Image>& b
 // same micro-triangles to the same pixels.
 TEST_F(RendererTest, PatchRasterWorkgroupSizesDrawTheSameFrames) {
     Renderer renderer(*device);
-    setenv("TESSERA_SW_RASTER_GROUP_SIZE", "64", 1);
-    Renderer gpuSized(*device);  // the size is chosen when the pipelines are made
-    unsetenv("TESSERA_SW_RASTER_GROUP_SIZE");
+    const std::unique_ptr<Renderer> gpuSized = renderer_with(*device, "TESSERA_SW_RASTER_GROUP_SIZE", "64");
     GpuScene scene;
     scene.set_instances({displaced_instance(scene, scene.add_mesh(bumpy_sphere(24)))});
     RenderSettings settings{160, 96, {0, 0, 0, 0}};
@@ -513,7 +519,7 @@ TEST_F(RendererTest, PatchRasterWorkgroupSizesDrawTheSameFrames) {
     const std::vector<Aov> aovs = {Aov::TriangleId, Aov::Depth, Aov::Normal};
     FrameStats stats[2];
     const std::vector<Image> a = renderer.render(scene, camera_at(0.8, 0.3, 1.4), settings, aovs, &stats[0]);
-    const std::vector<Image> b = gpuSized.render(scene, camera_at(0.8, 0.3, 1.4), settings, aovs, &stats[1]);
+    const std::vector<Image> b = gpuSized->render(scene, camera_at(0.8, 0.3, 1.4), settings, aovs, &stats[1]);
     EXPECT_GT(stats[0].computePatches, 100u) << "the compute patch rasterizer must draw the scene";
     EXPECT_GT(stats[0].microTriangles, 20u * stats[0].computePatches) << "patches of many micro-triangles";
     EXPECT_EQ(stats[0].microTriangles, stats[1].microTriangles);
@@ -662,11 +668,9 @@ TEST_F(RendererTest, CullWorkgroupSizesDrawTheSameFrames) {
     FrameStats stats[2][2];
     const uint32_t sizes[2] = {TS_CULL_GROUP_SIZE, 8};
     for (int k = 0; k < 2; ++k) {
-        setenv("TESSERA_CULL_GROUP_SIZE", std::to_string(sizes[k]).c_str(), 1);
-        Renderer renderer(*device);  // the size is chosen when the pipelines are made
-        unsetenv("TESSERA_CULL_GROUP_SIZE");
-        frames[k][0] = renderer.render(scene, camera_at(0, 0.5, 7), settings, aovs, &stats[k][0]);  // first frame: no HZB yet
-        frames[k][1] = renderer.render(scene, camera_at(0.3, 0.4, 6.5), settings, aovs, &stats[k][1]);  // the HZB reprojected
+        const std::unique_ptr<Renderer> renderer = renderer_with(*device, "TESSERA_CULL_GROUP_SIZE", std::to_string(sizes[k]));
+        frames[k][0] = renderer->render(scene, camera_at(0, 0.5, 7), settings, aovs, &stats[k][0]);  // first frame: no HZB yet
+        frames[k][1] = renderer->render(scene, camera_at(0.3, 0.4, 6.5), settings, aovs, &stats[k][1]);  // the HZB reprojected
         EXPECT_EQ(stats[k][0].cullGroupSize, sizes[k]);
     }
     for (int f = 0; f < 2; ++f) {
@@ -712,11 +716,9 @@ TEST_F(RendererTest, ShadePixelsPerThreadDrawTheSameFrames) {
     FrameStats stats[3][2];
     const uint32_t counts[3] = {1, TS_CPU_SHADE_PIXELS_PER_THREAD, 3};
     for (int k = 0; k < 3; ++k) {
-        setenv("TESSERA_SHADE_PIXELS_PER_THREAD", std::to_string(counts[k]).c_str(), 1);
-        Renderer renderer(*device);  // the count is chosen when the pipelines are made
-        unsetenv("TESSERA_SHADE_PIXELS_PER_THREAD");
-        frames[k][0] = renderer.render(bins, camera_at(0, 0, 1.6), settings, aovs, &stats[k][0]);
-        frames[k][1] = renderer.render(oneBin, camera_at(0, 0.5, 7), settings, aovs, &stats[k][1]);
+        const std::unique_ptr<Renderer> renderer = renderer_with(*device, "TESSERA_SHADE_PIXELS_PER_THREAD", std::to_string(counts[k]));
+        frames[k][0] = renderer->render(bins, camera_at(0, 0, 1.6), settings, aovs, &stats[k][0]);
+        frames[k][1] = renderer->render(oneBin, camera_at(0, 0.5, 7), settings, aovs, &stats[k][1]);
         EXPECT_EQ(stats[k][0].shadePixelsPerThread, counts[k]);
     }
     EXPECT_EQ(stats[0][0].shadingBins, 3u);
@@ -977,9 +979,8 @@ TEST_F(RendererTest, MoreThan65535WorkgroupsSpillIntoTheSecondDimension) {
 
     // More than 65535 x 64 covered pixels in one material bin: its shading dispatch spills into Y as well, with a
     // pixel per thread (a GPU's count: a CPU device's threads shade 16 each, in 16 times fewer workgroups).
-    setenv("TESSERA_SHADE_PIXELS_PER_THREAD", "1", 1);
-    Renderer perPixel(*device);
-    unsetenv("TESSERA_SHADE_PIXELS_PER_THREAD");
+    const std::unique_ptr<Renderer> perPixelRenderer = renderer_with(*device, "TESSERA_SHADE_PIXELS_PER_THREAD", "1");
+    Renderer& perPixel = *perPixelRenderer;
     RenderSettings large{2100, 2100, {0, 0, 0, 0}};
     large.occlusion = false;
     // A first frame from afar leaves "nothing here" in most of the output buffer: a pixel the second frame's bin
