@@ -180,13 +180,17 @@ bool Pipelines::default_own_corners() const {
     return false;
 }
 
+uint32_t Pipelines::software_raster_group_size(bool ownCorners) const {
+    return ownCorners ? uint32_t(TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE) : swRasterGroupSize;
+}
+
 VkPipeline Pipelines::software_raster(bool masks, bool ownCorners, bool largeTriangles, bool countFragments) {
     VkPipeline& variant = rasterSoftware[masks][countFragments][ownCorners][largeTriangles];
     if (!variant)
         variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp),
                                    {.textures = masks,
                                     .ownCorners = ownCorners,
-                                    .rasterGroupSize = ownCorners ? uint32_t(TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE) : swRasterGroupSize,
+                                    .rasterGroupSize = software_raster_group_size(ownCorners),
                                     .largeTriangles = largeTriangles,
                                     .countFragments = countFragments});
     return variant;

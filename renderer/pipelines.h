@@ -89,6 +89,8 @@ struct Pipelines {
     // view only, whose count per fragment, present but not run, cost lavapipe 6 % of the compute raster.
     // The compute rasterizer (RasterVertices: `ownCorners`; `largeTriangles`: the back of the software list).
     VkPipeline software_raster(bool masks, bool ownCorners, bool largeTriangles, bool countFragments);
+    // Its workgroup size for a variant: TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE with own corners, else swRasterGroupSize.
+    uint32_t software_raster_group_size(bool ownCorners) const;
     // Hardware raster of clusters; single-sided instances' variant culls back faces (TS_SPEC_DOUBLE_SIDED).
     VkPipeline hardware_raster(bool masks, bool doubleSided, bool countFragments);
     // Runtime tessellation, made when a scene first displaces: the pass that makes the patches, and the patches diced

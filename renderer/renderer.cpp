@@ -1095,7 +1095,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     FrameStats frameStats;
     frameStats.swSharedVertices = !ownCorners;
     frameStats.cullGroupSize = pipelines.cullGroupSize;
-    frameStats.swRasterGroupSize = ownCorners ? TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE : pipelines.swRasterGroupSize;
+    frameStats.swRasterGroupSize = pipelines.software_raster_group_size(ownCorners);
     frameStats.shadePixelsPerThread = pipelines.shadePixelsPerThread;
     frameStats.texelViews = texelViews;
     frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
@@ -1391,8 +1391,6 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             const bool oneBin = s.materialCount * s.bin_kinds() == 1;  // nothing to sort: list the covered pixels
             for (uint32_t step : {oneBin ? TS_CLASSIFY_ONE_BIN : TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
                 if (oneBin && step == TS_CLASSIFY_SCATTER) break;
-                PushConstants classifyPush{0, step, 0};
-                vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(classifyPush), &classifyPush);
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.classify_step(step));
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 compute_barrier();
@@ -1556,7 +1554,6 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             frameStats.hzbMs = span(4, 5) + span(9, 10);
             frameStats.classifyMs = span(10, 11);
             frameStats.resolveMs = span(11, 12);
-            if (getenv("TS_PRINT_MARKS")) { for (int i = 1; i < Impl::kTimestamps; ++i) fprintf(stderr, "%d:%.1f ", i, span(i - 1, i)); fprintf(stderr, "\n"); }
         }
         break;
     }
