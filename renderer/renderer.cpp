@@ -471,7 +471,11 @@ struct Renderer::Impl {
                  {levels, VK_FORMAT_R32G32_UINT, 8, whole(levels, 8)},
                  {cutBlocks, VK_FORMAT_R32G32B32A32_UINT, 16, whole(cutBlocks, 16)},
                  {blockClusters, VK_FORMAT_R32_UINT, 4, whole(blockClusters, 4)},
-                 {hzbLevels, VK_FORMAT_R32_UINT, 4, whole(hzbLevels, 4)}}};
+                 {hzbLevels, VK_FORMAT_R32_UINT, 4, whole(hzbLevels, 4)},
+                 {textureSlots, VK_FORMAT_R32G32B32A32_UINT, 16, whole(textureSlots, 16)},
+                 {texturePool, VK_FORMAT_R32_UINT, 4, whole(texturePool, 4)},
+                 {uvs, VK_FORMAT_R32G32_UINT, 8, whole(uvs, 8)},
+                 {colors, VK_FORMAT_R32G32_UINT, 8, whole(colors, 8)}}};
     }
 
     // Whether a frame of `pixels` can read every stream through a view on this device.

@@ -3,6 +3,7 @@
 #extension GL_EXT_buffer_reference : require
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #include "shared.h"
+#define TESSERA_FRAME_H  // texture.h reads the pool through the frame set's views when included after this
 
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceRef { GpuInstance data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer InstanceBatchRef { GpuInstanceBatch data[]; };
@@ -78,6 +79,10 @@ layout(set = 0, binding = TS_VIEW_LEVELS) uniform usamplerBuffer levelTexels;
 layout(set = 0, binding = TS_VIEW_CUT_BLOCKS) uniform usamplerBuffer cutBlockTexels;
 layout(set = 0, binding = TS_VIEW_BLOCK_CLUSTERS) uniform usamplerBuffer blockClusterTexels;
 layout(set = 0, binding = TS_VIEW_HZB) uniform usamplerBuffer hzbTexels;
+layout(set = 0, binding = TS_VIEW_TEXTURE_SLOTS) uniform usamplerBuffer textureSlotTexels;
+layout(set = 0, binding = TS_VIEW_TEXTURE_WORDS) uniform usamplerBuffer textureWordTexels;
+layout(set = 0, binding = TS_VIEW_UVS) uniform usamplerBuffer uvTexels;
+layout(set = 0, binding = TS_VIEW_COLORS) uniform usamplerBuffer colorTexels;
 
 GpuCluster load_cluster(GpuFrame frame, uint index) {
     if (!TEXEL_VIEWS) return ClusterRef(frame.clusters).data[index];

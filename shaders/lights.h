@@ -28,7 +28,8 @@ vec3 specular_lobe(vec3 n, vec3 toEye, vec3 toLight, vec3 f0, float alpha) {
     float d = a2 / (PI * (nh * nh * (a2 - 1.0) + 1.0) * (nh * nh * (a2 - 1.0) + 1.0));
     float k = alpha / 2.0;
     float g = (nl / (nl * (1.0 - k) + k)) * (nv / (nv * (1.0 - k) + k));
-    vec3 f = f0 + (1.0 - f0) * pow(1.0 - vh, 5.0);
+    float m = 1.0 - vh, m2 = m * m;
+    vec3 f = f0 + (1.0 - f0) * (m2 * m2 * m);
     return d * g * f / (4.0 * nv);
 }
 

@@ -187,13 +187,12 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
                                                     : pixel_uv(frame, vec2(pixel), bary, p0, e1, e2, cornerUv[0], cornerUv[1], cornerUv[2]);
         // One sample per textured input, in a loop: the trip count is the bin's (uniform), where a branch per input
         // would run every input's sampling masked on lavapipe, textured or not.
-        TextureSlotRef slots = TextureSlotRef(frame.textureSlots);
         uint slot = material.firstTextureSlot;
         vec3 tangentNormal = vec3(0.0);
         for (uint inputs = material.textureInputs; inputs != 0u; inputs &= inputs - 1u, ++slot) {
             uint textured = uint(findLSB(inputs));
             if (textured == TS_INPUT_OPACITY || textured == TS_INPUT_DISPLACEMENT) continue;  // cut by the rasterizers, diced
-            vec4 v = texture_slot_value(frame.textures, slots.data[slot], uv.uv, uv.dx, uv.dy);
+            vec4 v = texture_slot_value(frame.textures, load_texture_slot(frame, slot), uv.uv, uv.dx, uv.dy);
             if (textured == TS_INPUT_DIFFUSE_COLOR) albedo = v.rgb;
             else if (textured == TS_INPUT_EMISSIVE_COLOR) emission = v.rgb;
             else if (textured == TS_INPUT_SPECULAR_COLOR) f0 = v.rgb;

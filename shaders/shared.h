@@ -272,7 +272,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_CUT_BLOCKS 12        // GpuCutBlock: 4 RGBA32UI texels each
 #define TS_VIEW_BLOCK_CLUSTERS 13    // uint per block entry: R32UI
 #define TS_VIEW_HZB 14               // the HZB's levels, float bits per texel: R32UI
-#define TS_VIEW_COUNT 14
+#define TS_VIEW_TEXTURE_SLOTS 15     // GpuTextureSlot: 4 RGBA32UI texels each
+#define TS_VIEW_TEXTURE_WORDS 16     // the texture pool (GpuTexture records, then the images' words): R32UI
+#define TS_VIEW_UVS 17               // texture coordinates, a float pair per vertex: RG32UI
+#define TS_VIEW_COLORS 18            // the vertex channel, 4 halves per vertex: RG32UI
+#define TS_VIEW_COUNT 18
 
 // Workgroup sizes.
 // On a CPU device the cull's workgroup is one subgroup: lavapipe runs a workgroup 8 invocations at a time, each batch

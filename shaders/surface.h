@@ -8,6 +8,7 @@
 
 vec2 vertex_uv(GpuFrame frame, GpuMesh mesh, uint vertex) {
     uint i = vertex - mesh.vertexOffset + mesh.uvOffset;
+    if (TEXEL_VIEWS) return uintBitsToFloat(texelFetch(uvTexels, int(i)).xy);
     FloatRef uvs = FloatRef(frame.uvs);
     return vec2(uvs.data[2u * i], uvs.data[2u * i + 1u]);
 }
@@ -59,17 +60,33 @@ PixelUv triangle_pixel_uv(GpuFrame frame, GpuMesh mesh, vec2 pixel, vec3 bary, v
     return pixel_uv(frame, pixel, bary, p0, e1, e2, vertex_uv(frame, mesh, v0), vertex_uv(frame, mesh, v1), vertex_uv(frame, mesh, v2));
 }
 
+// Texture slot `index` of the frame's materials (the same bits through the view or the address).
+GpuTextureSlot load_texture_slot(GpuFrame frame, uint index) {
+    if (!TEXEL_VIEWS) return TextureSlotRef(frame.textureSlots).data[index];
+    int at = int(4u * index);
+    uvec4 t3 = texelFetch(textureSlotTexels, at + 3);
+    GpuTextureSlot slot;
+    slot.scale = uintBitsToFloat(texelFetch(textureSlotTexels, at));
+    slot.bias = uintBitsToFloat(texelFetch(textureSlotTexels, at + 1));
+    slot.transform = uintBitsToFloat(texelFetch(textureSlotTexels, at + 2));
+    slot.translationS = uintBitsToFloat(t3.x);
+    slot.translationT = uintBitsToFloat(t3.y);
+    slot.texture = t3.z;
+    slot.mode = t3.w;
+    return slot;
+}
+
 // A textured input's value: the material's slot for `materialInput` (one of its textureInputs bits, TS_INPUT_*).
 vec4 material_texture(GpuFrame frame, GpuMaterial material, uint materialInput, PixelUv uv) {
     uint slot = material.firstTextureSlot + uint(bitCount(material.textureInputs & ((1u << materialInput) - 1u)));
-    return texture_slot_value(frame.textures, TextureSlotRef(frame.textureSlots).data[slot], uv.uv, uv.dx, uv.dy);
+    return texture_slot_value(frame.textures, load_texture_slot(frame, slot), uv.uv, uv.dx, uv.dy);
 }
 
 // The mesh's vertex channel at a vertex: 4 components (rgba16f), displayColor or the primvars its materials read.
 vec4 vertex_channel(GpuFrame frame, GpuMesh mesh, uint vertex) {
     uint i = vertex - mesh.vertexOffset + mesh.colorOffset;
-    UintRef colors = UintRef(frame.colors);
-    return vec4(unpackHalf2x16(colors.data[2u * i]), unpackHalf2x16(colors.data[2u * i + 1u]));
+    uvec2 halves = TEXEL_VIEWS ? texelFetch(colorTexels, int(i)).xy : uvec2(UintRef(frame.colors).data[2u * i], UintRef(frame.colors).data[2u * i + 1u]);
+    return vec4(unpackHalf2x16(halves.x), unpackHalf2x16(halves.y));
 }
 
 // The channel interpolated with barycentrics over a triangle's vertices.

@@ -86,7 +86,7 @@ float displacement_fade(GpuFrame frame, GpuMaterial material, float scale, vec3 
 // (a mip level would have to be chosen alike on both sides of every edge).
 float displacement_texel(GpuFrame frame, GpuMaterial material, vec2 st) {
     uint slot = material.firstTextureSlot + uint(bitCount(material.textureInputs & ((1u << TS_INPUT_DISPLACEMENT) - 1u)));
-    return texture_slot_value(frame.textures, TextureSlotRef(frame.textureSlots).data[slot], st, vec2(0.0), vec2(0.0)).x;
+    return texture_slot_value(frame.textures, load_texture_slot(frame, slot), st, vec2(0.0), vec2(0.0)).x;
 }
 
 // The displacement input at a point of the triangle with corner weights w and texture coordinates st: the material's

@@ -1,6 +1,6 @@
 // Texture sampling by hand from the texture pool (shared.h: GpuTexture, GpuTextureSlot). Lavapipe has no descriptor
-// indexing and the renderer binds no descriptor sets, so there are no samplers: texels are fetched from one storage
-// buffer by device address and filtered here. Per axis wrap modes; bilinear filtering within a mip level, trilinear
+// indexing, so there are no samplers: texels are fetched from one buffer (through its texel view in the frame's passes,
+// else by device address) and filtered here. Per axis wrap modes; bilinear filtering within a mip level, trilinear
 // between the two levels that the UV derivatives pick (isotropic: the longer footprint axis decides, as most GPUs do
 // without anisotropic filtering). sRGB texels are decoded before they are filtered, as hardware sRGB formats are.
 // testenv/cpp/test_textures.cpp checks every path against a CPU reference of the same arithmetic.
@@ -8,9 +8,25 @@
 #ifndef TESSERA_TEXTURE_H
 #define TESSERA_TEXTURE_H
 
-layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer TextureRecordRef { GpuTexture data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer TextureSlotRef { GpuTextureSlot data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer TextureWordRef { uint data[]; };
+
+// Word i of the pool (GpuTexture records, then the images' words). In the frame's passes (frame.h included first) through
+// the pool's texel view where the pipeline reads through views (TEXEL_VIEWS): lavapipe loads through an address lane by
+// lane, and the slot, record and texel loads of one textured input were three quarters of a textured resolve. Elsewhere
+// (the probe test's shader) through the pool's address.
+uint texture_word(uint64_t pool, uint i) {
+#ifdef TESSERA_FRAME_H
+    if (TEXEL_VIEWS) return texelFetch(textureWordTexels, int(i)).x;
+#endif
+    return TextureWordRef(pool).data[i];
+}
+
+// Texture `index`'s record, at the start of the pool (4 words each: TS_CHECK_SIZE(GpuTexture, 16)).
+GpuTexture texture_record(uint64_t pool, uint index) {
+    uint at = 4u * index;
+    return GpuTexture(texture_word(pool, at), texture_word(pool, at + 1u), texture_word(pool, at + 2u), texture_word(pool, at + 3u));
+}
 
 uvec2 texture_level_size(GpuTexture texture, uint level) {
     return max(uvec2(texture.width, texture.height) >> level, uvec2(1u));
@@ -29,7 +45,14 @@ uint texture_level_offset(GpuTexture texture, uint level) {
     return offset;
 }
 
-float srgb_to_linear(float c) { return c <= 0.04045 ? c / 12.92 : pow((c + 0.055) / 1.055, 2.4); }
+// sRGB to linear: c / 12.92 up to 0.04045, above it ((c + 0.055) / 1.055)^2.4 as a degree-6 polynomial (a Chebyshev fit
+// on [0.04045, 1]; within 1.5e-5 of the curve at every 8-bit value, a twentieth of the smallest 8-bit step). pow cost
+// lavapipe a log2 and an exp2 per channel of every texel: a third of a resolve sampling one sRGB texture.
+float srgb_to_linear(float c) {
+    float curve = (((((-0.0489606597 * c + 0.207285017) * c - 0.409055501) * c + 0.700847626) * c + 0.516486168) * c + 0.0324432105) * c +
+                  0.000945259526;
+    return c <= 0.04045 ? c / 12.92 : curve;
+}
 
 // A coordinate brought into one period without changing what it samples: [0, 1] for repeat, [0, 2] for mirror,
 // [-1, 2] otherwise. Texel indices then stay within a period of the image on either side, and wrap_texel needs no
@@ -56,16 +79,15 @@ int wrap_texel(int i, int n, uint mode) {
 vec4 texture_texel(uint64_t pool, uint format, bool srgb, uint levelOffset, uint levelWidth, int x, int y) {
     if (x < 0 || y < 0) return vec4(0.0);
     uint i = uint(y) * levelWidth + uint(x);
-    TextureWordRef words = TextureWordRef(pool);
-    // One load for the 8-bit formats (lavapipe gathers lane by lane: loads are what texels cost), two for half.
-    uint word = words.data[levelOffset + (format == TS_TEXTURE_RGBA8 ? i : format == TS_TEXTURE_R8 ? i >> 2u : 2u * i)];
+    // One load for the 8-bit formats, two for half.
+    uint word = texture_word(pool, levelOffset + (format == TS_TEXTURE_RGBA8 ? i : format == TS_TEXTURE_R8 ? i >> 2u : 2u * i));
     vec4 v;
     if (format == TS_TEXTURE_RGBA8) {
         v = unpackUnorm4x8(word);
     } else if (format == TS_TEXTURE_R8) {
         v = vec4(vec3(float((word >> (8u * (i & 3u))) & 0xffu) / 255.0), 1.0);
     } else {
-        v = vec4(unpackHalf2x16(word), unpackHalf2x16(words.data[levelOffset + 2u * i + 1u]));
+        v = vec4(unpackHalf2x16(word), unpackHalf2x16(texture_word(pool, levelOffset + 2u * i + 1u)));
     }
     if (srgb) v.rgb = vec3(srgb_to_linear(v.r), srgb_to_linear(v.g), srgb_to_linear(v.b));
     return v;
@@ -93,7 +115,7 @@ vec4 sample_texture_level(uint64_t pool, GpuTexture texture, uint level, vec2 uv
 // lod = log2 of the longer footprint in level-0 texels, clamped to the chain; magnification samples level 0.
 // `wrap`: wrapS | wrapT << 2.
 vec4 sample_texture(uint64_t pool, uint index, uint wrap, vec2 uv, vec2 duvdx, vec2 duvdy) {
-    GpuTexture texture = TextureRecordRef(pool).data[index];
+    GpuTexture texture = texture_record(pool, index);
     uint levels = (texture.formatLevels >> 8u) & 0xffu;
     vec2 size = vec2(texture.width, texture.height);
     vec2 fx = duvdx * size, fy = duvdy * size;
