@@ -48,6 +48,30 @@ std::shared_ptr<BuiltMesh> grid_mesh(int n) {
     return std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(v)));
 }
 
+// grid_mesh(n) with texture coordinates from -0.5 to 1.5 across (so that every wrap mode shows) and a displayColor per
+// point (a red-green ramp).
+std::shared_ptr<BuiltMesh> uv_grid_mesh(int n) {
+    std::vector<float> points, uvs, colors;
+    std::vector<int32_t> counts, indices;
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x) {
+            const float u = float(x) / n, v = float(y) / n;
+            points.insert(points.end(), {u - 0.5f, v - 0.5f, 0.0f});
+            uvs.insert(uvs.end(), {2 * u - 0.5f, 2 * v - 0.5f});
+            colors.insert(colors.end(), {u, v, 0.5f});
+        }
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+            counts.push_back(4);
+            const int a = y * (n + 1) + x;
+            indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+        }
+    MeshView v = polygon_view("/UvGrid", points, counts, indices);
+    v.uvs = {Interpolation::Vertex, 2, uvs, {}};
+    v.displayColor = {Interpolation::Vertex, 3, colors, {}};
+    return std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(v)));
+}
+
 // A closed, bumpy latitude-longitude sphere (radius about 1): its simplification always loses something, so each
 // DAG level has a nonzero error and the cut has real choices to make.
 std::shared_ptr<BuiltMesh> bumpy_sphere(int rings) {
@@ -758,6 +782,52 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
     displaced.set_instances({displaced_instance(displaced, displaced.add_mesh(bumpy_sphere(24)))});
     displaced.set_lights({{LightType::Distant, {0.3, -0.5, -1}, {2, 2, 2}}});
 
+    // Textures of every format and wrap mode (an sRGB 8-bit diffuse map, an 8-bit roughness map, a half-float normal map,
+    // an 8-bit opacity mask cut by both rasterizers) and a diffuse colour from the vertex channel: slots, records,
+    // texels, texture coordinates and vertex colours are all read through views or addresses.
+    GpuScene textured;
+    {
+        const uint32_t grid = textured.add_mesh(uv_grid_mesh(12));
+        std::vector<uint8_t> rgba(8 * 8 * 4), gray(8 * 8);
+        std::vector<float> normals(8 * 8 * 4);
+        for (int i = 0; i < 64; ++i) {
+            for (int c = 0; c < 4; ++c) rgba[4 * i + c] = uint8_t((37 * i + 71 * c) % 256);
+            gray[i] = uint8_t((i % 8 + i / 8) % 2 ? 220 : 30);
+            normals[4 * i] = 0.3f * std::sin(float(i)), normals[4 * i + 1] = 0.3f * std::cos(float(i)), normals[4 * i + 2] = 1, normals[4 * i + 3] = 1;
+        }
+        auto image = [](TextureImage t) { return std::make_shared<const TextureImage>(std::move(t)); };
+        auto slot = [](MaterialInput input, std::shared_ptr<const TextureImage> texture, TextureWrap s, TextureWrap t, TextureChannel channel) {
+            TextureSlot slot;
+            slot.input = input;
+            slot.file = "memory";
+            slot.image = std::move(texture);
+            slot.wrapS = s;
+            slot.wrapT = t;
+            slot.channel = channel;
+            return slot;
+        };
+        const auto color = image(make_texture(8, 8, 4, rgba.data(), nullptr, ColorSpace::Auto));
+        const auto mask = image(make_texture(8, 8, 1, gray.data(), nullptr, ColorSpace::Raw));
+        const auto normal = image(make_texture(8, 8, 4, nullptr, normals.data(), ColorSpace::Raw));
+        MaterialDesc maps;
+        maps.textures = {slot(MaterialInput::DiffuseColor, color, TextureWrap::Repeat, TextureWrap::Mirror, TextureChannel::Rgb),
+                         slot(MaterialInput::Roughness, mask, TextureWrap::Mirror, TextureWrap::Clamp, TextureChannel::R),
+                         slot(MaterialInput::Normal, normal, TextureWrap::Clamp, TextureWrap::Black, TextureChannel::Rgb)};
+        maps.uvPrimvar = "st";
+        MaterialDesc cutOut;
+        cutOut.vertexInputs = kDisplayColorInputs;
+        cutOut.opacityThreshold = 0.5f;
+        cutOut.textures = {slot(MaterialInput::Opacity, mask, TextureWrap::Black, TextureWrap::Repeat, TextureChannel::R)};
+        cutOut.uvPrimvar = "st";
+        InstanceDesc left = identity_instance(grid), right = identity_instance(grid);
+        left.transform[3] = -0.55;
+        right.transform[3] = 0.55;
+        left.material = textured.add_material(maps);
+        right.material = textured.add_material(cutOut);
+        textured.set_instances({left, right});
+        textured.set_lights({{LightType::Distant, {0.3, -0.5, -1}, {2, 2, 2}}, {LightType::Dome, {0, 0, -1}, {0.2f, 0.3f, 0.4f}}});
+    }
+
     const std::vector<Aov> aovs = {Aov::Color, Aov::Depth, Aov::Normal, Aov::PrimId, Aov::InstanceId, Aov::ClusterId, Aov::TriangleId};
     struct Case {
         const char* name;
@@ -773,6 +843,8 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
                           {"spheres, compute raster", &spheres, camera_at(0.3, 0.2, 4), RasterMode::Software, Visualize::None},
                           {"spheres, groups", &spheres, camera_at(0, 0.5, 7), RasterMode::Auto, Visualize::Groups},
                           {"spheres, overdraw", &spheres, camera_at(0, 0.5, 7), RasterMode::Auto, Visualize::Overdraw},
+                          {"textured, masked", &textured, camera_at(0, 0, 1.6), RasterMode::Hardware, Visualize::None},
+                          {"textured, masked, compute raster", &textured, camera_at(0, 0, 1.6), RasterMode::Software, Visualize::None},
                           {"displaced", &displaced, camera_at(0.8, 0.3, 1.4), RasterMode::Auto, Visualize::None},
                           {"displaced, tessellation", &displaced, camera_at(0.8, 0.3, 1.4), RasterMode::Auto, Visualize::Tessellation}};
     for (const Case& c : cases) {
@@ -803,6 +875,7 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
         EXPECT_TRUE(stats[1][1].occlusionTested) << c.name;
         if (c.pixelError == 0.0f) EXPECT_GT(stats[1][0].backfaceClusters, 0u) << c.name;
         if (c.scene == &displaced) EXPECT_GT(stats[1][0].microTriangles, 0u) << c.name;
+        if (c.scene == &textured) EXPECT_EQ(stats[1][0].textures, 3u) << c.name;
     }
 }
 
