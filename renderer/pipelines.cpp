@@ -79,18 +79,18 @@ VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes
 // A Specialization as Vulkan takes it, with what is the same for every pipeline of a set (the pixels each resolve thread
 // shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, and reads through texel views, TS_SPEC_TEXEL_VIEWS).
 struct SpecializationInfo {
-    uint32_t values[14];
-    VkSpecializationMapEntry entries[14] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+    uint32_t values[15];
+    VkSpecializationMapEntry entries[15] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                            {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
                                            {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4},
-                                           {TS_SPEC_TEXEL_VIEWS, 52, 4}};
-    VkSpecializationInfo info{14, entries, sizeof(values), values};
+                                           {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}};
+    VkSpecializationInfo info{15, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
                  s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
-                 VkBool32(s.countFragments), VkBool32(texelViews)} {}
+                 VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
@@ -126,7 +126,7 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
 
     for (uint32_t step : {TS_CULL_MAIN_INSTANCES, TS_CULL_MAIN}) cull_step(step);
-    resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp));
+    resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp), {.textureKinds = 0});
     hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
     bins = compute_pipeline(bins_comp, sizeof(bins_comp));
     for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles, false);
@@ -146,7 +146,7 @@ Pipelines::~Pipelines() {
     for (VkPipeline variant : std::span(&patchRasterVariants[0][0], 4)) vkDestroyPipeline(vk, variant, nullptr);
     vkDestroyPipeline(vk, tessellatePatches, nullptr);
     vkDestroyPipeline(vk, backgroundTextured, nullptr);
-    for (VkPipeline variant : resolveVariants) vkDestroyPipeline(vk, variant, nullptr);
+    for (const auto& [key, variant] : resolveVariants) vkDestroyPipeline(vk, variant, nullptr);
     vkDestroyPipelineLayout(vk, layout, nullptr);
     vkDestroyDescriptorSetLayout(vk, frameSetLayout, nullptr);
 }
@@ -221,14 +221,17 @@ VkPipeline Pipelines::patch_raster(bool masks, bool countFragments) {
     return variant;
 }
 
-VkPipeline Pipelines::resolve_variant(bool textured, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output) {
-    if (output != TS_OUTPUT_SHADE) textured = areaLights = vertexInputs = false;
+VkPipeline Pipelines::resolve_variant(uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output) {
+    if (output != TS_OUTPUT_SHADE) {
+        textureKinds = 0;
+        areaLights = vertexInputs = false;
+    }
     if (output == TS_OUTPUT_ID) pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
-    VkPipeline& variant =
-        resolveVariants[size_t(textured) | size_t(pixels) << 1 | size_t(areaLights) << 3 | size_t(vertexInputs) << 4 | size_t(output) << 5];
+    VkPipeline& variant = resolveVariants[textureKinds | pixels << 8 | uint32_t(areaLights) << 10 | uint32_t(vertexInputs) << 11 | output << 12];
     if (!variant)
         variant = compute_pipeline(resolve_comp, sizeof(resolve_comp),
-                                   {.textures = textured, .pixels = pixels, .areaLights = areaLights, .vertexInputs = vertexInputs, .output = output});
+                                   {.textures = textureKinds != 0, .pixels = pixels, .areaLights = areaLights, .vertexInputs = vertexInputs,
+                                    .output = output, .textureKinds = textureKinds});
     return variant;
 }
 

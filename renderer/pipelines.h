@@ -10,6 +10,7 @@
 
 #include <array>
 #include <cstddef>
+#include <map>
 #include <memory>
 #include <mutex>
 
@@ -44,6 +45,7 @@ struct Specialization {
     uint32_t cullGroupSize = TS_CULL_GROUP_SIZE;  // TS_SPEC_CULL_GROUP_SIZE
     uint32_t step = 0;                     // TS_SPEC_STEP: classify's and the cull's step
     bool countFragments = false;           // TS_SPEC_COUNT_FRAGMENTS: the rasterizers' for the overdraw view
+    uint32_t textureKinds = TS_TEXTURE_KINDS_ALL;  // TS_SPEC_TEXTURE_KINDS: what a textured resolve's textures need
     bool operator==(const Specialization&) const = default;
 };
 
@@ -98,8 +100,9 @@ struct Pipelines {
     VkPipeline tessellate();
     VkPipeline dice(bool masks, bool countFragments);
     VkPipeline patch_raster(bool masks, bool countFragments);
-    // Resolve's variant for a bin, made on first use. Textures, area lights and vertex inputs only matter to shading.
-    VkPipeline resolve_variant(bool textured, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output);
+    // Resolve's variant for a bin, made on first use. Textures (`textureKinds`: the TS_TEXTURE_KIND_* bits of its
+    // material's textures, 0 for none), area lights and vertex inputs only matter to shading.
+    VkPipeline resolve_variant(uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output);
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
 
@@ -115,11 +118,11 @@ private:
     VkPipeline rasterSoftware[2][2][2][2] = {};
     VkPipeline rasterHardware[2][2][2] = {};
     VkPipeline backgroundTextured = VK_NULL_HANDLE, tessellatePatches = VK_NULL_HANDLE, diceVariants[2][2] = {}, patchRasterVariants[2][2] = {};
-    // Resolve's variants by TS_SPEC_TEXTURES | TS_SPEC_DISPLACEMENT << 1 | TS_SPEC_AREA_LIGHTS << 3 |
-    // TS_SPEC_VERTEX_INPUTS << 4 (textured materials, displaced materials, frames with area lights or a textured dome,
-    // materials with vertex inputs) and TS_SPEC_OUTPUT (what it writes) << 5: on lavapipe each one's code, present but
-    // not run, cost every pixel of the frames that do not need it.
-    std::array<VkPipeline, 32 * TS_OUTPUT_KINDS> resolveVariants{};
+    // Resolve's variants by TS_SPEC_TEXTURE_KINDS (0: untextured) | TS_SPEC_DISPLACEMENT << 8 | TS_SPEC_AREA_LIGHTS << 10 |
+    // TS_SPEC_VERTEX_INPUTS << 11 (textured materials and what their textures need, displaced materials, frames with area
+    // lights or a textured dome, materials with vertex inputs) and TS_SPEC_OUTPUT (what it writes) << 12: on lavapipe
+    // each one's code, present but not run, cost every pixel of the frames that do not need it.
+    std::map<uint32_t, VkPipeline> resolveVariants;
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
     // Hardware raster of clusters or of tessellation's patches.

@@ -75,6 +75,13 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_WRAP_CLAMP 2u
 #define TS_WRAP_BLACK 3u
 
+// What a set of textures needs from the sampling code (TS_SPEC_TEXTURE_KINDS): their formats, whether one is sRGB, their
+// wrap modes.
+#define TS_TEXTURE_KIND_FORMAT(format) (1u << (format))
+#define TS_TEXTURE_KIND_SRGB (1u << 3)
+#define TS_TEXTURE_KIND_WRAP(mode) (1u << (4u + (mode)))
+#define TS_TEXTURE_KINDS_ALL 0xffu
+
 // The UsdUVTexture output a slot uses.
 #define TS_CHANNEL_R 0u
 #define TS_CHANNEL_G 1u
@@ -254,6 +261,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // screen-filling resolve 190 -> ~70 ms, docs/benchmarks.md). The renderer picks it per frame: on where every view fits
 // the device's maxTexelBufferElements (RenderSettings::texelViews).
 #define TS_SPEC_TEXEL_VIEWS 13
+// Specialization constant: the texture kinds a variant may read (TS_TEXTURE_KIND_* bits). Resolve's textured variants
+// get the union over their material's textures, so that the code of every other format, encoding and wrap mode is left
+// out: lavapipe runs every branch, masked, and the paths a texel could take cost a textured resolve about a ninth
+// (docs/benchmarks.md). Every other pass that samples keeps the default, all of them.
+#define TS_SPEC_TEXTURE_KINDS 14
 
 // Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
 // streams read per pixel, per triangle or per vertex. The format of each: TS_VIEW_FORMAT_* (renderer.cpp).

@@ -28,6 +28,15 @@ GpuTexture texture_record(uint64_t pool, uint index) {
     return GpuTexture(texture_word(pool, at), texture_word(pool, at + 1u), texture_word(pool, at + 2u), texture_word(pool, at + 3u));
 }
 
+// The texture kinds this variant reads (TS_SPEC_TEXTURE_KINDS): the code of the others is left out. Every kind where the
+// frame's specialization constants are not declared (the probe test's shader).
+#ifdef TESSERA_FRAME_H
+layout(constant_id = TS_SPEC_TEXTURE_KINDS) const uint TEXTURE_KINDS = TS_TEXTURE_KINDS_ALL;
+#else
+const uint TEXTURE_KINDS = TS_TEXTURE_KINDS_ALL;
+#endif
+bool reads_kind(uint kind) { return (TEXTURE_KINDS & kind) != 0u; }
+
 uvec2 texture_level_size(GpuTexture texture, uint level) {
     return max(uvec2(texture.width, texture.height) >> level, uvec2(1u));
 }
@@ -58,17 +67,17 @@ float srgb_to_linear(float c) {
 // [-1, 2] otherwise. Texel indices then stay within a period of the image on either side, and wrap_texel needs no
 // integer division (which lavapipe does lane by lane).
 float wrap_coordinate(float u, uint mode) {
-    if (mode == TS_WRAP_REPEAT) return fract(u);
-    if (mode == TS_WRAP_MIRROR) return u - 2.0 * floor(0.5 * u);
+    if (reads_kind(TS_TEXTURE_KIND_WRAP(TS_WRAP_REPEAT)) && mode == TS_WRAP_REPEAT) return fract(u);
+    if (reads_kind(TS_TEXTURE_KIND_WRAP(TS_WRAP_MIRROR)) && mode == TS_WRAP_MIRROR) return u - 2.0 * floor(0.5 * u);
     return clamp(u, -1.0, 2.0);
 }
 
 // The texel an integer coordinate reads after wrapping, or -1 outside the image with TS_WRAP_BLACK; `i` comes from a
 // coordinate wrap_coordinate brought into range, so it lies in [-1, n] (repeat) or [-1, 2n] (mirror).
 int wrap_texel(int i, int n, uint mode) {
-    if (mode == TS_WRAP_CLAMP) return clamp(i, 0, n - 1);
-    if (mode == TS_WRAP_BLACK) return i < 0 || i >= n ? -1 : i;
-    if (mode == TS_WRAP_MIRROR) {
+    if (reads_kind(TS_TEXTURE_KIND_WRAP(TS_WRAP_CLAMP)) && mode == TS_WRAP_CLAMP) return clamp(i, 0, n - 1);
+    if (reads_kind(TS_TEXTURE_KIND_WRAP(TS_WRAP_BLACK)) && mode == TS_WRAP_BLACK) return i < 0 || i >= n ? -1 : i;
+    if (reads_kind(TS_TEXTURE_KIND_WRAP(TS_WRAP_MIRROR)) && mode == TS_WRAP_MIRROR) {
         int m = i < 0 ? i + 2 * n : (i >= 2 * n ? i - 2 * n : i);
         return m < n ? m : 2 * n - 1 - m;
     }
@@ -81,15 +90,11 @@ vec4 texture_texel(uint64_t pool, uint format, bool srgb, uint levelOffset, uint
     uint i = uint(y) * levelWidth + uint(x);
     // One load for the 8-bit formats, two for half.
     uint word = texture_word(pool, levelOffset + (format == TS_TEXTURE_RGBA8 ? i : format == TS_TEXTURE_R8 ? i >> 2u : 2u * i));
-    vec4 v;
-    if (format == TS_TEXTURE_RGBA8) {
-        v = unpackUnorm4x8(word);
-    } else if (format == TS_TEXTURE_R8) {
-        v = vec4(vec3(float((word >> (8u * (i & 3u))) & 0xffu) / 255.0), 1.0);
-    } else {
+    vec4 v = unpackUnorm4x8(word);  // TS_TEXTURE_RGBA8
+    if (reads_kind(TS_TEXTURE_KIND_FORMAT(TS_TEXTURE_R8)) && format == TS_TEXTURE_R8) v = vec4(vec3(float((word >> (8u * (i & 3u))) & 0xffu) / 255.0), 1.0);
+    if (reads_kind(TS_TEXTURE_KIND_FORMAT(TS_TEXTURE_RGBA16F)) && format == TS_TEXTURE_RGBA16F)
         v = vec4(unpackHalf2x16(word), unpackHalf2x16(texture_word(pool, levelOffset + 2u * i + 1u)));
-    }
-    if (srgb) v.rgb = vec3(srgb_to_linear(v.r), srgb_to_linear(v.g), srgb_to_linear(v.b));
+    if (reads_kind(TS_TEXTURE_KIND_SRGB) && srgb) v.rgb = vec3(srgb_to_linear(v.r), srgb_to_linear(v.g), srgb_to_linear(v.b));
     return v;
 }
 

@@ -765,6 +765,64 @@ TEST_F(RendererTest, ShadePixelsPerThreadDrawTheSameFrames) {
 // dicing, patch raster and micro-triangle resolve read the same streams). A loader that read a struct's field from the
 // wrong place in its texels changes one of them (the cut blocks' loader: CutBlocksChangeWhatIsTestedNotTheCut, whose
 // block path must agree with the per-cluster one).
+// A textured bin's resolve variant carries only the code of its material's texture formats, encodings and wrap modes
+// (TS_SPEC_TEXTURE_KINDS): the same frame bit for bit as the variant that carries every kind, for materials whose two
+// wrap modes, formats and encodings differ. Leaving a material's wrapT out of its kinds changes the frame.
+TEST_F(RendererTest, TexturedBinsReadOnlyTheirTextureKindsAndDrawTheSameFrame) {
+    GpuScene scene;
+    const uint32_t grid = scene.add_mesh(uv_grid_mesh(8));
+    std::vector<uint8_t> rgba(6 * 5 * 4), gray(6 * 5);
+    std::vector<float> halves(6 * 5 * 4);
+    for (int i = 0; i < 30; ++i) {
+        for (int c = 0; c < 4; ++c) rgba[4 * i + c] = uint8_t((53 * i + 91 * c) % 256), halves[4 * i + c] = 0.1f + 0.03f * float((7 * i + c) % 29);
+        gray[i] = uint8_t((29 * i) % 256);
+    }
+    const auto srgb = std::make_shared<const TextureImage>(make_texture(6, 5, 4, rgba.data(), nullptr, ColorSpace::Auto));
+    const auto linear = std::make_shared<const TextureImage>(make_texture(6, 5, 4, rgba.data(), nullptr, ColorSpace::Raw));
+    const auto r8 = std::make_shared<const TextureImage>(make_texture(6, 5, 1, gray.data(), nullptr, ColorSpace::Raw));
+    const auto half = std::make_shared<const TextureImage>(make_texture(6, 5, 4, nullptr, halves.data(), ColorSpace::Raw));
+    ASSERT_EQ(srgb->format, uint32_t(TS_TEXTURE_RGBA8 | TS_TEXTURE_SRGB));
+    ASSERT_EQ(r8->format, TS_TEXTURE_R8);
+    ASSERT_EQ(half->format, TS_TEXTURE_RGBA16F);
+    auto slot = [](MaterialInput input, std::shared_ptr<const TextureImage> image, TextureWrap s, TextureWrap t) {
+        TextureSlot slot;
+        slot.input = input;
+        slot.file = "memory";
+        slot.image = std::move(image);
+        slot.wrapS = s;
+        slot.wrapT = t;
+        slot.channel = input == MaterialInput::Roughness ? TextureChannel::R : TextureChannel::Rgb;
+        return slot;
+    };
+    const std::vector<std::vector<TextureSlot>> materials = {
+        {slot(MaterialInput::DiffuseColor, srgb, TextureWrap::Repeat, TextureWrap::Black)},
+        {slot(MaterialInput::Roughness, r8, TextureWrap::Mirror, TextureWrap::Clamp), slot(MaterialInput::DiffuseColor, linear, TextureWrap::Clamp, TextureWrap::Repeat)},
+        {slot(MaterialInput::EmissiveColor, half, TextureWrap::Black, TextureWrap::Mirror)},
+        {slot(MaterialInput::DiffuseColor, linear, TextureWrap::Mirror, TextureWrap::Repeat), slot(MaterialInput::Normal, half, TextureWrap::Repeat, TextureWrap::Clamp)}};
+    std::vector<InstanceDesc> instances;
+    for (size_t i = 0; i < materials.size(); ++i) {
+        MaterialDesc material;
+        material.textures = materials[i];
+        material.uvPrimvar = "st";
+        InstanceDesc instance = identity_instance(grid);
+        instance.transform[3] = (double(i % 2) - 0.5) * 1.05;
+        instance.transform[7] = (double(i / 2) - 0.5) * 1.05;
+        instance.material = scene.add_material(material);
+        instances.push_back(instance);
+    }
+    scene.set_instances(instances);
+    scene.set_lights({{LightType::Distant, {0.3, -0.5, -1}, {2, 2, 2}}, {LightType::Dome, {0, 0, -1}, {0.2f, 0.3f, 0.4f}}});
+    RenderSettings settings{128, 128, {0.25f, 0.5f, 0.75f, 1}};
+    Renderer own(*device);
+    FrameStats stats;
+    const std::vector<Image> specialized = own.render(scene, camera_at(0, 0, 2.6), settings, {Aov::Color}, &stats);
+    EXPECT_EQ(stats.textures, 4u);
+    EXPECT_EQ(stats.shadingBins, 4u);
+    const std::vector<Image> everyKind = renderer_with(*device, "TESSERA_TEXTURE_KINDS", "all")->render(scene, camera_at(0, 0, 2.6), settings, {Aov::Color});
+    expect_same_images(specialized, everyKind, "textured bins");
+    EXPECT_THROW(renderer_with(*device, "TESSERA_TEXTURE_KINDS", "some"), std::invalid_argument);
+}
+
 TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
     GpuScene spheres;
     const uint32_t wall = spheres.add_mesh(grid_mesh(16)), sphere = spheres.add_mesh(bumpy_sphere(48));
