@@ -221,16 +221,15 @@ VkPipeline Pipelines::patch_raster(bool masks, bool countFragments) {
     return variant;
 }
 
-VkPipeline Pipelines::resolve_variant(uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output) {
-    if (output != TS_OUTPUT_SHADE) {
-        textureKinds = 0;
-        areaLights = vertexInputs = false;
-    }
+VkPipeline Pipelines::resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output) {
+    if (output != TS_OUTPUT_SHADE) textured = areaLights = vertexInputs = false;
     if (output == TS_OUTPUT_ID) pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
-    VkPipeline& variant = resolveVariants[textureKinds | pixels << 8 | uint32_t(areaLights) << 10 | uint32_t(vertexInputs) << 11 | output << 12];
+    if (!textured && pixels != TS_BIN_DICED_MICRO) textureKinds = 0;  // it reads no texture
+    VkPipeline& variant = resolveVariants[textureKinds | uint32_t(textured) << 8 | pixels << 9 | uint32_t(areaLights) << 11 |
+                                          uint32_t(vertexInputs) << 12 | output << 13];
     if (!variant)
         variant = compute_pipeline(resolve_comp, sizeof(resolve_comp),
-                                   {.textures = textureKinds != 0, .pixels = pixels, .areaLights = areaLights, .vertexInputs = vertexInputs,
+                                   {.textures = textured, .pixels = pixels, .areaLights = areaLights, .vertexInputs = vertexInputs,
                                     .output = output, .textureKinds = textureKinds});
     return variant;
 }

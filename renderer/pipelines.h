@@ -100,9 +100,10 @@ struct Pipelines {
     VkPipeline tessellate();
     VkPipeline dice(bool masks, bool countFragments);
     VkPipeline patch_raster(bool masks, bool countFragments);
-    // Resolve's variant for a bin, made on first use. Textures (`textureKinds`: the TS_TEXTURE_KIND_* bits of its
-    // material's textures, 0 for none), area lights and vertex inputs only matter to shading.
-    VkPipeline resolve_variant(uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output);
+    // Resolve's variant for a bin, made on first use. Textures, area lights and vertex inputs only matter to shading;
+    // `textureKinds` (TS_TEXTURE_KIND_* bits) is what the textures it reads need (a displacement texture too, read where
+    // it dices micro-triangles again).
+    VkPipeline resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output);
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
 
@@ -118,10 +119,10 @@ private:
     VkPipeline rasterSoftware[2][2][2][2] = {};
     VkPipeline rasterHardware[2][2][2] = {};
     VkPipeline backgroundTextured = VK_NULL_HANDLE, tessellatePatches = VK_NULL_HANDLE, diceVariants[2][2] = {}, patchRasterVariants[2][2] = {};
-    // Resolve's variants by TS_SPEC_TEXTURE_KINDS (0: untextured) | TS_SPEC_DISPLACEMENT << 8 | TS_SPEC_AREA_LIGHTS << 10 |
-    // TS_SPEC_VERTEX_INPUTS << 11 (textured materials and what their textures need, displaced materials, frames with area
-    // lights or a textured dome, materials with vertex inputs) and TS_SPEC_OUTPUT (what it writes) << 12: on lavapipe
-    // each one's code, present but not run, cost every pixel of the frames that do not need it.
+    // Resolve's variants by TS_SPEC_TEXTURE_KINDS | TS_SPEC_TEXTURES << 8 | TS_SPEC_DISPLACEMENT << 9 |
+    // TS_SPEC_AREA_LIGHTS << 11 | TS_SPEC_VERTEX_INPUTS << 12 (what its textures need, textured materials, displaced
+    // materials, frames with area lights or a textured dome, materials with vertex inputs) and TS_SPEC_OUTPUT (what it
+    // writes) << 13: on lavapipe each one's code, present but not run, cost every pixel of the frames that do not need it.
     std::map<uint32_t, VkPipeline> resolveVariants;
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});

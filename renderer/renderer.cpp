@@ -384,8 +384,9 @@ struct Renderer::Impl {
     std::vector<std::shared_ptr<const TextureImage>> poolImages;  // the materials' images, then the dome lights'
     std::vector<std::shared_ptr<const TextureImage>> materialImages;
     std::vector<bool> maskedMaterials;  // per material: a textured or per-vertex opacity under an opacityThreshold (TS_INSTANCE_MASKED)
-    // Per material, what the textures resolve samples need (TS_TEXTURE_KIND_* bits; 0: untextured, its bin uses an
-    // untextured variant).
+    std::vector<bool> texturedMaterials;  // per material: resolve samples textures (its bin uses a textured variant)
+    // Per material, what the textures resolve reads need (TS_TEXTURE_KIND_* bits): those it samples, and a displacement
+    // texture, which it reads again where it dices a micro-triangle again.
     std::vector<uint32_t> materialTextureKinds;
     bool anyMasked = false;  // an instance is flagged TS_INSTANCE_MASKED: the rasterizers' mask variants draw the frame
     // Displacement: per material, whether it displaces; per mesh, whether a displaced instance draws it (those get
@@ -900,6 +901,7 @@ struct Renderer::Impl {
         std::vector<gpu::GpuTextureSlot> slots;
         std::vector<std::shared_ptr<const TextureImage>> images;
         maskedMaterials.clear();
+        texturedMaterials.clear();
         materialTextureKinds.clear();
         displacedMaterials.clear();
         displacementBounds.clear();  // the images may have changed
@@ -908,12 +910,14 @@ struct Renderer::Impl {
             const gpu::GpuMaterial& g = gpuMaterials.back();
             maskedMaterials.push_back((g.textureInputs & (1u << TS_INPUT_OPACITY)) != 0 ||
                                       ((g.vertexInputs >> (TS_VERTEX_INPUT_BITS * TS_INPUT_OPACITY)) & TS_VERTEX_INPUT_SET) != 0);
-            // Resolve samples every textured input but opacity (cut by the rasterizers) and displacement (diced).
+            // Resolve samples every textured input but opacity (cut by the rasterizers) and displacement (diced), and
+            // reads the displacement texture again for the micro-triangles it dices again.
+            texturedMaterials.push_back((g.textureInputs & ~(1u << TS_INPUT_OPACITY | 1u << TS_INPUT_DISPLACEMENT)) != 0);
             uint32_t kinds = 0, slot = g.firstTextureSlot;
             for (uint32_t input = 0; input < TS_INPUT_COUNT; ++input) {
                 if (!(g.textureInputs & (1u << input))) continue;
                 const gpu::GpuTextureSlot& textured = slots[slot++];
-                if (input == TS_INPUT_OPACITY || input == TS_INPUT_DISPLACEMENT) continue;
+                if (input == TS_INPUT_OPACITY) continue;
                 const uint32_t format = images[textured.texture]->format;
                 kinds |= TS_TEXTURE_KIND_FORMAT(format & TS_TEXTURE_FORMAT_MASK) | (format & TS_TEXTURE_SRGB ? TS_TEXTURE_KIND_SRGB : 0u) |
                          TS_TEXTURE_KIND_WRAP(textured.mode & 3u) | TS_TEXTURE_KIND_WRAP((textured.mode >> 2) & 3u);
@@ -1477,8 +1481,10 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                     for (uint32_t m = 0; m < s.materialCount; ++m) {
                         if (pixels != TS_BIN_TRIANGLES && !s.material_displaced(m)) continue;  // micro-triangles: displaced only
                         // Materials with textures through the variant that samples them; only the colour AOV shades.
-                        const uint32_t textureKinds = aovs[i] == Aov::Color && m < s.materialTextureKinds.size() ? s.materialTextureKinds[m] : 0u;
-                        const VkPipeline pipeline = pipelines.resolve_variant(textureKinds, pixels, areaLights, s.materialRecords[m].vertexInputs != 0, output);
+                        const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
+                        const uint32_t textureKinds = m < s.materialTextureKinds.size() ? s.materialTextureKinds[m] : 0u;
+                        const VkPipeline pipeline =
+                            pipelines.resolve_variant(textured, textureKinds, pixels, areaLights, s.materialRecords[m].vertexInputs != 0, output);
                         if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                         const uint32_t bin = pixels * s.materialCount + m;
                         ResolvePushConstants shade{{uint32_t(aovs[i]), bin, 0}, s.materialRecords[m]};

@@ -27,10 +27,12 @@ uint32_t id_at(const Image& image, uint32_t x, uint32_t y) {
 // A renderer whose pipelines are made while the environment variable `variable` is `value`: the sizes and counts it
 // forces ($TESSERA_CULL_GROUP_SIZE, ...) are chosen then.
 std::unique_ptr<Renderer> renderer_with(Device& device, const char* variable, const std::string& value) {
+    struct Forced {  // unset again however the renderer's construction ends (a refused value throws)
+        const char* variable;
+        ~Forced() { unsetenv(variable); }
+    } forced{variable};
     setenv(variable, value.c_str(), 1);
-    auto renderer = std::make_unique<Renderer>(device);
-    unsetenv(variable);
-    return renderer;
+    return std::make_unique<Renderer>(device);
 }
 
 std::shared_ptr<BuiltMesh> grid_mesh(int n) {
