@@ -79,18 +79,18 @@ VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes
 // A Specialization as Vulkan takes it, with what is the same for every pipeline of a set (the pixels each resolve thread
 // shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, and reads through texel views, TS_SPEC_TEXEL_VIEWS).
 struct SpecializationInfo {
-    uint32_t values[15];
-    VkSpecializationMapEntry entries[15] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+    uint32_t values[16];
+    VkSpecializationMapEntry entries[16] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                            {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
                                            {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4},
-                                           {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}};
-    VkSpecializationInfo info{15, entries, sizeof(values), values};
+                                           {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}, {TS_SPEC_LIGHT_COUNTS, 60, 4}};
+    VkSpecializationInfo info{16, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
                  s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
-                 VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds} {}
+                 VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
@@ -221,16 +221,20 @@ VkPipeline Pipelines::patch_raster(bool masks, bool countFragments) {
     return variant;
 }
 
-VkPipeline Pipelines::resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output) {
-    if (output != TS_OUTPUT_SHADE) textured = areaLights = vertexInputs = false;
+VkPipeline Pipelines::resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output,
+                                      uint32_t lightCounts) {
+    if (output != TS_OUTPUT_SHADE) {
+        textured = areaLights = vertexInputs = false;
+        lightCounts = 0;
+    }
     if (output == TS_OUTPUT_ID) pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
     if (!textured && pixels != TS_BIN_DICED_MICRO) textureKinds = 0;  // it reads no texture
     VkPipeline& variant = resolveVariants[textureKinds | uint32_t(textured) << 8 | pixels << 9 | uint32_t(areaLights) << 11 |
-                                          uint32_t(vertexInputs) << 12 | output << 13];
+                                          uint32_t(vertexInputs) << 12 | output << 13 | lightCounts << 16];
     if (!variant)
         variant = compute_pipeline(resolve_comp, sizeof(resolve_comp),
                                    {.textures = textured, .pixels = pixels, .areaLights = areaLights, .vertexInputs = vertexInputs,
-                                    .output = output, .textureKinds = textureKinds});
+                                    .output = output, .textureKinds = textureKinds, .lightCounts = lightCounts});
     return variant;
 }
 

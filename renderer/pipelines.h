@@ -46,6 +46,7 @@ struct Specialization {
     uint32_t step = 0;                     // TS_SPEC_STEP: classify's and the cull's step
     bool countFragments = false;           // TS_SPEC_COUNT_FRAGMENTS: the rasterizers' for the overdraw view
     uint32_t textureKinds = TS_TEXTURE_KINDS_ALL;  // TS_SPEC_TEXTURE_KINDS: what a textured resolve's textures need
+    uint32_t lightCounts = 0;              // TS_SPEC_LIGHT_COUNTS: resolve's shading, the frame's lights
     bool operator==(const Specialization&) const = default;
 };
 
@@ -102,8 +103,9 @@ struct Pipelines {
     VkPipeline patch_raster(bool masks, bool countFragments);
     // Resolve's variant for a bin, made on first use. Textures, area lights and vertex inputs only matter to shading;
     // `textureKinds` (TS_TEXTURE_KIND_* bits) is what the textures it reads need (a displacement texture too, read where
-    // it dices micro-triangles again).
-    VkPipeline resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output);
+    // it dices micro-triangles again); `lightCounts` the frame's lights (TS_SPEC_LIGHT_COUNTS).
+    VkPipeline resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output,
+                               uint32_t lightCounts);
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
 
@@ -121,8 +123,9 @@ private:
     VkPipeline backgroundTextured = VK_NULL_HANDLE, tessellatePatches = VK_NULL_HANDLE, diceVariants[2][2] = {}, patchRasterVariants[2][2] = {};
     // Resolve's variants by TS_SPEC_TEXTURE_KINDS | TS_SPEC_TEXTURES << 8 | TS_SPEC_DISPLACEMENT << 9 |
     // TS_SPEC_AREA_LIGHTS << 11 | TS_SPEC_VERTEX_INPUTS << 12 (what its textures need, textured materials, displaced
-    // materials, frames with area lights or a textured dome, materials with vertex inputs) and TS_SPEC_OUTPUT (what it
-    // writes) << 13: on lavapipe each one's code, present but not run, cost every pixel of the frames that do not need it.
+    // materials, frames with area lights or a textured dome, materials with vertex inputs), TS_SPEC_OUTPUT (what it
+    // writes) << 13 and TS_SPEC_LIGHT_COUNTS << 16: on lavapipe each one's code, present but not run, cost every pixel of
+    // the frames that do not need it.
     std::map<uint32_t, VkPipeline> resolveVariants;
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});

@@ -1139,6 +1139,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.geometryBytes = s.meshes.size + s.levels.size + s.cutBlocks.size + s.blockClusters.size + s.clusters.size + s.vertices.size + s.colors.size + s.uvs.size +
                                s.triangles.size;
 
+    uint32_t lightCounts = 0;  // the frame's distant lights | all its lights << 8 (TS_SPEC_LIGHT_COUNTS)
     for (;;) {
         s.ensure_frame_buffers(settings.width, settings.height, aovs.size());
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
@@ -1163,6 +1164,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const uint32_t lightCount = uint32_t(std::min<size_t>(lights.size(), TS_MAX_LIGHTS));
         f.viewport = {settings.width, settings.height, s.materialCount, lightCount};
         f.lightKinds = {uint32_t(std::count_if(lights.begin(), lights.begin() + lightCount, [](const LightDesc* l) { return l->type == LightType::Distant; })), 0, 0, 0};
+        lightCounts = f.lightKinds.x | lightCount << 8;  // resolve's shading variants (TS_SPEC_LIGHT_COUNTS)
         bool environmentSet = false;
         for (uint32_t i = 0; i < lightCount; ++i) {
             const LightDesc& l = *lights[i];
@@ -1484,7 +1486,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
                         const uint32_t textureKinds = m < s.materialTextureKinds.size() ? s.materialTextureKinds[m] : 0u;
                         const VkPipeline pipeline =
-                            pipelines.resolve_variant(textured, textureKinds, pixels, areaLights, s.materialRecords[m].vertexInputs != 0, output);
+                            pipelines.resolve_variant(textured, textureKinds, pixels, areaLights, s.materialRecords[m].vertexInputs != 0, output, lightCounts);
                         if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                         const uint32_t bin = pixels * s.materialCount + m;
                         ResolvePushConstants shade{{uint32_t(aovs[i]), bin, 0}, s.materialRecords[m]};

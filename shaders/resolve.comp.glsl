@@ -19,6 +19,9 @@ layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
 layout(constant_id = TS_SPEC_DISPLACEMENT) const uint PIXELS = TS_BIN_TRIANGLES;
 // The variant for frames with area lights or a textured dome (lights.h).
 layout(constant_id = TS_SPEC_AREA_LIGHTS) const bool AREA_LIGHTS = false;
+// The frame's lights (TS_SPEC_LIGHT_COUNTS): the distant ones first, then the others, in the frame's `lights`.
+layout(constant_id = TS_SPEC_LIGHT_COUNTS) const uint LIGHT_COUNTS = 0u;
+const uint DISTANT_LIGHTS = LIGHT_COUNTS & 0xffu, ALL_LIGHTS = LIGHT_COUNTS >> 8u;
 // What this variant writes (TS_OUTPUT_*): only that AOV's code is compiled in.
 layout(constant_id = TS_SPEC_OUTPUT) const uint OUTPUT = TS_OUTPUT_SHADE;
 // The variant for materials with inputs from the vertex channel (GpuMaterial.vertexInputs != 0).
@@ -217,9 +220,9 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
     // Each light read from the uniform block itself: indexing the local copy `frame` by a variable made the compiler
     // copy every light of it for each pixel (on lavapipe half of resolve's time, with two lights).
     // Distant lights first, then the others, each loop with only its kind's code (no shadowing yet).
-    for (uint i = 0u; i < frame.lightKinds.x; ++i)
+    for (uint i = 0u; i < DISTANT_LIGHTS; ++i)
         color += distant_light_contribution(frameConstants.lights[i], n, toEye, albedo, f0, roughness);
-    for (uint i = frame.lightKinds.x; i < frame.viewport.w; ++i)
+    for (uint i = DISTANT_LIGHTS; i < ALL_LIGHTS; ++i)
         color += other_light_contribution(frame, frameConstants.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
     OutputRef(frame.aovOutput).data[index] = vec4(color, 1.0);
 }

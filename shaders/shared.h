@@ -266,6 +266,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // out: lavapipe runs every branch, masked, and the paths a texel could take cost a textured resolve about a ninth
 // (docs/benchmarks.md). Every other pass that samples keeps the default, all of them.
 #define TS_SPEC_TEXTURE_KINDS 14
+// Specialization constant of resolve's shading variants: the frame's lights, distant ones | all of them << 8 (at most
+// TS_MAX_LIGHTS each), so that its two loops over them have constant trip counts and unroll: a loop whose count is
+// read from the frame carries its sum through memory on lavapipe (8 % of a screen-filling resolve with a sun and a sky).
+#define TS_SPEC_LIGHT_COUNTS 15
 
 // Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
 // streams read per pixel, per triangle or per vertex. The format of each: TS_VIEW_FORMAT_* (renderer.cpp).
