@@ -819,8 +819,11 @@ struct Renderer::Impl {
     }
 
     // A material's inputs as the GPU reads them: the textured ones get slots (in TS_INPUT_* order), and the inputs of
-    // slots whose file could not be read take the slot's fallback as their constant.
-    gpu::GpuMaterial gpu_material(MaterialDesc m, std::vector<gpu::GpuTextureSlot>& slots, std::vector<std::shared_ptr<const TextureImage>>& images) {
+    // slots whose file could not be read take the slot's fallback as their constant. `textureKinds`: what the textures
+    // resolve reads need (TS_TEXTURE_KIND_* bits): all but opacity's (cut by the rasterizers), the displacement texture's
+    // included (read again for the micro-triangles resolve dices again).
+    gpu::GpuMaterial gpu_material(MaterialDesc m, std::vector<gpu::GpuTextureSlot>& slots, std::vector<std::shared_ptr<const TextureImage>>& images,
+                                  uint32_t& textureKinds) {
         std::array<const TextureSlot*, TS_INPUT_COUNT> textured{};
         for (const TextureSlot& slot : m.textures) {
             // An input this material's workflow ignores costs nothing; nor does opacity without a threshold (no blending).
@@ -876,6 +879,7 @@ struct Renderer::Impl {
         if (displaced) g.flags |= TS_MATERIAL_DISPLACED;
         else textured[TS_INPUT_DISPLACEMENT] = nullptr;  // a displacement that moves nothing reads no texture
         g.firstTextureSlot = uint32_t(slots.size());
+        textureKinds = 0;
         for (uint32_t input = 0; input < TS_INPUT_COUNT; ++input) {
             const TextureSlot* slot = textured[input];
             if (!slot) continue;
@@ -892,6 +896,11 @@ struct Renderer::Impl {
             s.mode = uint32_t(slot->wrapS) | uint32_t(slot->wrapT) << 2 | uint32_t(slot->channel) << 4;
             slots.push_back(s);
             g.textureInputs |= 1u << input;
+            if (input != TS_INPUT_OPACITY) {
+                const uint32_t format = slot->image->format;
+                textureKinds |= TS_TEXTURE_KIND_FORMAT(format & TS_TEXTURE_FORMAT_MASK) | (format & TS_TEXTURE_SRGB ? TS_TEXTURE_KIND_SRGB : 0u) |
+                                TS_TEXTURE_KIND_WRAP(uint32_t(slot->wrapS)) | TS_TEXTURE_KIND_WRAP(uint32_t(slot->wrapT));
+            }
         }
         return g;
     }
@@ -906,22 +915,13 @@ struct Renderer::Impl {
         displacedMaterials.clear();
         displacementBounds.clear();  // the images may have changed
         for (const MaterialDesc& m : scene.materials_) {
-            gpuMaterials.push_back(gpu_material(m, slots, images));
+            uint32_t kinds = 0;
+            gpuMaterials.push_back(gpu_material(m, slots, images, kinds));
             const gpu::GpuMaterial& g = gpuMaterials.back();
             maskedMaterials.push_back((g.textureInputs & (1u << TS_INPUT_OPACITY)) != 0 ||
                                       ((g.vertexInputs >> (TS_VERTEX_INPUT_BITS * TS_INPUT_OPACITY)) & TS_VERTEX_INPUT_SET) != 0);
-            // Resolve samples every textured input but opacity (cut by the rasterizers) and displacement (diced), and
-            // reads the displacement texture again for the micro-triangles it dices again.
+            // Resolve samples every textured input but opacity (cut by the rasterizers) and displacement (diced).
             texturedMaterials.push_back((g.textureInputs & ~(1u << TS_INPUT_OPACITY | 1u << TS_INPUT_DISPLACEMENT)) != 0);
-            uint32_t kinds = 0, slot = g.firstTextureSlot;
-            for (uint32_t input = 0; input < TS_INPUT_COUNT; ++input) {
-                if (!(g.textureInputs & (1u << input))) continue;
-                const gpu::GpuTextureSlot& textured = slots[slot++];
-                if (input == TS_INPUT_OPACITY) continue;
-                const uint32_t format = images[textured.texture]->format;
-                kinds |= TS_TEXTURE_KIND_FORMAT(format & TS_TEXTURE_FORMAT_MASK) | (format & TS_TEXTURE_SRGB ? TS_TEXTURE_KIND_SRGB : 0u) |
-                         TS_TEXTURE_KIND_WRAP(textured.mode & 3u) | TS_TEXTURE_KIND_WRAP((textured.mode >> 2) & 3u);
-            }
             materialTextureKinds.push_back(kinds && allTextureKinds ? TS_TEXTURE_KINDS_ALL : kinds);
             displacedMaterials.push_back((g.flags & TS_MATERIAL_DISPLACED) != 0);
         }
@@ -1157,14 +1157,15 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             f.frustumPlanes[i] = gpu::vec4{float(p[0]), float(p[1]), float(p[2]), float(p[3])};
         }
         f.background = {settings.background[0], settings.background[1], settings.background[2], settings.background[3]};
-        // Distant lights first (shaded by a loop of their own: GpuFrame.lightKinds), then the others in the scene's order.
+        // Distant lights first (resolve shades them in a loop of their own: TS_SPEC_LIGHT_COUNTS), then the others in the
+        // scene's order.
         std::vector<const LightDesc*> lights;
         for (const LightDesc& l : scene.lights_) lights.push_back(&l);
         std::stable_partition(lights.begin(), lights.end(), [](const LightDesc* l) { return l->type == LightType::Distant; });
         const uint32_t lightCount = uint32_t(std::min<size_t>(lights.size(), TS_MAX_LIGHTS));
         f.viewport = {settings.width, settings.height, s.materialCount, lightCount};
-        f.lightKinds = {uint32_t(std::count_if(lights.begin(), lights.begin() + lightCount, [](const LightDesc* l) { return l->type == LightType::Distant; })), 0, 0, 0};
-        lightCounts = f.lightKinds.x | lightCount << 8;  // resolve's shading variants (TS_SPEC_LIGHT_COUNTS)
+        const auto distant = std::count_if(lights.begin(), lights.begin() + lightCount, [](const LightDesc* l) { return l->type == LightType::Distant; });
+        lightCounts = uint32_t(distant) | lightCount << 8;  // resolve's shading variants (TS_SPEC_LIGHT_COUNTS)
         bool environmentSet = false;
         for (uint32_t i = 0; i < lightCount; ++i) {
             const LightDesc& l = *lights[i];

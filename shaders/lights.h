@@ -106,7 +106,7 @@ vec3 distant_light_contribution(GpuLight light, vec3 n, vec3 toEye, vec3 albedo,
 }
 
 // Light any other light (dome, sphere, rect) sends towards the eye from the surface point `p` (camera-relative),
-// normal n. Apart from the distant lights' (which the frame lists first, GpuFrame.lightKinds), so that a loop over one
+// normal n. Apart from the distant lights' (which the frame lists first: TS_SPEC_LIGHT_COUNTS), so that a loop over one
 // kind runs only its code: lavapipe runs every branch of a shader, masked. `areaLights` (a specialization constant in
 // resolve) false: the frame has only distant lights and untextured domes, and none of the other code is compiled in.
 vec3 other_light_contribution(GpuFrame frame, GpuLight light, vec3 p, vec3 n, vec3 toEye, vec3 albedo, vec3 f0, float roughness, float occlusion,

@@ -263,12 +263,12 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_SPEC_TEXEL_VIEWS 13
 // Specialization constant: the texture kinds a variant may read (TS_TEXTURE_KIND_* bits). Resolve's textured variants
 // get the union over their material's textures, so that the code of every other format, encoding and wrap mode is left
-// out: lavapipe runs every branch, masked, and the paths a texel could take cost a textured resolve about a ninth
+// out: lavapipe runs every branch, masked, and the paths a texel could take cost a textured resolve 14-19 %
 // (docs/benchmarks.md). Every other pass that samples keeps the default, all of them.
 #define TS_SPEC_TEXTURE_KINDS 14
 // Specialization constant of resolve's shading variants: the frame's lights, distant ones | all of them << 8 (at most
 // TS_MAX_LIGHTS each), so that its two loops over them have constant trip counts and unroll: a loop whose count is
-// read from the frame carries its sum through memory on lavapipe (8 % of a screen-filling resolve with a sun and a sky).
+// read from the frame carries its sum through memory on lavapipe (11 % of a screen-filling resolve with a sun and a sky).
 #define TS_SPEC_LIGHT_COUNTS 15
 
 // Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
@@ -604,8 +604,8 @@ struct GpuFrame {
     mat4 previousViewProjection; // the previous frame's camera, mapping this frame's camera-relative world to its clip
     uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels);
                              // y: capacity of the cut list; z: capacity of the deferred-instance list
-    uvec4 viewport;          // x: width, y: height, z: material count, w: light count
-    uvec4 lightKinds;        // x: distant lights (the first x of `lights`; the others follow in the scene's order)
+    uvec4 viewport;          // x: width, y: height, z: material count, w: light count (distant lights first, then the
+                             // others in the scene's order; resolve's counts: TS_SPEC_LIGHT_COUNTS)
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
     vec4 tessellation;       // x: dicing rate (pixels per micro-edge); y: patch capacity (exact: at most 2^23); z: point pool
                              // capacity (points)
@@ -654,7 +654,7 @@ struct GpuFrame {
     address clusterDisplacement; // float[]: per cluster of a displaced batch's mesh, the largest offset its materials move
                                  // it by (mesh units; GpuInstanceBatch.displacementBounds)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 9 + 8 * 37);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 37);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

@@ -35,24 +35,9 @@ std::unique_ptr<Renderer> renderer_with(Device& device, const char* variable, co
     return std::make_unique<Renderer>(device);
 }
 
-std::shared_ptr<BuiltMesh> grid_mesh(int n) {
-    std::vector<float> points;
-    std::vector<int32_t> counts, indices;
-    for (int y = 0; y <= n; ++y)
-        for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x) / n - 0.5f, float(y) / n - 0.5f, 0.0f});
-    for (int y = 0; y < n; ++y)
-        for (int x = 0; x < n; ++x) {
-            counts.push_back(4);
-            const int a = y * (n + 1) + x;
-            indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
-        }
-    MeshView v = polygon_view("/Grid", points, counts, indices);
-    return std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(v)));
-}
-
-// grid_mesh(n) with texture coordinates from -0.5 to 1.5 across (so that every wrap mode shows) and a displayColor per
-// point (a red-green ramp).
-std::shared_ptr<BuiltMesh> uv_grid_mesh(int n) {
+// An n x n grid of quads over [-0.5, 0.5]^2 in the XY plane, facing +Z. `uvsAndColours`: with texture coordinates from
+// -0.5 to 1.5 across (so that every wrap mode shows) and a displayColor per point (a red-green ramp).
+std::shared_ptr<BuiltMesh> grid_mesh(int n, bool uvsAndColours = false) {
     std::vector<float> points, uvs, colors;
     std::vector<int32_t> counts, indices;
     for (int y = 0; y <= n; ++y)
@@ -68,9 +53,11 @@ std::shared_ptr<BuiltMesh> uv_grid_mesh(int n) {
             const int a = y * (n + 1) + x;
             indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
         }
-    MeshView v = polygon_view("/UvGrid", points, counts, indices);
-    v.uvs = {Interpolation::Vertex, 2, uvs, {}};
-    v.displayColor = {Interpolation::Vertex, 3, colors, {}};
+    MeshView v = polygon_view(uvsAndColours ? "/UvGrid" : "/Grid", points, counts, indices);
+    if (uvsAndColours) {
+        v.uvs = {Interpolation::Vertex, 2, uvs, {}};
+        v.displayColor = {Interpolation::Vertex, 3, colors, {}};
+    }
     return std::make_shared<BuiltMesh>(build_mesh(prepare_mesh(v)));
 }
 
@@ -772,7 +759,7 @@ TEST_F(RendererTest, ShadePixelsPerThreadDrawTheSameFrames) {
 // wrap modes, formats and encodings differ. Leaving a material's wrapT out of its kinds changes the frame.
 TEST_F(RendererTest, TexturedBinsReadOnlyTheirTextureKindsAndDrawTheSameFrame) {
     GpuScene scene;
-    const uint32_t grid = scene.add_mesh(uv_grid_mesh(8));
+    const uint32_t grid = scene.add_mesh(grid_mesh(8, true));
     std::vector<uint8_t> rgba(6 * 5 * 4), gray(6 * 5);
     std::vector<float> halves(6 * 5 * 4);
     for (int i = 0; i < 30; ++i) {
@@ -847,7 +834,7 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
     // texels, texture coordinates and vertex colours are all read through views or addresses.
     GpuScene textured;
     {
-        const uint32_t grid = textured.add_mesh(uv_grid_mesh(12));
+        const uint32_t grid = textured.add_mesh(grid_mesh(12, true));
         std::vector<uint8_t> rgba(8 * 8 * 4), gray(8 * 8);
         std::vector<float> normals(8 * 8 * 4);
         for (int i = 0; i < 64; ++i) {
