@@ -1,16 +1,50 @@
 #include "tessera/image_io.h"
 
-#include <OpenColorIO/OpenColorIO.h>
-#include <OpenImageIO/imageio.h>
+#include "image_files.h"
+
+#include <dlfcn.h>
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 #include <cstring>
-
-namespace OCIO = OCIO_NAMESPACE;
+#include <mutex>
 
 namespace tessera {
+
+const ImageFileFunctions& image_files() {
+    static const ImageFileFunctions* functions = nullptr;
+    static std::string failure;
+    static std::once_flag once;
+    std::call_once(once, [] {
+        const char* name = "libtessera_image_files.so";
+        std::string why;
+        auto open = [&](const std::string& path) -> void* {
+            void* library = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+            if (!library && why.empty()) why = dlerror();
+            return library;
+        };
+        void* library = nullptr;
+        Dl_info self{};
+        if (dladdr(reinterpret_cast<void*>(&image_files), &self) && self.dli_fname) {
+            const std::string binary = self.dli_fname;
+            const size_t slash = binary.find_last_of('/');
+            if (slash != std::string::npos) library = open(binary.substr(0, slash + 1) + name);
+        }
+        if (!library) library = open(name);  // the loader's search path: RUNPATH (the test binary), LD_LIBRARY_PATH
+        if (library) {
+            auto entry = reinterpret_cast<const ImageFileFunctions* (*)()>(dlsym(library, "tessera_image_files"));
+            if (!entry) why = "it has no tessera_image_files";
+            else if (entry()->abi != kImageFilesAbi) why = "it is from another build (interface " + std::to_string(entry()->abi) + ", not " +
+                                                            std::to_string(kImageFilesAbi) + ")";
+            else functions = entry();
+        }
+        if (!functions)
+            failure = std::string("image files are read and written by ") + name + " (OpenImageIO, OpenColorIO), which cannot be loaded: " + why;
+    });
+    if (!functions) throw ImageIoError(failure);
+    return *functions;
+}
+
 namespace {
 
 std::string extension_of(const std::string& path) {
@@ -39,28 +73,6 @@ void id_color(uint32_t id, float rgb[3]) {
     for (int k = 0; k < 3; ++k) rgb[k] = 0.25f + 0.75f * float((h >> (8 * k)) & 0xff) / 255.0f;
 }
 
-// Colour through the OCIO display transform from the scene-linear role.
-void apply_display_transform(std::vector<float>& rgba, uint32_t pixelCount, const std::string& configPath,
-                             const std::string& display, const std::string& view) {
-    try {
-        OCIO::ConstConfigRcPtr config;
-        const char* env = std::getenv("OCIO");
-        if (env && *env) config = OCIO::Config::CreateFromEnv();
-        else config = OCIO::Config::CreateFromFile(configPath.c_str());
-        const char* d = display.empty() ? config->getDefaultDisplay() : display.c_str();
-        const char* v = view.empty() ? config->getDefaultView(d) : view.c_str();
-        OCIO::DisplayViewTransformRcPtr transform = OCIO::DisplayViewTransform::Create();
-        transform->setSrc(OCIO::ROLE_SCENE_LINEAR);
-        transform->setDisplay(d);
-        transform->setView(v);
-        OCIO::ConstCPUProcessorRcPtr cpu = config->getProcessor(transform)->getDefaultCPUProcessor();
-        OCIO::PackedImageDesc desc(rgba.data(), long(pixelCount), 1, 4);
-        cpu->apply(desc);
-    } catch (const OCIO::Exception& e) {
-        throw ImageIoError(std::string("OpenColorIO: ") + e.what());
-    }
-}
-
 }  // namespace
 
 void write_image(const std::string& path, const Image& image, const std::string& ocioConfig, const std::string& display,
@@ -71,40 +83,42 @@ void write_image(const std::string& path, const Image& image, const std::string&
     if (!floatFormat && !eightBit) throw ImageIoError(path + ": unsupported image format '." + ext + "' (use exr, tif, hdr, png or jpg)");
     const uint32_t n = image.width * image.height;
 
-    OIIO::ImageSpec spec;
+    const ImageFileFunctions& files = image_files();
+    uint32_t channels = 0;
+    PixelType stored = PixelType::Float;
+    std::vector<std::string> channelNames;
     std::vector<float> floats;
     std::vector<uint32_t> ids;
     const void* data = nullptr;
     if (floatFormat) {
         if (aov_is_id(image.aov) && ext != "hdr") {
-            spec = OIIO::ImageSpec(int(image.width), int(image.height), 1, OIIO::TypeDesc::UINT32);
-            spec.channelnames = {aov_name(image.aov)};
+            channels = 1, stored = PixelType::UInt32;
+            channelNames = {aov_name(image.aov)};
             ids.resize(n);
             for (uint32_t i = 0; i < n; ++i) ids[i] = id_bits(image.pixels[4 * i]);
             data = ids.data();
         } else if (image.aov == Aov::Depth) {
-            spec = OIIO::ImageSpec(int(image.width), int(image.height), 1, OIIO::TypeDesc::FLOAT);
-            spec.channelnames = {"Z"};
+            channels = 1;
+            channelNames = {"Z"};
             floats.resize(n);
             for (uint32_t i = 0; i < n; ++i) floats[i] = image.pixels[4 * i];
             data = floats.data();
         } else {
-            const int channels = image.aov == Aov::Color && ext != "hdr" ? 4 : 3;
-            spec = OIIO::ImageSpec(int(image.width), int(image.height), channels, OIIO::TypeDesc::FLOAT);
-            if (image.aov == Aov::Normal) spec.channelnames = {"N.x", "N.y", "N.z"};
+            channels = image.aov == Aov::Color && ext != "hdr" ? 4 : 3;
+            if (image.aov == Aov::Normal) channelNames = {"N.x", "N.y", "N.z"};
             floats.resize(size_t(n) * channels);
             for (uint32_t i = 0; i < n; ++i)
                 for (int c = 0; c < channels; ++c) floats[size_t(i) * channels + c] = image.pixels[4 * i + c];
             data = floats.data();
         }
-        if (ext == "exr") spec.attribute("compression", "zip");
     } else {
         // 8-bit: what a person should see.
-        const bool alpha = ext == "png";
-        const int channels = alpha ? 4 : 3;
-        std::vector<float> rgba(image.pixels);
+        channels = ext == "png" ? 4 : 3;  // png keeps coverage as alpha
+        stored = PixelType::UInt8;
+        std::vector<float> rgba(image.pixels.begin(), image.pixels.end());
         if (image.aov == Aov::Color) {
-            apply_display_transform(rgba, n, ocioConfig, display, view);
+            const std::string why = files.display_transform(rgba.data(), n, ocioConfig, display, view);
+            if (!why.empty()) throw ImageIoError(path + ": " + why);
         } else if (image.aov == Aov::Normal) {
             for (uint32_t i = 0; i < n; ++i) {
                 const bool covered = image.pixels[4 * i + 3] > 0;
@@ -135,33 +149,26 @@ void write_image(const std::string& path, const Image& image, const std::string&
         floats.resize(size_t(n) * channels);
         for (uint32_t i = 0; i < n; ++i)
             for (int c = 0; c < channels; ++c) floats[size_t(i) * channels + c] = std::clamp(rgba[4 * i + c], 0.0f, 1.0f);
-        spec = OIIO::ImageSpec(int(image.width), int(image.height), channels, OIIO::TypeDesc::UINT8);
         data = floats.data();
     }
-    spec.attribute("Software", "Tessera");
-
-    auto out = OIIO::ImageOutput::create(path);
-    if (!out) throw ImageIoError(path + ": " + OIIO::geterror());
-    if (!out->open(path, spec)) throw ImageIoError(path + ": " + out->geterror());
-    const OIIO::TypeDesc sourceType = ids.empty() ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT32;
-    if (!out->write_image(sourceType, data)) throw ImageIoError(path + ": " + out->geterror());
-    if (!out->close()) throw ImageIoError(path + ": " + out->geterror());
+    const PixelType given = ids.empty() ? PixelType::Float : PixelType::UInt32;
+    const std::string why = files.write(path, image.width, image.height, channels, stored, given, channelNames, data);
+    if (!why.empty()) throw ImageIoError(path + ": " + why);
 }
 
 LoadedImage read_image(const std::string& path) {
-    auto in = OIIO::ImageInput::open(path);
-    if (!in) throw ImageIoError(path + ": " + OIIO::geterror());
-    const OIIO::ImageSpec& spec = in->spec();
+    ImageFile file;
+    const std::string why = image_files().read(path, false, false, 0, file);
+    if (!why.empty()) throw ImageIoError(path + ": " + why);
     LoadedImage image;
-    image.width = uint32_t(spec.width);
-    image.height = uint32_t(spec.height);
-    const int channels = spec.nchannels;
-    std::vector<float> raw(size_t(spec.width) * spec.height * channels);
-    if (!in->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, raw.data())) throw ImageIoError(path + ": " + in->geterror());
-    image.pixels.assign(size_t(spec.width) * spec.height * 4, 1.0f);
-    for (size_t i = 0; i < size_t(spec.width) * spec.height; ++i) {
-        for (int c = 0; c < std::min(channels, 4); ++c) image.pixels[4 * i + c] = raw[i * channels + c];
-        if (channels == 1) image.pixels[4 * i + 1] = image.pixels[4 * i + 2] = raw[i];
+    image.width = file.width;
+    image.height = file.height;
+    const size_t pixels = size_t(file.width) * file.height;
+    const uint32_t channels = file.channels;
+    image.pixels.assign(pixels * 4, 1.0f);
+    for (size_t i = 0; i < pixels; ++i) {
+        for (uint32_t c = 0; c < channels; ++c) image.pixels[4 * i + c] = file.floats[i * channels + c];
+        if (channels == 1) image.pixels[4 * i + 1] = image.pixels[4 * i + 2] = file.floats[i];
         if (channels == 2) image.pixels[4 * i + 2] = 0;
     }
     return image;

@@ -4,7 +4,8 @@
 #include "shared.h"
 #include "tessera/builder.h"  // half_to_float
 
-#include <OpenImageIO/imageio.h>
+#include "image_files.h"
+#include "tessera/image_io.h"
 
 #include <algorithm>
 #include <cmath>
@@ -441,30 +442,17 @@ std::array<float, 2> slot_range(const TextureSlot& slot, const TextureRange& ran
 }
 
 TextureImage read_texture(const std::string& path, ColorSpace colorSpace) {
-    OIIO::ImageSpec config;
-    config.attribute("oiio:UnassociatedAlpha", 1);  // colours as stored: UsdUVTexture reads straight alpha
-    auto in = OIIO::ImageInput::open(path, &config);
-    if (!in) {
-        std::string why = OIIO::geterror();
-        if (!std::filesystem::exists(path)) why = "no such file";
-        throw TextureError(why.empty() ? "OpenImageIO cannot read it" : why);
+    ImageFile file;
+    std::string why;
+    try {
+        why = image_files().read(path, true, true, kMaxTextureSize, file);  // colours as stored: UsdUVTexture reads straight alpha
+    } catch (const ImageIoError& e) {
+        throw TextureError(e.what());
     }
-    const OIIO::ImageSpec& spec = in->spec();
-    if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0) throw TextureError("an empty image");
-    if (spec.depth > 1) throw TextureError("a volume image");
-    if (uint32_t(spec.width) > kMaxTextureSize || uint32_t(spec.height) > kMaxTextureSize)
-        throw TextureError(std::to_string(spec.width) + "x" + std::to_string(spec.height) + " pixels (textures are at most 16384 on a side)");
-    const uint32_t channels = uint32_t(std::min(spec.nchannels, 4));
-    const bool eightBit = spec.format == OIIO::TypeDesc::UINT8;
-    const size_t values = size_t(spec.width) * spec.height * channels;
-    std::vector<uint8_t> bytes(eightBit ? values : 0);
-    std::vector<float> floats(eightBit ? 0 : values);
-    const bool ok = eightBit ? in->read_image(0, 0, 0, int(channels), OIIO::TypeDesc::UINT8, bytes.data())
-                             : in->read_image(0, 0, 0, int(channels), OIIO::TypeDesc::FLOAT, floats.data());
-    if (!ok) throw TextureError(in->geterror());
-    TextureImage t = make_texture(uint32_t(spec.width), uint32_t(spec.height), channels, eightBit ? bytes.data() : nullptr,
-                                  eightBit ? nullptr : floats.data(), colorSpace, path);
-    return t;
+    if (!why.empty()) throw TextureError(std::filesystem::exists(path) ? why : "no such file");
+    const bool eightBit = !file.bytes.empty();
+    return make_texture(file.width, file.height, file.channels, eightBit ? file.bytes.data() : nullptr,
+                        eightBit ? nullptr : file.floats.data(), colorSpace, path);
 }
 
 std::array<float, 27> latlong_irradiance(const TextureImage& image) {
