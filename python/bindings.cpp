@@ -185,6 +185,9 @@ nb::dict stats_dict(const FrameStats& s) {
     gpuMs["resolve"] = s.resolveMs;
     d["gpu_ms"] = gpuMs;
     d["upload_ms"] = s.uploadMs;
+    d["cpu_record_ms"] = s.cpuRecordMs;
+    d["cpu_wait_ms"] = s.cpuWaitMs;
+    d["cpu_frame_ms"] = s.cpuFrameMs;
     return d;
 }
 

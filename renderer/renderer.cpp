@@ -1255,6 +1255,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.clusterDisplacement = s.clusterDisplacement.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
+        const auto submitted = std::chrono::steady_clock::now();
+        std::chrono::steady_clock::time_point recorded;
         device_.run([&](VkCommandBuffer cmd) {
             vkCmdResetQueryPool(cmd, s.timestamps, 0, Impl::kTimestamps);
             for (VkPipelineBindPoint point : {VK_PIPELINE_BIND_POINT_COMPUTE, VK_PIPELINE_BIND_POINT_GRAPHICS})
@@ -1507,7 +1509,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             vkCmdCopyBuffer(cmd, s.drawState.handle, s.readback.handle, 1, &stateRegion);
             barrier(cmd, VK_PIPELINE_STAGE_2_COPY_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                     VK_PIPELINE_STAGE_2_HOST_BIT, VK_ACCESS_2_HOST_READ_BIT);
+            recorded = std::chrono::steady_clock::now();
         });
+        const auto finished = std::chrono::steady_clock::now();
+        frameStats.cpuRecordMs += std::chrono::duration<double, std::milli>(recorded - submitted).count();
+        frameStats.cpuWaitMs += std::chrono::duration<double, std::milli>(finished - recorded).count();
         // The HZB just built is of this camera (an overflowing frame's HZB lacks some geometry: farther, still safe).
         s.previousValid = occlusion;
         s.previousViewProjection = cam.viewProjection;
@@ -1610,6 +1616,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         image.pixels.assign(rgba, rgba + pixels * 4);
         images.push_back(std::move(image));
     }
+    frameStats.cpuFrameMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
     if (stats) *stats = frameStats;
     return images;
 }

@@ -142,10 +142,28 @@ bool aov_is_id(Aov aov);
 // An AOV read back from the GPU: 4 floats per pixel, top row first. For id AOVs, channel 0 holds the
 // id's bits (uint32; 0xffffffff where nothing was drawn). For depth, channel 0 is the distance along the
 // view direction (infinity where nothing was drawn).
+// Pixel storage (image_memory.cpp): blocks of a megabyte or more come as transparent huge pages, and the last two freed
+// (at most 160 MB) are kept for the next image of their size, so a frame's readback does not fault in 33 MB of fresh
+// 4 KB pages at 1080p.
+void* allocate_pixel_bytes(size_t bytes);
+void free_pixel_bytes(void* memory, size_t bytes);
+template <class T>
+struct PixelAllocator {
+    using value_type = T;
+    PixelAllocator() = default;
+    template <class U>
+    PixelAllocator(const PixelAllocator<U>&) {}
+    T* allocate(size_t n) { return static_cast<T*>(allocate_pixel_bytes(n * sizeof(T))); }
+    void deallocate(T* p, size_t n) { free_pixel_bytes(p, n * sizeof(T)); }
+    template <class U>
+    bool operator==(const PixelAllocator<U>&) const { return true; }
+};
+using PixelVector = std::vector<float, PixelAllocator<float>>;
+
 struct Image {
     uint32_t width = 0, height = 0;
     Aov aov = Aov::Color;
-    std::vector<float> pixels;
+    PixelVector pixels;  // 4 floats per pixel, top row first
 };
 
 // What the color AOV shows instead of shading (debug views in the manner of Nanite's visualization modes).
@@ -242,6 +260,9 @@ struct FrameStats {
     // the material bins (classify and bins); resolveMs: backgrounds, resolve and the AOV copies.
     double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, tessellationMs = 0, hzbMs = 0, classifyMs = 0, resolveMs = 0;
     double uploadMs = 0;  // CPU time spent uploading what changed in the scene (instances, geometry, materials) this frame
+    // Wall time on the CPU: recording the frame's commands, from then until the GPU finished them (submission and wait),
+    // and the whole render call (upload, recording, wait, readback). A redrawn frame counts both tries.
+    double cpuRecordMs = 0, cpuWaitMs = 0, cpuFrameMs = 0;
 };
 
 // The GPU scene: meshes shared by any number of instances. Changes are uploaded by the next render.
