@@ -47,6 +47,9 @@ def test_stats_and_camera_options(tmp_path):
     assert stats["camera"] == "/World/Camera" and stats["resolution"] == [80, 60]
     assert stats["instances"] == 1 and stats["visible_clusters"] == 1 and stats["errors"] == []
     assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "tessellation", "hzb", "classify", "resolve"}
+    # The CPU's spans: recording, then waiting for the GPU, both inside the whole render call.
+    assert 0 < stats["cpu_record_ms"] and 0 < stats["cpu_wait_ms"], stats
+    assert stats["cpu_record_ms"] + stats["cpu_wait_ms"] <= stats["cpu_frame_ms"], stats
     assert stats["micro_triangles"] == 0 and stats["tessellation_bytes"] == 0, "nothing displaces: no tessellation work or memory"
     assert stats["occlusion_tested"] is False, "a first frame has no previous HZB"
     assert {"occluded_instances", "occluded_clusters", "backface_clusters", "post_pass_clusters"} <= set(stats)
