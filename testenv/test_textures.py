@@ -97,7 +97,7 @@ def test_a_uv_texture_network_becomes_a_texture_slot(tmp_path):
 
     from tessera.usd import UsdSceneDelegate
 
-    index = _tessera.RenderIndex(_tessera.RenderDelegate(device="cpu", validation=True))
+    index = _tessera.RenderIndex(_tessera.RenderDelegate(validation=True))
     delegate = UsdSceneDelegate(stage, index)
     desc = delegate.get_material("/Looks/Checker")
     assert not delegate.warnings, delegate.warnings

@@ -193,7 +193,7 @@ def _delegate(stage, time=Usd.TimeCode.Default()):
     from tessera import _tessera
     from tessera.usd import UsdSceneDelegate
 
-    index = _tessera.RenderIndex(_tessera.RenderDelegate(device="cpu", validation=True))
+    index = _tessera.RenderIndex(_tessera.RenderDelegate(validation=True))
     delegate = UsdSceneDelegate(stage, index, time=time)
     delegate.populate()
     return delegate, index
@@ -343,7 +343,7 @@ def test_the_first_sync_asks_for_no_default_the_walk_saw():
             asked.append(("transform", id))
             return super().get_transform(id)
 
-    index = _tessera.RenderIndex(_tessera.RenderDelegate(device="cpu", validation=True))
+    index = _tessera.RenderIndex(_tessera.RenderDelegate(validation=True))
     delegate = Counting(stage, index)
     delegate.populate()
     dirty = _tessera.dirty
