@@ -67,7 +67,14 @@ if [ -d "$objects" ]; then
     build/py/libmeshoptimizer.a -losdCPU -lzstd -lvulkan -ldl /usr/lib/x86_64-linux-gnu/libgtest.a -lpthread
 fi
 
-mkdir -p .gpu
+mkdir -p .gpu/gl
+# NVIDIA's Vulkan driver needs the GL dispatch libraries (libglvnd) beside it; gpu_check.sh unpacks these where the
+# machine lacks them (as Debian packages: unpacked into /, as a borrowed machine's README advises).
+lists=$(mktemp -d) && mkdir -p "$lists/partial"
+(cd .gpu/gl && apt-get -q -o Dir::State::Lists="$lists" update >/dev/null && \
+ apt-get -q -o Dir::State::Lists="$lists" download libglvnd0 libgl1 libglx0 libegl1 libgles2 libopengl0 >/dev/null) || \
+  echo "gpu_bundle.sh: could not fetch libglvnd's packages (no network?): .gpu/gl is empty" >&2
+rm -rf "$lists"
 tar -C "$stage" -cf - gpu | xz -T0 -6 > .gpu/bundle.tar.xz
 cat > .gpu/run.sh <<EOF
 # Sourced on the other machine from the repository root: unpacks the bundle once and sets the environment.

@@ -4,14 +4,19 @@
 # time-boxed and logs to $OUT/<step>.log; a failed smoke render stops the rest.
 #   OUT=/some/dir tools/gpu_check.sh [steps...]     steps: smoke cpp bench pytest (default: all, in that order)
 # NVIDIA's Vulkan driver (libGLX_nvidia.so.0) needs the GL dispatch libraries (libglvnd): on a machine without them,
-# vkCreateInstance finds no driver ("Could not get 'vkCreateInstance' via 'vk_icdGetInstanceProcAddr'"). Unpacking
-# Debian's libglvnd0, libgl1, libglx0, libegl1, libgles2 and libopengl0 (`dpkg -x`) first was enough on an H100.
+# vkCreateInstance finds no driver ("Could not get 'vkCreateInstance' via 'vk_icdGetInstanceProcAddr'"). Debian's
+# packages of them (.gpu/gl, from gpu_bundle.sh) are unpacked into / where libGLdispatch.so.0 is missing, which was
+# enough on an H100 (the machine is borrowed and bare; never do this on one you keep).
 set -uo pipefail
 OUT=${OUT:-/tmp/tessera-gpu-out}
 mkdir -p "$OUT"
 nvidia=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
 [ -f "$nvidia" ] && export VK_DRIVER_FILES=$nvidia
 [ -d /usr/local/nvidia/lib64 ] && export LD_LIBRARY_PATH=/usr/local/nvidia/lib64${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
+if ! ldconfig -p | grep -q 'libGLdispatch.so.0 ' && ls .gpu/gl/*.deb >/dev/null 2>&1; then
+    for deb in .gpu/gl/*.deb; do dpkg -x "$deb" /; done
+    ldconfig
+fi
 source .gpu/run.sh
 steps=("$@")
 [ ${#steps[@]} -gt 0 ] || steps=(smoke cpp bench pytest)
