@@ -3,10 +3,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# Debian 12 (bookworm) packages: Vulkan loader + lavapipe + validation layer, glslang, OpenImageIO, OpenColorIO,
-# OpenSubdiv, GoogleTest, zstd (page files), and the compilers. Versions are those of Debian 12.
+# Debian 12 (bookworm) packages: Vulkan loader + lavapipe + validation layer, glslang and spirv-opt, OpenImageIO,
+# OpenColorIO, OpenSubdiv, GoogleTest, zstd (page files), and the compilers. Versions are those of Debian 12.
 APT_PACKAGES=(build-essential cmake ninja-build pkg-config python3-venv libvulkan-dev mesa-vulkan-drivers
-              vulkan-validationlayers glslang-tools libopenimageio-dev libopencolorio-dev libosd-dev libgtest-dev libzstd-dev)
+              vulkan-validationlayers glslang-tools spirv-tools libopenimageio-dev libopencolorio-dev libosd-dev libgtest-dev libzstd-dev)
 missing=()
 for package in "${APT_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$package" 2>/dev/null | grep -q "install ok installed" || missing+=("$package")
