@@ -23,8 +23,16 @@ struct Block {
     size_t bytes;
 };
 
-std::mutex spareMutex;
-std::vector<Block> spare;  // oldest first
+// Freed large blocks, oldest first. Never destroyed: an image may be freed during the process's exit, after static
+// destructors have run (Python lets go of its objects late).
+struct Spare {
+    std::mutex mutex;
+    std::vector<Block> blocks;
+};
+Spare& spare_blocks() {
+    static Spare* spare = new Spare;
+    return *spare;
+}
 
 size_t huge_pages_for(size_t bytes) { return (bytes + kHugePage - 1) / kHugePage * kHugePage; }
 
@@ -37,11 +45,12 @@ void* allocate_pixel_bytes(size_t bytes) {
     }
     const size_t rounded = huge_pages_for(bytes);
     {
-        const std::lock_guard lock(spareMutex);
-        for (auto it = spare.rbegin(); it != spare.rend(); ++it)
+        Spare& spare = spare_blocks();
+        const std::lock_guard lock(spare.mutex);
+        for (auto it = spare.blocks.rbegin(); it != spare.blocks.rend(); ++it)
             if (it->bytes == rounded) {
                 void* memory = it->memory;
-                spare.erase(std::next(it).base());
+                spare.blocks.erase(std::next(it).base());
                 return memory;
             }
     }
@@ -57,14 +66,15 @@ void free_pixel_bytes(void* memory, size_t bytes) {
         std::free(memory);
         return;
     }
-    const std::lock_guard lock(spareMutex);
-    spare.push_back({memory, huge_pages_for(bytes)});
+    Spare& spare = spare_blocks();
+    const std::lock_guard lock(spare.mutex);
+    spare.blocks.push_back({memory, huge_pages_for(bytes)});
     size_t held = 0;
-    for (const Block& b : spare) held += b.bytes;
-    while (!spare.empty() && (spare.size() > kSpareBlocks || held > kSpareBytes)) {
-        held -= spare.front().bytes;
-        std::free(spare.front().memory);
-        spare.erase(spare.begin());
+    for (const Block& b : spare.blocks) held += b.bytes;
+    while (!spare.blocks.empty() && (spare.blocks.size() > kSpareBlocks || held > kSpareBytes)) {
+        held -= spare.blocks.front().bytes;
+        std::free(spare.blocks.front().memory);
+        spare.blocks.erase(spare.blocks.begin());
     }
 }
 

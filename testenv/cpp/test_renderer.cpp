@@ -1184,3 +1184,26 @@ TEST(SharedDevice, OnePerOptionsUntilReleased) {
     EXPECT_EQ(first->validation_error_count(), 0u);
     Device::release_shared_devices();
 }
+
+// Image pixels (image_memory.cpp): a freed large block serves the next image of its size, so a frame's readback does
+// not fault in fresh pages; at most two wait; small images are plain allocations.
+TEST(ImageMemory, FreedLargeBlocksServeTheNextImageOfTheirSize) {
+    const size_t frame = size_t(1920) * 1080 * 4;  // a 1080p RGBA float image
+    PixelVector first(frame, 0.5f);
+    const float* block = first.data();
+    first = PixelVector();  // freed: kept
+    PixelVector second(frame, 0.25f);
+    EXPECT_EQ(second.data(), block) << "the freed block of that size";
+    EXPECT_EQ(second[frame - 1], 0.25f);
+    PixelVector other(frame / 2, 1.0f);  // another size: a block of its own
+    EXPECT_NE(other.data(), block);
+    // Three freed: the two newest wait, the oldest goes back to the system.
+    PixelVector a(frame), b(frame), c(frame);
+    const float* newest[2] = {b.data(), c.data()};
+    a = PixelVector(), b = PixelVector(), c = PixelVector();
+    PixelVector d(frame), e(frame);
+    EXPECT_EQ(d.data(), newest[1]);
+    EXPECT_EQ(e.data(), newest[0]);
+    PixelVector small(64, 2.0f);  // under a megabyte
+    EXPECT_EQ(small[63], 2.0f);
+}
