@@ -183,6 +183,7 @@ nb::dict stats_dict(const FrameStats& s) {
     gpuMs["hzb"] = s.hzbMs;
     gpuMs["classify"] = s.classifyMs;
     gpuMs["resolve"] = s.resolveMs;
+    gpuMs["readback"] = s.readbackMs;
     d["gpu_ms"] = gpuMs;
     d["upload_ms"] = s.uploadMs;
     d["cpu_record_ms"] = s.cpuRecordMs;

@@ -354,8 +354,10 @@ struct Renderer::Impl {
 
     // Scene streams.
     // start; main pass: cull, software raster, hardware raster, tessellation; HZB; post pass: cull, software, hardware
-    // raster, tessellation; the frame's HZB; resolve.
-    static constexpr uint32_t kTimestamps = 13;
+    // raster, tessellation; the frame's HZB; resolve. Then a pair around each AOV's copy to the readback (the first
+    // kTimedCopies), which the readback span adds up and the resolve span leaves out.
+    static constexpr uint32_t kFrameMarks = 13, kTimedCopies = 8;
+    static constexpr uint32_t kTimestamps = kFrameMarks + 2 * kTimedCopies;
     Buffer hardwareList, softwareList;
     Buffer instances, meshes, levels, cutBlocks, blockClusters, clusters, vertices, colors, uvs, triangles, materials, materialTables;
     Buffer instanceBatches, batches;
@@ -1256,6 +1258,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
         const auto submitted = std::chrono::steady_clock::now();
+        uint32_t timedCopies = 0;  // AOV copies with timestamps around them (Impl::kTimedCopies at most)
         std::chrono::steady_clock::time_point recorded;
         device_.run([&](VkCommandBuffer cmd) {
             vkCmdResetQueryPool(cmd, s.timestamps, 0, Impl::kTimestamps);
@@ -1265,10 +1268,12 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             // barrier does: on a CPU device each mark is followed by an execution barrier, else a mark before a dispatch
             // with no barrier between them (classify's, the HZB's) took that dispatch's time into the span before it.
             uint32_t timestamp = 0;
-            auto mark = [&]() {
-                vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, timestamp++);
+            auto stamp = [&](uint32_t query) {
+                vkCmdWriteTimestamp2(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, s.timestamps, query);
                 if (device_.is_software()) barrier(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0);
             };
+            auto mark = [&]() { stamp(timestamp++); };
+            timedCopies = 0;
             mark();
             gpu::GpuDrawState initial{};
             initial.vertexCount = initial.doubleSidedVertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;
@@ -1500,7 +1505,10 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
                         VK_ACCESS_2_TRANSFER_READ_BIT);
                 VkBufferCopy region{0, sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
+                const bool timed = timedCopies < Impl::kTimedCopies;
+                if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies);
                 vkCmdCopyBuffer(cmd, s.aovOutput.handle, s.readback.handle, 1, &region);
+                if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies++ + 1);
             }
             mark();
             barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
@@ -1586,7 +1594,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                                   s.patchPoints.size
                             : 0;
         uint64_t ticks[Impl::kTimestamps] = {};
-        if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, Impl::kTimestamps, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
+        const uint32_t written = Impl::kFrameMarks + 2 * timedCopies;  // a query never written would fail the whole read
+        if (vkGetQueryPoolResults(device_.handle(), s.timestamps, 0, written, sizeof(ticks), ticks, sizeof(uint64_t), VK_QUERY_RESULT_64_BIT) == VK_SUCCESS) {
             const double ms = device_.timestamp_period_ns() * 1e-6;
             auto span = [&](int from, int to) { return double(ticks[to] - ticks[from]) * ms; };
             frameStats.cullMs = span(0, 1) + span(5, 6);
@@ -1595,7 +1604,9 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             frameStats.tessellationMs = span(3, 4) + span(8, 9);
             frameStats.hzbMs = span(4, 5) + span(9, 10);
             frameStats.classifyMs = span(10, 11);
-            frameStats.resolveMs = span(11, 12);
+            frameStats.readbackMs = 0;
+            for (uint32_t c = 0; c < timedCopies; ++c) frameStats.readbackMs += span(Impl::kFrameMarks + 2 * c, Impl::kFrameMarks + 2 * c + 1);
+            frameStats.resolveMs = span(11, 12) - frameStats.readbackMs;
         }
         break;
     }

@@ -46,7 +46,7 @@ def test_stats_and_camera_options(tmp_path):
     stats = json.loads(stats_file.read_text())
     assert stats["camera"] == "/World/Camera" and stats["resolution"] == [80, 60]
     assert stats["instances"] == 1 and stats["visible_clusters"] == 1 and stats["errors"] == []
-    assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "tessellation", "hzb", "classify", "resolve"}
+    assert set(stats["gpu_ms"]) == {"cull", "sw_raster", "hw_raster", "tessellation", "hzb", "classify", "resolve", "readback"}
     # The CPU's spans: recording, then waiting for the GPU, both inside the whole render call.
     assert 0 < stats["cpu_record_ms"] and 0 < stats["cpu_wait_ms"], stats
     assert stats["cpu_record_ms"] + stats["cpu_wait_ms"] <= stats["cpu_frame_ms"], stats

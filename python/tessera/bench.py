@@ -280,7 +280,8 @@ def _row(table, label, result, wall, gpu, reference=None, **extra):
            "triangles_drawn": s["visible_triangles"], "frame_ms": round(wall, 1), "frame_cpu_ms": round(gpu["process_cpu"], 1),
            "gpu_ms": round(gpu["total"], 1),
            "cull_ms": round(gpu["cull"], 1), "sw_raster_ms": round(gpu["sw_raster"], 1), "hw_raster_ms": round(gpu["hw_raster"], 1),
-           "hzb_ms": round(gpu["hzb"], 1), "classify_ms": round(gpu["classify"], 1), "resolve_ms": round(gpu["resolve"], 1), "sw_triangles": s["sw_triangles"],
+           "hzb_ms": round(gpu["hzb"], 1), "classify_ms": round(gpu["classify"], 1), "resolve_ms": round(gpu["resolve"], 1),
+           "readback_ms": round(gpu["readback"], 1), "sw_triangles": s["sw_triangles"],
            "hw_triangles": s["hw_triangles"], "occlusion": s["occlusion_tested"], "occluded_instances": s["occluded_instances"],
            "occluded_clusters": s["occluded_clusters"], "sw_raster_area": s["sw_raster_area"],
            "sw_raster_area_source": s["sw_raster_area_source"]}
@@ -336,7 +337,7 @@ RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("visib
                   ("visible_clusters", "clusters"), ("triangles_drawn", "tris drawn"), ("sw_triangles", "SW tris"), ("frame_ms", "frame ms"), ("frame_cpu_ms", "frame CPU ms"),
                   ("gpu_ms", "GPU ms"), ("cull_ms", "cull"), ("sw_raster_ms", "SW raster"),
                   ("hw_raster_ms", "HW raster"), ("hzb_ms", "HZB"), ("classify_ms", "classify"), ("resolve_ms", "resolve"),
-                  ("occluded_instances", "occluded inst"), ("occluded_clusters", "occluded clusters"),
+                  ("readback_ms", "readback"), ("occluded_instances", "occluded inst"), ("occluded_clusters", "occluded clusters"),
                   ("peak_memory_mib", "peak MiB"), ("psnr_db", "PSNR dB"), ("pixels_off_percent", "px off %"),
                   ("same_prim_percent", "same prim %"), ("speedup_vs_no_lod", "speedup"), ("micro_triangles", "micro tris"),
                   ("tessellation_ms", "tess ms"), ("surface_gpu_mib", "surface GPU MiB")]

@@ -257,8 +257,9 @@ struct FrameStats {
     uint64_t tessellatedTriangles = 0, microTriangles = 0;
     uint64_t tessellationBytes = 0;
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids; classifyMs:
-    // the material bins (classify and bins); resolveMs: backgrounds, resolve and the AOV copies.
-    double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, tessellationMs = 0, hzbMs = 0, classifyMs = 0, resolveMs = 0;
+    // the material bins (classify and bins); resolveMs: backgrounds and shading; readbackMs: copying the AOVs to host
+    // memory (a GPU's; on a CPU device the last AOV is read where resolve wrote it; past the eighth AOV in resolveMs).
+    double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, tessellationMs = 0, hzbMs = 0, classifyMs = 0, resolveMs = 0, readbackMs = 0;
     double uploadMs = 0;  // CPU time spent uploading what changed in the scene (instances, geometry, materials) this frame
     // Wall time on the CPU: recording the frame's commands, from then until the GPU finished them (submission and wait),
     // and the whole render call (upload, recording, wait, readback). A redrawn frame counts both tries.
