@@ -320,3 +320,16 @@ def test_every_aov_shows_the_same_background_first_or_not(render):
         moved = render(stage, resolution=(96, 64), aovs=(leading,) + others)
         for aov in ("color", "depth", "normal", "primId"):
             assert np.array_equal(moved[aov].pixels, first[aov].pixels, equal_nan=True), f"{aov} with {leading} first"
+
+
+def test_the_readback_span_times_the_aov_copies(render):
+    """gpu_ms.readback holds the AOVs' copies to host memory; resolve no longer does. A CPU device reads the last AOV
+    where resolve wrote it (no copy); every other AOV, and every AOV on a GPU, is copied."""
+    cube = TESTENV / "testCube" / "cube.usda"
+    one = render(cube, aovs=("color",))
+    two = render(cube, aovs=("color", "primId"))
+    assert two.stats["gpu_ms"]["readback"] > 0, two.stats["gpu_ms"]
+    if "llvmpipe" in one.session.device_name:
+        assert one.stats["gpu_ms"]["readback"] == 0, one.stats["gpu_ms"]
+    else:
+        assert one.stats["gpu_ms"]["readback"] > 0, one.stats["gpu_ms"]
