@@ -16,8 +16,13 @@
 #include "spirv/tessellate_comp.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstdlib>
 #include <cstring>
+#include <exception>
+#include <functional>
+#include <thread>
+#include <vector>
 #include <span>
 #include <stdexcept>
 #include <string>
@@ -125,12 +130,41 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     layoutInfo.pPushConstantRanges = &range;
     check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
 
-    for (uint32_t step : {TS_CULL_MAIN_INSTANCES, TS_CULL_MAIN}) cull_step(step);
-    resolveVariants[0] = compute_pipeline(resolve_comp, sizeof(resolve_comp), {.textureKinds = 0});
-    hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp));
-    bins = compute_pipeline(bins_comp, sizeof(bins_comp));
-    for (bool largeTriangles : {false, true}) software_raster(false, default_own_corners(), largeTriangles, false);
-    for (bool doubleSided : {false, true}) hardware_raster(false, doubleSided, false);
+    // What (nearly) every frame needs, made now, on as many threads as the host has: a driver compiles a pipeline on
+    // the calling thread (lavapipe: 1.0 s in all on one thread). Each task writes a slot of its own.
+    const bool ownCorners = default_own_corners();
+    VkPipeline& unlit = resolveVariants[0];  // the map's one insertion, before the threads
+    const std::vector<std::function<void()>> tasks = {
+        [&] { cull_step(TS_CULL_MAIN_INSTANCES); },
+        [&] { cull_step(TS_CULL_MAIN); },
+        [&] { cull_step(TS_CULL_POST_INSTANCES); },
+        [&] { cull_step(TS_CULL_POST); },
+        [&] { unlit = compute_pipeline(resolve_comp, sizeof(resolve_comp), {.textureKinds = 0}); },
+        [&] { hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp)); },
+        [&] { bins = compute_pipeline(bins_comp, sizeof(bins_comp)); },
+        [&] { classify_step(TS_CLASSIFY_ONE_BIN); },
+        [&] { classify_step(TS_CLASSIFY_COUNT); },
+        [&] { classify_step(TS_CLASSIFY_SCATTER); },
+        [&] { software_raster(false, ownCorners, false, false); },
+        [&] { software_raster(false, ownCorners, true, false); },
+        [&] { hardware_raster(false, false, false); },
+        [&] { hardware_raster(false, true, false); }};
+    std::atomic<size_t> next{0};
+    std::exception_ptr failure;
+    std::mutex failureMutex;
+    auto work = [&] {
+        for (size_t t; (t = next.fetch_add(1)) < tasks.size();) try {
+                tasks[t]();
+            } catch (...) {
+                const std::lock_guard lock(failureMutex);
+                if (!failure) failure = std::current_exception();
+            }
+    };
+    std::vector<std::thread> threads(std::min<size_t>(std::max(1u, std::thread::hardware_concurrency()), 8) - 1);
+    for (std::thread& thread : threads) thread = std::thread(work);
+    work();
+    for (std::thread& thread : threads) thread.join();
+    if (failure) std::rethrow_exception(failure);
 }
 
 Pipelines::~Pipelines() {
