@@ -1273,7 +1273,6 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 if (device_.is_software()) barrier(cmd, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0, VK_PIPELINE_STAGE_2_ALL_COMMANDS_BIT, 0);
             };
             auto mark = [&]() { stamp(timestamp++); };
-            timedCopies = 0;
             mark();
             gpu::GpuDrawState initial{};
             initial.vertexCount = initial.doubleSidedVertexCount = TS_CLUSTER_MAX_TRIANGLES * 3;

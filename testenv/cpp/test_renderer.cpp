@@ -509,6 +509,18 @@ InstanceDesc displaced_instance(GpuScene& scene, uint32_t mesh) {
     return instance;
 }
 
+// A UsdUVTexture slot of an image made in memory.
+TextureSlot memory_slot(MaterialInput input, std::shared_ptr<const TextureImage> image, TextureWrap s, TextureWrap t, TextureChannel channel) {
+    TextureSlot slot;
+    slot.input = input;
+    slot.file = "memory";
+    slot.image = std::move(image);
+    slot.wrapS = s;
+    slot.wrapT = t;
+    slot.channel = channel;
+    return slot;
+}
+
 // Both renders must agree on these AOVs: bit for bit, or within `tolerance` for values whose bits differ.
 void expect_same_images(const std::vector<Image>& a, const std::vector<Image>& b, const char* what, float tolerance = 0) {
     ASSERT_EQ(a.size(), b.size());
@@ -786,14 +798,7 @@ TEST_F(RendererTest, TexturedBinsReadOnlyTheirTextureKindsAndDrawTheSameFrame) {
     ASSERT_EQ(r8->format, TS_TEXTURE_R8);
     ASSERT_EQ(half->format, TS_TEXTURE_RGBA16F);
     auto slot = [](MaterialInput input, std::shared_ptr<const TextureImage> image, TextureWrap s, TextureWrap t) {
-        TextureSlot slot;
-        slot.input = input;
-        slot.file = "memory";
-        slot.image = std::move(image);
-        slot.wrapS = s;
-        slot.wrapT = t;
-        slot.channel = input == MaterialInput::Roughness ? TextureChannel::R : TextureChannel::Rgb;
-        return slot;
+        return memory_slot(input, std::move(image), s, t, input == MaterialInput::Roughness ? TextureChannel::R : TextureChannel::Rgb);
     };
     const std::vector<std::vector<TextureSlot>> materials = {
         {slot(MaterialInput::DiffuseColor, srgb, TextureWrap::Repeat, TextureWrap::Black)},
@@ -857,28 +862,18 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
             normals[4 * i] = 0.3f * std::sin(float(i)), normals[4 * i + 1] = 0.3f * std::cos(float(i)), normals[4 * i + 2] = 1, normals[4 * i + 3] = 1;
         }
         auto image = [](TextureImage t) { return std::make_shared<const TextureImage>(std::move(t)); };
-        auto slot = [](MaterialInput input, std::shared_ptr<const TextureImage> texture, TextureWrap s, TextureWrap t, TextureChannel channel) {
-            TextureSlot slot;
-            slot.input = input;
-            slot.file = "memory";
-            slot.image = std::move(texture);
-            slot.wrapS = s;
-            slot.wrapT = t;
-            slot.channel = channel;
-            return slot;
-        };
         const auto color = image(make_texture(8, 8, 4, rgba.data(), nullptr, ColorSpace::Auto));
         const auto mask = image(make_texture(8, 8, 1, gray.data(), nullptr, ColorSpace::Raw));
         const auto normal = image(make_texture(8, 8, 4, nullptr, normals.data(), ColorSpace::Raw));
         MaterialDesc maps;
-        maps.textures = {slot(MaterialInput::DiffuseColor, color, TextureWrap::Repeat, TextureWrap::Mirror, TextureChannel::Rgb),
-                         slot(MaterialInput::Roughness, mask, TextureWrap::Mirror, TextureWrap::Clamp, TextureChannel::R),
-                         slot(MaterialInput::Normal, normal, TextureWrap::Clamp, TextureWrap::Black, TextureChannel::Rgb)};
+        maps.textures = {memory_slot(MaterialInput::DiffuseColor, color, TextureWrap::Repeat, TextureWrap::Mirror, TextureChannel::Rgb),
+                         memory_slot(MaterialInput::Roughness, mask, TextureWrap::Mirror, TextureWrap::Clamp, TextureChannel::R),
+                         memory_slot(MaterialInput::Normal, normal, TextureWrap::Clamp, TextureWrap::Black, TextureChannel::Rgb)};
         maps.uvPrimvar = "st";
         MaterialDesc cutOut;
         cutOut.vertexInputs = kDisplayColorInputs;
         cutOut.opacityThreshold = 0.5f;
-        cutOut.textures = {slot(MaterialInput::Opacity, mask, TextureWrap::Black, TextureWrap::Repeat, TextureChannel::R)};
+        cutOut.textures = {memory_slot(MaterialInput::Opacity, mask, TextureWrap::Black, TextureWrap::Repeat, TextureChannel::R)};
         cutOut.uvPrimvar = "st";
         InstanceDesc left = identity_instance(grid), right = identity_instance(grid);
         left.transform[3] = -0.55;
