@@ -437,10 +437,11 @@ struct Renderer::Impl {
 
     // This renderer's own: the frame's uniform buffer and its descriptor set, and the timestamp queries.
     void create_frame_resources() {
-        const VkDescriptorPoolSize poolSizes[] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1}, {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, TS_VIEW_COUNT}};
+        const VkDescriptorPoolSize poolSizes[] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1}, {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, TS_VIEW_COUNT},
+                                                  {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
         VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
         poolInfo.maxSets = 1;
-        poolInfo.poolSizeCount = 2;
+        poolInfo.poolSizeCount = 3;
         poolInfo.pPoolSizes = poolSizes;
         check_vk(vkCreateDescriptorPool(device.handle(), &poolInfo, nullptr, &framePool), "vkCreateDescriptorPool");
         VkDescriptorSetAllocateInfo allocateInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
@@ -528,6 +529,18 @@ struct Renderer::Impl {
             vkDestroyBufferView(device.handle(), texelViews[i], nullptr);
             texelViews[i] = views[i];
         }
+    }
+
+    // The AOV output's storage buffer binding (TS_BINDING_OUTPUT), after the output is made for the frame's size.
+    void write_output_binding() {
+        VkDescriptorBufferInfo info{aovOutput.handle, 0, aovOutput.size};
+        VkWriteDescriptorSet write{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
+        write.dstSet = frameSet;
+        write.dstBinding = TS_BINDING_OUTPUT;
+        write.descriptorCount = 1;
+        write.descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+        write.pBufferInfo = &info;
+        vkUpdateDescriptorSets(device.handle(), 1, &write, 0, nullptr);
     }
 
     // The set reading the streams through their addresses, made on first use (pipelines.h).
@@ -1148,6 +1161,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const bool occlusion = settings.occlusion && settings.lod;  // --no-lod: every source triangle, the classic way
         if (occlusion) s.ensure_occlusion_buffers();
         s.write_texel_views(pixels);  // after every buffer a view covers is made (the HZB's too)
+        s.write_output_binding();
 
         gpu::GpuFrame f{};
         f.viewProjection = to_gpu(cam.viewProjection);
@@ -1237,7 +1251,6 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.softwareList = s.softwareList.address;
         f.drawState = s.drawState.address;
         f.visibility = s.visibility.address;
-        f.aovOutput = s.aovOutput.address;
         f.deferredInstances = occlusion ? s.deferredInstances.address : 0;
         f.deferredClusters = occlusion ? s.deferredClusters.address : 0;
         if (countFragments && s.overdraw.size < pixels * 4) s.overdraw = device_.create_buffer(pixels * 4, MemoryUse::Device);

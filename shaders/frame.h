@@ -21,11 +21,6 @@ layout(buffer_reference, std430, buffer_reference_align = 4) buffer CounterRef {
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer BinRef { GpuBin data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer DrawStateRef { GpuDrawState state; };
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibilityRef { uint64_t data[]; };
-// An AOV's pixels: four 32-bit words each, stored as two 64-bit words (write_output).
-layout(buffer_reference, std430, buffer_reference_align = 8) writeonly buffer OutputRef { uint64_t data[]; };
-// classify.comp.glsl's (bin, place in the bin) per pixel, kept in the AOV output between its count and scatter steps
-// (resolve writes the AOVs only after): no memory of its own.
-layout(buffer_reference, std430, buffer_reference_align = 8) buffer PixelBinRef { uvec2 data[]; };
 
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer HzbRef { float data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer PatchRef { GpuPatch data[]; };
@@ -308,15 +303,15 @@ uint hzb_level_offset(GpuFrame frame, uint level) {
 uint pack_bin_pixel(uvec2 pixel) { return pixel.x | (pixel.y << 16u); }
 uvec2 unpack_bin_pixel(uint packed) { return uvec2(packed & 0xffffu, packed >> 16u); }
 
-// Pixel `index` of the AOV output: its four words as two separate 64-bit stores. Lavapipe stores through an address
-// lane by lane and component by component, a loop with a branch each: a vec4 (or a u64vec2) is four (two) such loops
-// with the vector taken apart in each, two scalar stores two short ones. On one core, 2 M pixels of a constant: 55 ms
-// as a vec4, 20 ms as two 64-bit words. A GPU writes the same bytes either way.
-void write_output(GpuFrame frame, uint index, uvec4 bits) {
-    OutputRef(frame.aovOutput).data[2u * index] = packUint2x32(bits.xy);
-    OutputRef(frame.aovOutput).data[2u * index + 1u] = packUint2x32(bits.zw);
-}
-void write_output(GpuFrame frame, uint index, vec4 value) { write_output(frame, index, floatBitsToUint(value)); }
+// Pixel `index` of the AOV output, through its storage buffer binding (TS_BINDING_OUTPUT), not its address: lavapipe
+// stores through an address in a loop over the lanes for each component, a vec4 four loops, to a storage buffer in one
+// loop for all four. On one core, 2 M pixels of a constant (with the 5 ms background fill): 55 ms through the address
+// as a vec4, 20 ms as two 64-bit words, 15 ms through the binding. A GPU writes the same bytes either way.
+// classify.comp.glsl keeps each pixel's (bin, place in the bin) in its first two words between its count and scatter
+// steps (resolve writes the AOVs only after): no memory of its own.
+layout(set = 0, binding = TS_BINDING_OUTPUT, std430) buffer AovOutput { uvec4 aovPixels[]; };
+void write_output(uint index, uvec4 bits) { aovPixels[index] = bits; }
+void write_output(uint index, vec4 value) { write_output(index, floatBitsToUint(value)); }
 
 // Both rasterizers record each fragment they write (the overdraw view), in their variants for it only.
 layout(constant_id = TS_SPEC_COUNT_FRAGMENTS) const bool COUNT_FRAGMENTS = false;

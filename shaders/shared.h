@@ -293,6 +293,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_UVS 17               // texture coordinates, a float pair per vertex: RG32UI
 #define TS_VIEW_COLORS 18            // the vertex channel, 4 halves per vertex: RG32UI
 #define TS_VIEW_COUNT 18
+// The AOV output as a storage buffer (std430, four words per pixel): resolve and the background store pixels through
+// it, and classify keeps its (bin, place) pairs there. lavapipe loads and stores a vector of a storage buffer in one
+// loop over the lanes, but through an address in one loop per component (a screen-filling resolve's stores 4x dearer).
+#define TS_BINDING_OUTPUT 19
 
 // Workgroup sizes.
 // On a CPU device the cull's workgroup is one subgroup: lavapipe runs a workgroup 8 invocations at a time, each batch
@@ -633,7 +637,6 @@ struct GpuFrame {
                              // from the front, the others from the back)
     address drawState;       // GpuDrawState
     address visibility;      // uint64[width * height]
-    address aovOutput;       // vec4[width * height]
     address deferredInstances; // uint[hzb.z]: instances the main pass left to the post pass
     address cutList;         // uint[hzb.y]: instances the cut step of this pass walks
     address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
@@ -654,7 +657,7 @@ struct GpuFrame {
     address clusterDisplacement; // float[]: per cluster of a displaced batch's mesh, the largest offset its materials move
                                  // it by (mesh units; GpuInstanceBatch.displacementBounds)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 37);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 36);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu
