@@ -82,38 +82,40 @@ VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes
 }
 
 // A Specialization as Vulkan takes it, with what is the same for every pipeline of a set (the pixels each resolve thread
-// shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, and reads through texel views, TS_SPEC_TEXEL_VIEWS).
+// shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, reads through texel views, TS_SPEC_TEXEL_VIEWS, and stores the AOV output
+// through its binding, TS_SPEC_OUTPUT_BINDING).
 struct SpecializationInfo {
-    uint32_t values[16];
-    VkSpecializationMapEntry entries[16] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+    uint32_t values[17];
+    VkSpecializationMapEntry entries[17] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                            {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
                                            {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4},
-                                           {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}, {TS_SPEC_LIGHT_COUNTS, 60, 4}};
-    VkSpecializationInfo info{16, entries, sizeof(values), values};
-    SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews)
+                                           {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}, {TS_SPEC_LIGHT_COUNTS, 60, 4}, {TS_SPEC_OUTPUT_BINDING, 64, 4}};
+    VkSpecializationInfo info{17, entries, sizeof(values), values};
+    SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews, bool outputBinding)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
                  s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
-                 VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts} {}
+                 VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts, VkBool32(outputBinding)} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
 }  // namespace
 
-std::shared_ptr<Pipelines> Pipelines::for_device(Device& device, bool texelViews) {
+std::shared_ptr<Pipelines> Pipelines::for_device(Device& device, bool texelViews, bool outputBinding) {
     const GroupSizes sizes{default_cull_group_size(device), default_raster_group_size(device, TS_SW_RASTER_GROUP_SIZE),
                            default_raster_group_size(device, TS_DICE_GROUP_SIZE)};
     const uint32_t shadePixelsPerThread = default_shade_pixels_per_thread(device);
     const std::string key = "tessera.pipelines cull " + std::to_string(sizes.cull) + " raster " + std::to_string(sizes.swRaster) + " dice " +
-                            std::to_string(sizes.dice) + " shade " + std::to_string(shadePixelsPerThread) + (texelViews ? " views" : " addresses");
+                            std::to_string(sizes.dice) + " shade " + std::to_string(shadePixelsPerThread) + (texelViews ? " views" : " addresses") +
+                            (outputBinding ? " output binding" : " output address");
     return std::static_pointer_cast<Pipelines>(
-        device.shared_state(key, [&] { return std::make_shared<Pipelines>(device, sizes, shadePixelsPerThread, texelViews); }));
+        device.shared_state(key, [&] { return std::make_shared<Pipelines>(device, sizes, shadePixelsPerThread, texelViews, outputBinding); }));
 }
 
-Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool views)
+Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool views, bool outputBinding)
     : device(d), cullGroupSize(sizes.cull), swRasterGroupSize(sizes.swRaster), diceGroupSize(sizes.dice), shadePixelsPerThread(shadePixels),
-      texelViews(views) {
+      texelViews(views), outputBinding(outputBinding) {
     // The same layout in every set, so a renderer's frame set serves either (identically defined layouts are compatible).
     VkDescriptorSetLayoutBinding bindings[2 + TS_VIEW_COUNT];
     bindings[0] = {TS_BINDING_FRAME, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
@@ -189,8 +191,8 @@ Pipelines::~Pipelines() {
 
 VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization) {
     VkShaderModule module = create_module(device.handle(), code, bytes);
-    const SpecializationInfo variant(specialization, shadePixelsPerThread, texelViews);
-    const bool specialized = !(specialization == Specialization{}) || shadePixelsPerThread != 1 || texelViews;
+    const SpecializationInfo variant(specialization, shadePixelsPerThread, texelViews, outputBinding);
+    const bool specialized = !(specialization == Specialization{}) || shadePixelsPerThread != 1 || texelViews || outputBinding;
     VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
     info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_COMPUTE_BIT, module, "main",
                   specialized ? &variant.info : nullptr};
@@ -298,7 +300,7 @@ VkPipeline Pipelines::graphics_pipeline(bool patches, const Specialization& spec
     VkPipelineShaderStageCreateInfo stages[2] = {
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};
-    const SpecializationInfo variant(specialization, 1, texelViews);
+    const SpecializationInfo variant(specialization, 1, texelViews, outputBinding);
     stages[0].pSpecializationInfo = stages[1].pSpecializationInfo = &variant.info;
     VkPipelineVertexInputStateCreateInfo vertexInput{VK_STRUCTURE_TYPE_PIPELINE_VERTEX_INPUT_STATE_CREATE_INFO};
     VkPipelineInputAssemblyStateCreateInfo assembly{VK_STRUCTURE_TYPE_PIPELINE_INPUT_ASSEMBLY_STATE_CREATE_INFO};

@@ -55,13 +55,13 @@ struct Pipelines {
     // ($TESSERA_CULL_GROUP_SIZE, $TESSERA_SW_RASTER_GROUP_SIZE and $TESSERA_SHADE_PIXELS_PER_THREAD select different
     // sets), reading the scene's streams through texel views or through their addresses (TS_SPEC_TEXEL_VIEWS: a frame
     // whose streams outgrow the device's views takes the second).
-    static std::shared_ptr<Pipelines> for_device(Device& device, bool texelViews);
+    static std::shared_ptr<Pipelines> for_device(Device& device, bool texelViews, bool outputBinding);
 
     // Workgroup sizes chosen per device: the cull's, the cluster rasterizer's (shared vertices) and the patch rasterizer's.
     struct GroupSizes {
         uint32_t cull, swRaster, dice;
     };
-    Pipelines(Device& device, GroupSizes sizes, uint32_t shadePixelsPerThread, bool texelViews);
+    Pipelines(Device& device, GroupSizes sizes, uint32_t shadePixelsPerThread, bool texelViews, bool outputBinding);
     ~Pipelines();
     Pipelines(const Pipelines&) = delete;
     Pipelines& operator=(const Pipelines&) = delete;
@@ -78,6 +78,7 @@ struct Pipelines {
     const uint32_t diceGroupSize;         // the patch rasterizer's (dice.comp.glsl, TS_SPEC_RASTER_GROUP_SIZE)
     const uint32_t shadePixelsPerThread;  // pixels each resolve thread shades (TS_SPEC_SHADE_PIXELS_PER_THREAD)
     const bool texelViews;                // every pipeline reads the streams through texel views (TS_SPEC_TEXEL_VIEWS)
+    const bool outputBinding;             // and stores the AOV output through its binding (TS_SPEC_OUTPUT_BINDING)
 
     VkPipeline hzb = VK_NULL_HANDLE, bins = VK_NULL_HANDLE;
 

@@ -335,10 +335,12 @@ bool ViewFrustum::touches_box(const Matrix4d& transform, const std::array<double
 struct Renderer::Impl {
     Device& device;
     // The compiled pipelines, shared with every renderer on this device (pipelines.h): the set reading the streams
-    // through texel views, and (made when a frame first needs it) the set reading them through their addresses.
+    // through texel views and storing the AOVs through their binding, and (made when a frame first needs one) the set
+    // storing them through their address (an output larger than the binding allows), and the set doing both through
+    // addresses.
     std::shared_ptr<Pipelines> sharedPipelines;
     Pipelines& pipelines;
-    std::shared_ptr<Pipelines> addressPipelines;
+    std::shared_ptr<Pipelines> wideOutputPipelines, addressPipelines;
     // The frame's constants (GpuFrame) as a uniform buffer, set 0 binding 0 of every pipeline: a CPU device (lavapipe)
     // loads a uniform block once for all of a SIMD batch's invocations, where a load through a buffer device address
     // goes lane by lane; on a GPU it is the usual path for constants. Everything else is reached by address, and the
@@ -531,9 +533,10 @@ struct Renderer::Impl {
         }
     }
 
-    // The AOV output's storage buffer binding (TS_BINDING_OUTPUT), after the output is made for the frame's size.
+    // The AOV output's storage buffer binding (TS_BINDING_OUTPUT), after the output is made for the frame's size; at most
+    // what the device allows (a frame whose output is larger stores it through its address: output_fits_binding).
     void write_output_binding() {
-        VkDescriptorBufferInfo info{aovOutput.handle, 0, aovOutput.size};
+        VkDescriptorBufferInfo info{aovOutput.handle, 0, std::min<VkDeviceSize>(aovOutput.size, device.max_storage_buffer_range())};
         VkWriteDescriptorSet write{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
         write.dstSet = frameSet;
         write.dstBinding = TS_BINDING_OUTPUT;
@@ -543,9 +546,17 @@ struct Renderer::Impl {
         vkUpdateDescriptorSets(device.handle(), 1, &write, 0, nullptr);
     }
 
-    // The set reading the streams through their addresses, made on first use (pipelines.h).
+    // Whether a frame of `pixels` can store its AOVs through the output's binding on this device (TS_BINDING_OUTPUT).
+    bool output_fits_binding(uint64_t pixels) const { return pixels * 16 <= device.max_storage_buffer_range(); }
+
+    // The other sets, made on first use (pipelines.h): texel views with the output stored through its address, and
+    // addresses only.
+    Pipelines& wide_output_pipelines() {
+        if (!wideOutputPipelines) wideOutputPipelines = Pipelines::for_device(device, true, false);
+        return *wideOutputPipelines;
+    }
     Pipelines& address_pipelines() {
-        if (!addressPipelines) addressPipelines = Pipelines::for_device(device, false);
+        if (!addressPipelines) addressPipelines = Pipelines::for_device(device, false, false);
         return *addressPipelines;
     }
 
@@ -1071,7 +1082,7 @@ struct Renderer::Impl {
     }
 };
 
-Renderer::Renderer(Device& device) : device_(device), impl_(std::make_unique<Impl>(device, Pipelines::for_device(device, true))) {
+Renderer::Renderer(Device& device) : device_(device), impl_(std::make_unique<Impl>(device, Pipelines::for_device(device, true, true))) {
     impl_->create_frame_resources();
 }
 Renderer::~Renderer() = default;
@@ -1128,7 +1139,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     // their addresses (that set's lock too).
     const uint64_t pixels = uint64_t(settings.width) * settings.height;
     const bool texelViews = settings.texelViews && s.streams_fit_views(pixels);
-    Pipelines& pipelines = texelViews ? s.pipelines : s.address_pipelines();
+    const bool outputBinding = texelViews && settings.outputBinding && s.output_fits_binding(pixels);
+    Pipelines& pipelines = !texelViews ? s.address_pipelines() : outputBinding ? s.pipelines : s.wide_output_pipelines();
     std::unique_lock<std::mutex> addressLock;
     if (&pipelines != &s.pipelines) addressLock = std::unique_lock<std::mutex>(pipelines.mutex);
     const bool ownCorners = settings.rasterVertices == RasterVertices::Auto ? pipelines.default_own_corners()
@@ -1144,6 +1156,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.swRasterGroupSize = pipelines.software_raster_group_size(ownCorners);
     frameStats.shadePixelsPerThread = pipelines.shadePixelsPerThread;
     frameStats.texelViews = texelViews;
+    frameStats.outputBinding = outputBinding;
     frameStats.uploadMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
     frameStats.instances = s.instanceCount;
     frameStats.instanceBatches = uint32_t(s.gpuBatches.size());
@@ -1251,6 +1264,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         f.softwareList = s.softwareList.address;
         f.drawState = s.drawState.address;
         f.visibility = s.visibility.address;
+        f.aovOutput = s.aovOutput.address;
         f.deferredInstances = occlusion ? s.deferredInstances.address : 0;
         f.deferredClusters = occlusion ? s.deferredClusters.address : 0;
         if (countFragments && s.overdraw.size < pixels * 4) s.overdraw = device_.create_buffer(pixels * 4, MemoryUse::Device);

@@ -46,17 +46,17 @@ void main() {
     if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
     uint index = pixel.y * frame.viewport.x + pixel.x;
     if (STEP == TS_CLASSIFY_SCATTER) {
-        uvec2 place = aovPixels[index].xy;
+        uvec2 place = bin_place_of(frame, index);
         if (place.x != TS_NO_BIN) CounterRef(frame.binPixels).data[BinRef(frame.bins).data[place.x].offset + place.y] = pack_bin_pixel(pixel);
         return;
     }
     uint64_t value = visibility_value(frame, index);
     if (value == 0ul) {
-        if (STEP == TS_CLASSIFY_COUNT) aovPixels[index].xy = uvec2(TS_NO_BIN, 0u);
+        if (STEP == TS_CLASSIFY_COUNT) write_bin_place(frame, index, uvec2(TS_NO_BIN, 0u));
         return;
     }
     uint bin = STEP == TS_CLASSIFY_ONE_BIN ? 0u : pixel_bin(frame, value);
     uint place = bin_place(frame, bin);
     if (STEP == TS_CLASSIFY_ONE_BIN) CounterRef(frame.binPixels).data[place] = pack_bin_pixel(pixel);  // the only bin starts at 0
-    else aovPixels[index].xy = uvec2(bin, place);
+    else write_bin_place(frame, index, uvec2(bin, place));
 }

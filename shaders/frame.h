@@ -303,15 +303,26 @@ uint hzb_level_offset(GpuFrame frame, uint level) {
 uint pack_bin_pixel(uvec2 pixel) { return pixel.x | (pixel.y << 16u); }
 uvec2 unpack_bin_pixel(uint packed) { return uvec2(packed & 0xffffu, packed >> 16u); }
 
-// Pixel `index` of the AOV output, through its storage buffer binding (TS_BINDING_OUTPUT), not its address: lavapipe
-// stores through an address in a loop over the lanes for each component, a vec4 four loops, to a storage buffer in one
-// loop for all four. On one core, 2 M pixels of a constant (with the 5 ms background fill): 55 ms through the address
-// as a vec4, 20 ms as two 64-bit words, 15 ms through the binding. A GPU writes the same bytes either way.
-// classify.comp.glsl keeps each pixel's (bin, place in the bin) in its first two words between its count and scatter
-// steps (resolve writes the AOVs only after): no memory of its own.
+// Pixel `index` of the AOV output, through its storage buffer binding (TS_BINDING_OUTPUT) in the variants with it
+// (TS_SPEC_OUTPUT_BINDING), else through its address: lavapipe stores through an address in a loop over the lanes for each component, a
+// vec4 four loops, to a storage buffer in one loop for all four. On one core, 2 M pixels of a constant (with the 5 ms
+// background fill): 55 ms through the address as a vec4, 20 ms as two 64-bit words, 15 ms through the binding. A GPU
+// writes the same bytes either way.
 layout(set = 0, binding = TS_BINDING_OUTPUT, std430) buffer AovOutput { uvec4 aovPixels[]; };
-void write_output(uint index, uvec4 bits) { aovPixels[index] = bits; }
-void write_output(uint index, vec4 value) { write_output(index, floatBitsToUint(value)); }
+layout(buffer_reference, std430, buffer_reference_align = 16) buffer OutputRef { uvec4 data[]; };
+layout(constant_id = TS_SPEC_OUTPUT_BINDING) const bool OUTPUT_BINDING = false;
+void write_output(GpuFrame frame, uint index, uvec4 bits) {
+    if (OUTPUT_BINDING) aovPixels[index] = bits;
+    else OutputRef(frame.aovOutput).data[index] = bits;
+}
+void write_output(GpuFrame frame, uint index, vec4 value) { write_output(frame, index, floatBitsToUint(value)); }
+// classify.comp.glsl keeps each pixel's (bin, place in the bin) in its output's first two words between its count and
+// scatter steps (resolve writes the AOVs only after): no memory of its own.
+void write_bin_place(GpuFrame frame, uint index, uvec2 binPlace) {
+    if (OUTPUT_BINDING) aovPixels[index].xy = binPlace;
+    else OutputRef(frame.aovOutput).data[index].xy = binPlace;
+}
+uvec2 bin_place_of(GpuFrame frame, uint index) { return OUTPUT_BINDING ? aovPixels[index].xy : OutputRef(frame.aovOutput).data[index].xy; }
 
 // Both rasterizers record each fragment they write (the overdraw view), in their variants for it only.
 layout(constant_id = TS_SPEC_COUNT_FRAGMENTS) const bool COUNT_FRAGMENTS = false;

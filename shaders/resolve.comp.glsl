@@ -66,7 +66,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
     uint index = pixel.y * frame.viewport.x + pixel.x;
     if (OUTPUT == TS_OUTPUT_VISUALIZE && frame.counts.w == TS_VIS_OVERDRAW) {
         uint fragments = CounterRef(frame.overdraw).data[index];
-        write_output(index, vec4(level_color(max(fragments, 1u) - 1u), 1.0));
+        write_output(frame, index, vec4(level_color(max(fragments, 1u) - 1u), 1.0));
         return;
     }
 
@@ -85,7 +85,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
                 : aov == TS_AOV_INSTANCE_ID ? visible.x
                 : aov == TS_AOV_CLUSTER_ID ? visible.y
                 : cluster.triangleOffset + triangle;
-        write_output(index, uvec4(id, 0u, 0u, 0u));
+        write_output(frame, index, uvec4(id, 0u, 0u, 0u));
         return;
     }
 
@@ -125,7 +125,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
     vec3 hit = origin + t * direction;
 
     if (OUTPUT == TS_OUTPUT_DEPTH) {
-        write_output(index, vec4(dot(hit, frame.cameraForward.xyz)));
+        write_output(frame, index, vec4(dot(hit, frame.cameraForward.xyz)));
         return;
     }
 
@@ -147,7 +147,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
     }
     if (dot(n, geometric) < 0.0) n = geometric;  // an interpolated normal facing away would shade black
     if (OUTPUT == TS_OUTPUT_NORMAL) {
-        write_output(index, vec4(n, 1.0));
+        write_output(frame, index, vec4(n, 1.0));
         return;
     }
 
@@ -158,12 +158,12 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
                 PixelUv uv = pixel_uv(frame, vec2(pixel), bary, p0, e1, e2, cornerUv[0], cornerUv[1], cornerUv[2]);
                 uvColor = vec3(fract(uv.uv), 0.0);
             }
-            write_output(index, vec4(uvColor, 1.0));
+            write_output(frame, index, vec4(uvColor, 1.0));
             return;
         }
         vec3 tint = visualize(frame, frame.counts.w, instance, visible, cluster, triangle, software, push.step, payload.patchIndex, payload.micro,
                               largestFactor);
-        write_output(index, vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0));
+        write_output(frame, index, vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0));
         return;
     }
 
@@ -224,7 +224,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
         color += distant_light_contribution(frameConstants.lights[i], n, toEye, albedo, f0, roughness);
     for (uint i = DISTANT_LIGHTS; i < ALL_LIGHTS; ++i)
         color += other_light_contribution(frame, frameConstants.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
-    write_output(index, vec4(color, 1.0));
+    write_output(frame, index, vec4(color, 1.0));
 }
 
 void main() {

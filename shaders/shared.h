@@ -270,6 +270,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // TS_MAX_LIGHTS each), so that its two loops over them have constant trip counts and unroll: a loop whose count is
 // read from the frame carries its sum through memory on lavapipe (11 % of a screen-filling resolve with a sun and a sky).
 #define TS_SPEC_LIGHT_COUNTS 15
+// Specialization constant: the passes store the AOV output through its storage buffer binding (TS_BINDING_OUTPUT)
+// rather than its address; off in the sets for frames whose output outgrows the device's maxStorageBufferRange (128 MiB
+// on lavapipe: above 8.4 M pixels).
+#define TS_SPEC_OUTPUT_BINDING 16
 
 // Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
 // streams read per pixel, per triangle or per vertex. The format of each: TS_VIEW_FORMAT_* (renderer.cpp).
@@ -296,6 +300,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // The AOV output as a storage buffer (std430, four words per pixel): resolve and the background store pixels through
 // it, and classify keeps its (bin, place) pairs there. lavapipe loads and stores a vector of a storage buffer in one
 // loop over the lanes, but through an address in one loop per component (a screen-filling resolve's stores 4x dearer).
+// The variants with TS_SPEC_OUTPUT_BINDING use it; the others, for frames whose output outgrows the device's
+// maxStorageBufferRange, go through GpuFrame.aovOutput.
 #define TS_BINDING_OUTPUT 19
 
 // Workgroup sizes.
@@ -637,6 +643,7 @@ struct GpuFrame {
                              // from the front, the others from the back)
     address drawState;       // GpuDrawState
     address visibility;      // uint64[width * height]
+    address aovOutput;       // uvec4[width * height]: read and written through its binding where it fits (TS_BINDING_OUTPUT)
     address deferredInstances; // uint[hzb.z]: instances the main pass left to the post pass
     address cutList;         // uint[hzb.y]: instances the cut step of this pass walks
     address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
@@ -657,7 +664,7 @@ struct GpuFrame {
     address clusterDisplacement; // float[]: per cluster of a displaced batch's mesh, the largest offset its materials move
                                  // it by (mesh units; GpuInstanceBatch.displacementBounds)
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 36);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 37);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

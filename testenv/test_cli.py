@@ -56,6 +56,7 @@ def test_stats_and_camera_options(tmp_path):
     assert stats["sw_triangles"] + stats["hw_triangles"] == stats["visible_triangles"]
     assert stats["pixel_error"] == 1.0 and stats["lod"] is True and stats["candidate_clusters"] >= stats["visible_clusters"]
     assert stats["texel_views"] is True, "a small stage's streams fit the device's texel views"
+    assert stats["output_binding"] is True, "a small frame's AOV output fits the device's storage buffer binding"
 
 
 def test_lod_options(tmp_path):

@@ -831,7 +831,7 @@ TEST_F(RendererTest, TexturedBinsReadOnlyTheirTextureKindsAndDrawTheSameFrame) {
     EXPECT_THROW(renderer_with(*device, "TESSERA_TEXTURE_KINDS", "some"), std::invalid_argument);
 }
 
-TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
+TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {  // and the AOV output's binding against its address
     GpuScene spheres;
     const uint32_t wall = spheres.add_mesh(grid_mesh(16)), sphere = spheres.add_mesh(bumpy_sphere(48));
     std::vector<InstanceDesc> instances = wall_and_spheres(wall, sphere);
@@ -908,31 +908,55 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {
         settings.raster = c.raster;
         settings.visualize = c.visualize;
         settings.pixelError = c.pixelError;
-        std::vector<Image> frames[2][2];
-        FrameStats stats[2][2];
-        for (int views = 0; views < 2; ++views) {
+        // Three ways: addresses only, texel views with the AOVs stored through the output's address, and views with the
+        // output's binding (the default).
+        std::vector<Image> frames[3][2];
+        FrameStats stats[3][2];
+        for (int way = 0; way < 3; ++way) {
             Renderer renderer(*device);  // its own previous frame: the second render tests against the first's HZB
-            settings.texelViews = views == 1;
-            for (int frame = 0; frame < 2; ++frame) frames[views][frame] = renderer.render(*c.scene, c.camera, settings, aovs, &stats[views][frame]);
+            settings.texelViews = way > 0;
+            settings.outputBinding = way == 2;
+            for (int frame = 0; frame < 2; ++frame) frames[way][frame] = renderer.render(*c.scene, c.camera, settings, aovs, &stats[way][frame]);
         }
         for (int frame = 0; frame < 2; ++frame) {
-            const std::string what = std::string(c.name) + (frame ? ", second frame" : ", first frame");
-            EXPECT_FALSE(stats[0][frame].texelViews) << what;
-            EXPECT_TRUE(stats[1][frame].texelViews) << what;
-            EXPECT_GT(stats[1][frame].visibleClusters, 0u) << what;
-            EXPECT_EQ(stats[0][frame].visibleClusters, stats[1][frame].visibleClusters) << what;
-            EXPECT_EQ(stats[0][frame].swTriangles, stats[1][frame].swTriangles) << what;
-            EXPECT_EQ(stats[0][frame].hwTriangles, stats[1][frame].hwTriangles) << what;
-            EXPECT_EQ(stats[0][frame].microTriangles, stats[1][frame].microTriangles) << what;
-            EXPECT_EQ(stats[0][frame].backfaceClusters, stats[1][frame].backfaceClusters) << what;
-            EXPECT_EQ(stats[0][frame].occludedClusters, stats[1][frame].occludedClusters) << what;
-            expect_same_images(frames[0][frame], frames[1][frame], what.c_str());
+            EXPECT_FALSE(stats[0][frame].texelViews || stats[0][frame].outputBinding) << c.name;
+            EXPECT_TRUE(stats[1][frame].texelViews && !stats[1][frame].outputBinding) << c.name;
+            EXPECT_TRUE(stats[2][frame].texelViews && stats[2][frame].outputBinding) << c.name;
+            EXPECT_GT(stats[2][frame].visibleClusters, 0u) << c.name;
+            for (int way = 0; way < 2; ++way) {
+                const std::string what = std::string(c.name) + (way ? ", output address" : ", addresses") + (frame ? ", second frame" : ", first frame");
+                EXPECT_EQ(stats[way][frame].visibleClusters, stats[2][frame].visibleClusters) << what;
+                EXPECT_EQ(stats[way][frame].swTriangles, stats[2][frame].swTriangles) << what;
+                EXPECT_EQ(stats[way][frame].hwTriangles, stats[2][frame].hwTriangles) << what;
+                EXPECT_EQ(stats[way][frame].microTriangles, stats[2][frame].microTriangles) << what;
+                EXPECT_EQ(stats[way][frame].backfaceClusters, stats[2][frame].backfaceClusters) << what;
+                EXPECT_EQ(stats[way][frame].occludedClusters, stats[2][frame].occludedClusters) << what;
+                expect_same_images(frames[way][frame], frames[2][frame], what.c_str());
+            }
         }
-        EXPECT_TRUE(stats[1][1].occlusionTested) << c.name;
-        if (c.pixelError == 0.0f) EXPECT_GT(stats[1][0].backfaceClusters, 0u) << c.name;
-        if (c.scene == &displaced) EXPECT_GT(stats[1][0].microTriangles, 0u) << c.name;
-        if (c.scene == &textured) EXPECT_EQ(stats[1][0].textures, 3u) << c.name;
+        EXPECT_TRUE(stats[2][1].occlusionTested) << c.name;
+        if (c.pixelError == 0.0f) EXPECT_GT(stats[2][0].backfaceClusters, 0u) << c.name;
+        if (c.scene == &displaced) EXPECT_GT(stats[2][0].microTriangles, 0u) << c.name;
+        if (c.scene == &textured) EXPECT_EQ(stats[2][0].textures, 3u) << c.name;
     }
+}
+
+// A frame whose AOV output outgrows the device's storage buffer binding (lavapipe allows 128 MiB: 8.4 M pixels) stores it
+// through its address and still reads the streams through texel views; on a device that allows more, the binding.
+TEST_F(RendererTest, AnOutputLargerThanTheBindingAllowsIsStoredThroughItsAddress) {
+    Renderer renderer(*device);
+    GpuScene scene;
+    InstanceDesc instance = identity_instance(scene.add_mesh(grid_mesh(8)));
+    instance.primId = 7;
+    scene.set_instances({instance});
+    RenderSettings settings{4096, 2056, {0, 0, 0, 0}};  // 16 B a pixel: 134.7 MB, past 2^27
+    FrameStats stats;
+    // The grid fills the frame: the pixels past the first 2^27 bytes are written by resolve too.
+    const std::vector<Image> ids = renderer.render(scene, camera_at(0, 0, 0.4), settings, {Aov::PrimId}, &stats);
+    EXPECT_TRUE(stats.texelViews);
+    EXPECT_EQ(stats.outputBinding, uint64_t(4096) * 2056 * 16 <= device->max_storage_buffer_range());
+    for (uint32_t y : {0u, 1028u, 2055u})
+        for (uint32_t x : {0u, 2048u, 4095u}) EXPECT_EQ(id_at(ids[0], x, y), 7u) << x << ", " << y;
 }
 
 TEST_F(RendererTest, ThePostPassDrawsWhatTheLastFrameHid) {

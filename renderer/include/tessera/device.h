@@ -76,6 +76,8 @@ public:
     uint32_t sub_pixel_bits() const { return subPixelBits_; }
     // The most texels a texel buffer view may span (the renderer's views of its streams, shared.h TS_VIEW_*).
     uint32_t max_texel_buffer_elements() const { return maxTexelBufferElements_; }
+    // The most bytes a storage buffer binding may span (the renderer's AOV output, shared.h TS_BINDING_OUTPUT).
+    uint32_t max_storage_buffer_range() const { return maxStorageBufferRange_; }
     // Invocations per subgroup in compute shaders (on lavapipe, the lanes of its SIMD registers: 8 at 256 bits).
     uint32_t subgroup_size() const { return subgroupSize_; }
 
@@ -113,6 +115,7 @@ private:
     float timestampPeriod_ = 1.0f;
     uint32_t subPixelBits_ = 8;
     uint32_t maxTexelBufferElements_ = 65536;
+    uint32_t maxStorageBufferRange_ = 1u << 27;
     uint32_t subgroupSize_ = 1;
 
     std::recursive_mutex runMutex_;  // the command pool and the queue are used by one thread at a time

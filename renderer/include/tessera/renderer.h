@@ -210,6 +210,10 @@ struct RenderSettings {
     // same image either way; on lavapipe views are much faster (shared.h TS_SPEC_TEXEL_VIEWS). False: addresses only,
     // to compare (tests, measurements).
     bool texelViews = true;
+    // With texel views, the AOVs are stored through the output's storage buffer binding where it fits the device's
+    // maxStorageBufferRange, else through its address (shared.h TS_SPEC_OUTPUT_BINDING). False: through the address, to
+    // compare (tests).
+    bool outputBinding = true;
     // Displaced surfaces are diced into micro-triangles whose edges project to about this many pixels.
     float dicingRate = 1.0f;
 };
@@ -232,6 +236,7 @@ struct FrameStats {
     uint32_t swRasterGroupSize = 0; // the compute rasterizer's workgroup size this frame (by device and variant)
     uint32_t shadePixelsPerThread = 0;   // pixels each resolve thread shades on this device (TS_SPEC_SHADE_PIXELS_PER_THREAD)
     bool texelViews = false;        // the passes read the streams through texel views (RenderSettings::texelViews)
+    bool outputBinding = false;     // and store the AOVs through the output's binding (RenderSettings::outputBinding)
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
