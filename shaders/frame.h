@@ -304,10 +304,10 @@ uint pack_bin_pixel(uvec2 pixel) { return pixel.x | (pixel.y << 16u); }
 uvec2 unpack_bin_pixel(uint packed) { return uvec2(packed & 0xffffu, packed >> 16u); }
 
 // Pixel `index` of the AOV output, through its storage buffer binding (TS_BINDING_OUTPUT) in the variants with it
-// (TS_SPEC_OUTPUT_BINDING), else through its address: lavapipe stores through an address in a loop over the lanes for each component, a
-// vec4 four loops, to a storage buffer in one loop for all four. On one core, 2 M pixels of a constant (with the 5 ms
-// background fill): 55 ms through the address as a vec4, 20 ms as two 64-bit words, 15 ms through the binding. A GPU
-// writes the same bytes either way.
+// (TS_SPEC_OUTPUT_BINDING), else through its address: lavapipe stores through an address in a loop over the lanes for
+// each component, a vec4 four loops, to a storage buffer in one loop for all four. On one core, 2 M pixels of a
+// constant (with the 5 ms background fill): 55 ms through the address as a vec4, 20 ms as two 64-bit words, 15 ms
+// through the binding. A GPU writes the same bytes either way.
 layout(set = 0, binding = TS_BINDING_OUTPUT, std430) buffer AovOutput { uvec4 aovPixels[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer OutputRef { uvec4 data[]; };
 layout(constant_id = TS_SPEC_OUTPUT_BINDING) const bool OUTPUT_BINDING = false;
@@ -322,7 +322,9 @@ void write_bin_place(GpuFrame frame, uint index, uvec2 binPlace) {
     if (OUTPUT_BINDING) aovPixels[index].xy = binPlace;
     else OutputRef(frame.aovOutput).data[index].xy = binPlace;
 }
-uvec2 bin_place_of(GpuFrame frame, uint index) { return OUTPUT_BINDING ? aovPixels[index].xy : OutputRef(frame.aovOutput).data[index].xy; }
+uvec2 bin_place_of(GpuFrame frame, uint index) {
+    return OUTPUT_BINDING ? aovPixels[index].xy : OutputRef(frame.aovOutput).data[index].xy;
+}
 
 // Both rasterizers record each fragment they write (the overdraw view), in their variants for it only.
 layout(constant_id = TS_SPEC_COUNT_FRAGMENTS) const bool COUNT_FRAGMENTS = false;
