@@ -452,14 +452,7 @@ struct Renderer::Impl {
         allocateInfo.pSetLayouts = &pipelines.frameSetLayout;
         check_vk(vkAllocateDescriptorSets(device.handle(), &allocateInfo, &frameSet), "vkAllocateDescriptorSets");
         frame = device.create_buffer(sizeof(gpu::GpuFrame), MemoryUse::Upload, VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT);
-        VkDescriptorBufferInfo frameInfo{frame.handle, 0, sizeof(gpu::GpuFrame)};
-        VkWriteDescriptorSet write{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
-        write.dstSet = frameSet;
-        write.dstBinding = TS_BINDING_FRAME;
-        write.descriptorCount = 1;
-        write.descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER;
-        write.pBufferInfo = &frameInfo;
-        vkUpdateDescriptorSets(device.handle(), 1, &write, 0, nullptr);
+        write_buffer_binding(TS_BINDING_FRAME, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, frame, sizeof(gpu::GpuFrame));
 
         VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
         queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
@@ -536,12 +529,17 @@ struct Renderer::Impl {
     // The AOV output's storage buffer binding (TS_BINDING_OUTPUT), after the output is made for the frame's size; at most
     // what the device allows (a frame whose output is larger stores it through its address: output_fits_binding).
     void write_output_binding() {
-        VkDescriptorBufferInfo info{aovOutput.handle, 0, std::min<VkDeviceSize>(aovOutput.size, device.max_storage_buffer_range())};
+        write_buffer_binding(TS_BINDING_OUTPUT, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, aovOutput, std::min<VkDeviceSize>(aovOutput.size, device.max_storage_buffer_range()));
+    }
+
+    // One buffer binding of the frame set: the first `range` bytes of `buffer`.
+    void write_buffer_binding(uint32_t binding, VkDescriptorType type, const Buffer& buffer, VkDeviceSize range) {
+        VkDescriptorBufferInfo info{buffer.handle, 0, range};
         VkWriteDescriptorSet write{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
         write.dstSet = frameSet;
-        write.dstBinding = TS_BINDING_OUTPUT;
+        write.dstBinding = binding;
         write.descriptorCount = 1;
-        write.descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+        write.descriptorType = type;
         write.pBufferInfo = &info;
         vkUpdateDescriptorSets(device.handle(), 1, &write, 0, nullptr);
     }
