@@ -21,7 +21,7 @@ uint pixel_bin(GpuFrame frame, uint64_t value) {
     Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     uint bin = pixel_material(frame, instance, visible.y, payload.triangle);
     if (payload.patchIndex != 0xffffffffu) {
-        bool kept = PatchRef(frame.patches).data[payload.patchIndex].points != TS_NO_STREAM;
+        bool kept = load_gpu_patch(frame, payload.patchIndex).points != TS_NO_STREAM;
         bin += (kept ? TS_BIN_KEPT_MICRO : TS_BIN_DICED_MICRO) * frame.viewport.z;
     }
     return bin;

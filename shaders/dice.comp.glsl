@@ -33,7 +33,7 @@ void main() {
     // Each thread takes every workgroup-size-th point and then micro-triangle: a workgroup of 256 (one thread per
     // micro-triangle of the largest patch) cost lavapipe, which runs a workgroup 8 lanes at a time, masked or not, 4x as
     // much for the typical patch of far fewer.
-    uint points = PatchRef(frame.patches).data[index].points;
+    uint points = load_gpu_patch(frame, index).points;
     for (uint v = gl_LocalInvocationIndex; v < (n + 1u) * (n + 2u) / 2u; v += gl_WorkGroupSize.x) {
         uint b = 0u, first = 0u;
         while (first + n + 1u - b <= v) {

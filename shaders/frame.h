@@ -77,6 +77,8 @@ layout(set = 0, binding = TS_VIEW_TEXTURE_SLOTS) uniform usamplerBuffer textureS
 layout(set = 0, binding = TS_VIEW_TEXTURE_WORDS) uniform usamplerBuffer textureWordTexels;
 layout(set = 0, binding = TS_VIEW_UVS) uniform usamplerBuffer uvTexels;
 layout(set = 0, binding = TS_VIEW_COLORS) uniform usamplerBuffer colorTexels;
+layout(set = 0, binding = TS_VIEW_PATCHES) uniform usamplerBuffer patchTexels;
+layout(set = 0, binding = TS_VIEW_PATCH_POINTS) uniform usamplerBuffer patchPointTexels;
 
 GpuCluster load_cluster(GpuFrame frame, uint index) {
     if (!TEXEL_VIEWS) return ClusterRef(frame.clusters).data[index];
@@ -149,6 +151,18 @@ GpuCutBlock load_cut_block(GpuFrame frame, uint index) {
     b.firstCluster = t3.z;
     b.clusterCount = t3.w;
     return b;
+}
+
+// A tessellation patch's record (written by the tessellation pass before the pass that reads it).
+GpuPatch load_gpu_patch(GpuFrame frame, uint index) {
+    if (!TEXEL_VIEWS) return PatchRef(frame.patches).data[index];
+    uvec4 t0 = texelFetch(patchTexels, int(2u * index)), t1 = texelFetch(patchTexels, int(2u * index + 1u));
+    return GpuPatch(t0.x, t0.y, t0.z, t0.w, t1.x, t1.y, t1.z, t1.w);
+}
+
+// Float i of the points the compute patch rasterizer kept (GpuPatch.points).
+float patch_point_float(GpuFrame frame, uint i) {
+    return TEXEL_VIEWS ? uintBitsToFloat(texelFetch(patchPointTexels, int(i)).x) : PatchPointRef(frame.patchPoints).data[i];
 }
 
 // Entry i of frame.blockClusters: a cluster of a cut block, counted from its mesh's first.
@@ -353,7 +367,7 @@ Payload decode_payload(GpuFrame frame, uint payload) {
     if ((payload & TS_VIS_TESSELLATED) != 0u) {
         p.patchIndex = (payload & ~TS_VIS_TESSELLATED) >> TS_VIS_MICRO_BITS;
         p.micro = payload & ((1u << TS_VIS_MICRO_BITS) - 1u);
-        clusterTriangle = PatchRef(frame.patches).data[p.patchIndex].triangle;
+        clusterTriangle = load_gpu_patch(frame, p.patchIndex).triangle;
     }
     p.slot = clusterTriangle >> TS_VIS_TRIANGLE_BITS;
     p.triangle = clusterTriangle & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);

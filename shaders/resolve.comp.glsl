@@ -45,7 +45,7 @@ vec3 visualize(GpuFrame frame, uint mode, Instance instance, uvec2 visible, GpuC
     bool diced = patchIndex != 0xffffffffu;
     // A micro-triangle's id from what it is (cluster, triangle, cell, index), not from its patch's list slot, which the
     // GPU hands out in no fixed order: the same frame shows the same colours.
-    uint microId = diced ? ((visible.y * 128u + triangle) * 256u + (PatchRef(frame.patches).data[patchIndex].cell >> 8u)) * 256u + micro : 0u;
+    uint microId = diced ? ((visible.y * 128u + triangle) * 256u + (load_gpu_patch(frame, patchIndex).cell >> 8u)) * 256u + micro : 0u;
     if (mode == TS_VIS_RASTER_BINS) return diced ? vec3(0.25, 0.85, 0.3) : software ? vec3(0.15, 0.45, 1.0) : vec3(1.0, 0.55, 0.1);
     if (mode == TS_VIS_TESSELLATION) {
         if (!diced) return vec3(0.45);

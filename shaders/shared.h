@@ -296,13 +296,15 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_TEXTURE_WORDS 16     // the texture pool (GpuTexture records, then the images' words): R32UI
 #define TS_VIEW_UVS 17               // texture coordinates, a float pair per vertex: RG32UI
 #define TS_VIEW_COLORS 18            // the vertex channel, 4 halves per vertex: RG32UI
-#define TS_VIEW_COUNT 18
+#define TS_VIEW_PATCHES 19           // GpuPatch: 2 RGBA32UI texels each (tessellation; written by the pass before)
+#define TS_VIEW_PATCH_POINTS 20      // the compute patch rasterizer's kept points, float bits: R32UI
+#define TS_VIEW_COUNT 20
 // The AOV output as a storage buffer (std430, four words per pixel): resolve and the background store pixels through
 // it, and classify keeps its (bin, place) pairs there. lavapipe loads and stores a vector of a storage buffer in one
 // loop over the lanes, but through an address in one loop per component (a screen-filling resolve's stores 4x dearer).
 // The variants with TS_SPEC_OUTPUT_BINDING use it; the others, for frames whose output outgrows the device's
 // maxStorageBufferRange, go through GpuFrame.aovOutput.
-#define TS_BINDING_OUTPUT 19
+#define TS_BINDING_OUTPUT 21
 
 // Workgroup sizes.
 // On a CPU device the cull's workgroup is one subgroup: lavapipe runs a workgroup 8 invocations at a time, each batch

@@ -239,7 +239,7 @@ struct DicedPatch {
 
 DicedPatch load_patch(GpuFrame frame, uint index) {
     DicedPatch d;
-    GpuPatch record = PatchRef(frame.patches).data[index];
+    GpuPatch record = load_gpu_patch(frame, index);
     d.slot = record.triangle >> TS_VIS_TRIANGLE_BITS;
     d.triangleIndex = record.triangle & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
     uvec2 visible = visible_cluster(frame, d.slot);
@@ -336,19 +336,18 @@ MicroTriangle pixel_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, 
 // The same from the points the compute patch rasterizer kept (GpuPatch.points), when it kept them: no dicing again.
 // Without the corners' weights (m.w is left zero), which only vertex colours need. False when no points were kept.
 bool kept_micro_triangle(GpuFrame frame, uint patchIndex, uint micro, uvec2 pixel, out MicroTriangle m) {
-    GpuPatch record = PatchRef(frame.patches).data[patchIndex];
+    GpuPatch record = load_gpu_patch(frame, patchIndex);
     if (record.points == TS_NO_STREAM) return false;
     uint n = patch_lattice(patch_factors(record));
     uvec3 factors = triangle_factors(record);
     m.largestFactor = max(factors.x, max(factors.y, factors.z));
     uvec2 lattice[3];
     lattice_cell(micro, n, lattice[0], lattice[1], lattice[2]);
-    PatchPointRef pool = PatchPointRef(frame.patchPoints);
     vec3 corner[3];
     for (uint k = 0u; k < 3u; ++k) {
         uint at = (record.points + lattice_index(lattice[k], n)) * TS_PATCH_POINT_FLOATS;
-        corner[k] = vec3(pool.data[at], pool.data[at + 1u], pool.data[at + 2u]);
-        m.uv[k] = vec2(pool.data[at + 3u], pool.data[at + 4u]);
+        corner[k] = vec3(patch_point_float(frame, at), patch_point_float(frame, at + 1u), patch_point_float(frame, at + 2u));
+        m.uv[k] = vec2(patch_point_float(frame, at + 3u), patch_point_float(frame, at + 4u));
         m.w[k] = vec3(0.0);
     }
     seen_through(frame, corner, pixel, m.t);
