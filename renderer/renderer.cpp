@@ -489,7 +489,9 @@ struct Renderer::Impl {
                  {uvs, VK_FORMAT_R32G32_UINT, 8, whole(uvs, 8)},
                  {colors, VK_FORMAT_R32G32_UINT, 8, whole(colors, 8)},
                  {patches, VK_FORMAT_R32G32B32A32_UINT, 16, whole(patches, 16)},
-                 {patchPoints, VK_FORMAT_R32_UINT, 4, whole(patchPoints, 4)}}};
+                 {patchPoints, VK_FORMAT_R32_UINT, 4, whole(patchPoints, 4)},
+                 {materials, VK_FORMAT_R32G32B32A32_UINT, 16, whole(materials, 16)},
+                 {materialTables, VK_FORMAT_R32_UINT, 4, whole(materialTables, 4)}}};
     }
 
     // Whether a frame of `pixels` can read every stream through a view on this device.

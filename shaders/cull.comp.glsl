@@ -90,7 +90,7 @@ bool facing_away(GpuFrame frame, Instance instance, GpuCluster cluster, vec3 cen
 bool tessellated(GpuFrame frame, Instance instance, vec3 center, float radius, float scale) {
     if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return false;
     if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return true;
-    GpuMaterial material = MaterialRef(frame.materials).data[instance.materialIndex];
+    GpuMaterial material = load_material(frame, instance.materialIndex);
     float size = material.displacement.w * scale * frame.lod.x;
     if (frame.lod.z == 0.0) {
         float nearest = depth_range(frame, center, radius).x;
@@ -315,7 +315,7 @@ void test_instance(GpuFrame frame, uint step, uint thread) {
         if (thread >= frame.counts.x) return;
         Instance instance = load_instance(frame, thread);
         if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u &&
-            (MaterialRef(frame.materials).data[instance.materialIndex].flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
+            (load_material(frame, instance.materialIndex).flags & TS_MATERIAL_CUT_OUT) != 0u) return;  // masked away entirely
         vec4 sphere = instance_sphere(frame, instance);
         if (!sphere_in_frustum(frame, sphere.xyz, sphere.w)) return;
         bool previous = (frame.counts.z & TS_FRAME_PREVIOUS_HZB) != 0u;

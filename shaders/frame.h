@@ -79,6 +79,8 @@ layout(set = 0, binding = TS_VIEW_UVS) uniform usamplerBuffer uvTexels;
 layout(set = 0, binding = TS_VIEW_COLORS) uniform usamplerBuffer colorTexels;
 layout(set = 0, binding = TS_VIEW_PATCHES) uniform usamplerBuffer patchTexels;
 layout(set = 0, binding = TS_VIEW_PATCH_POINTS) uniform usamplerBuffer patchPointTexels;
+layout(set = 0, binding = TS_VIEW_MATERIALS) uniform usamplerBuffer materialTexels;
+layout(set = 0, binding = TS_VIEW_MATERIAL_TABLES) uniform usamplerBuffer materialTableTexels;
 
 GpuCluster load_cluster(GpuFrame frame, uint index) {
     if (!TEXEL_VIEWS) return ClusterRef(frame.clusters).data[index];
@@ -151,6 +153,34 @@ GpuCutBlock load_cut_block(GpuFrame frame, uint index) {
     b.firstCluster = t3.z;
     b.clusterCount = t3.w;
     return b;
+}
+
+// Material `index` of the frame's materials (resolve gets its bin's in push constants; the rasterizers' masks, the
+// cull and tessellation read them here).
+GpuMaterial load_material(GpuFrame frame, uint index) {
+    if (!TEXEL_VIEWS) return MaterialRef(frame.materials).data[index];
+    int at = int(7u * index);
+    uvec4 t3 = texelFetch(materialTexels, at + 3), t6 = texelFetch(materialTexels, at + 6);
+    GpuMaterial m;
+    m.diffuseColor = uintBitsToFloat(texelFetch(materialTexels, at));
+    m.emissiveColor = uintBitsToFloat(texelFetch(materialTexels, at + 1));
+    m.specular = uintBitsToFloat(texelFetch(materialTexels, at + 2));
+    m.metallic = uintBitsToFloat(t3.x);
+    m.flags = t3.y;
+    m.firstTextureSlot = t3.z;
+    m.textureInputs = t3.w;
+    m.displacement = uintBitsToFloat(texelFetch(materialTexels, at + 4));
+    m.displacementFade = uintBitsToFloat(texelFetch(materialTexels, at + 5));
+    m.vertexInputs = t6.x;
+    m.unused0 = t6.y;
+    m.unused1 = t6.z;
+    m.unused2 = t6.w;
+    return m;
+}
+
+// Entry i of frame.materialTables.
+uint material_table_entry(GpuFrame frame, uint i) {
+    return TEXEL_VIEWS ? texelFetch(materialTableTexels, int(i)).x : UintRef(frame.materialTables).data[i];
 }
 
 // A tessellation patch's record (written by the tessellation pass before the pass that reads it).
@@ -384,8 +414,8 @@ uvec2 visible_cluster(GpuFrame frame, uint slot) {
 // its table.
 float instance_displacement(GpuFrame frame, Instance instance) {
     if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
-    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return uintBitsToFloat(UintRef(frame.materialTables).data[instance.materialIndex - 1u]);
-    return MaterialRef(frame.materials).data[instance.materialIndex].displacement.w;
+    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return uintBitsToFloat(material_table_entry(frame, instance.materialIndex - 1u));
+    return load_material(frame, instance.materialIndex).displacement.w;
 }
 
 // How far displacement moves one cluster of a displaced instance (mesh units): its own bound, from the texture's range
@@ -402,5 +432,5 @@ float cluster_displacement(GpuFrame frame, Instance instance, uint clusterInMesh
 uint pixel_material(GpuFrame frame, Instance instance, uint cluster, uint triangle) {
     if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u) return instance.materialIndex;
     uint slot = triangle_word(frame, load_cluster(frame, cluster).triangleOffset + triangle) >> 24;
-    return UintRef(frame.materialTables).data[instance.materialIndex + slot];
+    return material_table_entry(frame, instance.materialIndex + slot);
 }

@@ -298,13 +298,15 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_COLORS 18            // the vertex channel, 4 halves per vertex: RG32UI
 #define TS_VIEW_PATCHES 19           // GpuPatch: 2 RGBA32UI texels each (tessellation; written by the pass before)
 #define TS_VIEW_PATCH_POINTS 20      // the compute patch rasterizer's kept points, float bits: R32UI
-#define TS_VIEW_COUNT 20
+#define TS_VIEW_MATERIALS 21         // GpuMaterial: 7 RGBA32UI texels each
+#define TS_VIEW_MATERIAL_TABLES 22   // uint per entry (slot -> material, and each table's displacement bound): R32UI
+#define TS_VIEW_COUNT 22
 // The AOV output as a storage buffer (std430, four words per pixel): resolve and the background store pixels through
 // it, and classify keeps its (bin, place) pairs there. lavapipe loads and stores a vector of a storage buffer in one
 // loop over the lanes, but through an address in one loop per component (a screen-filling resolve's stores 4x dearer).
 // The variants with TS_SPEC_OUTPUT_BINDING use it; the others, for frames whose output outgrows the device's
 // maxStorageBufferRange, go through GpuFrame.aovOutput.
-#define TS_BINDING_OUTPUT 21
+#define TS_BINDING_OUTPUT 23
 
 // Workgroup sizes.
 // On a CPU device the cull's workgroup is one subgroup: lavapipe runs a workgroup 8 invocations at a time, each batch

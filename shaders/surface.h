@@ -143,7 +143,7 @@ bool masked_out(GpuFrame frame, uint payload, uvec2 pixel) {
     Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     GpuCluster cluster = load_cluster(frame, visible.y);
     uint triangle = payload & ((1u << TS_VIS_TRIANGLE_BITS) - 1u);
-    GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
+    GpuMaterial material = load_material(frame, pixel_material(frame, instance, visible.y, triangle));
     bool textured = (material.textureInputs & (1u << TS_INPUT_OPACITY)) != 0u;
     if (!textured && !vertex_opacity(material)) return false;  // another slot of the mesh's materials
     GpuMesh mesh = load_mesh(frame, instance.meshIndex);

@@ -114,7 +114,7 @@ void tessellate_triangle(GpuFrame frame) {
     uint triangle = gl_LocalInvocationIndex;
     if (triangle >= cluster.triangleCount) return;
     Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
-    GpuMaterial material = MaterialRef(frame.materials).data[pixel_material(frame, instance, visible.y, triangle)];
+    GpuMaterial material = load_material(frame, pixel_material(frame, instance, visible.y, triangle));
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
     DisplacedTriangle t = displaced_triangle(frame, instance, cluster, triangle);

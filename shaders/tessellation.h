@@ -246,7 +246,7 @@ DicedPatch load_patch(GpuFrame frame, uint index) {
     d.clusterIndex = visible.y;
     d.instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
     GpuCluster cluster = load_cluster(frame, visible.y);
-    d.material = MaterialRef(frame.materials).data[pixel_material(frame, d.instance, visible.y, d.triangleIndex)];
+    d.material = load_material(frame, pixel_material(frame, d.instance, visible.y, d.triangleIndex));
     d.triangle = displaced_triangle(frame, d.instance, cluster, d.triangleIndex);
     d.translation = camera_relative_translation(d.instance);
     d.scale = instance_scale(d.instance);
