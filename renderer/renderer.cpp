@@ -1137,14 +1137,15 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     }
     areaLights = areaLights || texturedDome;
     if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages));
-    // Every pass reads the streams through texel views where they fit (the views set, whose lock is held), else through
-    // their addresses (that set's lock too).
+    // Every pass reads the streams through texel views where they fit, and stores the AOVs through the output's binding
+    // where it fits, in the set that does both (whose lock is held); otherwise in the set for what does not fit (its lock
+    // too).
     const uint64_t pixels = uint64_t(settings.width) * settings.height;
     const bool texelViews = settings.texelViews && s.streams_fit_views(pixels);
     const bool outputBinding = texelViews && settings.outputBinding && s.output_fits_binding(pixels);
     Pipelines& pipelines = !texelViews ? s.address_pipelines() : outputBinding ? s.pipelines : s.wide_output_pipelines();
-    std::unique_lock<std::mutex> addressLock;
-    if (&pipelines != &s.pipelines) addressLock = std::unique_lock<std::mutex>(pipelines.mutex);
+    std::unique_lock<std::mutex> otherSetLock;
+    if (&pipelines != &s.pipelines) otherSetLock = std::unique_lock<std::mutex>(pipelines.mutex);
     const bool ownCorners = settings.rasterVertices == RasterVertices::Auto ? pipelines.default_own_corners()
                                                                               : settings.rasterVertices == RasterVertices::PerTriangle;
     const bool countFragments = settings.visualize == Visualize::Overdraw;  // the rasterizers' variants that count
