@@ -131,15 +131,20 @@ def test_bench_build_prints_a_table_and_writes_json(tmp_path):
 
 def test_bench_render_prints_tables_and_writes_json(tmp_path):
     rows_file, plot = tmp_path / "rows.json", tmp_path / "error.png"
-    done = run("bench", "render", "--resolution", "96x54", "--frames", "1", "--max-density", "1", "--stages-dir", tmp_path,
+    done = run("bench", "render", "--resolution", "96x54", "--frames", "1", "--max-density", "2", "--stages-dir", tmp_path,
                "--json", rows_file, "--plot", plot)
     assert done.returncode == 0, done.stderr + done.stdout
     assert "frame ms" in done.stdout and "PSNR dB" in done.stdout
     rows = json.loads(rows_file.read_text())
     assert {r["table"] for r in rows} == {"density scaling", "against brute force", "speed against error", "displacement"}
-    field, no_occlusion = [r for r in rows if r["table"] == "density scaling"]
+    field, no_occlusion, dense, _ = [r for r in rows if r["table"] == "density scaling"]
     assert field["source_triangles"] == 32 * 32 * 4 * 16 * 16 and field["frame_ms"] > 0
+    assert dense["source_triangles"] == 32 * 32 * 4 * 156 * 156
     assert field["occlusion"] is True and no_occlusion["occlusion"] is False, "measured frames test against the frame before"
+    # Both fields were also rendered in turns in one process, and the scaling line compares those frames.
+    assert field["frame_in_turns_ms"] > 0 and dense["frame_in_turns_ms"] > 0 and "frame_in_turns_ms" not in no_occlusion
+    ratio = dense["frame_in_turns_ms"] / field["frame_in_turns_ms"]
+    assert f"densest field costs {ratio:.2f}x the lightest (95x the source triangles), rendered in turns" in done.stdout
     sweep = [r for r in rows if r["table"] == "speed against error"]
     assert [r["pixel_error"] for r in sweep] == [0.25, 0.5, 1.0, 2.0, 4.0, 8.0]
     assert all(0 < r["same_prim_percent"] <= 100 and r["psnr_db"] > 0 for r in sweep)

@@ -333,8 +333,33 @@ def _render_case(queue, case, stage, resolution, frames, device):
         queue.put(error)
 
 
+def _density_in_turns(queue, stages, resolution, frames, device):
+    """Runs in a child process: the density fields rendered in turns, one frame of each field after the other, so that
+    a host whose speed drifts (shared cores, lavapipe) moves every field alike. The fields' own children measure each
+    field alone, one after the other, minutes apart on a busy host: their ratio moves with the host (1.26x to 1.85x in
+    six runs within two minutes, docs/benchmarks.md), this one with the code. Puts [frame ms, GPU ms] per field."""
+    try:
+        from tessera import Session
+
+        sessions = [Session(stage, device=device) for stage in stages]
+        settings = {"camera": "/World/Camera", "resolution": resolution, "aovs": ("color",)}
+        for session in sessions:  # warm-up: pipelines, uploads, and the frame before for two-pass occlusion
+            session.render(**settings)
+        walls, gpus = [[] for _ in sessions], [[] for _ in sessions]
+        for _ in range(frames):
+            for session, wall, gpu in zip(sessions, walls, gpus):
+                start = time.perf_counter()
+                result = session.render(**settings)
+                wall.append((time.perf_counter() - start) * 1000)
+                gpu.append(sum(result.stats["gpu_ms"].values()))
+        queue.put([[round(float(np.median(w)), 1), round(float(np.median(g)), 1)] for w, g in zip(walls, gpus)])
+    except Exception as error:  # reported by the parent, which goes on with the fields measured alone
+        queue.put(error)
+
+
 RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("visible_instances", "instances"),
-                  ("visible_clusters", "clusters"), ("triangles_drawn", "tris drawn"), ("sw_triangles", "SW tris"), ("frame_ms", "frame ms"), ("frame_cpu_ms", "frame CPU ms"),
+                  ("visible_clusters", "clusters"), ("triangles_drawn", "tris drawn"), ("sw_triangles", "SW tris"), ("frame_ms", "frame ms"),
+                  ("frame_in_turns_ms", "in turns ms"), ("frame_cpu_ms", "frame CPU ms"),
                   ("gpu_ms", "GPU ms"), ("cull_ms", "cull"), ("sw_raster_ms", "SW raster"),
                   ("hw_raster_ms", "HW raster"), ("hzb_ms", "HZB"), ("classify_ms", "classify"), ("resolve_ms", "resolve"),
                   ("readback_ms", "readback"), ("occluded_instances", "occluded inst"), ("occluded_clusters", "occluded clusters"),
@@ -391,8 +416,15 @@ def render(args) -> int:
             write_stages(directory, segments=48, rings=24, heights=height_map(512, 256, bumps=8), n=cut, magnitude=0.08, eye=(1.1, 2.0, 5.3))
         cases.append(("displacement", (str(directory / "runtime.usda"), str(directory / "reference.usda"))))
     rows = []
-    print(" | ".join(title for _, title in RENDER_COLUMNS))
     failed = 0
+    # The fields in turns in one process first, so that each field's row prints with its figure.
+    fields = [stage for case, stage in cases if case == "density"]
+    in_turns = _in_child(_density_in_turns, fields, (width, height), args.frames, args.device) if len(fields) > 1 else None
+    if isinstance(in_turns, Exception):
+        print(f"tessera: error: density fields in turns: {in_turns}", flush=True)
+        failed += 1
+        in_turns = None
+    print(" | ".join(title for _, title in RENDER_COLUMNS))
     for case, stage in cases:
         outcome = _in_child(_render_case, case, stage, (width, height), args.frames, args.device)
         if isinstance(outcome, Exception):
@@ -400,12 +432,20 @@ def render(args) -> int:
             failed += 1
             continue
         for row in outcome:
+            if in_turns and row["table"] == "density scaling" and row["occlusion"]:
+                row["frame_in_turns_ms"], row["gpu_in_turns_ms"] = in_turns[fields.index(stage)]
             rows.append(row)
             print(" | ".join(str(row.get(key, "")) for key, _ in RENDER_COLUMNS), flush=True)
     density = [r for r in rows if r["table"] == "density scaling" and r["occlusion"]]
     if len(density) > 1 and density[0]["frame_ms"] > 0:
-        print(f"density scaling: the densest field costs {density[-1]['frame_ms'] / density[0]['frame_ms']:.2f}x the lightest "
-              f"({density[-1]['source_triangles'] / density[0]['source_triangles']:.0f}x the source triangles)")
+        times = f"({density[-1]['source_triangles'] / density[0]['source_triangles']:.0f}x the source triangles)"
+        if in_turns and density[0].get("frame_in_turns_ms", 0) > 0 and "frame_in_turns_ms" in density[-1]:
+            print(f"density scaling: the densest field costs {density[-1]['frame_in_turns_ms'] / density[0]['frame_in_turns_ms']:.2f}x "
+                  f"the lightest {times}, rendered in turns in one process (GPU time "
+                  f"{density[-1]['gpu_in_turns_ms'] / max(density[0]['gpu_in_turns_ms'], 1e-9):.2f}x); each alone in its own process: "
+                  f"{density[-1]['frame_ms'] / density[0]['frame_ms']:.2f}x")
+        else:
+            print(f"density scaling: the densest field costs {density[-1]['frame_ms'] / density[0]['frame_ms']:.2f}x the lightest {times}")
     sweep = [r for r in rows if r["table"] == "speed against error"]
     if args.plot and sweep:
         _write_plot(sweep, args.plot)
