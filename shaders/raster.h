@@ -78,11 +78,14 @@ void rasterize_triangle(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, float za, flo
     // Edge functions stay within 2 E (E + step) for a triangle E sub-pixels across (the bound: shared.h).
     ivec2 extent = max(a, max(b, c)) - min(a, min(b, c));
     bool small = max(extent.x, extent.y) < TS_SW_SMALL_TRIANGLE_SUBPIXELS;
-    // Twice the signed area; negative is counter-clockwise on screen (y down), a front face.
-    int64_t area = small ? int64_t((b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y))
-                         : int64_t(b.x - a.x) * int64_t(c.y - a.y) - int64_t(c.x - a.x) * int64_t(b.y - a.y);
-    bool front = area < 0l;
-    if (area == 0l || !(front || doubleSided)) return;
+    if (!mayBeLarge && !small) return;  // after this, a caller's constant `mayBeLarge` false leaves no 64-bit arithmetic
+    // Twice the signed area; negative is counter-clockwise on screen (y down), a front face. In 32 bits where the
+    // triangle is small (exact there), else in 64. The tests read the 32-bit value wherever it holds: lavapipe (Mesa
+    // 22.3) compared a 32-bit value widened to 64 bits with zero wrongly (every triangle culled; docs/benchmarks.md).
+    int area32 = (b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y);
+    int64_t area = small ? int64_t(area32) : int64_t(b.x - a.x) * int64_t(c.y - a.y) - int64_t(c.x - a.x) * int64_t(b.y - a.y);
+    bool front = small ? area32 < 0 : area < 0l;
+    if ((small ? area32 == 0 : area == 0l) || !(front || doubleSided)) return;
     if (!front) {  // the back of a double-sided triangle, turned to the same orientation
         ivec2 s = b;
         b = c;
@@ -91,13 +94,14 @@ void rasterize_triangle(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, float za, flo
         zb = zc;
         zc = z;
         area = -area;
+        area32 = -area32;
     }
     // The pixels whose centres the box may hold. The sub-pixel step is a power of two: shifts (rounding down), not
     // divisions, which a CPU device runs one lane at a time (no vector integer division on x86).
     int step = int(frame.raster.y), center = step >> 1, shift = findLSB(step);
     ivec2 lo = max((min(a, min(b, c)) - center + step - 1) >> shift, ivec2(0));
     ivec2 hi = min((max(a, max(b, c)) - center) >> shift, ivec2(frame.viewport.xy) - 1);
-    vec4 z = vec4(za, zb, zc, 1.0 / float(-area));
+    vec4 z = vec4(za, zb, zc, 1.0 / (small ? float(-area32) : float(-area)));  // the same float either way where small
     if (small) scan_small(frame, a, b, c, lo, hi, step, center, z, payload, masked);
     else if (mayBeLarge) scan_large(frame, a, b, c, lo, hi, step, center, z, payload, masked);
 }
