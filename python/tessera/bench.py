@@ -337,7 +337,9 @@ def _density_in_turns(queue, stages, resolution, frames, device):
     """Runs in a child process: the density fields rendered in turns, one frame of each field after the other, so that
     a host whose speed drifts (shared cores, lavapipe) moves every field alike. The fields' own children measure each
     field alone, one after the other, minutes apart on a busy host: their ratio moves with the host (1.26x to 1.85x in
-    six runs within two minutes, docs/benchmarks.md), this one with the code. Puts [frame ms, GPU ms] per field."""
+    six runs within two minutes, docs/benchmarks.md), this one with the code. A turn draws its field twice and times
+    the second frame, so that each timed frame finds the caches as a field drawn alone would (the other fields' frames
+    in between evict its data). Puts [frame ms, GPU ms] per field."""
     try:
         from tessera import Session
 
@@ -348,6 +350,7 @@ def _density_in_turns(queue, stages, resolution, frames, device):
         walls, gpus = [[] for _ in sessions], [[] for _ in sessions]
         for _ in range(frames):
             for session, wall, gpu in zip(sessions, walls, gpus):
+                session.render(**settings)
                 start = time.perf_counter()
                 result = session.render(**settings)
                 wall.append((time.perf_counter() - start) * 1000)
