@@ -6,7 +6,7 @@ import pytest
 
 import tessera
 from conftest import TESTENV
-from tessera.bench import displaced_sphere
+from tessera.bench import displaced_sphere, displaced_sphere_deviation
 
 
 def card_field(count, seed=3):
@@ -41,6 +41,22 @@ def test_defaults_are_nanites_and_the_fallback_comes_back():
     assert fallback["relative_error"] >= 0.01, "the first cut at 1 % of the mesh size"
     assert fallback["triangles"] < stats["source_triangles"]
     assert np.abs(np.linalg.norm(positions, axis=1) - 1).max() < 0.1, "object space: on the unit sphere, give or take its bumps"
+
+
+def test_the_fallbacks_error_bound_holds_against_the_surface():
+    # The measure first: the plain unit sphere lies at most the bumps' 0.05 from the displaced surface.
+    points, counts, indices = displaced_sphere(100)
+    quads = indices.reshape(-1, 4)
+    source = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    unit = points.reshape(-1, 3) / np.linalg.norm(points.reshape(-1, 3), axis=1, keepdims=True)
+    largest, mean = displaced_sphere_deviation(unit, source)
+    assert 0.045 < largest <= 0.052 and 0.01 < mean < 0.03  # 0.05 and the chords' sagitta (1e-3)
+    own, _ = displaced_sphere_deviation(points.reshape(-1, 3), source)
+    assert own < 0.006, "the source mesh itself: chords of a 40 k-triangle sphere"
+    # A cut lies within its bound of the source, and the source within `own` of the surface.
+    fallback = tessera.build_mesh(points, counts, indices)["fallback"]
+    measured, measured_mean = displaced_sphere_deviation(fallback["positions"], fallback["indices"])
+    assert 0 < measured_mean < measured <= fallback["error"] + own
 
 
 def test_keep_triangle_percent_and_trim_relative_error_store_less():

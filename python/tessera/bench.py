@@ -43,15 +43,38 @@ def _in_child(target, *args):
     process.join()
     return outcome
 
+def displaced_radius(theta, phi):
+    """The displaced sphere's surface: its radius at polar angle theta and azimuth phi (radians)."""
+    return 1.0 + 0.04 * np.sin(9 * theta) * np.cos(13 * phi) + 0.01 * np.sin(41 * theta + 3) * np.cos(37 * phi)
+
+
 def displaced_sphere(n: int):
     """A closed sphere of 4 n^2 triangles with a few octaves of bumps: a stand-in for a dense scan."""
     theta, phi = np.meshgrid(np.linspace(0, np.pi, n + 1), np.linspace(0, 2 * np.pi, 2 * n, endpoint=False), indexing="ij")
-    r = 1.0 + 0.04 * np.sin(9 * theta) * np.cos(13 * phi) + 0.01 * np.sin(41 * theta + 3) * np.cos(37 * phi)
+    r = displaced_radius(theta, phi)
     points = np.stack([r * np.sin(theta) * np.cos(phi), r * np.sin(theta) * np.sin(phi), r * np.cos(theta)], -1).reshape(-1, 3)
     i, j = np.meshgrid(np.arange(n), np.arange(2 * n), indexing="ij")
     a, b = i * 2 * n + j, i * 2 * n + (j + 1) % (2 * n)
     quads = np.stack([a, a + 2 * n, b + 2 * n, b], -1).reshape(-1, 4).astype(np.int32)
     return points.astype(np.float32).reshape(-1), np.full(len(quads), 4, np.int32), quads.reshape(-1)
+
+
+def displaced_sphere_deviation(positions, indices):
+    """How far a mesh made from the displaced sphere (a cut of its DAG, say) lies from the sphere's surface: the radial
+    distance to the surface of the points of a 7 x 7 barycentric lattice on every triangle, as (largest, mean). The
+    polar caps (|z| >= 0.98 r) are left out: at the poles the surface's radius depends on the azimuth, so the mesh's
+    own pole fans stray from it. The radial distance is at most 1 / cos(slope) (about 1.13 here) times the distance
+    along the normal, and the source mesh's own deviation (2.2e-4 for the 1 M triangles) is in it."""
+    steps = np.linspace(0.0, 1.0, 7)
+    lattice = np.array([(a, b, 1.0 - a - b) for a in steps for b in steps if a + b <= 1.0 + 1e-9])
+    points = np.einsum("kj,mjd->mkd", lattice, np.asarray(positions, np.float64)[np.asarray(indices)]).reshape(-1, 3)
+    radius = np.linalg.norm(points, axis=1)
+    inside = np.abs(points[:, 2]) < 0.98 * radius
+    points, radius = points[inside], radius[inside]
+    theta = np.arccos(np.clip(points[:, 2] / radius, -1.0, 1.0))
+    phi = np.arctan2(points[:, 1], points[:, 0]) % (2 * np.pi)
+    distance = np.abs(radius - displaced_radius(theta, phi))
+    return float(distance.max()), float(distance.mean())
 
 
 def obj_mesh(path: str):
@@ -107,7 +130,7 @@ def _build_one(arrays, queue):
     queue.put((stats, seconds, (peak - before) * 1024, peak * 1024, (before - start_kib) * 1024))
 
 
-def _measure(name, make):
+def _measure(name, make, on_displaced_sphere=False):
     # The input is made here, before the fork, so that the child's peak memory is the build's alone.
     arrays = make()
     queue = multiprocessing.get_context("fork").Queue()
@@ -118,7 +141,7 @@ def _measure(name, make):
     del arrays
     levels = stats["levels"]
     source = stats["source_triangles"]
-    return {
+    row = {
         "mesh": name,
         "input_triangles": source,
         "build_seconds": round(seconds, 3),
@@ -138,6 +161,16 @@ def _measure(name, make):
         "mean_triangles_per_cluster_level0": round(levels[0]["triangles"] / max(levels[0]["clusters"], 1), 1),
         "relative_error_per_level": [float(f"{level['relative_error']:.3g}") for level in levels],
     }
+    # The error bound against the geometry: the fallback mesh (the DAG's first cut at 1 % of the size) of a displaced
+    # sphere, measured against the sphere's surface (relative to the size, as the bound).
+    fallback = stats["fallback"]
+    row["fallback_triangles"] = fallback["triangles"]
+    row["fallback_relative_error"] = float(f"{fallback['relative_error']:.3g}")
+    if on_displaced_sphere:
+        largest, mean = displaced_sphere_deviation(fallback["positions"], fallback["indices"])
+        row["fallback_measured_relative_max"] = float(f"{largest / stats['size']:.3g}")
+        row["fallback_measured_relative_mean"] = float(f"{mean / stats['size']:.3g}")
+    return row
 
 
 def default_meshes():
@@ -148,34 +181,37 @@ def default_meshes():
     for root in (Path.cwd() / ".." / "shared", Path.cwd() / "shared"):
         bunny = root / "assets" / "meshes" / "stanford-bunny.obj"
         if bunny.exists():
-            meshes.append(("stanford-bunny (69k)", lambda b=bunny: obj_mesh(str(b))))
+            meshes.append(("stanford-bunny (69k)", lambda b=bunny: obj_mesh(str(b)), False))
             break
-    meshes.append(("displaced sphere 1M", lambda: displaced_sphere(500)))
-    meshes.append(("displaced sphere 10M", lambda: displaced_sphere(1581)))
+    meshes.append(("displaced sphere 1M", lambda: displaced_sphere(500), True))
+    meshes.append(("displaced sphere 10M", lambda: displaced_sphere(1581), True))
     return meshes
 
 
 COLUMNS = [("mesh", "mesh"), ("input_triangles", "input tris"), ("build_seconds", "build s"), ("input_triangles_per_second", "tris/s"),
            ("peak_memory_bytes_per_input_triangle", "peak B/tri"), ("disk_bytes_per_input_triangle", "disk B/tri"),
            ("first_build_mib", "first build MiB"), ("decode_input_triangles_per_second", "decode tris/s"),
-           ("dag_depth", "depth"), ("root_triangles", "root tris"), ("mean_triangles_per_cluster_level0", "tris/cluster L0")]
+           ("dag_depth", "depth"), ("root_triangles", "root tris"), ("mean_triangles_per_cluster_level0", "tris/cluster L0"),
+           ("fallback_triangles", "fallback tris"), ("fallback_relative_error", "fallback bound"),
+           ("fallback_measured_relative_max", "measured max"), ("fallback_measured_relative_mean", "measured mean")]
 
 
 def build(args) -> int:
     meshes = []
     for path in args.stages:
         if path.endswith(".obj"):
-            meshes.append((path, lambda p=path: obj_mesh(p)))
+            meshes.append((path, lambda p=path: obj_mesh(p), False))
         else:
-            meshes.extend(stage_meshes(path))
+            meshes.extend((name, make, False) for name, make in stage_meshes(path))
     if not args.stages:
         meshes = default_meshes()
     rows = []
     print(" | ".join(title for _, title in COLUMNS) + " | relative error per level")
-    for name, make in meshes:
-        row = _measure(name, make)
+    for name, make, on_displaced_sphere in meshes:
+        row = _measure(name, make, on_displaced_sphere)
         rows.append(row)
-        print(" | ".join(str(row[key]) for key, _ in COLUMNS) + " | " + " ".join(f"{e:.2g}" for e in row["relative_error_per_level"]), flush=True)
+        print(" | ".join(str(row.get(key, "")) for key, _ in COLUMNS) + " | " + " ".join(f"{e:.2g}" for e in row["relative_error_per_level"]),
+              flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=2)
