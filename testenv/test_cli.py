@@ -131,7 +131,7 @@ def test_bench_build_prints_a_table_and_writes_json(tmp_path):
 
 def test_bench_render_prints_tables_and_writes_json(tmp_path):
     rows_file, plot = tmp_path / "rows.json", tmp_path / "error.png"
-    done = run("bench", "render", "--resolution", "96x54", "--frames", "1", "--max-density", "2", "--stages-dir", tmp_path,
+    done = run("bench", "render", "--resolution", "96x54", "--frames", "1", "--turns", "2", "--max-density", "2", "--stages-dir", tmp_path,
                "--json", rows_file, "--plot", plot)
     assert done.returncode == 0, done.stderr + done.stdout
     assert "frame ms" in done.stdout and "PSNR dB" in done.stdout

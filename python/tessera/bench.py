@@ -369,13 +369,15 @@ def _render_case(queue, case, stage, resolution, frames, device):
         queue.put(error)
 
 
-def _density_in_turns(queue, stages, resolution, frames, device):
+def _density_in_turns(queue, stages, resolution, turns, device):
     """Runs in a child process: the density fields rendered in turns, one frame of each field after the other, so that
     a host whose speed drifts (shared cores, lavapipe) moves every field alike. The fields' own children measure each
     field alone, one after the other, minutes apart on a busy host: their ratio moves with the host (1.26x to 1.85x in
     six runs within two minutes, docs/benchmarks.md), this one with the code. A turn draws its field twice and times
     the second frame, so that each timed frame finds the caches as a field drawn alone would (the other fields' frames
-    in between evict its data). Puts [frame ms, GPU ms] per field."""
+    in between evict its data). On the 2-core host of session 17, single frames swung by 15 % within seconds: the
+    ratio of the medians of 5 turns ranged over 1.34-1.82x, of 15 turns over 1.54-1.55x (three runs each). Puts
+    [frame ms, GPU ms] per field, the medians of `turns` timed frames."""
     try:
         from tessera import Session
 
@@ -384,7 +386,7 @@ def _density_in_turns(queue, stages, resolution, frames, device):
         for session in sessions:  # warm-up: pipelines, uploads, and the frame before for two-pass occlusion
             session.render(**settings)
         walls, gpus = [[] for _ in sessions], [[] for _ in sessions]
-        for _ in range(frames):
+        for _ in range(turns):
             for session, wall, gpu in zip(sessions, walls, gpus):
                 session.render(**settings)
                 start = time.perf_counter()
@@ -458,7 +460,7 @@ def render(args) -> int:
     failed = 0
     # The fields in turns in one process first, so that each field's row prints with its figure.
     fields = [stage for case, stage in cases if case == "density"]
-    in_turns = _in_child(_density_in_turns, fields, (width, height), args.frames, args.device) if len(fields) > 1 else None
+    in_turns = _in_child(_density_in_turns, fields, (width, height), args.turns, args.device) if len(fields) > 1 else None
     if isinstance(in_turns, Exception):
         print(f"tessera: error: density fields in turns: {in_turns}", flush=True)
         failed += 1

@@ -160,6 +160,8 @@ def _parser() -> argparse.ArgumentParser:
     bench_render = benches.add_parser("render", help="frame cost against source density, brute force and the error bound")
     bench_render.add_argument("--resolution", type=_resolution, default=(1920, 1080), help="WIDTHxHEIGHT (default 1920x1080)")
     bench_render.add_argument("--frames", type=int, default=5, help="frames measured after one warm-up; the median is reported")
+    bench_render.add_argument("--turns", type=int, default=15,
+                              help="turns of the density fields rendered in turns in one process (the scaling ratio's frames; default 15)")
     bench_render.add_argument("--max-density", type=int, default=3, choices=(1, 2, 3),
                               help="fields of 1e6, 1e8, 1e10 source triangles: how many of them (default all 3)")
     bench_render.add_argument("--stages-dir", default="out/bench", help="where the generated stages are kept (default out/bench)")
