@@ -43,6 +43,7 @@ def _in_child(target, *args):
     process.join()
     return outcome
 
+
 def displaced_radius(theta, phi):
     """The displaced sphere's surface: its radius at polar angle theta and azimuth phi (radians)."""
     return 1.0 + 0.04 * np.sin(9 * theta) * np.cos(13 * phi) + 0.01 * np.sin(41 * theta + 3) * np.cos(37 * phi)
