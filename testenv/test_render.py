@@ -322,6 +322,28 @@ def test_every_aov_shows_the_same_background_first_or_not(render):
             assert np.array_equal(moved[aov].pixels, first[aov].pixels, equal_nan=True), f"{aov} with {leading} first"
 
 
+def test_a_plain_background_reaches_every_uncovered_pixel_at_any_height():
+    """A background whose four words differ (a dome's colour with alpha 1) is one row written, then copied onto the rows
+    below in blocks that double: heights of one row, a power of two and not, all covered to the last row."""
+    stage = Usd.Stage.CreateInMemory()  # no dome light: the background is the one asked for
+    quad = UsdGeom.Mesh.Define(stage, "/Quad")
+    quad.CreatePointsAttr([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
+    quad.CreateFaceVertexCountsAttr([4])
+    quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    camera = UsdGeom.Camera.Define(stage, "/Camera")
+    camera.AddTranslateOp().Set(Gf.Vec3d(0.3, 0.2, 6.0))
+    session = tessera.Session(stage, validation=True)
+    for resolution in ((1, 1), (96, 64), (97, 67), (33, 129)):
+        result = session.render(camera="/Camera", resolution=resolution, aovs=("color", "primId"), background=(0.1, 0.2, 0.3, 1.0))
+        assert not result.errors, result.errors
+        background = result["primId"].ids() == NO_HIT
+        color = result["color"].pixels
+        assert np.all(color[background] == np.float32([0.1, 0.2, 0.3, 1.0])), resolution
+        if resolution != (1, 1):
+            assert 0 < background.sum() < background.size, f"{resolution}: the cube covers part of the frame"
+            assert not np.any(np.all(color[~background] == np.float32([0.1, 0.2, 0.3, 1.0]), axis=-1)), resolution
+
+
 def test_the_readback_span_times_the_aov_copies(render):
     """gpu_ms.readback holds the AOVs' copies to host memory; resolve no longer does. A CPU device reads the last AOV
     where resolve wrote it (no copy); every other AOV, and every AOV on a GPU, is copied."""
