@@ -290,6 +290,17 @@ std::array<uint32_t, 4> background_words(Aov aov, const std::array<float, 4>& co
     return words;
 }
 
+// How many workgroups may share an instance's cut and the clusters each takes (GpuFrame.hzb.w, cull.comp.glsl
+// cut_parts). A GPU: up to 64 parts of 1024 clusters (16 per thread of a 64-wide cull group), so that one mesh filling
+// the view spreads over the multiprocessors. A CPU device: a part per core, of 16384 clusters, so that the instances of
+// a field (a few hundred to a few thousand clusters each) stay whole: lavapipe pays about 30 us per workgroup.
+uint32_t cut_parts_word(const Device& device, const RenderSettings& settings) {
+    const uint32_t cores = std::clamp(std::thread::hardware_concurrency(), 1u, 64u);
+    const uint32_t parts = std::clamp(settings.cutParts ? settings.cutParts : device.is_software() ? cores : TS_CUT_MOST_PARTS, 1u, TS_CUT_MOST_PARTS);
+    const uint32_t clusters = std::clamp(settings.cutPartClusters ? settings.cutPartClusters : device.is_software() ? 16384u : 1024u, 1u, 0xffffu);
+    return parts | clusters << 16;
+}
+
 void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2 srcAccess, VkPipelineStageFlags2 dstStage, VkAccessFlags2 dstAccess) {
     // What a shader reads from storage it may read through a texel view of the same buffer (TS_VIEW_*): a sampled read.
     if (dstAccess & VK_ACCESS_2_SHADER_STORAGE_READ_BIT) dstAccess |= VK_ACCESS_2_SHADER_SAMPLED_READ_BIT;
@@ -1244,7 +1255,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                                                       cam.position[2] - s.previousCamera[2]);
             f.previousViewProjection = to_gpu(multiply(s.previousViewProjection, shift));
         }
-        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, s.cutCapacity, s.deferredCapacity, 0};
+        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, s.cutCapacity, s.deferredCapacity,
+                 cut_parts_word(device_, settings)};
         f.cutList = s.cutList.address;
         f.instances = s.instances.address;
         f.instanceBatches = s.instanceBatches.address;

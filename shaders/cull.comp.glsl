@@ -214,30 +214,55 @@ bool level_in_cut(GpuFrame frame, GpuLevel level, float scale, LevelScales s) {
     return !(level.maxParentError < TS_ROOT_ERROR && level.maxParentError * scale * s.nearScale < threshold * 0.9999);
 }
 
+// The instance's level scales: every LOD sphere of the mesh lies inside its LOD radius, so that sphere's depth range
+// bounds each projected error.
+LevelScales level_scales(GpuFrame frame, Instance instance, GpuMesh mesh, vec3 translation, float scale) {
+    vec3 meshCenter = to_camera_relative(instance, translation, mesh.sphere.xyz);
+    vec2 depths = depth_range(frame, meshCenter, mesh.lodRadius * scale);
+    return LevelScales(frame.lod.z != 0.0 ? frame.lod.x : (depths.x > 0.0 ? frame.lod.x / depths.x : NEVER_FINE_ENOUGH),
+                       frame.lod.z != 0.0 ? frame.lod.x : (depths.y > 0.0 ? frame.lod.x / depths.y : NEVER_FINE_ENOUGH));
+}
+
+// The clusters of the levels the instance's distance leaves in the cut: what its cut walks at most (without LOD, level
+// 0's).
+uint clusters_in_cut(GpuFrame frame, GpuMesh mesh, float scale, LevelScales s, bool lod) {
+    if (!lod) return load_level(frame, mesh.levelOffset).clusterCount;
+    uint inCut = 0u;
+    for (uint l = 0u; l < mesh.levelCount; ++l) {
+        GpuLevel level = load_level(frame, mesh.levelOffset + l);
+        if (level_in_cut(frame, level, scale, s)) inCut += level.clusterCount;
+    }
+    return inCut;
+}
+
+// One of the workgroups that share an instance's cut (cut_parts): part `index`, whose threads take every `threads`-th
+// block or cluster from `firstThread`.
+struct CutPart { uint index, firstThread, threads; };
+
 // The cut by clusters: each cluster of each level in the cut, spread over the threads.
-void cut_by_clusters(GpuFrame frame, uint step, uint instanceIndex, Instance instance, GpuMesh mesh, vec3 translation, float scale, bool lod,
-                     LevelScales s) {
+void cut_by_clusters(GpuFrame frame, uint step, uint instanceIndex, CutPart part, Instance instance, GpuMesh mesh, vec3 translation,
+                     float scale, bool lod, LevelScales s) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint levelCount = lod ? mesh.levelCount : 1u;
     for (uint l = 0u; l < levelCount; ++l) {
         GpuLevel level = load_level(frame, mesh.levelOffset + l);
         if (lod && !level_in_cut(frame, level, scale, s)) continue;
-        if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.candidateClusters, level.clusterCount);
-        for (uint c = gl_LocalInvocationIndex; c < level.clusterCount; c += gl_WorkGroupSize.x)
+        if (gl_LocalInvocationIndex == 0 && part.index == 0u) atomicAdd(draw.state.candidateClusters, level.clusterCount);
+        for (uint c = part.firstThread; c < level.clusterCount; c += part.threads)
             test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, lod, level.clusterOffset + c);
     }
 }
 
 // The cut by blocks: each block of each level in the cut, spread over the threads; a thread tests the clusters of
 // each of its blocks that may draw.
-void cut_by_blocks(GpuFrame frame, uint step, uint instanceIndex, Instance instance, GpuMesh mesh, vec3 translation, float scale,
-                   LevelScales s) {
+void cut_by_blocks(GpuFrame frame, uint step, uint instanceIndex, CutPart part, Instance instance, GpuMesh mesh, vec3 translation,
+                   float scale, LevelScales s) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     float extra = instance_displacement(frame, instance);  // bounds every cluster's own (cluster_displacement)
     for (uint l = 0u; l < mesh.levelCount; ++l) {
         GpuLevel level = load_level(frame, mesh.levelOffset + l);
         if (!level_in_cut(frame, level, scale, s)) continue;
-        for (uint b = gl_LocalInvocationIndex; b < level.blockCount; b += gl_WorkGroupSize.x) {
+        for (uint b = part.firstThread; b < level.blockCount; b += part.threads) {
             GpuCutBlock block = load_cut_block(frame, level.blockOffset + b);
             if (!block_may_draw(frame, instance, translation, scale, block, extra)) continue;
             atomicAdd(draw.state.candidateClusters, block.clusterCount);
@@ -247,33 +272,47 @@ void cut_by_blocks(GpuFrame frame, uint step, uint instanceIndex, Instance insta
     }
 }
 
-// The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup: a hierarchy of
+// The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup (alone, or with the
+// other parts of a cut list entry's instance: cut_parts, each thread of each part taking its share): a hierarchy of
 // the levels the instance's distance allows, then (for an instance with many clusters in those levels) the blocks of
 // those levels that may hold a cluster to draw (GpuCutBlock), then clusters. The choice is made per instance: lavapipe
 // runs both sides of every branch, masked, so a per-level choice cost the field's instances, which test few
 // clusters, a masked pass of the block code on every level (twice the cull of the 1e10 field).
-void cut_instance(GpuFrame frame, uint step, uint instanceIndex) {
+void cut_instance(GpuFrame frame, uint step, uint entry, uint entries) {
+    // An instance's parts are consecutive entries of the cut list, each holding the instance (list_for_cut); the list
+    // names each instance once per pass, so the run of equal entries around this one is its instance's parts.
+    UintRef list = UintRef(frame.cutList);
+    uint instanceIndex = list.data[entry], first = entry, end = entry + 1u;
+    while (first > 0u && entry - first < TS_CUT_MOST_PARTS && list.data[first - 1u] == instanceIndex) --first;
+    while (end < entries && end - first < TS_CUT_MOST_PARTS && list.data[end] == instanceIndex) ++end;
+    CutPart part = CutPart(entry - first, (entry - first) * gl_WorkGroupSize.x + gl_LocalInvocationIndex, (end - first) * gl_WorkGroupSize.x);
     Instance instance = load_instance(frame, instanceIndex);
     GpuMesh mesh = load_mesh(frame, instance.meshIndex);
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
-    vec3 meshCenter = to_camera_relative(instance, translation, mesh.sphere.xyz);
 
     DrawStateRef draw = DrawStateRef(frame.drawState);
-    if (gl_LocalInvocationIndex == 0) atomicAdd(draw.state.visibleInstances, 1u);
+    if (gl_LocalInvocationIndex == 0 && part.index == 0u) atomicAdd(draw.state.visibleInstances, 1u);
     bool lod = (frame.counts.z & TS_FRAME_NO_LOD) == 0u;
-    // Every LOD sphere of the mesh lies inside its LOD radius, so that sphere's depth range bounds each projected error.
-    vec2 depths = depth_range(frame, meshCenter, mesh.lodRadius * scale);
-    LevelScales s = LevelScales(frame.lod.z != 0.0 ? frame.lod.x : (depths.x > 0.0 ? frame.lod.x / depths.x : NEVER_FINE_ENOUGH),
-                                frame.lod.z != 0.0 ? frame.lod.x : (depths.y > 0.0 ? frame.lod.x / depths.y : NEVER_FINE_ENOUGH));
-    uint inCut = 0u;
-    if (lod && (frame.counts.z & TS_FRAME_NO_CUT_BLOCKS) == 0u)
-        for (uint l = 0u; l < mesh.levelCount; ++l) {
-            GpuLevel level = load_level(frame, mesh.levelOffset + l);
-            if (level_in_cut(frame, level, scale, s)) inCut += level.clusterCount;
-        }
-    if (inCut > TS_CUT_BLOCKS_FROM * gl_WorkGroupSize.x) cut_by_blocks(frame, step, instanceIndex, instance, mesh, translation, scale, s);
-    else cut_by_clusters(frame, step, instanceIndex, instance, mesh, translation, scale, lod, s);
+    LevelScales s = level_scales(frame, instance, mesh, translation, scale);
+    bool blocks = lod && (frame.counts.z & TS_FRAME_NO_CUT_BLOCKS) == 0u &&
+                  clusters_in_cut(frame, mesh, scale, s, true) > TS_CUT_BLOCKS_FROM * gl_WorkGroupSize.x;
+    if (blocks) cut_by_blocks(frame, step, instanceIndex, part, instance, mesh, translation, scale, s);
+    else cut_by_clusters(frame, step, instanceIndex, part, instance, mesh, translation, scale, lod, s);
+}
+
+// How many workgroups share an instance's cut (its cut list entries): one per frame.hzb.w >> 16 clusters its levels in
+// the cut hold, at most frame.hzb.w & 0xffff (TS_CUT_MOST_PARTS at most). A single large mesh seen from close by walks tens of thousands of
+// clusters, which one workgroup (one multiprocessor of a GPU, one thread of lavapipe) walked alone.
+uint cut_parts(GpuFrame frame, Instance instance) {
+    uint most = frame.hzb.w & 0xffffu, clustersPerPart = max(frame.hzb.w >> 16, 1u);
+    GpuMesh mesh = load_mesh(frame, instance.meshIndex);
+    if (most <= 1u || mesh.clusterCount < 2u * clustersPerPart) return 1u;
+    vec3 translation = camera_relative_translation(instance);
+    float scale = instance_scale(instance);
+    bool lod = (frame.counts.z & TS_FRAME_NO_LOD) == 0u;
+    uint inCut = clusters_in_cut(frame, mesh, scale, level_scales(frame, instance, mesh, translation, scale), lod);
+    return clamp(inCut / clustersPerPart, 1u, min(most, TS_CUT_MOST_PARTS));
 }
 
 vec4 instance_sphere(GpuFrame frame, Instance instance) {
@@ -286,17 +325,20 @@ vec4 instance_sphere(GpuFrame frame, Instance instance) {
 // Steps *_INSTANCES: one thread per instance (main) or per deferred instance (post). An instance that a material
 // cuts out entirely, outside the frustum, or hidden, goes no further; the main pass defers those the previous
 // frame's HZB hides; the rest are listed for the cut step.
-void list_for_cut(GpuFrame frame, uint step, uint instanceIndex) {
+void list_for_cut(GpuFrame frame, uint step, uint instanceIndex, Instance instance) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
-    uint k = atomicAdd(draw.state.cutInstances, 1u);
-    atomicMax(draw.state.cutInstancesNeeded, k + 1u);
-    if (k >= frame.hzb.y) return;  // overflow: the CPU grows the list and redraws
-    SlotListRef(frame.cutList).data[k] = instanceIndex;
+    uint parts = cut_parts(frame, instance);
+    uint k = atomicAdd(draw.state.cutInstances, parts), end = k + parts;
+    atomicMax(draw.state.cutInstancesNeeded, end);
+    // Past the capacity: overflow, the CPU grows the list and redraws (the parts that fit are written all the same:
+    // every entry the cut step reads holds an instance of this frame).
+    for (uint p = k; p < min(end, frame.hzb.y); ++p) SlotListRef(frame.cutList).data[p] = instanceIndex;
+    if (end > frame.hzb.y) return;
     if (step == TS_CULL_MAIN_INSTANCES) {
-        atomicMax(draw.state.cutGroupsX, min(k + 1u, 65535u));
-        atomicMax(draw.state.cutGroupsY, k / 65535u + 1u);
+        atomicMax(draw.state.cutGroupsX, min(end, 65535u));
+        atomicMax(draw.state.cutGroupsY, (end - 1u) / 65535u + 1u);
     } else {
-        atomicMax(draw.state.postGroupsX, min(k + 1u, 65535u));  // the post cut step also strides over deferred clusters
+        atomicMax(draw.state.postGroupsX, min(end, 65535u));  // the post cut step also strides over deferred clusters
     }
 }
 
@@ -329,16 +371,17 @@ void test_instance(GpuFrame frame, uint step, uint thread) {
             atomicMax(draw.state.postInstanceGroupsY, k / TS_CULL_INSTANCES_PER_GROUP / 65535u + 1u);
             return;
         }
-        list_for_cut(frame, step, thread);
+        list_for_cut(frame, step, thread, instance);
     } else {
         if (thread >= min(draw.state.deferredInstances, frame.hzb.z)) return;
         uint instanceIndex = UintRef(frame.deferredInstances).data[thread];
-        vec4 sphere = instance_sphere(frame, load_instance(frame, instanceIndex));
+        Instance instance = load_instance(frame, instanceIndex);
+        vec4 sphere = instance_sphere(frame, instance);
         if (hidden(frame, TS_CULL_POST, sphere.xyz, sphere.w)) {
             atomicAdd(draw.state.occludedInstances, 1u);
             return;
         }
-        list_for_cut(frame, step, instanceIndex);
+        list_for_cut(frame, step, instanceIndex, instance);
     }
 }
 
@@ -349,18 +392,18 @@ void test_instances(GpuFrame frame, uint step) {
     for (uint i = gl_LocalInvocationIndex; i < TS_CULL_INSTANCES_PER_GROUP; i += gl_WorkGroupSize.x) test_instance(frame, step, first + i);
 }
 
-// Main pass: one workgroup per listed instance.
+// Main pass: one workgroup per cut list entry (a part of an instance's cut).
 void main_pass(GpuFrame frame) {
     uint entry = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (entry >= min(DrawStateRef(frame.drawState).state.cutInstances, frame.hzb.y)) return;
-    cut_instance(frame, TS_CULL_MAIN, UintRef(frame.cutList).data[entry]);
+    cut_instance(frame, TS_CULL_MAIN, entry, min(DrawStateRef(frame.drawState).state.cutInstances, frame.hzb.y));
 }
 
-// Post pass: workgroups take the listed instances in turn; every thread takes deferred clusters in turn.
+// Post pass: workgroups take the cut list's entries in turn; every thread takes deferred clusters in turn.
 void post_pass(GpuFrame frame) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint instances = min(draw.state.cutInstances, frame.hzb.y);
-    for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) cut_instance(frame, TS_CULL_POST, UintRef(frame.cutList).data[i]);
+    for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) cut_instance(frame, TS_CULL_POST, i, instances);
     uint clusters = min(draw.state.deferredClusters, frame.counts.y);
     for (uint i = gl_GlobalInvocationID.x; i < clusters; i += gl_NumWorkGroups.x * gl_WorkGroupSize.x) {
         uvec2 entry = VisibleClusterRef(frame.deferredClusters).data[i];

@@ -395,6 +395,7 @@ TS_CHECK_SIZE(GpuCutBlock, 64);
 // An instance goes block by block when the levels its distance allows hold more than this many clusters per thread of
 // the cull's workgroup; below, cluster by cluster (most instances of a field of distant copies: their levels are small).
 #define TS_CUT_BLOCKS_FROM 32u
+#define TS_CUT_MOST_PARTS 64u  // workgroups that may share one instance's cut (cull.comp.glsl cut_parts)
 
 struct GpuMesh {
     vec4 sphere;         // bounding sphere in mesh space
@@ -540,14 +541,14 @@ struct GpuDrawState {
     uint postClusters;     // clusters drawn by the post pass (hidden last frame, visible now)
     uint backfaceClusters; // clusters all of whose triangles face away from the camera
     uint shadingBins;      // materials with at least one visible pixel
-    uint cutGroupsX;       // VkDispatchIndirectCommand of the cut step: one workgroup per listed instance, as X (at most
+    uint cutGroupsX;       // VkDispatchIndirectCommand of the cut step: one workgroup per cut list entry, as X (at most
     uint cutGroupsY;       // 65535) times Y
     uint cutGroupsZ;
-    uint cutInstances;     // instances listed for the cut step (this pass), may exceed the list's capacity
+    uint cutInstances;     // cut list entries (instances' parts) for the cut step (this pass), may exceed the list's capacity
     uint postInstanceGroupsX; // VkDispatchIndirectCommand of the post pass's instance step: a thread per deferred instance
     uint postInstanceGroupsY;
     uint postInstanceGroupsZ;
-    uint cutInstancesNeeded; // the most instances either pass listed (overflow is detected on the CPU)
+    uint cutInstancesNeeded; // the most cut list entries either pass listed (overflow is detected on the CPU)
     uint tessGroupsX;      // VkDispatchIndirectCommand of the tessellate pass: one workgroup per tessellated cluster
     uint tessGroupsY;
     uint tessGroupsZ;
@@ -617,7 +618,9 @@ struct GpuFrame {
     vec4 raster;             // x: software raster below this estimated area per triangle (pixels); y: sub-pixel steps
     mat4 previousViewProjection; // the previous frame's camera, mapping this frame's camera-relative world to its clip
     uvec4 hzb;               // x: HZB levels (level l texel: the farthest depth of 2^(l+1) x 2^(l+1) pixels);
-                             // y: capacity of the cut list; z: capacity of the deferred-instance list
+                             // y: capacity of the cut list; z: capacity of the deferred-instance list; w: the cut's parts
+                             // (cull.comp.glsl cut_parts): at most w & 0xffff workgroups per instance (and at most
+                             // TS_CUT_MOST_PARTS), one per w >> 16 clusters of its levels in the cut
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count (distant lights first, then the
                              // others in the scene's order; resolve's counts: TS_SPEC_LIGHT_COUNTS)
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
@@ -649,7 +652,7 @@ struct GpuFrame {
     address visibility;      // uint64[width * height]
     address aovOutput;       // uvec4[width * height]: read and written through its binding where it fits (TS_BINDING_OUTPUT)
     address deferredInstances; // uint[hzb.z]: instances the main pass left to the post pass
-    address cutList;         // uint[hzb.y]: instances the cut step of this pass walks
+    address cutList;         // uint[hzb.y]: instances the cut step of this pass walks, an instance once per part (consecutive)
     address deferredClusters;  // uvec2[capacity]: (instance, cluster) the main pass left to the post pass
     address overdraw;        // uint[width * height]: fragments per pixel, only with TS_VIS_OVERDRAW (else 0)
     address bins;            // GpuBin[materials]

@@ -647,6 +647,67 @@ TEST_F(RendererTest, CutBlocksChangeWhatIsTestedNotTheCut) {
     }
 }
 
+// An instance's cut shared by several workgroups (RenderSettings::cutParts, cull.comp.glsl cut_parts) is the same cut:
+// the same clusters drawn, tested and culled, the same pixels, whether one workgroup walks it or seven, with parts
+// of one cluster each (every instance split as far as it goes) or of the device's size; through the block path and the
+// per-cluster one, without LOD, and with two-pass occlusion (the post pass walks the deferred instances' parts).
+TEST_F(RendererTest, CutPartsShareTheWorkNotTheCut) {
+    GpuScene scene;
+    const uint32_t sphere = scene.add_mesh(bumpy_sphere(160));  // 102k triangles
+    const CameraDesc close = camera_at(0.3, 0.2, 1.7), grazing = camera_at(0.8, 0.3, 1.05);
+    RenderSettings settings{200, 150, {0, 0, 0, 0}};
+    const std::vector<Aov> aovs = {Aov::InstanceId, Aov::ClusterId, Aov::TriangleId, Aov::Depth};
+    struct Case {
+        const char* name;
+        std::vector<InstanceDesc> instances;
+        CameraDesc camera;
+        bool lod, blocks, occlusion;
+    };
+    const std::vector<Case> cases = {
+        {"one sphere, close", {identity_instance(sphere)}, close, true, true, false},
+        {"one sphere, grazing, per cluster", {identity_instance(sphere)}, grazing, true, false, false},
+        {"one sphere, no LOD", {identity_instance(sphere)}, close, false, true, false},
+        {"a wall and spheres, occlusion", wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))), camera_at(0, 0, 6), true,
+         true, true},
+    };
+    Renderer whole(*device), sevenParts(*device), deviceParts(*device);
+    Renderer* renderers[3] = {&whole, &sevenParts, &deviceParts};
+    for (const Case& c : cases) {
+        scene.set_instances(c.instances);
+        settings.lod = c.lod;
+        settings.cutBlocks = c.blocks;
+        settings.occlusion = c.occlusion;
+        std::vector<std::vector<Image>> images;
+        std::vector<FrameStats> stats;
+        const std::pair<uint32_t, uint32_t> partings[3] = {{1, 0}, {7, 1}, {0, 0}};
+        for (int r = 0; r < 3; ++r) {
+            const auto [parts, clusters] = partings[r];
+            Renderer& renderer = *renderers[r];  // new instances: the occlusion case's first frame has no HZB, its second has
+            settings.cutParts = parts;
+            settings.cutPartClusters = clusters;
+            for (int frame = 0; frame < 2; ++frame) {
+                FrameStats frameStats;
+                images.push_back(renderer.render(scene, c.camera, settings, aovs, &frameStats));
+                stats.push_back(frameStats);
+            }
+        }
+        for (size_t k = 2; k < images.size(); ++k) {
+            const std::string what = std::string(c.name) + ", run " + std::to_string(k / 2) + " frame " + std::to_string(k % 2);
+            const FrameStats& one = stats[k % 2];
+            EXPECT_GT(stats[k].visibleClusters, 0u) << what;
+            EXPECT_EQ(stats[k].visibleInstances, one.visibleInstances) << what;
+            EXPECT_EQ(stats[k].visibleClusters, one.visibleClusters) << what;
+            EXPECT_EQ(stats[k].candidateClusters, one.candidateClusters) << what;
+            EXPECT_EQ(stats[k].swTriangles, one.swTriangles) << what;
+            EXPECT_EQ(stats[k].hwTriangles, one.hwTriangles) << what;
+            EXPECT_EQ(stats[k].backfaceClusters, one.backfaceClusters) << what;
+            EXPECT_EQ(stats[k].occludedClusters, one.occludedClusters) << what;
+            EXPECT_EQ(stats[k].occludedInstances, one.occludedInstances) << what;
+            expect_same_images(images[k], images[k % 2], what.c_str());
+        }
+    }
+}
+
 TEST_F(RendererTest, OcclusionCullingChangesCountsNotTheImage) {
     GpuScene scene;
     scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));

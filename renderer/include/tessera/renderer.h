@@ -205,6 +205,11 @@ struct RenderSettings {
     // The cut skips whole blocks of clusters that cannot be drawn (GpuCutBlock, renderer/cut_blocks.cpp). Blocks change the clusters tested and
     // the time, never the cut: false tests each cluster of the levels not ruled out, to compare (tests, measurements).
     bool cutBlocks = true;
+    // Up to `cutParts` workgroups (at most TS_CUT_MOST_PARTS) share one instance's cut, one per `cutPartClusters`
+    // clusters of the levels its distance leaves in the cut; 0: the device's (renderer.cpp cut_parts_word). The same cut
+    // either way: a large mesh seen from close by walks tens of thousands of clusters, which one workgroup (one GPU
+    // multiprocessor, one lavapipe thread) walked alone. Set for tests and measurements.
+    uint32_t cutParts = 0, cutPartClusters = 0;
     // The passes read the scene's streams (instances, clusters, vertices, triangles, the visibility buffer...) through
     // texel buffer views where every one fits the device's maxTexelBufferElements, else through their addresses. The
     // same image either way; on lavapipe views are much faster (shared.h TS_SPEC_TEXEL_VIEWS). False: addresses only,
