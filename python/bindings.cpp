@@ -154,6 +154,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["shade_pixels_per_thread"] = s.shadePixelsPerThread;
     d["texel_views"] = s.texelViews;
     d["output_binding"] = s.outputBinding;
+    d["aovs_imported"] = s.aovsImported;
     d["overflow_redraws"] = s.overflowRedraws;
     d["visible_cluster_capacity"] = s.visibleClusterCapacity;
     d["occlusion_tested"] = s.occlusionTested;

@@ -1,6 +1,7 @@
 #include "tessera/device.h"
 
 #include <algorithm>
+#include <bit>
 #include <cstdlib>
 #include <cstring>
 #include <iostream>
@@ -243,10 +244,29 @@ Device::Device(const DeviceOptions& options) {
     queueInfo.queueFamilyIndex = queueFamily_;
     queueInfo.queueCount = 1;
     queueInfo.pQueuePriorities = &priority;
+    // Optional: host memory imported as device memory, so that AOVs land in their images' own memory (renderer.cpp).
+    std::vector<const char*> deviceExtensions;
+    uint32_t extensionCount = 0;
+    vkEnumerateDeviceExtensionProperties(physical_, nullptr, &extensionCount, nullptr);
+    std::vector<VkExtensionProperties> available(extensionCount);
+    vkEnumerateDeviceExtensionProperties(physical_, nullptr, &extensionCount, available.data());
+    const bool hostImport = std::any_of(available.begin(), available.end(), [](const VkExtensionProperties& e) {
+        return std::strcmp(e.extensionName, VK_EXT_EXTERNAL_MEMORY_HOST_EXTENSION_NAME) == 0;
+    });
+    if (hostImport) deviceExtensions.push_back(VK_EXT_EXTERNAL_MEMORY_HOST_EXTENSION_NAME);
     VkDeviceCreateInfo deviceInfo{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO, &features};
     deviceInfo.queueCreateInfoCount = 1;
     deviceInfo.pQueueCreateInfos = &queueInfo;
+    deviceInfo.enabledExtensionCount = uint32_t(deviceExtensions.size());
+    deviceInfo.ppEnabledExtensionNames = deviceExtensions.data();
     check_vk(vkCreateDevice(physical_, &deviceInfo, nullptr, &device_), "vkCreateDevice");
+    if (hostImport) {
+        VkPhysicalDeviceExternalMemoryHostPropertiesEXT host{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_EXTERNAL_MEMORY_HOST_PROPERTIES_EXT};
+        VkPhysicalDeviceProperties2 hostProperties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &host};
+        vkGetPhysicalDeviceProperties2(physical_, &hostProperties);
+        hostPointerProperties_ = reinterpret_cast<PFN_vkGetMemoryHostPointerPropertiesEXT>(vkGetDeviceProcAddr(device_, "vkGetMemoryHostPointerPropertiesEXT"));
+        if (hostPointerProperties_) hostImportAlignment_ = std::max<uint64_t>(host.minImportedHostPointerAlignment, 1);
+    }
     vkGetDeviceQueue(device_, queueFamily_, 0, &queue_);
 
     VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
@@ -352,6 +372,44 @@ Buffer Device::create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlag
     check_vk(vkBindBufferMemory(device_, buffer.handle, buffer.memory_, 0), "vkBindBufferMemory");
     if (memoryProperties_.memoryTypes[allocate.memoryTypeIndex].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
         check_vk(vkMapMemory(device_, buffer.memory_, 0, VK_WHOLE_SIZE, 0, &buffer.mapped), "vkMapMemory");
+    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO};
+    addressInfo.buffer = buffer.handle;
+    buffer.address = vkGetBufferDeviceAddress(device_, &addressInfo);
+    return buffer;
+}
+
+Buffer Device::import_host_memory(void* pointer, VkDeviceSize bytes) {
+    if (!hostImportAlignment_) throw DeviceError(name_ + " cannot import host memory");
+    if (reinterpret_cast<uintptr_t>(pointer) % hostImportAlignment_ != 0 || bytes % hostImportAlignment_ != 0 || bytes == 0)
+        throw std::invalid_argument("import_host_memory: the pointer and size must be multiples of " + std::to_string(hostImportAlignment_));
+    constexpr VkExternalMemoryHandleTypeFlagBits kHost = VK_EXTERNAL_MEMORY_HANDLE_TYPE_HOST_ALLOCATION_BIT_EXT;
+    VkMemoryHostPointerPropertiesEXT pointerProperties{VK_STRUCTURE_TYPE_MEMORY_HOST_POINTER_PROPERTIES_EXT};
+    check_vk(hostPointerProperties_(device_, kHost, pointer, &pointerProperties), "vkGetMemoryHostPointerPropertiesEXT");
+    Buffer buffer;
+    buffer.device_ = device_;
+    buffer.size = bytes;
+    VkExternalMemoryBufferCreateInfo external{VK_STRUCTURE_TYPE_EXTERNAL_MEMORY_BUFFER_CREATE_INFO};
+    external.handleTypes = kHost;
+    VkBufferCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO, &external};
+    info.size = bytes;
+    info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
+                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT;
+    check_vk(vkCreateBuffer(device_, &info, nullptr, &buffer.handle), "vkCreateBuffer");
+    VkMemoryRequirements requirements;
+    vkGetBufferMemoryRequirements(device_, buffer.handle, &requirements);
+    const uint32_t types = requirements.memoryTypeBits & pointerProperties.memoryTypeBits;
+    if (types == 0 || requirements.size > bytes) throw DeviceError(name_ + " cannot use imported host memory for a buffer");
+    VkImportMemoryHostPointerInfoEXT import{VK_STRUCTURE_TYPE_IMPORT_MEMORY_HOST_POINTER_INFO_EXT};
+    import.handleType = kHost;
+    import.pHostPointer = pointer;
+    VkMemoryAllocateFlagsInfo flags{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_FLAGS_INFO, &import};
+    flags.flags = VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT;
+    VkMemoryAllocateInfo allocate{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO, &flags};
+    allocate.allocationSize = bytes;
+    allocate.memoryTypeIndex = uint32_t(std::countr_zero(types));  // the lowest type the pointer allows
+    check_vk(vkAllocateMemory(device_, &allocate, nullptr, &buffer.memory_), "vkAllocateMemory (imported host memory)");
+    check_vk(vkBindBufferMemory(device_, buffer.handle, buffer.memory_, 0), "vkBindBufferMemory");
+    buffer.mapped = pointer;
     VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO};
     addressInfo.buffer = buffer.handle;
     buffer.address = vkGetBufferDeviceAddress(device_, &addressInfo);

@@ -60,6 +60,8 @@ void* allocate_pixel_bytes(size_t bytes) {
     return memory;
 }
 
+size_t pixel_block_bytes(size_t bytes) { return bytes < kLargeBlock ? 0 : huge_pages_for(bytes); }
+
 void free_pixel_bytes(void* memory, size_t bytes) {
     if (!memory) return;
     if (bytes < kLargeBlock) {

@@ -429,8 +429,18 @@ struct Renderer::Impl {
     // $TESSERA_TEXTURE_KINDS=all: every textured bin through the variant that reads every texture kind (for tests and
     // measurements; the default, `material`, compiles in only what the bin's textures need).
     const bool allTextureKinds = all_texture_kinds_forced();
+    // Frames write AOVs straight into their images where the device can (imports_aovs), unless $TESSERA_IMPORT_AOVS=0 or
+    // the driver refused an import.
+    bool importAovs = import_aovs_chosen();
 
     Impl(Device& d, std::shared_ptr<Pipelines> shared) : device(d), sharedPipelines(std::move(shared)), pipelines(*sharedPipelines) {}
+
+    static bool import_aovs_chosen() {
+        const char* forced = std::getenv("TESSERA_IMPORT_AOVS");
+        if (!forced || !*forced) return true;
+        if (std::string(forced) == "0" || std::string(forced) == "1") return std::string(forced) == "1";
+        throw std::invalid_argument(std::string("TESSERA_IMPORT_AOVS='") + forced + "': expected 0 or 1");
+    }
 
     static bool all_texture_kinds_forced() {
         const char* forced = std::getenv("TESSERA_TEXTURE_KINDS");
@@ -560,6 +570,15 @@ struct Renderer::Impl {
 
     // Whether a frame of `pixels` can store its AOVs through the output's binding on this device (TS_BINDING_OUTPUT).
     bool output_fits_binding(uint64_t pixels) const { return pixels * 16 <= device.max_storage_buffer_range(); }
+
+    // Whether a frame's AOVs go straight into their images' memory (Renderer::render): the device imports host memory
+    // and each image is a large block (whole huge pages at a huge-page boundary) that its alignment divides; not with
+    // $TESSERA_IMPORT_AOVS=0 (for tests and measurements).
+    bool imports_aovs(uint64_t pixels) const {
+        const uint64_t alignment = device.host_import_alignment(), block = pixel_block_bytes(pixels * 16);
+        if (alignment == 0 || block == 0 || block % alignment != 0 || (uint64_t(2) << 20) % alignment != 0) return false;
+        return importAovs;
+    }
 
     // The other sets, made on first use (pipelines.h): texel views with the output stored through its address, and
     // addresses only.
@@ -1017,7 +1036,9 @@ struct Renderer::Impl {
         upload_vector(device, texturePool, pool);
     }
 
-    void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount) {
+    // `aovsImported`: this frame's AOVs go straight into their images' memory (Renderer::render), the readback buffer
+    // then holds the draw state alone; `outputImported`: the output is the last image's memory (a CPU device), already set.
+    void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount, bool aovsImported, bool outputImported) {
         if (!drawState.handle) drawState = device.create_buffer(sizeof(gpu::GpuDrawState), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) {
             visibleClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
@@ -1029,16 +1050,18 @@ struct Renderer::Impl {
         const uint64_t pixels = uint64_t(w) * h;
         if (w != width || h != height || !visibility.handle) {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
-            // On a CPU device the output is host memory that the last AOV is read from directly: no copy of it into the
-            // readback buffer (33 MB at 1080p; Renderer::render). A GPU writes device memory and copies.
-            aovOutput = device.create_buffer(pixels * 16, device.is_software() ? MemoryUse::Readback : MemoryUse::Device);
+            if (!outputImported) aovOutput = Buffer{};
             binPixels = device.create_buffer(pixels * 4, MemoryUse::Device);
             hzbLevels = Buffer{};
             previousValid = false;
             width = w;
             height = h;
         }
-        const uint64_t copiedAovs = aovCount - (aovOutput.mapped && aovCount > 0 ? 1 : 0);  // the last one read in place
+        // On a CPU device the output is host memory that the last AOV is read from directly: no copy of it into the
+        // readback buffer (33 MB at 1080p; Renderer::render). A GPU writes device memory and copies.
+        if (!aovOutput.handle || aovOutput.size < pixels * 16)
+            aovOutput = device.create_buffer(pixels * 16, device.is_software() ? MemoryUse::Readback : MemoryUse::Device);
+        const uint64_t copiedAovs = aovsImported ? 0 : aovCount - (aovOutput.mapped && aovCount > 0 ? 1 : 0);  // the last one read in place
         const uint64_t readbackBytes = sizeof(gpu::GpuDrawState) + copiedAovs * pixels * 16;
         if (readback.size < readbackBytes) readback = device.create_buffer(readbackBytes, MemoryUse::Readback);
     }
@@ -1179,9 +1202,36 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.geometryBytes = s.meshes.size + s.levels.size + s.cutBlocks.size + s.blockClusters.size + s.clusters.size + s.vertices.size + s.colors.size + s.uvs.size +
                                s.triangles.size;
 
+    // The AOVs' images are made first, and where the device can import their memory (VK_EXT_external_memory_host) it
+    // writes them in place: a GPU copies each AOV from its output into its image; on a CPU device resolve writes the
+    // last AOV into its image (the frame's output is that image's memory) and the others are copied into theirs. Without
+    // an import (no such driver, images under a megabyte, $TESSERA_IMPORT_AOVS=0), AOVs go through the readback buffer and
+    // the CPU copies them out of it: at 1080p 33 MB, 9-10 ms of lavapipe's host and 4-5 ms beside an H100, a frame. The
+    // imports go when the frame is done; the images keep their memory.
+    std::vector<Image> images(aovs.size());
+    for (size_t i = 0; i < aovs.size(); ++i) images[i].width = settings.width, images[i].height = settings.height, images[i].aov = aovs[i];
+    bool importAovs = s.imports_aovs(pixels) && !aovs.empty();
+    const bool outputImported = importAovs && device_.is_software();
+    std::vector<Buffer> aovTargets;  // per AOV, its image's memory (on a CPU device, the last one is the output instead)
+    if (importAovs) {
+        try {
+            for (size_t i = 0; i < aovs.size(); ++i) {
+                images[i].pixels.resize(pixels * 4);  // left as it is: written whole by the device
+                Buffer target = device_.import_host_memory(images[i].pixels.data(), pixel_block_bytes(pixels * 16));
+                if (i + 1 == aovs.size() && outputImported) s.aovOutput = std::move(target);
+                else aovTargets.push_back(std::move(target));
+            }
+        } catch (const DeviceError&) {  // the driver refused this memory: this renderer's frames take the readback path
+            s.importAovs = false;
+            importAovs = false;
+            aovTargets.clear();
+        }
+    }
+    frameStats.aovsImported = importAovs;
+
     uint32_t lightCounts = 0;  // the frame's distant lights | all its lights << 8 (TS_SPEC_LIGHT_COUNTS)
     for (;;) {
-        s.ensure_frame_buffers(settings.width, settings.height, aovs.size());
+        s.ensure_frame_buffers(settings.width, settings.height, aovs.size(), importAovs, importAovs && outputImported);
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
         const bool occlusion = settings.occlusion && settings.lod;  // --no-lod: every source triangle, the classic way
         if (occlusion) s.ensure_occlusion_buffers();
@@ -1546,10 +1596,10 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                 if (i + 1 == aovs.size() && s.aovOutput.mapped) break;  // read where resolve wrote it
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
                         VK_ACCESS_2_TRANSFER_READ_BIT);
-                VkBufferCopy region{0, sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
+                const VkBufferCopy region{0, importAovs ? 0 : sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
                 const bool timed = timedCopies < Impl::kTimedCopies;
                 if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies);
-                vkCmdCopyBuffer(cmd, s.aovOutput.handle, s.readback.handle, 1, &region);
+                vkCmdCopyBuffer(cmd, s.aovOutput.handle, importAovs ? aovTargets[i].handle : s.readback.handle, 1, &region);
                 if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies++ + 1);
             }
             mark();
@@ -1655,19 +1705,17 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 
     frameStats.instanceBytes = s.instances.size + s.instanceBatches.size + s.batches.size + s.deferredInstances.size + s.cutList.size;
 
-    std::vector<Image> images;
-    for (size_t i = 0; i < aovs.size(); ++i) {
-        Image image;
-        image.width = settings.width;
-        image.height = settings.height;
-        image.aov = aovs[i];
-        // Copied straight from the mapped readback (resize then memcpy would write every byte twice: 33 MB at 1080p), or,
-        // for a CPU device's last AOV, from the output itself.
-        const bool direct = i + 1 == aovs.size() && s.aovOutput.mapped;
-        const float* rgba = direct ? static_cast<const float*>(s.aovOutput.mapped)
-                                   : reinterpret_cast<const float*>(static_cast<const char*>(s.readback.mapped) + sizeof(gpu::GpuDrawState) + i * pixels * 16);
-        image.pixels.assign(rgba, rgba + pixels * 4);
-        images.push_back(std::move(image));
+    if (importAovs) {
+        aovTargets.clear();  // the images keep their memory
+        if (outputImported) s.aovOutput = Buffer{};
+    } else {
+        for (size_t i = 0; i < aovs.size(); ++i) {
+            // Copied straight from the mapped readback, or, for a CPU device's last AOV, from the output itself.
+            const bool direct = i + 1 == aovs.size() && s.aovOutput.mapped;
+            const float* rgba = direct ? static_cast<const float*>(s.aovOutput.mapped)
+                                       : reinterpret_cast<const float*>(static_cast<const char*>(s.readback.mapped) + sizeof(gpu::GpuDrawState) + i * pixels * 16);
+            images[i].pixels.assign(rgba, rgba + pixels * 4);
+        }
     }
     frameStats.cpuFrameMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();
     if (stats) *stats = frameStats;

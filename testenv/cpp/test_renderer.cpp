@@ -745,6 +745,40 @@ TEST_F(RendererTest, OcclusionCullingChangesCountsNotTheImage) {
     EXPECT_TRUE(movedStats.occlusionTested);
 }
 
+// AOVs written straight into their images' memory (imported: VK_EXT_external_memory_host; on a CPU device the last AOV
+// is resolved in place) are the AOVs that go through the readback buffer, bit for bit: several AOVs, a plain
+// background of unequal words, a frame too small to import (under a megabyte per image), and an overflowing frame's
+// redraw. An import that is refused (no such driver) leaves the frame on the readback path.
+TEST_F(RendererTest, AovsWrittenIntoTheirImagesAreTheReadbackOnes) {
+    GpuScene scene;
+    scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));
+    const std::unique_ptr<Renderer> imported = renderer_with(*device, "TESSERA_IMPORT_AOVS", "1");
+    const std::unique_ptr<Renderer> readback = renderer_with(*device, "TESSERA_IMPORT_AOVS", "0");
+    const std::vector<Aov> aovs = {Aov::Depth, Aov::Color, Aov::PrimId, Aov::Normal};
+    const bool canImport = device->host_import_alignment() != 0;
+    for (const auto& [width, height] : std::vector<std::pair<uint32_t, uint32_t>>{{512, 384}, {97, 67}, {1, 1}}) {
+        RenderSettings settings{width, height, {0.1f, 0.2f, 0.3f, 1.0f}};
+        const std::string what = std::to_string(width) + "x" + std::to_string(height);
+        for (const auto& order : {aovs, std::vector<Aov>{Aov::Color}}) {
+            FrameStats in, out;
+            const std::vector<Image> a = imported->render(scene, camera_at(0, 0.5, 7), settings, order, &in);
+            const std::vector<Image> b = readback->render(scene, camera_at(0, 0.5, 7), settings, order, &out);
+            expect_same_images(a, b, what.c_str());
+            EXPECT_EQ(in.aovsImported, canImport && width * height * 16 >= (1u << 20)) << what;
+            EXPECT_FALSE(out.aovsImported) << what;
+        }
+    }
+    // The visible-cluster list overflows and the frame is drawn again: into the same images.
+    const RenderSettings settings{512, 384, {0, 0, 0, 0}};
+    imported->set_visible_cluster_capacity(16);
+    readback->set_visible_cluster_capacity(16);
+    FrameStats in, out;
+    expect_same_images(imported->render(scene, camera_at(0, 0.5, 7), settings, aovs, &in), readback->render(scene, camera_at(0, 0.5, 7), settings, aovs, &out),
+                       "an overflowing frame");
+    EXPECT_GT(in.overflowRedraws, 0u);
+    EXPECT_EQ(in.aovsImported, canImport);
+}
+
 // The cull's workgroup size is chosen per device (TS_CULL_GROUP_SIZE on a GPU, one subgroup on a CPU: 8 on lavapipe):
 // every size culls, cuts and defers the same clusters, so the frames are the same bit for bit.
 TEST_F(RendererTest, CullWorkgroupSizesDrawTheSameFrames) {

@@ -82,6 +82,11 @@ public:
     uint32_t subgroup_size() const { return subgroupSize_; }
 
     Buffer create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlags extraUsage = 0);
+    // Host memory the device reads and writes in place (VK_EXT_external_memory_host): a buffer over the `bytes` at
+    // `pointer`, both multiples of host_import_alignment(). The memory stays the caller's and must outlive the buffer
+    // (freeing the buffer leaves the memory as it is). host_import_alignment() is 0 where the driver cannot import.
+    uint64_t host_import_alignment() const { return hostImportAlignment_; }
+    Buffer import_host_memory(void* pointer, VkDeviceSize bytes);
     // Copies `bytes` into a Device buffer (directly when mapped, else through a staging buffer).
     void upload(Buffer& buffer, const void* data, size_t bytes);
 
@@ -117,6 +122,8 @@ private:
     uint32_t maxTexelBufferElements_ = 65536;
     uint32_t maxStorageBufferRange_ = 1u << 27;
     uint32_t subgroupSize_ = 1;
+    uint64_t hostImportAlignment_ = 0;  // minImportedHostPointerAlignment, 0 without VK_EXT_external_memory_host
+    PFN_vkGetMemoryHostPointerPropertiesEXT hostPointerProperties_ = nullptr;
 
     std::recursive_mutex runMutex_;  // the command pool and the queue are used by one thread at a time
     std::mutex sharedStateMutex_;

@@ -9,6 +9,7 @@
 #include <array>
 #include <memory>
 #include <span>
+#include <utility>
 #include <string>
 #include <vector>
 
@@ -147,6 +148,9 @@ bool aov_is_id(Aov aov);
 // 4 KB pages at 1080p.
 void* allocate_pixel_bytes(size_t bytes);
 void free_pixel_bytes(void* memory, size_t bytes);
+// The block an allocation of `bytes` takes: for a large one, whole huge pages at a huge-page boundary (so a device can
+// import it: Device::import_host_memory); 0 for a small one (a plain allocation).
+size_t pixel_block_bytes(size_t bytes);
 template <class T>
 struct PixelAllocator {
     using value_type = T;
@@ -155,6 +159,12 @@ struct PixelAllocator {
     PixelAllocator(const PixelAllocator<U>&) {}
     T* allocate(size_t n) { return static_cast<T*>(allocate_pixel_bytes(n * sizeof(T))); }
     void deallocate(T* p, size_t n) { free_pixel_bytes(p, n * sizeof(T)); }
+    // Sized without a value, pixels are left as they are (a frame's AOV is written whole by the device: no 33 MB of
+    // zeros first); with one, they get it.
+    template <class U>
+    void construct(U* p) { ::new (static_cast<void*>(p)) U; }
+    template <class U, class... Args>
+    void construct(U* p, Args&&... args) { ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...); }
     template <class U>
     bool operator==(const PixelAllocator<U>&) const { return true; }
 };
@@ -242,6 +252,7 @@ struct FrameStats {
     uint32_t shadePixelsPerThread = 0;   // pixels each resolve thread shades on this device (TS_SPEC_SHADE_PIXELS_PER_THREAD)
     bool texelViews = false;        // the passes read the streams through texel views (RenderSettings::texelViews)
     bool outputBinding = false;     // and store the AOVs through the output's binding (RenderSettings::outputBinding)
+    bool aovsImported = false;      // the AOVs went straight into the images' memory, not through the readback buffer
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
