@@ -1213,6 +1213,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     bool importAovs = s.imports_aovs(pixels) && !aovs.empty();
     const bool outputImported = importAovs && device_.is_software();
     std::vector<Buffer> aovTargets;  // per AOV, its image's memory (on a CPU device, the last one is the output instead)
+    struct ImportedOutput {  // let go of however the frame ends: the last image's memory may go back to the allocator
+        Impl& s;
+        bool imported;
+        ~ImportedOutput() { if (imported) s.aovOutput = Buffer{}; }
+    } importedOutput{s, outputImported};
     if (importAovs) {
         try {
             for (size_t i = 0; i < aovs.size(); ++i) {
@@ -1225,13 +1230,15 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             s.importAovs = false;
             importAovs = false;
             aovTargets.clear();
+            if (outputImported) s.aovOutput = Buffer{};
+            importedOutput.imported = false;
         }
     }
     frameStats.aovsImported = importAovs;
 
     uint32_t lightCounts = 0;  // the frame's distant lights | all its lights << 8 (TS_SPEC_LIGHT_COUNTS)
     for (;;) {
-        s.ensure_frame_buffers(settings.width, settings.height, aovs.size(), importAovs, importAovs && outputImported);
+        s.ensure_frame_buffers(settings.width, settings.height, aovs.size(), importAovs, importedOutput.imported);
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
         const bool occlusion = settings.occlusion && settings.lod;  // --no-lod: every source triangle, the classic way
         if (occlusion) s.ensure_occlusion_buffers();
@@ -1706,8 +1713,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     frameStats.instanceBytes = s.instances.size + s.instanceBatches.size + s.batches.size + s.deferredInstances.size + s.cutList.size;
 
     if (importAovs) {
-        aovTargets.clear();  // the images keep their memory
-        if (outputImported) s.aovOutput = Buffer{};
+        aovTargets.clear();  // the images keep their memory (and the output's import goes with importedOutput)
     } else {
         for (size_t i = 0; i < aovs.size(); ++i) {
             // Copied straight from the mapped readback, or, for a CPU device's last AOV, from the output itself.
