@@ -1600,7 +1600,8 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
                         vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
                         vkCmdDispatchIndirect(cmd, s.shadingBins.handle, bin * sizeof(gpu::GpuBin));
                     }
-                if (i + 1 == aovs.size() && s.aovOutput.mapped) break;  // read where resolve wrote it
+                // Read where resolve wrote it: the last image itself where imported, else host-visible output memory.
+                if (i + 1 == aovs.size() && (importAovs ? importedOutput.imported : s.aovOutput.mapped != nullptr)) break;
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
                         VK_ACCESS_2_TRANSFER_READ_BIT);
                 const VkBufferCopy region{0, importAovs ? 0 : sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
