@@ -145,6 +145,10 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
     assert field["frame_in_turns_ms"] > 0 and dense["frame_in_turns_ms"] > 0 and "frame_in_turns_ms" not in no_occlusion
     ratio = dense["frame_in_turns_ms"] / field["frame_in_turns_ms"]
     assert f"densest field costs {ratio:.2f}x the lightest (95x the source triangles), rendered in turns" in done.stdout
+    brute = {r["case"]: r for r in rows if r["table"] == "against brute force"}
+    assert brute["--no-lod"]["speedup_vs_no_lod"] == brute["--no-lod"]["gpu_speedup_vs_no_lod"] == 1.0
+    assert brute["1 px"]["speedup_vs_no_lod"] > 0 and brute["1 px"]["gpu_speedup_vs_no_lod"] > 0, "in wall time and in GPU time"
+    assert "GPU speedup" in done.stdout
     sweep = [r for r in rows if r["table"] == "speed against error"]
     assert [r["pixel_error"] for r in sweep] == [0.25, 0.5, 1.0, 2.0, 4.0, 8.0]
     assert all(0 < r["same_prim_percent"] <= 100 and r["psnr_db"] > 0 for r in sweep)
