@@ -302,8 +302,8 @@ void cut_instance(GpuFrame frame, uint step, uint entry, uint entries) {
 }
 
 // How many workgroups share an instance's cut (its cut list entries): one per frame.hzb.w >> 16 clusters its levels in
-// the cut hold, at most frame.hzb.w & 0xffff (TS_CUT_MOST_PARTS at most). A single large mesh seen from close by walks tens of thousands of
-// clusters, which one workgroup (one multiprocessor of a GPU, one thread of lavapipe) walked alone.
+// the cut hold, at most frame.hzb.w & 0xffff (and TS_CUT_MOST_PARTS). A single large mesh seen from close by walks tens
+// of thousands of clusters, which one workgroup (one multiprocessor of a GPU, one thread of lavapipe) walked alone.
 uint cut_parts(GpuFrame frame, Instance instance) {
     uint most = frame.hzb.w & 0xffffu, clustersPerPart = max(frame.hzb.w >> 16, 1u);
     GpuMesh mesh = load_mesh(frame, instance.meshIndex);
