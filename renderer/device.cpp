@@ -74,6 +74,18 @@ int type_rank(VkPhysicalDeviceType type) {
     }
 }
 
+// Every buffer's usage: any may be read through a texel buffer view (the renderer's views of its streams, shared.h
+// TS_VIEW_*), bound as storage, reached by its address, and copied to and from.
+constexpr VkBufferUsageFlags kBufferUsage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT |
+                                            VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT |
+                                            VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT;
+
+VkDeviceAddress device_address(VkDevice device, VkBuffer buffer) {
+    VkBufferDeviceAddressInfo info{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO};
+    info.buffer = buffer;
+    return vkGetBufferDeviceAddress(device, &info);
+}
+
 constexpr VkSubgroupFeatureFlags kSubgroupOperations = VK_SUBGROUP_FEATURE_BASIC_BIT | VK_SUBGROUP_FEATURE_VOTE_BIT | VK_SUBGROUP_FEATURE_BALLOT_BIT;
 
 // The features Tessera needs; returns the names of those the device lacks.
@@ -356,9 +368,7 @@ Buffer Device::create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlag
     buffer.size = std::max<VkDeviceSize>(size, 16);
     VkBufferCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO};
     info.size = buffer.size;
-    // Any buffer may be read through a texel buffer view (the renderer's views of its streams, shared.h TS_VIEW_*).
-    info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
-                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT | extraUsage;
+    info.usage = kBufferUsage | extraUsage;
     check_vk(vkCreateBuffer(device_, &info, nullptr, &buffer.handle), "vkCreateBuffer");
     VkMemoryRequirements requirements;
     vkGetBufferMemoryRequirements(device_, buffer.handle, &requirements);
@@ -372,16 +382,14 @@ Buffer Device::create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlag
     check_vk(vkBindBufferMemory(device_, buffer.handle, buffer.memory_, 0), "vkBindBufferMemory");
     if (memoryProperties_.memoryTypes[allocate.memoryTypeIndex].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
         check_vk(vkMapMemory(device_, buffer.memory_, 0, VK_WHOLE_SIZE, 0, &buffer.mapped), "vkMapMemory");
-    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO};
-    addressInfo.buffer = buffer.handle;
-    buffer.address = vkGetBufferDeviceAddress(device_, &addressInfo);
+    buffer.address = device_address(device_, buffer.handle);
     return buffer;
 }
 
 Buffer Device::import_host_memory(void* pointer, VkDeviceSize bytes) {
     if (!hostImportAlignment_) throw DeviceError(name_ + " cannot import host memory");
     if (reinterpret_cast<uintptr_t>(pointer) % hostImportAlignment_ != 0 || bytes % hostImportAlignment_ != 0 || bytes == 0)
-        throw std::invalid_argument("import_host_memory: the pointer and size must be multiples of " + std::to_string(hostImportAlignment_));
+        throw DeviceError(name_ + " imports host memory at multiples of " + std::to_string(hostImportAlignment_) + " bytes only");
     constexpr VkExternalMemoryHandleTypeFlagBits kHost = VK_EXTERNAL_MEMORY_HANDLE_TYPE_HOST_ALLOCATION_BIT_EXT;
     VkMemoryHostPointerPropertiesEXT pointerProperties{VK_STRUCTURE_TYPE_MEMORY_HOST_POINTER_PROPERTIES_EXT};
     check_vk(hostPointerProperties_(device_, kHost, pointer, &pointerProperties), "vkGetMemoryHostPointerPropertiesEXT");
@@ -392,8 +400,7 @@ Buffer Device::import_host_memory(void* pointer, VkDeviceSize bytes) {
     external.handleTypes = kHost;
     VkBufferCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO, &external};
     info.size = bytes;
-    info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_SHADER_DEVICE_ADDRESS_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
-                 VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT;
+    info.usage = kBufferUsage;
     check_vk(vkCreateBuffer(device_, &info, nullptr, &buffer.handle), "vkCreateBuffer");
     VkMemoryRequirements requirements;
     vkGetBufferMemoryRequirements(device_, buffer.handle, &requirements);
@@ -410,9 +417,7 @@ Buffer Device::import_host_memory(void* pointer, VkDeviceSize bytes) {
     check_vk(vkAllocateMemory(device_, &allocate, nullptr, &buffer.memory_), "vkAllocateMemory (imported host memory)");
     check_vk(vkBindBufferMemory(device_, buffer.handle, buffer.memory_, 0), "vkBindBufferMemory");
     buffer.mapped = pointer;
-    VkBufferDeviceAddressInfo addressInfo{VK_STRUCTURE_TYPE_BUFFER_DEVICE_ADDRESS_INFO};
-    addressInfo.buffer = buffer.handle;
-    buffer.address = vkGetBufferDeviceAddress(device_, &addressInfo);
+    buffer.address = device_address(device_, buffer.handle);
     return buffer;
 }
 

@@ -83,8 +83,9 @@ public:
 
     Buffer create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlags extraUsage = 0);
     // Host memory the device reads and writes in place (VK_EXT_external_memory_host): a buffer over the `bytes` at
-    // `pointer`, both multiples of host_import_alignment(). The memory stays the caller's and must outlive the buffer
-    // (freeing the buffer leaves the memory as it is). host_import_alignment() is 0 where the driver cannot import.
+    // `pointer`, both multiples of host_import_alignment() (else a DeviceError, as for memory the driver refuses). The
+    // memory stays the caller's and must outlive the buffer (freeing the buffer leaves the memory as it is).
+    // host_import_alignment() is 0 where the driver cannot import.
     uint64_t host_import_alignment() const { return hostImportAlignment_; }
     Buffer import_host_memory(void* pointer, VkDeviceSize bytes);
     // Copies `bytes` into a Device buffer (directly when mapped, else through a staging buffer).
