@@ -30,6 +30,7 @@ namespace {
 constexpr size_t kClusterVertices = 255;  // meshoptimizer's meshlet limit (build_clusters keeps to it too)
 constexpr size_t kGroupSize = 16;         // clusters per group (partitions come out between about 8 and 32)
 constexpr double kStuckRatio = 0.85;      // a group that keeps more than this share of its triangles is stuck
+constexpr double kSeamRetryError = 0.25;  // a group whose simplification strays this share of its diameter retries without normal seams
 constexpr int kPinRounds = 16;            // retries of one simplification step that made too long an edge
 // Vertex locks: a group border (shared with another group: crack-free), or pinned to split an edge too long.
 constexpr unsigned char kBorderLock = 1, kPinned = 2;
@@ -610,6 +611,29 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
         };
         std::vector<Result> results(groupCount);
+        // `indices` with each vertex replaced by the first vertex of the same position, colour, texture coordinates
+        // and material in them: wedges that differ only in their normals become one (see the seam retry below).
+        auto weld_normal_seams = [&](const std::vector<uint32_t>& indices) {
+            std::unordered_map<uint32_t, std::vector<uint32_t>> firstAt;  // position -> its representatives, in order
+            std::vector<uint32_t> welded(indices.size());
+            for (size_t i = 0; i < indices.size(); ++i) {
+                const uint32_t v = indices[i];
+                std::vector<uint32_t>& reps = firstAt[positionId[v]];
+                uint32_t chosen = v;
+                for (uint32_t r : reps) {
+                    const bool same = material_of(attributeOf[r]) == material_of(attributeOf[v]) &&
+                                      std::equal(attributes.begin() + r * attributeCount + 3, attributes.begin() + (r + 1) * attributeCount,
+                                                 attributes.begin() + v * attributeCount + 3);
+                    if (same) {
+                        chosen = r;
+                        break;
+                    }
+                }
+                if (chosen == v && std::find(reps.begin(), reps.end(), v) == reps.end()) reps.push_back(v);
+                welded[i] = chosen;
+            }
+            return welded;
+        };
         phases.mark("round: locks");
         parallel_for(groupCount, [&](size_t g) {
             std::vector<uint32_t> merged;
@@ -635,20 +659,29 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                                                       attributeCount * sizeof(float), groupWeights, attributeCount, lock.data(), to, FLT_MAX,
                                                       meshopt_SimplifySparse | meshopt_SimplifyErrorAbsolute, &passError);
             };
-            size_t kept = 0;
-            if (maxEdge <= 0) {
-                kept = simplify(merged, target, error);
-            } else {
+            double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+            for (uint32_t v : merged)
+                for (int k = 0; k < 3; ++k) {
+                    lo[k] = std::min(lo[k], double(local[3 * v + k]));
+                    hi[k] = std::max(hi[k], double(local[3 * v + k]));
+                }
+            const double diameter = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2]));
+            auto stuck = [&](size_t count) { return double(count) > kStuckRatio * double(merged.size()); };
+            // One simplification of `input` (the group's triangles, or them with normal seams welded) into `simplified`:
+            // returns the corners kept, and the error in `runError`.
+            auto simplify_group = [&](const std::vector<uint32_t>& input, float& runError) -> size_t {
+                runError = 0;
+                if (maxEdge <= 0) return simplify(input, target, runError);
                 // The edge length limit: simplify in steps of a fifth, so that each step makes few long edges; a step
                 // that made one is redone with the vertices that split such edges pinned. The errors of the steps add up.
-                std::vector<uint32_t> current = merged, pinned;
+                std::vector<uint32_t> current = input, pinned;
                 while (current.size() > target) {
                     const size_t stepTarget = std::max(target, (current.size() / 3 * 4 / 5) * 3);
                     size_t stepKept = 0;
                     float stepError = 0;
                     for (int attempt = 0; attempt <= kPinRounds; ++attempt) {
                         stepKept = simplify(current, stepTarget, stepError);
-                        const EdgeCheck check = check_edge_lengths(merged, current, simplified.data(), stepKept, local, positionId, lock, maxEdge);
+                        const EdgeCheck check = check_edge_lengths(input, current, simplified.data(), stepKept, local, positionId, lock, maxEdge);
                         if (!check.tooLong) break;
                         stepKept = current.size();  // rejected: retried with the splitting vertices pinned, if any
                         for (uint32_t v : check.pins) {
@@ -659,24 +692,38 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                     }
                     if (stepKept >= current.size()) break;  // the limit allows no further step
                     current.assign(simplified.begin(), simplified.begin() + stepKept);
-                    error += stepError;
+                    runError += stepError;
                 }
                 for (uint32_t v : pinned) lock[v] = 0;
-                kept = current.size();
                 std::copy(current.begin(), current.end(), simplified.begin());
+                return current.size();
+            };
+            size_t kept = simplify_group(merged, error);
+            // Normal seams (wedges of one position that differ only in their normals, by more than the grid weld's 30
+            // degrees) let the simplifier collapse only along them. Where that left the group stuck, or straying by a
+            // quarter of its size (flat shading on a rough surface, the needle poles of a latitude-longitude sphere), it
+            // simplifies again with those wedges welded, and the better result is kept: that level's surface then has one
+            // normal per position there (a hard edge turns smooth), and no new crack (positions and locks are the wedges').
+            if (stuck(kept) || double(error) > kSeamRetryError * diameter) {
+                const std::vector<uint32_t> welded = weld_normal_seams(merged);
+                if (welded != merged) {
+                    const std::vector<uint32_t> seamed(simplified.begin(), simplified.begin() + kept);
+                    float weldedError = 0;
+                    const size_t weldedKept = simplify_group(welded, weldedError);
+                    const bool better = stuck(kept) ? !stuck(weldedKept) : !stuck(weldedKept) && weldedError < error;
+                    if (better) {
+                        kept = weldedKept;
+                        error = weldedError;
+                    } else {
+                        std::copy(seamed.begin(), seamed.end(), simplified.begin());
+                    }
+                }
             }
             // Dropping whole free parts makes no new edge.
             if (kept > target) kept = drop_free_components(simplified, kept, target, local, positionId, lock, error);
-            if (kept == 0 || double(kept) > kStuckRatio * double(merged.size())) return;  // stuck (vanishing too: keep a root)
+            if (kept == 0 || stuck(kept)) return;  // stuck (vanishing too: keep a root)
             // The simplified surface is made of the group's own vertices, so it cannot stray further than the group's
             // extent; the simplifier's attribute terms can report more on slivers. Clamp to the group's diameter.
-            double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-            for (uint32_t v : merged)
-                for (int k = 0; k < 3; ++k) {
-                    lo[k] = std::min(lo[k], double(local[3 * v + k]));
-                    hi[k] = std::max(hi[k], double(local[3 * v + k]));
-                }
-            const double diameter = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2]));
             error = std::min(error, float(diameter));
             simplified.resize(kept);
             Result& result = results[g];

@@ -26,11 +26,13 @@ struct Source {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
     std::vector<float> colors;  // uniform (per face) when set
+    std::vector<float> normals; // uniform (per face) when set: flat shading
     std::vector<float> uvs;     // face-varying (per corner) when set
     std::vector<int32_t> faceMaterials;  // material slot per face when set
     BuiltMesh build(const BuildSettings& settings = {}) const {
         MeshView v = polygon_view(name, points, counts, indices);
         if (!colors.empty()) v.displayColor = {Interpolation::Uniform, 3, colors, {}};
+        if (!normals.empty()) v.normals = {Interpolation::Uniform, 3, normals, {}};
         if (!uvs.empty()) v.uvs = {Interpolation::FaceVarying, 2, uvs, {}};
         v.faceMaterials = faceMaterials;
         return build_mesh(prepare_mesh(v), settings);
@@ -71,6 +73,30 @@ inline Source icosphere(int level, double scale = 1.0, double offset = 0.0) {
     for (auto& tri : f) {
         s.counts.push_back(3);
         s.indices.insert(s.indices.end(), tri.begin(), tri.end());
+    }
+    return s;
+}
+
+// Flat shading: each face's own normal, authored per face. On a surface rougher than the grid weld's 30 degrees
+// (an icosphere whose vertices are moved in and out by up to `roughness` of the radius) nearly every position is then
+// a vertex of several wedges whose normals differ: hard edges everywhere.
+inline Source flat_shaded(Source s, double roughness) {
+    s.name += "FlatShaded";
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> bump(1.0 - roughness, 1.0 + roughness);
+    for (size_t i = 0; i < s.points.size(); i += 3) {
+        const double r = bump(rng);
+        for (int k = 0; k < 3; ++k) s.points[i + k] = float(s.points[i + k] * r);
+    }
+    for (size_t f = 0; f < s.indices.size(); f += 3) {
+        const float* a = &s.points[3 * s.indices[f]];
+        const float* b = &s.points[3 * s.indices[f + 1]];
+        const float* c = &s.points[3 * s.indices[f + 2]];
+        const double e1[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]};
+        const double e2[3] = {double(c[0]) - a[0], double(c[1]) - a[1], double(c[2]) - a[2]};
+        const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+        const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        for (int k = 0; k < 3; ++k) s.normals.push_back(float(n[k] / len));
     }
     return s;
 }

@@ -49,6 +49,31 @@ TEST(Dag, ClosedMeshSimplifiesToAtMostTwoRootClusters) {
     for (size_t l = 1; l < m.levels.size(); ++l) EXPECT_LT(m.levels[l].triangles, m.levels[l - 1].triangles);
 }
 
+TEST(Dag, HardEdgesEverywhereDoNotStallTheDag) {
+    // Flat shading on a rough sphere: nearly every position holds wedges whose normals differ by more than the grid
+    // weld's 30 degrees, and the simplifier, which collapses wedges only along their seams, gets stuck on them. Such a
+    // group simplifies again with those wedges welded (dag.cpp), so the DAG still reaches a root of at most 2 clusters
+    // within the mesh's size, monotone and without cracks.
+    auto root_triangles = [](const BuiltMesh& m) {
+        size_t roots = 0, triangles = 0;
+        for (const Cluster& c : m.clusters)
+            if (std::isinf(c.parentError)) ++roots, triangles += c.triangleCount;
+        return std::pair{roots, triangles};
+    };
+    BuiltMesh m = flat_shaded(icosphere(5), 0.05).build();  // 20k triangles
+    EXPECT_LE(root_triangles(m).first, 2u);
+    EXPECT_LT(m.levels.back().maxError, 0.5f * m.size);
+    expect_monotone(m);
+    expect_crack_free_cuts(m, 25);
+    // The stepped simplification of the edge length limit retries the same way: the limit, not the seams, is what
+    // stops it (the smooth sphere stops at 10 root clusters under this limit).
+    BuildSettings edgeLimit;
+    edgeLimit.maxEdgeLengthFactor = 8;
+    BuiltMesh limited = flat_shaded(icosphere(5), 0.05).build(edgeLimit), smooth = icosphere(5).build(edgeLimit);
+    EXPECT_LE(root_triangles(limited).second, root_triangles(smooth).second);
+    expect_monotone(limited);
+}
+
 TEST(Dag, QuadSoupStillReducesToTwoPercent) {
     BuiltMesh m = quad_soup(20000).build();
     uint64_t rootTriangles = 0;
