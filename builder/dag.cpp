@@ -611,9 +611,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
         };
         std::vector<Result> results(groupCount);
-        // `indices` with each vertex replaced by the first vertex of the same position, colour, texture coordinates
-        // and material in them: wedges that differ only in their normals become one (see the seam retry below).
-        auto weld_normal_seams = [&](const std::vector<uint32_t>& indices) {
+        // `indices` with each vertex replaced by the first vertex in them of the same position, texture coordinates and
+        // material, and colour unless `colours`: wedges that differ only in their normals (and colours) become one (see
+        // the seam retry below). Texture coordinates are never welded: a corner would sample another island.
+        auto weld_seams = [&](const std::vector<uint32_t>& indices, bool colours) {
+            const size_t compareFrom = colours ? uvAttribute : 3;  // the attributes that must match: after the normal
             std::unordered_map<uint32_t, std::vector<uint32_t>> firstAt;  // position -> its representatives, in order
             std::vector<uint32_t> welded(indices.size());
             for (size_t i = 0; i < indices.size(); ++i) {
@@ -622,8 +624,8 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                 uint32_t chosen = v;
                 for (uint32_t r : reps) {
                     const bool same = material_of(attributeOf[r]) == material_of(attributeOf[v]) &&
-                                      std::equal(attributes.begin() + r * attributeCount + 3, attributes.begin() + (r + 1) * attributeCount,
-                                                 attributes.begin() + v * attributeCount + 3);
+                                      std::equal(attributes.begin() + r * attributeCount + compareFrom, attributes.begin() + (r + 1) * attributeCount,
+                                                 attributes.begin() + v * attributeCount + compareFrom);
                     if (same) {
                         chosen = r;
                         break;
@@ -699,24 +701,26 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                 return current.size();
             };
             size_t kept = simplify_group(merged, error);
-            // Normal seams (wedges of one position that differ only in their normals, by more than the grid weld's 30
-            // degrees) let the simplifier collapse only along them. Where that left the group stuck, or straying by a
-            // quarter of its size (flat shading on a rough surface, the needle poles of a latitude-longitude sphere), it
-            // simplifies again with those wedges welded, and the better result is kept: that level's surface then has one
-            // normal per position there (a hard edge turns smooth), and no new crack (positions and locks are the wedges').
-            if (stuck(kept) || double(error) > kSeamRetryError * diameter) {
-                const std::vector<uint32_t> welded = weld_normal_seams(merged);
-                if (welded != merged) {
-                    const std::vector<uint32_t> seamed(simplified.begin(), simplified.begin() + kept);
-                    float weldedError = 0;
-                    const size_t weldedKept = simplify_group(welded, weldedError);
-                    const bool better = stuck(kept) ? !stuck(weldedKept) : !stuck(weldedKept) && weldedError < error;
-                    if (better) {
-                        kept = weldedKept;
-                        error = weldedError;
-                    } else {
-                        std::copy(seamed.begin(), seamed.end(), simplified.begin());
-                    }
+            // Normal and colour seams (wedges of one position that differ only in their normals, by more than the grid
+            // weld's 30 degrees, or in their colours) let the simplifier collapse only along them. Where that left the
+            // group stuck, or straying by a quarter of its size (flat shading or colour per face, the needle poles of a
+            // latitude-longitude sphere), it simplifies again with its normal seams welded, then also its colour seams,
+            // and keeps the better result: that level then has one normal (and colour) per position there, a hard edge
+            // turned smooth, colours blended as distance blends them; no new crack (positions and locks are the wedges').
+            for (const bool colours : {false, true}) {
+                if (!stuck(kept) && double(error) <= kSeamRetryError * diameter) break;
+                if (colours && !hasColors) break;
+                const std::vector<uint32_t> welded = weld_seams(merged, colours);
+                if (welded == merged) continue;
+                const std::vector<uint32_t> seamed(simplified.begin(), simplified.begin() + kept);
+                float weldedError = 0;
+                const size_t weldedKept = simplify_group(welded, weldedError);
+                const bool better = stuck(kept) ? !stuck(weldedKept) : !stuck(weldedKept) && weldedError < error;
+                if (better) {
+                    kept = weldedKept;
+                    error = weldedError;
+                } else {
+                    std::copy(seamed.begin(), seamed.end(), simplified.begin());
                 }
             }
             // Dropping whole free parts makes no new edge.

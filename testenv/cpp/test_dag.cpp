@@ -49,11 +49,11 @@ TEST(Dag, ClosedMeshSimplifiesToAtMostTwoRootClusters) {
     for (size_t l = 1; l < m.levels.size(); ++l) EXPECT_LT(m.levels[l].triangles, m.levels[l - 1].triangles);
 }
 
-TEST(Dag, HardEdgesEverywhereDoNotStallTheDag) {
-    // Flat shading on a rough sphere: nearly every position holds wedges whose normals differ by more than the grid
-    // weld's 30 degrees, and the simplifier, which collapses wedges only along their seams, gets stuck on them. Such a
-    // group simplifies again with those wedges welded (dag.cpp), so the DAG still reaches a root of at most 2 clusters
-    // within the mesh's size, monotone and without cracks.
+TEST(Dag, SeamsEverywhereDoNotStallTheDag) {
+    // Flat shading on a rough sphere, or a colour per face: nearly every position holds wedges whose normals differ by
+    // more than the grid weld's 30 degrees, or whose colours differ, and the simplifier, which collapses wedges only
+    // along their seams, gets stuck on them (no level above 0 was built). Such a group simplifies again with those
+    // wedges welded (dag.cpp), so the DAG still reaches a root of at most 2 clusters, monotone and without cracks.
     auto root_triangles = [](const BuiltMesh& m) {
         size_t roots = 0, triangles = 0;
         for (const Cluster& c : m.clusters)
@@ -65,6 +65,14 @@ TEST(Dag, HardEdgesEverywhereDoNotStallTheDag) {
     EXPECT_LT(m.levels.back().maxError, 0.5f * m.size);
     expect_monotone(m);
     expect_crack_free_cuts(m, 25);
+    Source coloured = icosphere(5);
+    for (size_t f = 0; f < coloured.counts.size(); ++f)
+        coloured.colors.insert(coloured.colors.end(), {float(f % 7) / 7, float(f % 5) / 5, float(f % 3) / 3});
+    BuiltMesh c = coloured.build();
+    EXPECT_LE(root_triangles(c).first, 2u);
+    EXPECT_LT(c.levels[1].maxError, 0.05f * c.size) << "colour blends at the first level, not the surface";
+    expect_monotone(c);
+    expect_crack_free_cuts(c, 25);
     // The stepped simplification of the edge length limit retries the same way: the limit, not the seams, is what
     // stops it (the smooth sphere stops at 10 root clusters under this limit).
     BuildSettings edgeLimit;
