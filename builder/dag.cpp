@@ -22,6 +22,7 @@
 #include <cstring>
 #include <limits>
 #include <map>
+#include <tuple>
 #include <unordered_map>
 
 namespace tessera {
@@ -545,11 +546,108 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
         for (size_t v = begin; v < end; ++v) attributeOf[v] = uint32_t(v);
     });
+    // The source's UV islands, for the seam retry's last step: triangles joined through shared vertices, and through
+    // wedges of one position with the same texture coordinates (normal or colour seams inside an island). Each
+    // vertex's island is named by its smallest vertex.
+    std::vector<uint32_t> uvIsland;
+    if (hasUvs) {
+        uvIsland.resize(vertexCount);
+        for (size_t v = 0; v < vertexCount; ++v) uvIsland[v] = uint32_t(v);
+        auto find = [&](uint32_t v) {
+            while (uvIsland[v] != v) v = uvIsland[v] = uvIsland[uvIsland[v]];  // path halving
+            return v;
+        };
+        auto unite = [&](uint32_t a, uint32_t b) {
+            a = find(a), b = find(b);
+            if (a != b) uvIsland[std::max(a, b)] = std::min(a, b);
+        };
+        for (size_t i = 0; i < sourceIndices.size(); i += 3) unite(sourceIndices[i], sourceIndices[i + 1]), unite(sourceIndices[i], sourceIndices[i + 2]);
+        // Wedges: the vertices that are not the first at their position (few), with the first and with each other.
+        std::vector<uint32_t> wedges;
+        for (size_t v = 0; v < vertexCount; ++v)
+            if (positionId[v] != v) wedges.push_back(uint32_t(v));
+        auto wedge_key = [&](uint32_t v) { return std::tuple(positionId[v], uvs[2 * v], uvs[2 * v + 1]); };
+        for (uint32_t v : wedges)
+            if (wedge_key(v) == wedge_key(positionId[v])) unite(v, positionId[v]);
+        std::sort(wedges.begin(), wedges.end(), [&](uint32_t a, uint32_t b) { return std::pair(wedge_key(a), a) < std::pair(wedge_key(b), b); });
+        for (size_t i = 1; i < wedges.size(); ++i)
+            if (wedge_key(wedges[i]) == wedge_key(wedges[i - 1])) unite(wedges[i], wedges[i - 1]);
+        for (size_t v = 0; v < vertexCount; ++v) uvIsland[v] = find(uint32_t(v));
+    }
 
     std::vector<uint32_t> pending;
     add_clusters(split_level_zero(sourceIndices, local), nullptr, 0.0f, 0, -1, pending);
     phases.mark("level0 clusters");
 
+    // `indices` with each vertex replaced by the first vertex in them of the same position and material, and of the
+    // same colour unless `colours`, the same texture coordinates unless `texcoords`: wedges that differ only in those
+    // attributes and their normals become one (see the seam retry below).
+    auto weld_seams = [&](const std::vector<uint32_t>& indices, bool colours, bool texcoords) {
+        // The attributes that must match: after the normal, none with `texcoords`, the UVs only with `colours`.
+        const size_t compareFrom = texcoords ? attributeCount : colours ? uvAttribute : 3;
+        std::unordered_map<uint32_t, std::vector<uint32_t>> firstAt;  // position -> its representatives, in order
+        std::vector<uint32_t> welded(indices.size());
+        for (size_t i = 0; i < indices.size(); ++i) {
+            const uint32_t v = indices[i];
+            std::vector<uint32_t>& reps = firstAt[positionId[v]];
+            uint32_t chosen = v;
+            for (uint32_t r : reps) {
+                const bool same = material_of(attributeOf[r]) == material_of(attributeOf[v]) &&
+                                  std::equal(attributes.begin() + r * attributeCount + compareFrom, attributes.begin() + (r + 1) * attributeCount,
+                                             attributes.begin() + v * attributeCount + compareFrom);
+                if (same) {
+                    chosen = r;
+                    break;
+                }
+            }
+            if (chosen == v && std::find(reps.begin(), reps.end(), v) == reps.end()) reps.push_back(v);
+            welded[i] = chosen;
+        }
+        return welded;
+    };
+    // After a simplification of `indices` with every wedge welded: gives each corner of the `count` corners at `out`
+    // back a wedge of its position in one UV island of the source (uvIsland), the island that most of its triangle's
+    // corners have a wedge in (ties: the first island). Returns the largest edge of a triangle whose corners found no
+    // common island: such a triangle samples across an island border, and its size is the error that makes.
+    auto restore_uv_islands = [&](const std::vector<uint32_t>& indices, uint32_t* out, size_t count) {
+        const std::vector<uint32_t> sameUv = weld_seams(indices, true, false);
+        auto island_of = [&](uint32_t v) { return uvIsland[attributeOf[v]]; };
+        std::unordered_map<uint32_t, std::vector<std::pair<uint32_t, uint32_t>>> wedges;  // position -> (island, vertex)
+        for (uint32_t v : sameUv) {
+            auto& list = wedges[positionId[v]];
+            const uint32_t island = island_of(v);
+            const bool known = std::any_of(list.begin(), list.end(), [&](const auto& w) {
+                return w.first == island && material_of(attributeOf[w.second]) == material_of(attributeOf[v]);
+            });
+            if (!known) list.push_back({island, v});
+        }
+        auto wedge_in = [&](uint32_t corner, uint32_t island) {
+            for (const auto& [i, v] : wedges[positionId[corner]])
+                if (i == island && material_of(attributeOf[v]) == material_of(attributeOf[corner])) return v;
+            return UINT32_MAX;
+        };
+        float worst = 0;
+        for (size_t t = 0; t < count; t += 3) {
+            uint32_t island = UINT32_MAX;
+            int most = 0;
+            for (int k = 0; k < 3; ++k)
+                for (const auto& candidate : wedges[positionId[out[t + k]]]) {
+                    int corners = 0;
+                    for (int j = 0; j < 3; ++j) corners += wedge_in(out[t + j], candidate.first) != UINT32_MAX;
+                    if (corners > most || (corners == most && candidate.first < island)) most = corners, island = candidate.first;
+                }
+            for (int k = 0; k < 3; ++k)
+                if (const uint32_t v = wedge_in(out[t + k], island); v != UINT32_MAX) out[t + k] = v;
+            if (most < 3)
+                for (int k = 0; k < 3; ++k) {
+                    const float* a = &local[3 * out[t + k]];
+                    const float* b = &local[3 * out[t + (k + 1) % 3]];
+                    worst = std::max(worst, float(std::sqrt(double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) +
+                                                            double(a[2] - b[2]) * (a[2] - b[2]))));
+                }
+        }
+        return worst;
+    };
     std::vector<unsigned char> lock(vertexCount, 0);
     std::vector<int32_t> firstGroup(vertexCount, -1);
     std::vector<unsigned char> shared(vertexCount, 0);
@@ -611,31 +709,6 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
         };
         std::vector<Result> results(groupCount);
-        // `indices` with each vertex replaced by the first vertex in them of the same position, texture coordinates and
-        // material, and colour unless `colours`: wedges that differ only in their normals (and colours) become one (see
-        // the seam retry below). Texture coordinates are never welded: a corner would sample another island.
-        auto weld_seams = [&](const std::vector<uint32_t>& indices, bool colours) {
-            const size_t compareFrom = colours ? uvAttribute : 3;  // the attributes that must match: after the normal
-            std::unordered_map<uint32_t, std::vector<uint32_t>> firstAt;  // position -> its representatives, in order
-            std::vector<uint32_t> welded(indices.size());
-            for (size_t i = 0; i < indices.size(); ++i) {
-                const uint32_t v = indices[i];
-                std::vector<uint32_t>& reps = firstAt[positionId[v]];
-                uint32_t chosen = v;
-                for (uint32_t r : reps) {
-                    const bool same = material_of(attributeOf[r]) == material_of(attributeOf[v]) &&
-                                      std::equal(attributes.begin() + r * attributeCount + compareFrom, attributes.begin() + (r + 1) * attributeCount,
-                                                 attributes.begin() + v * attributeCount + compareFrom);
-                    if (same) {
-                        chosen = r;
-                        break;
-                    }
-                }
-                if (chosen == v && std::find(reps.begin(), reps.end(), v) == reps.end()) reps.push_back(v);
-                welded[i] = chosen;
-            }
-            return welded;
-        };
         phases.mark("round: locks");
         parallel_for(groupCount, [&](size_t g) {
             std::vector<uint32_t> merged;
@@ -710,7 +783,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             for (const bool colours : {false, true}) {
                 if (!stuck(kept) && double(error) <= kSeamRetryError * diameter) break;
                 if (colours && !hasColors) break;
-                const std::vector<uint32_t> welded = weld_seams(merged, colours);
+                const std::vector<uint32_t> welded = weld_seams(merged, colours, false);
                 if (welded == merged) continue;
                 const std::vector<uint32_t> seamed(simplified.begin(), simplified.begin() + kept);
                 float weldedError = 0;
@@ -721,6 +794,27 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                     error = weldedError;
                 } else {
                     std::copy(seamed.begin(), seamed.end(), simplified.begin());
+                }
+            }
+            // Texture-coordinate seams last, only where the others left the group stuck or straying: it simplifies with
+            // every wedge of a position welded (texture coordinates weighed 0), and each corner then takes back a wedge in
+            // one UV island (restore_uv_islands). Where a triangle's corners share no island it samples across an island
+            // border: its size counts as error, so that level is drawn only where such a triangle covers under a pixel.
+            if (hasUvs && (stuck(kept) || double(error) > kSeamRetryError * diameter)) {
+                const std::vector<uint32_t> welded = weld_seams(merged, true, true);
+                if (welded != merged) {
+                    const std::vector<uint32_t> seamed(simplified.begin(), simplified.begin() + kept);
+                    groupWeights[uvAttribute] = groupWeights[uvAttribute + 1] = 0;
+                    float weldedError = 0;
+                    const size_t weldedKept = simplify_group(welded, weldedError);
+                    if (!stuck(weldedKept)) weldedError = std::max(weldedError, restore_uv_islands(merged, simplified.data(), weldedKept));
+                    const bool better = stuck(kept) ? !stuck(weldedKept) : !stuck(weldedKept) && weldedError < error;
+                    if (better) {
+                        kept = weldedKept;
+                        error = weldedError;
+                    } else {
+                        std::copy(seamed.begin(), seamed.end(), simplified.begin());
+                    }
                 }
             }
             // Dropping whole free parts makes no new edge.

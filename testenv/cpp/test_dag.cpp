@@ -201,6 +201,40 @@ TEST(Dag, TextureCoordinatesCostLittleGeometricError) {
     }
 }
 
+TEST(Dag, UvIslandsEverywhereDoNotStallTheDag) {
+    // UV islands of 4 faces (each island's coordinates offset by 2): texture-coordinate seams everywhere, which the
+    // simplifier will not collapse across (241 root clusters, no level above 0, before the seam retry welded them).
+    // Every vertex stays a source vertex (one island's wedge per corner), and a triangle whose corners come from
+    // different islands samples across a border: its size counts as its cluster's error.
+    Source islands = with_spherical_uvs(icosphere(5));
+    for (size_t f = 0; f < islands.counts.size(); ++f)
+        for (int k = 0; k < 3; ++k) islands.uvs[2 * (3 * f + k)] += float((f / 4) % 97) * 2.0f;
+    BuiltMesh u = islands.build();
+    size_t roots = 0;
+    for (const Cluster& c : u.clusters) roots += std::isinf(c.parentError);
+    EXPECT_LE(roots, 2u);
+    expect_monotone(u);
+    expect_crack_free_cuts(u, 25);
+    expect_source_vertices(u);
+    size_t crossing = 0;
+    for (const Cluster& c : u.clusters)
+        for (uint32_t t = 0; t < c.triangleCount; ++t) {
+            const uint32_t packed = u.triangles[c.triangleOffset + t];
+            uint32_t v[3];
+            for (int k = 0; k < 3; ++k) v[k] = c.vertexOffset + ((packed >> (8 * k)) & 0xff);
+            auto island = [&](uint32_t vertex) { return int(std::floor(u.uvs[2 * vertex] / 2)); };
+            if (island(v[0]) == island(v[1]) && island(v[1]) == island(v[2])) continue;
+            ++crossing;
+            for (int k = 0; k < 3; ++k) {
+                const float* a = &u.positions[3 * v[k]];
+                const float* b = &u.positions[3 * v[(k + 1) % 3]];
+                const double edge = std::sqrt(double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]));
+                ASSERT_LE(edge, double(c.lodError) * (1 + 1e-5)) << "a triangle across islands larger than its cluster's error";
+            }
+        }
+    EXPECT_GT(crossing, 0u) << "the islands were welded somewhere";
+}
+
 TEST(Dag, MaterialSlotsSurviveEveryLevel) {
     // Three GeomSubset-like regions on a sphere (slot by the face's first point: x < -0.3, y > 0.2, else 0).
     Source s = icosphere(5);
