@@ -780,14 +780,13 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             // latitude-longitude sphere), it simplifies again with its normal seams welded, then also its colour seams,
             // and keeps the better result: that level then has one normal (and colour) per position there, a hard edge
             // turned smooth, colours blended as distance blends them; no new crack (positions and locks are the wedges').
-            for (const bool colours : {false, true}) {
-                if (!stuck(kept) && double(error) <= kSeamRetryError * diameter) break;
-                if (colours && !hasColors) break;
-                const std::vector<uint32_t> welded = weld_seams(merged, colours, false);
-                if (welded == merged) continue;
+            // Simplifies `welded` instead, and keeps that where it is better (not stuck where the first was, or less
+            // error); `restore(count)` fixes the welded result up first and returns the error that adds.
+            auto retry_welded = [&](const std::vector<uint32_t>& welded, auto restore) {
                 const std::vector<uint32_t> seamed(simplified.begin(), simplified.begin() + kept);
                 float weldedError = 0;
                 const size_t weldedKept = simplify_group(welded, weldedError);
+                if (!stuck(weldedKept)) weldedError = std::max(weldedError, restore(weldedKept));
                 const bool better = stuck(kept) ? !stuck(weldedKept) : !stuck(weldedKept) && weldedError < error;
                 if (better) {
                     kept = weldedKept;
@@ -795,26 +794,22 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                 } else {
                     std::copy(seamed.begin(), seamed.end(), simplified.begin());
                 }
+            };
+            auto held_back = [&] { return stuck(kept) || double(error) > kSeamRetryError * diameter; };
+            for (const bool colours : {false, true}) {
+                if (!held_back() || (colours && !hasColors)) break;
+                const std::vector<uint32_t> welded = weld_seams(merged, colours, false);
+                if (welded != merged) retry_welded(welded, [](size_t) { return 0.0f; });
             }
             // Texture-coordinate seams last, only where the others left the group stuck or straying: it simplifies with
             // every wedge of a position welded (texture coordinates weighed 0), and each corner then takes back a wedge in
             // one UV island (restore_uv_islands). Where a triangle's corners share no island it samples across an island
             // border: its size counts as error, so that level is drawn only where such a triangle covers under a pixel.
-            if (hasUvs && (stuck(kept) || double(error) > kSeamRetryError * diameter)) {
+            if (hasUvs && held_back()) {
                 const std::vector<uint32_t> welded = weld_seams(merged, true, true);
                 if (welded != merged) {
-                    const std::vector<uint32_t> seamed(simplified.begin(), simplified.begin() + kept);
                     groupWeights[uvAttribute] = groupWeights[uvAttribute + 1] = 0;
-                    float weldedError = 0;
-                    const size_t weldedKept = simplify_group(welded, weldedError);
-                    if (!stuck(weldedKept)) weldedError = std::max(weldedError, restore_uv_islands(merged, simplified.data(), weldedKept));
-                    const bool better = stuck(kept) ? !stuck(weldedKept) : !stuck(weldedKept) && weldedError < error;
-                    if (better) {
-                        kept = weldedKept;
-                        error = weldedError;
-                    } else {
-                        std::copy(seamed.begin(), seamed.end(), simplified.begin());
-                    }
+                    retry_welded(welded, [&](size_t count) { return restore_uv_islands(merged, simplified.data(), count); });
                 }
             }
             // Dropping whole free parts makes no new edge.
