@@ -160,6 +160,20 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
     assert runtime[0]["micro_triangles"] > runtime[-1]["micro_triangles"], "a finer dicing rate makes more micro-triangles"
 
 
+def test_bench_render_seams_gives_a_field_with_a_colour_per_face_its_lod(tmp_path):
+    rows_file = tmp_path / "rows.json"
+    done = run("bench", "render", "--cases", "seams", "--seams-n", "16", "--resolution", "96x54", "--frames", "1",
+               "--stages-dir", tmp_path, "--json", rows_file)
+    assert done.returncode == 0, done.stderr + done.stdout
+    rows = {r["case"]: r for r in json.loads(rows_file.read_text())}
+    assert set(rows) == {"colour per face, 1 px", "colour per face, --no-lod", "one colour, 1 px", "one colour, --no-lod"}
+    assert all(r["table"] == "seams" and r["source_triangles"] == 32 * 32 * 4 * 16 * 16 for r in rows.values())
+    # A seam at every edge no longer keeps the mesh at its source triangles (the DAG stalled at level 0 before).
+    for kind in ("colour per face", "one colour"):
+        assert rows[f"{kind}, 1 px"]["triangles_drawn"] < 0.5 * rows[f"{kind}, --no-lod"]["triangles_drawn"], kind
+        assert rows[f"{kind}, --no-lod"]["psnr_db"] == 99.0 and rows[f"{kind}, 1 px"]["psnr_db"] > 20
+
+
 def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):
     rows_file, cache = tmp_path / "rows.json", tmp_path / "cache"
     # --record writes into the cache it runs with: its own here, so that no other test's sessions find the record.

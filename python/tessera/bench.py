@@ -225,9 +225,10 @@ def build(args) -> int:
 FIELD_SIDE = 32  # fields are FIELD_SIDE^2 instances of one displaced sphere on a grid 3 units apart
 
 
-def _write_sphere_stage(path, n: int, field: bool):
-    """A stage holding one displaced sphere of 4 n^2 triangles, alone or instanced FIELD_SIDE^2 times."""
-    from pxr import Gf, Usd, UsdGeom, UsdLux, Vt
+def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False):
+    """A stage holding one displaced sphere of 4 n^2 triangles, alone or instanced FIELD_SIDE^2 times; with
+    `face_colours`, a colour per face (uniform displayColor, varying smoothly over the sphere: a seam at every edge)."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, Vt
 
     points, counts, indices = displaced_sphere(n)
     stage = Usd.Stage.CreateNew(str(path))
@@ -238,7 +239,13 @@ def _write_sphere_stage(path, n: int, field: bool):
     mesh.GetFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(counts))
     mesh.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(indices))
     mesh.GetSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
-    mesh.GetDisplayColorAttr().Set([Gf.Vec3f(0.6, 0.55, 0.5)])
+    if face_colours:
+        centres = points.reshape(-1, 3)[indices.reshape(-1, 4)].mean(1)
+        colours = 0.5 + 0.2 * np.sin(3 * centres + np.array([0.0, 1.0, 2.0]))
+        primvar = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.uniform)
+        primvar.Set(Vt.Vec3fArray.FromNumpy(colours.astype(np.float32)))
+    else:
+        mesh.GetDisplayColorAttr().Set([Gf.Vec3f(0.6, 0.55, 0.5)])
     camera = UsdGeom.Camera.Define(stage, "/World/Camera")
     camera.GetFocalLengthAttr().Set(24.0 if field else 35.0)
     camera.GetHorizontalApertureAttr().Set(36.0)
@@ -265,14 +272,14 @@ def _write_sphere_stage(path, n: int, field: bool):
     stage.GetRootLayer().Save()
 
 
-def _stage(directory, n: int, field: bool) -> str:
+def _stage(directory, n: int, field: bool, face_colours: bool = False) -> str:
     from pathlib import Path
 
-    path = Path(directory) / f"{'field' if field else 'single'}_sphere_{n}.usdc"
+    path = Path(directory) / f"{'field' if field else 'single'}_sphere_{n}{'_face_colours' if face_colours else ''}.usdc"
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         temporary = path.with_suffix(".tmp.usdc")
-        _write_sphere_stage(temporary, n, field)
+        _write_sphere_stage(temporary, n, field, face_colours)
         temporary.rename(path)
     return str(path)
 
@@ -351,6 +358,13 @@ def _render_case(queue, case, stage, resolution, frames, device):
                 result, wall, gpu = _frames(session, frames, occlusion=occlusion, **settings)
                 label = f"{result.stats['source_triangles'] / 1e6:,.0f} M source triangles" + ("" if occlusion else ", no occlusion")
                 rows.append(_row("density scaling", label, result, wall, gpu))
+        elif case == "seams":  # a field with a colour per face (a seam at every edge) or one colour, against --no-lod
+            kind = "colour per face" if "face_colours" in stage else "one colour"
+            reference, ref_wall, ref_gpu = _frames(session, 1, lod=False, **settings)  # every source triangle: one frame
+            result, wall, gpu = _frames(session, frames, pixel_error=1.0, **settings)
+            for label, row_result, row_wall, row_gpu in ((f"{kind}, 1 px", result, wall, gpu), (f"{kind}, --no-lod", reference, ref_wall, ref_gpu)):
+                rows.append(_row("seams", label, row_result, row_wall, row_gpu, reference, speedup_vs_no_lod=round(ref_wall / row_wall, 1),
+                                 gpu_speedup_vs_no_lod=round(ref_gpu["total"] / row_gpu["total"], 1) if row_gpu["total"] > 0 else None))
         else:
             reference, ref_wall, ref_gpu = _frames(session, frames, lod=False, **settings)
             for pixel_error in ((1.0,) if case == "brute" else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)):
@@ -449,6 +463,8 @@ def render(args) -> int:
     if "brute" in args.cases or "error" in args.cases:
         single = _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)  # the densest prototype alone, filling the frame
         cases += [(case, single) for case in ("brute", "error") if case in args.cases]
+    if "seams" in args.cases:  # the same field, with a colour per face and with one colour
+        cases += [("seams", _stage(args.stages_dir, args.seams_n, True, face_colours)) for face_colours in (True, False)]
     if "displacement" in args.cases:
         from pathlib import Path
 
