@@ -203,7 +203,8 @@ TEST(Dag, TextureCoordinatesCostLittleGeometricError) {
 
 TEST(Dag, UvIslandsEverywhereDoNotStallTheDag) {
     // UV islands of 4 faces (each island's coordinates offset by 2): texture-coordinate seams everywhere, which the
-    // simplifier will not collapse across (241 root clusters, no level above 0, before the seam retry welded them).
+    // simplifier will not collapse across (65 root clusters before the seam retry welded them; with one face per island,
+    // no level above 0).
     // Every vertex stays a source vertex (one island's wedge per corner), and a triangle whose corners come from
     // different islands samples across a border: its size counts as its cluster's error.
     Source islands = with_spherical_uvs(icosphere(5));
