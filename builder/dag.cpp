@@ -22,6 +22,7 @@
 #include <cstring>
 #include <limits>
 #include <map>
+#include <mutex>
 #include <tuple>
 #include <unordered_map>
 
@@ -546,11 +547,15 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
         for (size_t v = begin; v < end; ++v) attributeOf[v] = uint32_t(v);
     });
-    // The source's UV islands, for the seam retry's last step: triangles joined through shared vertices, and through
-    // wedges of one position with the same texture coordinates (normal or colour seams inside an island). Each
-    // vertex's island is named by its smallest vertex.
+    // The source's UV islands, for the seam retry's last step (made by the first group that needs them: most builds
+    // never do): triangles joined through shared vertices, and through wedges of one position with the same texture
+    // coordinates (normal or colour seams inside an island). Each vertex's island is named by its smallest vertex.
+    auto uv_distance2 = [](const float* a, const float* b) { return double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]); };
     std::vector<uint32_t> uvIsland;
-    if (hasUvs) {
+    std::unordered_map<uint32_t, std::vector<uint32_t>> sourceWedges;  // position -> its source wedges, where it has several
+    std::vector<float> uvStretch;  // per source vertex: the most UV length per unit of length along its source edges
+    std::once_flag uvIslandsMade;
+    auto make_uv_islands = [&] {
         uvIsland.resize(vertexCount);
         for (size_t v = 0; v < vertexCount; ++v) uvIsland[v] = uint32_t(v);
         auto find = [&](uint32_t v) {
@@ -561,7 +566,15 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             a = find(a), b = find(b);
             if (a != b) uvIsland[std::max(a, b)] = std::min(a, b);
         };
-        for (size_t i = 0; i < sourceIndices.size(); i += 3) unite(sourceIndices[i], sourceIndices[i + 1]), unite(sourceIndices[i], sourceIndices[i + 2]);
+        uvStretch.assign(vertexCount, 0.0f);
+        for (size_t i = 0; i < sourceIndices.size(); i += 3) {
+            unite(sourceIndices[i], sourceIndices[i + 1]), unite(sourceIndices[i], sourceIndices[i + 2]);
+            for (int e = 0; e < 3; ++e) {
+                const uint32_t a = sourceIndices[i + e], b = sourceIndices[i + (e + 1) % 3];
+                const float stretch = float(std::sqrt(uv_distance2(&uvs[2 * a], &uvs[2 * b]) / std::max(distance2(&local[3 * a], &local[3 * b]), 1e-300)));
+                uvStretch[a] = std::max(uvStretch[a], stretch), uvStretch[b] = std::max(uvStretch[b], stretch);
+            }
+        }
         // Wedges: the vertices that are not the first at their position (few), with the first and with each other.
         std::vector<uint32_t> wedges;
         for (size_t v = 0; v < vertexCount; ++v)
@@ -573,7 +586,15 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         for (size_t i = 1; i < wedges.size(); ++i)
             if (wedge_key(wedges[i]) == wedge_key(wedges[i - 1])) unite(wedges[i], wedges[i - 1]);
         for (size_t v = 0; v < vertexCount; ++v) uvIsland[v] = find(uint32_t(v));
-    }
+        // The source's own wedges (vertices the grid weld kept) of each position that has several: a group's corner may
+        // take one its group does not hold (the other side of a seam inside a chart).
+        for (uint32_t v : wedges)
+            if (weld[v] == v)
+                for (uint32_t w : {positionId[v], v}) {
+                    auto& list = sourceWedges[positionId[v]];
+                    if (weld[w] == w && std::find(list.begin(), list.end(), w) == list.end()) list.push_back(w);
+                }
+    };
 
     std::vector<uint32_t> pending;
     add_clusters(split_level_zero(sourceIndices, local), nullptr, 0.0f, 0, -1, pending);
@@ -590,61 +611,90 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         for (size_t i = 0; i < indices.size(); ++i) {
             const uint32_t v = indices[i];
             std::vector<uint32_t>& reps = firstAt[positionId[v]];
-            uint32_t chosen = v;
-            for (uint32_t r : reps) {
-                const bool same = material_of(attributeOf[r]) == material_of(attributeOf[v]) &&
-                                  std::equal(attributes.begin() + r * attributeCount + compareFrom, attributes.begin() + (r + 1) * attributeCount,
-                                             attributes.begin() + v * attributeCount + compareFrom);
-                if (same) {
-                    chosen = r;
-                    break;
-                }
-            }
-            if (chosen == v && std::find(reps.begin(), reps.end(), v) == reps.end()) reps.push_back(v);
-            welded[i] = chosen;
+            auto same = [&](uint32_t r) {
+                return material_of(attributeOf[r]) == material_of(attributeOf[v]) &&
+                       std::equal(attributes.begin() + r * attributeCount + compareFrom, attributes.begin() + (r + 1) * attributeCount,
+                                  attributes.begin() + v * attributeCount + compareFrom);
+            };
+            const auto found = std::find_if(reps.begin(), reps.end(), same);
+            welded[i] = found == reps.end() ? v : *found;
+            if (found == reps.end()) reps.push_back(v);
         }
         return welded;
     };
     // After a simplification of `indices` with every wedge welded: gives each corner of the `count` corners at `out`
     // back a wedge of its position in one UV island of the source (uvIsland), the island that most of its triangle's
-    // corners have a wedge in (ties: the first island). Returns the largest edge of a triangle whose corners found no
-    // common island: such a triangle samples across an island border, and its size is the error that makes.
+    // corners have a wedge in (ties: the first island). Where a position has several wedges in that island (a seam
+    // inside a chart, such as a sphere's wrap), the corners take those nearest in UV to the triangle's first corner in
+    // it. Returns the largest edge of a triangle whose corners found no common island, or whose UVs stretch more than
+    // twice what the source's edges at its corners do (its corners on two sides of a seam inside a chart): such a
+    // triangle samples across a border, and its size is the error that makes.
     auto restore_uv_islands = [&](const std::vector<uint32_t>& indices, uint32_t* out, size_t count) {
-        const std::vector<uint32_t> sameUv = weld_seams(indices, true, false);
+        std::call_once(uvIslandsMade, make_uv_islands);
         auto island_of = [&](uint32_t v) { return uvIsland[attributeOf[v]]; };
-        std::unordered_map<uint32_t, std::vector<std::pair<uint32_t, uint32_t>>> wedges;  // position -> (island, vertex)
-        for (uint32_t v : sameUv) {
+        auto uv_of = [&](uint32_t v) { return &attributes[v * attributeCount + uvAttribute]; };
+        // position -> its wedges (one per UV and material): the group's, then the source's others
+        std::unordered_map<uint32_t, std::vector<uint32_t>> wedges;
+        for (uint32_t v : weld_seams(indices, true, false)) {
             auto& list = wedges[positionId[v]];
-            const uint32_t island = island_of(v);
-            const bool known = std::any_of(list.begin(), list.end(), [&](const auto& w) {
-                return w.first == island && material_of(attributeOf[w.second]) == material_of(attributeOf[v]);
-            });
-            if (!known) list.push_back({island, v});
+            if (std::find(list.begin(), list.end(), v) != list.end()) continue;
+            if (list.empty())
+                if (auto source = sourceWedges.find(positionId[v]); source != sourceWedges.end()) list = source->second;
+            if (std::find(list.begin(), list.end(), v) == list.end()) list.push_back(v);
         }
-        auto wedge_in = [&](uint32_t corner, uint32_t island) {
-            for (const auto& [i, v] : wedges[positionId[corner]])
-                if (i == island && material_of(attributeOf[v]) == material_of(attributeOf[corner])) return v;
-            return UINT32_MAX;
+        // The wedge of `corner`'s position and material in `island` nearest in UV to `near` (the first where null), and
+        // how many it had to choose from.
+        auto wedge_in = [&](uint32_t corner, uint32_t island, const float* near, int* choices = nullptr) {
+            uint32_t best = UINT32_MAX;
+            double bestDistance = INFINITY;
+            if (choices) *choices = 0;
+            for (uint32_t v : wedges[positionId[corner]]) {
+                if (island_of(v) != island || material_of(attributeOf[v]) != material_of(attributeOf[corner])) continue;
+                if (choices) ++*choices;
+                if (!near) {
+                    if (best == UINT32_MAX) best = v;
+                    continue;
+                }
+                const double d = uv_distance2(uv_of(v), near);
+                if (d < bestDistance) best = v, bestDistance = d;
+            }
+            return best;
         };
         float worst = 0;
         for (size_t t = 0; t < count; t += 3) {
             uint32_t island = UINT32_MAX;
             int most = 0;
             for (int k = 0; k < 3; ++k)
-                for (const auto& candidate : wedges[positionId[out[t + k]]]) {
+                for (uint32_t candidate : wedges[positionId[out[t + k]]]) {
                     int corners = 0;
-                    for (int j = 0; j < 3; ++j) corners += wedge_in(out[t + j], candidate.first) != UINT32_MAX;
-                    if (corners > most || (corners == most && candidate.first < island)) most = corners, island = candidate.first;
+                    for (int j = 0; j < 3; ++j) corners += wedge_in(out[t + j], island_of(candidate), nullptr) != UINT32_MAX;
+                    if (corners > most || (corners == most && island_of(candidate) < island)) most = corners, island = island_of(candidate);
                 }
-            for (int k = 0; k < 3; ++k)
-                if (const uint32_t v = wedge_in(out[t + k], island); v != UINT32_MAX) out[t + k] = v;
-            if (most < 3)
-                for (int k = 0; k < 3; ++k) {
-                    const float* a = &local[3 * out[t + k]];
-                    const float* b = &local[3 * out[t + (k + 1) % 3]];
-                    worst = std::max(worst, float(std::sqrt(double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) +
-                                                            double(a[2] - b[2]) * (a[2] - b[2]))));
-                }
+            // The corners with one wedge in the island first: the first of them anchors the others' choices.
+            int choices[3];
+            uint32_t chosen[3];
+            const float* anchor = nullptr;
+            for (int k = 0; k < 3; ++k) {
+                chosen[k] = wedge_in(out[t + k], island, nullptr, &choices[k]);
+                if (!anchor && choices[k] == 1) anchor = uv_of(chosen[k]);
+            }
+            for (int k = 0; k < 3; ++k) {
+                if (chosen[k] == UINT32_MAX) continue;
+                if (choices[k] > 1 && anchor) chosen[k] = wedge_in(out[t + k], island, anchor);
+                if (!anchor) anchor = uv_of(chosen[k]);
+                out[t + k] = chosen[k];
+            }
+            // Consistent only with a wedge of one island at each corner, and each edge's UV length within twice what its
+            // ends' source edges stretch (the two sides of a seam inside a chart, held by different corners, are not).
+            bool consistent = most == 3;
+            for (int k = 0; k < 3 && consistent; ++k) {
+                const uint32_t a = out[t + k], b = out[t + (k + 1) % 3];
+                const double stretch = 2.0 * std::max(uvStretch[attributeOf[a]], uvStretch[attributeOf[b]]);
+                consistent = uv_distance2(uv_of(a), uv_of(b)) <= stretch * stretch * distance2(&local[3 * a], &local[3 * b]) + 1e-12;
+            }
+            if (!consistent)
+                for (int k = 0; k < 3; ++k)
+                    worst = std::max(worst, float(std::sqrt(distance2(&local[3 * out[t + k]], &local[3 * out[t + (k + 1) % 3]]))));
         }
         return worst;
     };

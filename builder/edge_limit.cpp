@@ -6,11 +6,12 @@
 #include <unordered_set>
 
 namespace tessera {
-namespace {
 
 double distance2(const float* a, const float* b) {
     return double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]);
 }
+
+namespace {
 
 uint64_t edge_key(uint32_t a, uint32_t b) { return a < b ? uint64_t(a) << 32 | b : uint64_t(b) << 32 | a; }
 

@@ -8,6 +8,9 @@
 
 namespace tessera {
 
+// Squared distance between two points (xyz floats), in double.
+double distance2(const float* a, const float* b);
+
 // Mean length of the triangles' edges (each triangle's three).
 double mean_edge_length(const std::vector<uint32_t>& indices, const std::vector<float>& positions);
 

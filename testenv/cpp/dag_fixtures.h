@@ -214,6 +214,14 @@ inline void expect_monotone(const BuiltMesh& m) {
     EXPECT_GE(roots, 1u);
 }
 
+// The DAG's roots (clusters without a parent): how many, and their triangles.
+inline std::pair<size_t, size_t> root_clusters(const BuiltMesh& m) {
+    size_t roots = 0, triangles = 0;
+    for (const Cluster& c : m.clusters)
+        if (std::isinf(c.parentError)) ++roots, triangles += c.triangleCount;
+    return {roots, triangles};
+}
+
 // Position of a cluster-local vertex, as exact bits (vertices shared across clusters must match bit for bit).
 inline std::array<uint32_t, 3> position_bits(const BuiltMesh& m, const Cluster& c, uint32_t local) {
     std::array<uint32_t, 3> bits;

@@ -54,14 +54,8 @@ TEST(Dag, SeamsEverywhereDoNotStallTheDag) {
     // more than the grid weld's 30 degrees, or whose colours differ, and the simplifier, which collapses wedges only
     // along their seams, gets stuck on them (no level above 0 was built). Such a group simplifies again with those
     // wedges welded (dag.cpp), so the DAG still reaches a root of at most 2 clusters, monotone and without cracks.
-    auto root_triangles = [](const BuiltMesh& m) {
-        size_t roots = 0, triangles = 0;
-        for (const Cluster& c : m.clusters)
-            if (std::isinf(c.parentError)) ++roots, triangles += c.triangleCount;
-        return std::pair{roots, triangles};
-    };
     BuiltMesh m = flat_shaded(icosphere(5), 0.05).build();  // 20k triangles
-    EXPECT_LE(root_triangles(m).first, 2u);
+    EXPECT_LE(root_clusters(m).first, 2u);
     EXPECT_LT(m.levels.back().maxError, 0.5f * m.size);
     expect_monotone(m);
     expect_crack_free_cuts(m, 25);
@@ -69,7 +63,7 @@ TEST(Dag, SeamsEverywhereDoNotStallTheDag) {
     for (size_t f = 0; f < coloured.counts.size(); ++f)
         coloured.colors.insert(coloured.colors.end(), {float(f % 7) / 7, float(f % 5) / 5, float(f % 3) / 3});
     BuiltMesh c = coloured.build();
-    EXPECT_LE(root_triangles(c).first, 2u);
+    EXPECT_LE(root_clusters(c).first, 2u);
     EXPECT_LT(c.levels[1].maxError, 0.05f * c.size) << "colour blends at the first level, not the surface";
     expect_monotone(c);
     expect_crack_free_cuts(c, 25);
@@ -78,7 +72,7 @@ TEST(Dag, SeamsEverywhereDoNotStallTheDag) {
     BuildSettings edgeLimit;
     edgeLimit.maxEdgeLengthFactor = 8;
     BuiltMesh limited = flat_shaded(icosphere(5), 0.05).build(edgeLimit), smooth = icosphere(5).build(edgeLimit);
-    EXPECT_LE(root_triangles(limited).second, root_triangles(smooth).second);
+    EXPECT_LE(root_clusters(limited).second, root_clusters(smooth).second);
     expect_monotone(limited);
 }
 
@@ -202,38 +196,56 @@ TEST(Dag, TextureCoordinatesCostLittleGeometricError) {
 }
 
 TEST(Dag, UvIslandsEverywhereDoNotStallTheDag) {
-    // UV islands of 4 faces (each island's coordinates offset by 2): texture-coordinate seams everywhere, which the
-    // simplifier will not collapse across (65 root clusters before the seam retry welded them; with one face per island,
-    // no level above 0).
-    // Every vertex stays a source vertex (one island's wedge per corner), and a triangle whose corners come from
-    // different islands samples across a border: its size counts as its cluster's error.
-    Source islands = with_spherical_uvs(icosphere(5));
-    for (size_t f = 0; f < islands.counts.size(); ++f)
-        for (int k = 0; k < 3; ++k) islands.uvs[2 * (3 * f + k)] += float((f / 4) % 97) * 2.0f;
-    BuiltMesh u = islands.build();
-    size_t roots = 0;
-    for (const Cluster& c : u.clusters) roots += std::isinf(c.parentError);
-    EXPECT_LE(roots, 2u);
-    expect_monotone(u);
-    expect_crack_free_cuts(u, 25);
-    expect_source_vertices(u);
-    size_t crossing = 0;
-    for (const Cluster& c : u.clusters)
-        for (uint32_t t = 0; t < c.triangleCount; ++t) {
-            const uint32_t packed = u.triangles[c.triangleOffset + t];
-            uint32_t v[3];
-            for (int k = 0; k < 3; ++k) v[k] = c.vertexOffset + ((packed >> (8 * k)) & 0xff);
-            auto island = [&](uint32_t vertex) { return int(std::floor(u.uvs[2 * vertex] / 2)); };
-            if (island(v[0]) == island(v[1]) && island(v[1]) == island(v[2])) continue;
-            ++crossing;
-            for (int k = 0; k < 3; ++k) {
-                const float* a = &u.positions[3 * v[k]];
-                const float* b = &u.positions[3 * v[(k + 1) % 3]];
-                const double edge = std::sqrt(double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]) + double(a[2] - b[2]) * (a[2] - b[2]));
-                ASSERT_LE(edge, double(c.lodError) * (1 + 1e-5)) << "a triangle across islands larger than its cluster's error";
-            }
+    // UV islands everywhere (each island's coordinates offset by 2), which the simplifier will not collapse across:
+    // islands of 4 faces (65 root clusters before the seam retry welded them; with one face per island, no level above
+    // 0), and bands of latitude, each a strip with the sphere's wrap seam inside it. Every vertex stays a source vertex
+    // (one island's wedge per corner, the one nearest in UV where a position has several in the island), and a
+    // triangle that samples across a border (corners of different islands, or on two sides of the wrap) counts its
+    // size as its cluster's error.
+    auto island_of = [](const BuiltMesh& m, uint32_t vertex) { return int(std::floor(m.uvs[2 * vertex] / 2)); };
+    Source quads = with_spherical_uvs(icosphere(5)), bands = quads;
+    for (size_t f = 0; f < quads.counts.size(); ++f) {
+        double y = 0;
+        for (int k = 0; k < 3; ++k) {
+            const float* p = &bands.points[3 * bands.indices[3 * f + k]];
+            y += p[1] / std::sqrt(double(p[0]) * p[0] + double(p[1]) * p[1] + double(p[2]) * p[2]) / 3;
         }
-    EXPECT_GT(crossing, 0u) << "the islands were welded somewhere";
+        const int band = std::clamp(int((y + 1) / 2 * 60), 0, 59);
+        for (int k = 0; k < 3; ++k) {
+            quads.uvs[2 * (3 * f + k)] += float((f / 4) % 97) * 2.0f;
+            bands.uvs[2 * (3 * f + k)] += float(band) * 2.0f;
+        }
+    }
+    for (const Source& s : {quads, bands}) {
+        BuiltMesh u = s.build();
+        EXPECT_LE(root_clusters(u).first, 2u);
+        expect_monotone(u);
+        expect_crack_free_cuts(u, 25);
+        expect_source_vertices(u);
+        size_t crossing = 0;
+        for (const Cluster& c : u.clusters)
+            for (uint32_t t = 0; t < c.triangleCount; ++t) {
+                const uint32_t packed = u.triangles[c.triangleOffset + t];
+                uint32_t v[3];
+                for (int k = 0; k < 3; ++k) v[k] = c.vertexOffset + ((packed >> (8 * k)) & 0xff);
+                // Sampling across a border: corners of different islands, or on two sides of the chart's wrap (moving
+                // one corner's u by a whole turn would shrink the triangle's span of u by more than half a turn).
+                auto span = [](float a, float b, float c) { return std::max({a, b, c}) - std::min({a, b, c}); };
+                const float u0 = u.uvs[2 * v[0]], u1 = u.uvs[2 * v[1]], u2 = u.uvs[2 * v[2]];
+                float unwrapped = span(u0, u1, u2);
+                for (float turn : {-1.0f, 1.0f})
+                    unwrapped = std::min({unwrapped, span(u0 + turn, u1, u2), span(u0, u1 + turn, u2), span(u0, u1, u2 + turn)});
+                const bool oneIsland = island_of(u, v[0]) == island_of(u, v[1]) && island_of(u, v[1]) == island_of(u, v[2]);
+                if (oneIsland && unwrapped > span(u0, u1, u2) - 0.5f) continue;
+                ++crossing;
+                for (int k = 0; k < 3; ++k) {
+                    auto at = [&](uint32_t vertex) { return std::array<float, 4>{u.positions[3 * vertex], u.positions[3 * vertex + 1], u.positions[3 * vertex + 2], 0}; };
+                    const double edge = distance3(at(v[k]), at(v[(k + 1) % 3]));
+                    ASSERT_LE(edge, double(c.lodError) * (1 + 1e-5)) << "a triangle sampling across a border larger than its cluster's error";
+                }
+            }
+        EXPECT_GT(crossing, 0u) << "the islands were welded somewhere";
+    }
 }
 
 TEST(Dag, MaterialSlotsSurviveEveryLevel) {
