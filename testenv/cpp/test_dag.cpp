@@ -289,3 +289,148 @@ TEST(Dag, MaterialSlotsSurviveEveryLevel) {
     }
     EXPECT_LT(m.levels.back().triangles, s.counts.size() / 10) << "slot borders slow the simplification down but do not stall it";
 }
+
+namespace {
+// The point of triangle abc nearest to p, as barycentric weights (of a, b, c); returns the squared distance. By
+// projecting onto the triangle's plane, else onto the nearest of its edges (the test's own, not the builder's code).
+double nearest_on_triangle(const float* p, const float* a, const float* b, const float* c, double w[3]) {
+    auto sub = [](const float* x, const float* y) { return std::array<double, 3>{double(x[0]) - y[0], double(x[1]) - y[1], double(x[2]) - y[2]}; };
+    auto dot = [](const std::array<double, 3>& x, const std::array<double, 3>& y) { return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]; };
+    const auto e0 = sub(b, a), e1 = sub(c, a), d = sub(p, a);
+    const double a00 = dot(e0, e0), a01 = dot(e0, e1), a11 = dot(e1, e1), b0 = dot(e0, d), b1 = dot(e1, d);
+    const double det = a00 * a11 - a01 * a01;
+    double best = INFINITY;
+    auto consider = [&](double u, double v) {  // weights of b and c
+        std::array<double, 3> q;
+        for (int k = 0; k < 3; ++k) q[k] = d[k] - u * e0[k] - v * e1[k];
+        const double dist = dot(q, q);
+        if (dist < best) {
+            best = dist;
+            w[0] = 1 - u - v;
+            w[1] = u;
+            w[2] = v;
+        }
+    };
+    if (det > 0) {
+        const double u = (a11 * b0 - a01 * b1) / det, v = (a00 * b1 - a01 * b0) / det;
+        if (u >= 0 && v >= 0 && u + v <= 1) consider(u, v);
+    }
+    auto clamp01 = [](double x) { return std::min(1.0, std::max(0.0, x)); };
+    if (a00 > 0) consider(clamp01(b0 / a00), 0);                                    // edge ab
+    if (a11 > 0) consider(0, clamp01(b1 / a11));                                    // edge ac
+    const auto e2 = sub(c, b), dp = sub(p, b);
+    if (dot(e2, e2) > 0) {                                                            // edge bc
+        const double t = clamp01(dot(e2, dp) / dot(e2, e2));
+        consider(1 - t, t);
+    }
+    consider(0, 0);
+    return best;
+}
+}  // namespace
+
+TEST(Dag, CoarseLevelsShowTheSurfacesNormals) {
+    // A bumpy sphere, smooth-shaded: its vertex normals vary from vertex to vertex. A coarse cut's triangles that
+    // interpolated the source normals of the vertices they kept would tilt with whichever bump each corner sat on; the
+    // builder fits the kept vertices' normals to the surface instead. At each source vertex's nearest point on the
+    // cut, the cut's interpolated normal must lie closer to the source's normal than the kept vertices' source normals
+    // would. Positions are untouched (the crack-free checks above: every position of every level is a leaf position).
+    const BuiltMesh m = icosphere(5).build();
+    std::map<std::array<uint32_t, 3>, std::array<float, 3>> sourceNormal;
+    for (uint32_t v = 0; v < m.leafVertices; ++v) {
+        std::array<uint32_t, 3> bits;
+        std::memcpy(bits.data(), &m.positions[3 * size_t(v)], 12);
+        sourceNormal[bits] = decode_octahedral(m.normals[v]);
+    }
+    for (double relative : {0.02, 0.04, 0.08}) {
+        SCOPED_TRACE(relative);
+        const float threshold = float(relative * m.size);
+        struct Corner {
+            const float* position;
+            std::array<float, 3> drawn, source;
+        };
+        std::vector<std::array<Corner, 3>> cut;
+        size_t fitted = 0, corners = 0;
+        for (const Cluster& c : m.clusters) {
+            if (!(c.lodError <= threshold && c.parentError > threshold)) continue;
+            for (uint32_t t = 0; t < c.triangleCount; ++t) {
+                const uint32_t packed = m.triangles[c.triangleOffset + t];
+                std::array<Corner, 3> triangle;
+                for (int k = 0; k < 3; ++k) {
+                    const uint32_t v = c.vertexOffset + ((packed >> (8 * k)) & 0xff);
+                    std::array<uint32_t, 3> bits;
+                    std::memcpy(bits.data(), &m.positions[3 * size_t(v)], 12);
+                    ASSERT_TRUE(sourceNormal.count(bits));
+                    triangle[k] = {&m.positions[3 * size_t(v)], decode_octahedral(m.normals[v]), sourceNormal[bits]};
+                    fitted += triangle[k].drawn != triangle[k].source;
+                    ++corners;
+                }
+                cut.push_back(triangle);
+            }
+        }
+        ASSERT_GT(cut.size(), 200u);
+        ASSERT_LT(cut.size(), 8000u) << "a coarse cut";
+        EXPECT_GT(fitted, corners / 4) << "most interior vertices of a coarse level draw a fitted normal";
+        // 1 - cos of the angle between the interpolated normal and the source's, summed over source vertices.
+        double drawnError = 0, sourceError = 0;
+        for (uint32_t v = 0; v < m.leafVertices; v += 2) {
+            const float* p = &m.positions[3 * size_t(v)];
+            double best = INFINITY, w[3] = {}, bestW[3] = {};
+            size_t nearest = 0;
+            for (size_t t = 0; t < cut.size(); ++t) {
+                const double d = nearest_on_triangle(p, cut[t][0].position, cut[t][1].position, cut[t][2].position, w);
+                if (d < best) {
+                    best = d;
+                    nearest = t;
+                    std::copy_n(w, 3, bestW);
+                }
+            }
+            const std::array<float, 3> n = decode_octahedral(m.normals[v]);
+            auto error_of = [&](auto pick) {
+                double s[3] = {0, 0, 0};
+                for (int k = 0; k < 3; ++k)
+                    for (int c = 0; c < 3; ++c) s[c] += bestW[k] * pick(cut[nearest][k])[c];
+                const double length = std::sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+                return 1 - (s[0] * n[0] + s[1] * n[1] + s[2] * n[2]) / length;
+            };
+            drawnError += error_of([](const Corner& c) { return c.drawn; });
+            sourceError += error_of([](const Corner& c) { return c.source; });
+        }
+        EXPECT_LT(drawnError, 0.85 * sourceError);  // 0.77, 0.74 and 0.68 when written
+    }
+}
+
+TEST(Dag, FittedNormalsOpenNoShadingSeams) {
+    // A cut draws each position with one normal where the source does (fits are only made for a group's interior
+    // vertices, which no other group's clusters share), whichever levels the cut mixes.
+    for (const Source& s : {icosphere(5), with_spherical_uvs(icosphere(5))}) {
+        SCOPED_TRACE(s.name);
+        const BuiltMesh m = s.build();
+        std::map<std::array<uint32_t, 3>, std::set<uint32_t>> sourceNormals;
+        for (uint32_t v = 0; v < m.leafVertices; ++v) {
+            std::array<uint32_t, 3> bits;
+            std::memcpy(bits.data(), &m.positions[3 * size_t(v)], 12);
+            sourceNormals[bits].insert(m.normals[v]);
+        }
+        std::mt19937 rng(9);
+        std::uniform_real_distribution<double> u(0, 1);
+        size_t mixedCuts = 0;
+        for (int cut = 0; cut < 60; ++cut) {
+            const double theta = u(rng) * 6.283, phi = std::acos(2 * u(rng) - 1), dist = m.size * (0.05 + 2 * u(rng));
+            const std::array<double, 3> eye{dist * std::sin(phi) * std::cos(theta), dist * std::sin(phi) * std::sin(theta), dist * std::cos(phi)};
+            const Cluster& probe = m.clusters[m.leafClusters + size_t(u(rng) * (m.clusters.size() - m.leafClusters - 1))];
+            const double threshold = projected(probe.lodError, probe.lodSphere, eye) * (0.5 + u(rng));
+            std::map<std::array<uint32_t, 3>, std::set<uint32_t>> drawn;
+            std::set<uint32_t> levels;
+            for (const Cluster& c : m.clusters) {
+                if (!(projected(c.lodError, c.lodSphere, eye) <= threshold && projected(c.parentError, c.parentSphere, eye) > threshold)) continue;
+                levels.insert(c.level);
+                for (uint32_t v = 0; v < c.vertexCount; ++v) drawn[position_bits(m, c, v)].insert(m.normals[c.vertexOffset + v]);
+            }
+            mixedCuts += levels.size() > 1;
+            size_t seams = 0;
+            for (const auto& [position, normals] : drawn) seams += normals.size() > std::max<size_t>(1, sourceNormals[position].size());
+            ASSERT_EQ(seams, 0u) << "positions a cut draws with more normals than the source has there (cut " << cut << ")";
+        }
+        EXPECT_GT(mixedCuts, 5u) << "cuts that mix levels";
+    }
+}

@@ -1,0 +1,284 @@
+// The least-squares normals of a simplified group (normal_fit.h). Each input position with one vertex in the group is a
+// sample: the normal it is drawn with, weighed by the area around it, at its nearest point on the output. That point is
+// searched among the output triangles around the kept position nearest the sample over the group's edges, and where
+// it lies on the rim of those, around the rim's corners too. The unknowns are the normals of the output's interior
+// vertices; a few Gauss-Seidel sweeps minimise the weighted squared difference between each sample's normal and the
+// output's normals interpolated at its point.
+#include "normal_fit.h"
+
+#include "area.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace tessera {
+namespace {
+
+constexpr int kSweeps = 4;
+constexpr float kUnchanged = 0.99999f;  // cosine above which a fitted normal is the one drawn already
+constexpr uint32_t kNone = 0xffffffffu;
+
+// A triangle set up for closest-point queries: a corner, the edges from it, and their dot products.
+struct Triangle {
+    float a[3], ab[3], ac[3], abab, abac, acac;
+    Triangle(const float* pa, const float* pb, const float* pc) {
+        for (int k = 0; k < 3; ++k) {
+            a[k] = pa[k];
+            ab[k] = pb[k] - pa[k];
+            ac[k] = pc[k] - pa[k];
+        }
+        abab = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
+        abac = ab[0] * ac[0] + ab[1] * ac[1] + ab[2] * ac[2];
+        acac = ac[0] * ac[0] + ac[1] * ac[1] + ac[2] * ac[2];
+    }
+    // The point nearest p, as barycentric weights (of a, b, c); returns the squared distance. In float: the weights
+    // only place a sample's normal, and positions are floats already. Ericson, Real-Time Collision Detection, 5.1.5,
+    // with the dot products of b - p and c - p derived from those of a - p.
+    float closest_point(const float* p, float weights[3]) const {
+        const float ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
+        const float d1 = ab[0] * ap[0] + ab[1] * ap[1] + ab[2] * ap[2], d2 = ac[0] * ap[0] + ac[1] * ap[1] + ac[2] * ap[2];
+        const float d3 = d1 - abab, d4 = d2 - abac, d5 = d1 - abac, d6 = d2 - acac;
+        const float va = d3 * d6 - d5 * d4, vb = d5 * d2 - d1 * d6, vc = d1 * d4 - d3 * d2;
+        float u = 0, v = 0;  // weights of b and c
+        if (d1 <= 0 && d2 <= 0) {
+        } else if (d3 >= 0 && d4 <= d3) {
+            u = 1;
+        } else if (d6 >= 0 && d5 <= d6) {
+            v = 1;
+        } else if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+            u = d1 / (d1 - d3);
+        } else if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+            v = d2 / (d2 - d6);
+        } else if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) {
+            v = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+            u = 1 - v;
+        } else {
+            const float denominator = va + vb + vc;
+            u = denominator != 0 ? vb / denominator : 0;
+            v = denominator != 0 ? vc / denominator : 0;
+        }
+        weights[0] = 1 - u - v;
+        weights[1] = u;
+        weights[2] = v;
+        float d = 0;
+        for (int k = 0; k < 3; ++k) {
+            const float q = ap[k] - u * ab[k] - v * ac[k];
+            d += q * q;
+        }
+        return d;
+    }
+};
+
+// Compressed rows: row r's entries are items[start[r] .. start[r + 1]).
+struct Rows {
+    std::vector<uint32_t> start, items;
+    template <class ForEachPair>
+    void build(size_t rows, ForEachPair for_each_pair) {
+        start.assign(rows + 1, 0);
+        for_each_pair([&](uint32_t row, uint32_t) { ++start[row + 1]; });
+        for (size_t r = 0; r < rows; ++r) start[r + 1] += start[r];
+        items.resize(start[rows]);
+        std::vector<uint32_t> fill(start.begin(), start.end() - 1);
+        for_each_pair([&](uint32_t row, uint32_t item) { items[fill[row]++] = item; });
+    }
+};
+
+}  // namespace
+
+std::vector<FittedNormal> fit_normals(const std::vector<uint32_t>& input, const uint32_t* output, size_t outputCount, const std::vector<float>& positions,
+                                      const std::vector<uint32_t>& positionId, const std::vector<unsigned char>& lock, const NormalTable& drawn) {
+    std::vector<FittedNormal> fitted;
+    if (outputCount == 0 || input.empty()) return fitted;
+    // The group's positions, numbered in order of first use: an open-addressing table by position id, kept at most
+    // half full (a closed mesh has about half as many positions as triangles; a soup, up to three per triangle).
+    size_t capacity = 16;
+    while (capacity < input.size() / 3) capacity *= 2;
+    std::vector<std::pair<uint32_t, uint32_t>> table(capacity, {kNone, kNone});  // (position id, slot)
+    auto find = [&](uint32_t id) -> std::pair<uint32_t, uint32_t>& {
+        size_t at = (id * 2654435761u) & (capacity - 1);
+        while (table[at].first != kNone && table[at].first != id) at = (at + 1) & (capacity - 1);
+        return table[at];
+    };
+    auto slot_of = [&](uint32_t id) -> uint32_t {  // kNone where the group has no such position
+        return find(id).second;
+    };
+    auto insert = [&](uint32_t id, uint32_t slot) {
+        if (2 * (slot + 1) > capacity) {  // grow: twice the capacity, every entry placed again
+            std::vector<std::pair<uint32_t, uint32_t>> old(2 * capacity, {kNone, kNone});
+            old.swap(table);
+            capacity *= 2;
+            for (const auto& entry : old)
+                if (entry.first != kNone) find(entry.first) = entry;
+        }
+        find(id) = {id, slot};
+    };
+    // Per slot, its first vertex's position and drawn normal are copied once: the mesh's arrays are read at random.
+    std::vector<uint32_t> vertexOf;  // slot -> its first vertex
+    std::vector<char> seam;          // slot -> several vertices at the position
+    std::vector<double> weight;      // slot -> area of its triangles
+    std::vector<std::array<float, 3>> point, normalDrawn;
+    std::vector<uint32_t> corners(input.size());
+    for (size_t i = 0; i < input.size(); ++i) {
+        const uint32_t v = input[i];
+        uint32_t slot = slot_of(positionId[v]);
+        if (slot == kNone) {
+            slot = uint32_t(vertexOf.size());
+            insert(positionId[v], slot);
+            vertexOf.push_back(v);
+            seam.push_back(0);
+            weight.push_back(0);
+            point.push_back({positions[3 * size_t(v)], positions[3 * size_t(v) + 1], positions[3 * size_t(v) + 2]});
+            const float* n = drawn(v);
+            normalDrawn.push_back({n[0], n[1], n[2]});
+        } else if (vertexOf[slot] != v) {
+            seam[slot] = 1;
+        }
+        corners[i] = slot;
+    }
+    for (size_t i = 0; i < input.size(); i += 3) {
+        const double area = triangle_area(point[corners[i]].data(), point[corners[i + 1]].data(), point[corners[i + 2]].data());
+        for (int k = 0; k < 3; ++k) weight[corners[i + k]] += area;
+    }
+    const size_t slots = vertexOf.size();
+    std::vector<uint32_t> outputCorners(outputCount);
+    for (size_t i = 0; i < outputCount; ++i) outputCorners[i] = slot_of(positionId[output[i]]);
+    // The simplifier only removes: every output position is an input one (otherwise, fit nothing).
+    if (std::find(outputCorners.begin(), outputCorners.end(), kNone) != outputCorners.end()) return fitted;
+
+    // Each position's nearest kept position over the input's edges (breadth first), and the output triangles around it.
+    Rows neighbours, fan;
+    neighbours.build(slots, [&](auto add) {
+        for (size_t i = 0; i < corners.size(); i += 3)
+            for (int k = 0; k < 3; ++k) {
+                add(corners[i + k], corners[i + (k + 1) % 3]);
+                add(corners[i + (k + 1) % 3], corners[i + k]);
+            }
+    });
+    fan.build(slots, [&](auto add) {
+        for (size_t i = 0; i < outputCount; ++i) add(outputCorners[i], uint32_t(i / 3 * 3));
+    });
+    std::vector<uint32_t> nearestKept(slots, kNone), queue;
+    for (uint32_t slot : outputCorners)
+        if (nearestKept[slot] == kNone) {
+            nearestKept[slot] = slot;
+            queue.push_back(slot);
+        }
+    for (size_t head = 0; head < queue.size(); ++head)
+        for (uint32_t k = neighbours.start[queue[head]]; k < neighbours.start[queue[head] + 1]; ++k)
+            if (nearestKept[neighbours.items[k]] == kNone) {
+                nearestKept[neighbours.items[k]] = nearestKept[queue[head]];
+                queue.push_back(neighbours.items[k]);
+            }
+
+    // The unknowns: output vertices alone at their position and not locked.
+    std::vector<uint32_t> unknownOf(slots, kNone), unknownVertex;
+    for (size_t i = 0; i < outputCount; ++i) {
+        const uint32_t slot = outputCorners[i], v = output[i];
+        if (seam[slot] || vertexOf[slot] != v || lock[v] != 0 || unknownOf[slot] != kNone) continue;
+        unknownOf[slot] = uint32_t(unknownVertex.size());
+        unknownVertex.push_back(v);
+    }
+    if (unknownVertex.empty()) return fitted;
+
+    // Samples: weight, barycentric weights on their output triangle, and the residual (its normal minus the
+    // interpolated one).
+    struct Sample {
+        uint32_t triangle;
+        double weight, barycentric[3], residual[3];
+    };
+    std::vector<Triangle> triangles;
+    triangles.reserve(outputCount / 3);
+    for (size_t i = 0; i < outputCount; i += 3)
+        triangles.emplace_back(point[outputCorners[i]].data(), point[outputCorners[i + 1]].data(), point[outputCorners[i + 2]].data());
+    std::vector<Sample> samples;
+    samples.reserve(slots);
+    for (uint32_t slot = 0; slot < slots; ++slot) {
+        if (seam[slot] || nearestKept[slot] == kNone || !(weight[slot] > 0)) continue;
+        const uint32_t kept = nearestKept[slot];
+        Sample best{kNone, weight[slot], {}, {}};
+        if (kept == slot) {  // a kept position is its own nearest point: a corner of any triangle around it
+            if (fan.start[slot] == fan.start[slot + 1]) continue;
+            best.triangle = fan.items[fan.start[slot]];
+            for (int j = 0; j < 3; ++j) best.barycentric[j] = outputCorners[best.triangle + j] == slot ? 1.0 : 0.0;
+        } else {
+            // The output triangles around the kept position nearest over the edges; where the nearest point lies on
+            // that fan's rim, also those around the rim's corners (the point may lie nearer a triangle beyond it).
+            const float* p = point[slot].data();
+            float bestDistance = INFINITY;
+            auto search_fan = [&](uint32_t centre) {
+                for (uint32_t k = fan.start[centre]; k < fan.start[centre + 1]; ++k) {
+                    const uint32_t t = fan.items[k];
+                    float b[3];
+                    const float d = triangles[t / 3].closest_point(p, b);
+                    if (d < bestDistance) {
+                        bestDistance = d;
+                        best.triangle = t;
+                        std::copy_n(b, 3, best.barycentric);
+                    }
+                }
+            };
+            search_fan(kept);
+            if (best.triangle == kNone) continue;
+            const uint32_t first = best.triangle;
+            int centre = 0;
+            while (centre < 2 && outputCorners[first + centre] != kept) ++centre;
+            if (bestDistance > 0 && best.barycentric[centre] == 0)
+                for (int j = 0; j < 3; ++j)
+                    if (j != centre) search_fan(outputCorners[first + j]);
+        }
+        if (best.triangle == kNone) continue;
+        const float* target = normalDrawn[slot].data();
+        for (int k = 0; k < 3; ++k) best.residual[k] = target[k];
+        for (int j = 0; j < 3; ++j) {
+            const uint32_t corner = output[best.triangle + j], cornerSlot = outputCorners[best.triangle + j];
+            const float* n = vertexOf[cornerSlot] == corner ? normalDrawn[cornerSlot].data() : drawn(corner);  // another wedge: its own
+            for (int k = 0; k < 3; ++k) best.residual[k] -= best.barycentric[j] * n[k];
+        }
+        samples.push_back(best);
+    }
+    // Which samples each unknown's normal reaches, and with which corner.
+    Rows reach;
+    reach.build(unknownVertex.size(), [&](auto add) {
+        for (uint32_t s = 0; s < samples.size(); ++s)
+            for (int j = 0; j < 3; ++j) {
+                const uint32_t unknown = unknownOf[outputCorners[samples[s].triangle + j]];
+                if (unknown != kNone && output[samples[s].triangle + j] == unknownVertex[unknown]) add(unknown, s * 3 + uint32_t(j));
+            }
+    });
+    std::vector<std::array<double, 3>> normal(unknownVertex.size());
+    for (size_t u = 0; u < unknownVertex.size(); ++u) {
+        const float* n = drawn(unknownVertex[u]);
+        normal[u] = {n[0], n[1], n[2]};
+    }
+    for (int sweep = 0; sweep < kSweeps; ++sweep)
+        for (size_t u = 0; u < unknownVertex.size(); ++u) {
+            double step[3] = {0, 0, 0}, denominator = 0;
+            for (uint32_t k = reach.start[u]; k < reach.start[u + 1]; ++k) {
+                const Sample& s = samples[reach.items[k] / 3];
+                const double b = s.barycentric[reach.items[k] % 3];
+                for (int c = 0; c < 3; ++c) step[c] += s.weight * b * s.residual[c];
+                denominator += s.weight * b * b;
+            }
+            if (!(denominator > 0)) continue;
+            for (int c = 0; c < 3; ++c) {
+                step[c] /= denominator;
+                normal[u][c] += step[c];
+            }
+            for (uint32_t k = reach.start[u]; k < reach.start[u + 1]; ++k) {
+                Sample& s = samples[reach.items[k] / 3];
+                const double b = s.barycentric[reach.items[k] % 3];
+                for (int c = 0; c < 3; ++c) s.residual[c] -= b * step[c];
+            }
+        }
+    for (size_t u = 0; u < unknownVertex.size(); ++u) {
+        const double length = std::sqrt(normal[u][0] * normal[u][0] + normal[u][1] * normal[u][1] + normal[u][2] * normal[u][2]);
+        if (!(length > 1e-6)) continue;  // the samples cancel out: keep the normal drawn
+        const std::array<float, 3> n = {float(normal[u][0] / length), float(normal[u][1] / length), float(normal[u][2] / length)};
+        const float* now = drawn(unknownVertex[u]);
+        if (n[0] * now[0] + n[1] * now[1] + n[2] * now[2] > kUnchanged) continue;
+        fitted.push_back({unknownVertex[u], n});
+    }
+    return fitted;
+}
+
+}  // namespace tessera
