@@ -767,7 +767,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             float error = 0;
             std::vector<std::vector<uint32_t>> pieces;
             Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
-            std::vector<FittedNormal> normals;  // fitted to the group's surface, for copies of its interior vertices
+            std::vector<FittedNormal> normals;  // its interior kept vertices' fitted normals (normal_fit.h)
         };
         std::vector<Result> results(groupCount);
         phases.mark("round: locks");

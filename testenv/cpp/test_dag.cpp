@@ -326,22 +326,17 @@ double nearest_on_triangle(const float* p, const float* a, const float* b, const
     consider(0, 0);
     return best;
 }
-}  // namespace
 
-TEST(Dag, CoarseLevelsShowTheSurfacesNormals) {
-    // A bumpy sphere, smooth-shaded: its vertex normals vary from vertex to vertex. A coarse cut's triangles that
-    // interpolated the source normals of the vertices they kept would tilt with whichever bump each corner sat on; the
-    // builder fits the kept vertices' normals to the surface instead. At each source vertex's nearest point on the
-    // cut, the cut's interpolated normal must lie closer to the source's normal than the kept vertices' source normals
-    // would. Positions are untouched (the crack-free checks above: every position of every level is a leaf position).
-    const BuiltMesh m = icosphere(5).build();
+// Cuts of `m` at object-space errors (fractions of its size) draw normals closer to the source's, at each source
+// vertex's nearest point on the cut, than the kept vertices' source normals would (see the test below).
+void expect_normals_fit_the_surface(const BuiltMesh& m, std::initializer_list<double> relativeErrors) {
     std::map<std::array<uint32_t, 3>, std::array<float, 3>> sourceNormal;
     for (uint32_t v = 0; v < m.leafVertices; ++v) {
         std::array<uint32_t, 3> bits;
         std::memcpy(bits.data(), &m.positions[3 * size_t(v)], 12);
         sourceNormal[bits] = decode_octahedral(m.normals[v]);
     }
-    for (double relative : {0.02, 0.04, 0.08}) {
+    for (double relative : relativeErrors) {  // cuts at these errors, fractions of the mesh's size
         SCOPED_TRACE(relative);
         const float threshold = float(relative * m.size);
         struct Corner {
@@ -395,9 +390,22 @@ TEST(Dag, CoarseLevelsShowTheSurfacesNormals) {
             drawnError += error_of([](const Corner& c) { return c.drawn; });
             sourceError += error_of([](const Corner& c) { return c.source; });
         }
-        EXPECT_LT(drawnError, 0.85 * sourceError);  // 0.77, 0.74 and 0.68 when written
+        EXPECT_LT(drawnError, 0.85 * sourceError);  // 0.77, 0.74 and 0.68 when written (the unit sphere)
     }
 }
+}  // namespace
+
+TEST(Dag, CoarseLevelsShowTheSurfacesNormals) {
+    // A bumpy sphere, smooth-shaded: its vertex normals vary from vertex to vertex. A coarse cut's triangles that
+    // interpolated the source normals of the vertices they kept would tilt with whichever bump each corner sat on; the
+    // builder fits the kept vertices' normals to the surface instead. At each source vertex's nearest point on the
+    // cut, the cut's interpolated normal must lie closer to the source's normal than the kept vertices' source normals
+    // would. Positions are untouched (the crack-free checks above: every position of every level is a leaf position).
+    // Also tiny, and far from the origin (float32 points 0.06 apart there).
+    expect_normals_fit_the_surface(icosphere(5).build(), {0.02, 0.04, 0.08});
+    for (const Source& s : {icosphere(5, 1e-4), icosphere(5, 100.0, 1e6)}) expect_normals_fit_the_surface(s.build(), {0.04});
+}
+
 
 TEST(Dag, FittedNormalsOpenNoShadingSeams) {
     // A cut draws each position with one normal where the source does (fits are only made for a group's interior
