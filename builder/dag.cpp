@@ -9,7 +9,7 @@
 #include "clusters.h"
 #include "cut.h"
 #include "edge_limit.h"
-#include "normal_fit.h"
+#include "attribute_fit.h"
 #include "parallel.h"
 #include "phase_timer.h"
 #include "weld.h"
@@ -548,15 +548,16 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
         for (size_t v = begin; v < end; ++v) attributeOf[v] = uint32_t(v);
     });
-    // Fitted normals (normal_fit.h): fit k gave vertex fits[k].vertex the normal fittedNormals[3k..3k+2] in the clusters
-    // of group fits[k].group and of every later group that does not fit it again. normalOf: the normal each vertex is
-    // drawn with now, a source vertex's (below vertexCount) or the latest fit's (vertexCount + k).
+    // Fitted normals and vertex channel (attribute_fit.h): fit k gave vertex fits[k].vertex the normal
+    // fittedNormals[3k..3k+2] (and channel fittedChannels[4k..4k+3]) in the clusters of group fits[k].group and of every
+    // later group that does not fit it again. drawnOf: the values each vertex is drawn with now, a source vertex's
+    // (below vertexCount) or the latest fit's (vertexCount + k).
     struct Fit {
         uint32_t group, vertex;
     };
     std::vector<Fit> fits;
-    std::vector<float> fittedNormals;
-    std::vector<uint32_t> normalOf(attributeOf);
+    std::vector<float> fittedNormals, fittedChannels;
+    std::vector<uint32_t> drawnOf(attributeOf);
     // The source's UV islands, for the seam retry's last step (made by the first group that needs them: most builds
     // never do): triangles joined through shared vertices, and through wedges of one position with the same texture
     // coordinates (normal or colour seams inside an island). Each vertex's island is named by its smallest vertex.
@@ -767,12 +768,13 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             float error = 0;
             std::vector<std::vector<uint32_t>> pieces;
             Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
-            std::vector<FittedNormal> normals;  // its interior kept vertices' fitted normals (normal_fit.h)
+            std::vector<FittedAttributes> fitted;  // its interior kept vertices' fitted normals and channel
         };
         std::vector<Result> results(groupCount);
         phases.mark("round: locks");
-        // The normals vertices are drawn with (fit_normals' targets and starting point).
-        const NormalTable drawnNormals{mesh.normals.data(), uint32_t(vertexCount), fittedNormals.data(), normalOf.data()};
+        // The values vertices are drawn with (fit_attributes' targets and starting point).
+        const VertexTable drawnNormals{mesh.normals.data(), uint32_t(vertexCount), fittedNormals.data(), drawnOf.data(), 3};
+        const VertexTable drawnChannels{mesh.colors.data(), uint32_t(vertexCount), fittedChannels.data(), drawnOf.data(), kChannelComponents};
         parallel_for(groupCount, [&](size_t g) {
             std::vector<uint32_t> merged;
             for (uint32_t c : members[g]) merged.insert(merged.end(), clusters[c].indices.begin(), clusters[c].indices.end());
@@ -894,10 +896,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             result.simplified = true;
             result.error = error;
             result.pieces = split_into_clusters(simplified, position);
-            // Normals fitted to the group's input (normal_fit.h). Not with Preserve Area (cards, foliage): its moved
-            // borders take their source's normals, and such meshes keep the kept vertices' own.
+            // Normals and vertex channel fitted to the group's input (attribute_fit.h). Not with Preserve Area (cards,
+            // foliage): its moved borders take their source's values, and such meshes keep the kept vertices' own.
             if (!settings.preserveArea)
-                result.normals = fit_normals(merged, simplified.data(), simplified.size(), local, positionId, lock, drawnNormals);
+                result.fitted = fit_attributes(merged, simplified.data(), simplified.size(), local, positionId, lock, drawnNormals,
+                                               hasColors ? &drawnChannels : nullptr);
         });
 
         phases.mark("round: simplify+split");
@@ -921,7 +924,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                     attributes.push_back(value);
                 }
                 attributeOf.push_back(attributeOf[source]);
-                normalOf.push_back(normalOf[source]);
+                drawnOf.push_back(drawnOf[source]);
                 positionId.push_back(welder.add(&local[3 * id], id));
                 lock.push_back(0);
                 firstGroup.push_back(-1);
@@ -944,10 +947,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             // encloses every child's.
             const Group group{enclose(childSpheres), childError + results[g].error};
             groups.push_back(group);
-            for (const FittedNormal& fitted : results[g].normals) {  // drawn so from this group's clusters on
-                normalOf[fitted.vertex] = uint32_t(vertexCount + fits.size());
+            for (const FittedAttributes& fitted : results[g].fitted) {  // drawn so from this group's clusters on
+                drawnOf[fitted.vertex] = uint32_t(vertexCount + fits.size());
                 fits.push_back({uint32_t(groups.size() - 1), fitted.vertex});
                 fittedNormals.insert(fittedNormals.end(), fitted.normal.begin(), fitted.normal.end());
+                if (hasColors) fittedChannels.insert(fittedChannels.end(), fitted.channel.begin(), fitted.channel.end());
             }
             add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, int32_t(groups.size() - 1), next);
         }
@@ -1044,8 +1048,8 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     parallel_blocks(packedFitted.size(), kBlock, [&](size_t begin, size_t end) {
         for (size_t f = begin; f < end; ++f) packedFitted[f] = encode_octahedral(fittedNormals[3 * f], fittedNormals[3 * f + 1], fittedNormals[3 * f + 2]);
     });
-    // Each vertex's fits in the order they were made (group order), and the normal a cluster made by group `madeBy`
-    // draws a vertex with: the latest fit by that group or an earlier one, else the source's.
+    // Each vertex's fits in the order they were made (group order), and the fit whose values a cluster made by group
+    // `madeBy` draws a vertex with: the latest by that group or an earlier one (kNoFit: the source's values).
     std::vector<uint32_t> fitStart(local.size() / 3 + 1, 0), fitsOf(fits.size());
     for (const Fit& fit : fits) ++fitStart[fit.vertex + 1];
     for (size_t v = 0; v + 1 < fitStart.size(); ++v) fitStart[v + 1] += fitStart[v];
@@ -1053,10 +1057,11 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         std::vector<uint32_t> fill(fitStart.begin(), fitStart.end() - 1);
         for (uint32_t k = 0; k < fits.size(); ++k) fitsOf[fill[fits[k].vertex]++] = k;
     }
-    auto drawn_normal = [&](uint32_t v, int32_t madeBy) {
+    constexpr uint32_t kNoFit = 0xffffffffu;
+    auto fit_drawn = [&](uint32_t v, int32_t madeBy) {
         for (uint32_t k = fitStart[v + 1]; k > fitStart[v]; --k)
-            if (int32_t(fits[fitsOf[k - 1]].group) <= madeBy) return packedFitted[fitsOf[k - 1]];
-        return packedNormals[attributeOf[v]];
+            if (int32_t(fits[fitsOf[k - 1]].group) <= madeBy) return fitsOf[k - 1];
+        return kNoFit;
     };
     parallel_for(order.size(), [&](size_t i) {
         uint32_t at = emitted[i].vertexOffset;
@@ -1064,9 +1069,10 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
         for (uint32_t v : clusterVertices[i]) {
             const uint32_t a = attributeOf[v];
             std::copy_n(&local[3 * v], 3, &out.positions[3 * size_t(at)]);
-            out.normals[at] = drawn_normal(v, madeBy);
+            const uint32_t fit = fit_drawn(v, madeBy);
+            out.normals[at] = fit == kNoFit ? packedNormals[a] : packedFitted[fit];
             if (hasColors) {
-                const float* col = &mesh.colors[kChannelComponents * a];
+                const float* col = fit == kNoFit ? &mesh.colors[kChannelComponents * a] : &fittedChannels[kChannelComponents * size_t(fit)];
                 out.colors[2 * size_t(at)] = float_to_half(col[0]) | (uint32_t(float_to_half(col[1])) << 16);
                 out.colors[2 * size_t(at) + 1] = float_to_half(col[2]) | (uint32_t(float_to_half(col[3])) << 16);
             }

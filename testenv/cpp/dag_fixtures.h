@@ -26,12 +26,14 @@ struct Source {
     std::vector<float> points;
     std::vector<int32_t> counts, indices;
     std::vector<float> colors;  // uniform (per face) when set
+    std::vector<float> pointColors;  // vertex (per point) when set
     std::vector<float> normals; // uniform (per face) when set: flat shading
     std::vector<float> uvs;     // face-varying (per corner) when set
     std::vector<int32_t> faceMaterials;  // material slot per face when set
     BuiltMesh build(const BuildSettings& settings = {}) const {
         MeshView v = polygon_view(name, points, counts, indices);
         if (!colors.empty()) v.displayColor = {Interpolation::Uniform, 3, colors, {}};
+        if (!pointColors.empty()) v.displayColor = {Interpolation::Vertex, 3, pointColors, {}};
         if (!normals.empty()) v.normals = {Interpolation::Uniform, 3, normals, {}};
         if (!uvs.empty()) v.uvs = {Interpolation::FaceVarying, 2, uvs, {}};
         v.faceMaterials = faceMaterials;

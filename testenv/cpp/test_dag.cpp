@@ -327,21 +327,32 @@ double nearest_on_triangle(const float* p, const float* a, const float* b, const
     return best;
 }
 
-// Cuts of `m` at object-space errors (fractions of its size) draw normals closer to the source's, at each source
-// vertex's nearest point on the cut, than the kept vertices' source normals would (see the test below).
-void expect_normals_fit_the_surface(const BuiltMesh& m, std::initializer_list<double> relativeErrors) {
-    std::map<std::array<uint32_t, 3>, std::array<float, 3>> sourceNormal;
+// A vertex's drawn normal (xyz, 0) or vertex channel (rgba).
+std::array<double, 4> drawn_values(const BuiltMesh& m, size_t v, bool channel) {
+    if (!channel) {
+        const std::array<float, 3> n = decode_octahedral(m.normals[v]);
+        return {n[0], n[1], n[2], 0};
+    }
+    const uint32_t rg = m.colors[2 * v], ba = m.colors[2 * v + 1];
+    return {half_to_float(uint16_t(rg)), half_to_float(uint16_t(rg >> 16)), half_to_float(uint16_t(ba)), half_to_float(uint16_t(ba >> 16))};
+}
+
+// Cuts of `m` at object-space errors (fractions of its size) draw normals (or the vertex channel) closer to the
+// source's, at each source vertex's nearest point on the cut, than the kept vertices' source values would: 1 - cos of
+// the angle between normals, the squared difference of channels, summed over the source's vertices.
+void expect_fits_follow_the_surface(const BuiltMesh& m, std::initializer_list<double> relativeErrors, bool channel = false) {
+    std::map<std::array<uint32_t, 3>, std::array<double, 4>> sourceValues;
     for (uint32_t v = 0; v < m.leafVertices; ++v) {
         std::array<uint32_t, 3> bits;
         std::memcpy(bits.data(), &m.positions[3 * size_t(v)], 12);
-        sourceNormal[bits] = decode_octahedral(m.normals[v]);
+        sourceValues[bits] = drawn_values(m, v, channel);
     }
-    for (double relative : relativeErrors) {  // cuts at these errors, fractions of the mesh's size
+    for (double relative : relativeErrors) {
         SCOPED_TRACE(relative);
         const float threshold = float(relative * m.size);
         struct Corner {
             const float* position;
-            std::array<float, 3> drawn, source;
+            std::array<double, 4> drawn, source;
         };
         std::vector<std::array<Corner, 3>> cut;
         size_t fitted = 0, corners = 0;
@@ -354,8 +365,8 @@ void expect_normals_fit_the_surface(const BuiltMesh& m, std::initializer_list<do
                     const uint32_t v = c.vertexOffset + ((packed >> (8 * k)) & 0xff);
                     std::array<uint32_t, 3> bits;
                     std::memcpy(bits.data(), &m.positions[3 * size_t(v)], 12);
-                    ASSERT_TRUE(sourceNormal.count(bits));
-                    triangle[k] = {&m.positions[3 * size_t(v)], decode_octahedral(m.normals[v]), sourceNormal[bits]};
+                    ASSERT_TRUE(sourceValues.count(bits));
+                    triangle[k] = {&m.positions[3 * size_t(v)], drawn_values(m, v, channel), sourceValues[bits]};
                     fitted += triangle[k].drawn != triangle[k].source;
                     ++corners;
                 }
@@ -364,8 +375,7 @@ void expect_normals_fit_the_surface(const BuiltMesh& m, std::initializer_list<do
         }
         ASSERT_GT(cut.size(), 200u);
         ASSERT_LT(cut.size(), 8000u) << "a coarse cut";
-        EXPECT_GT(fitted, corners / 4) << "most interior vertices of a coarse level draw a fitted normal";
-        // 1 - cos of the angle between the interpolated normal and the source's, summed over source vertices.
+        EXPECT_GT(fitted, corners / 4) << "most interior vertices of a coarse level draw fitted values";
         double drawnError = 0, sourceError = 0;
         for (uint32_t v = 0; v < m.leafVertices; v += 2) {
             const float* p = &m.positions[3 * size_t(v)];
@@ -379,18 +389,20 @@ void expect_normals_fit_the_surface(const BuiltMesh& m, std::initializer_list<do
                     std::copy_n(w, 3, bestW);
                 }
             }
-            const std::array<float, 3> n = decode_octahedral(m.normals[v]);
+            const std::array<double, 4> target = drawn_values(m, v, channel);
             auto error_of = [&](auto pick) {
-                double s[3] = {0, 0, 0};
+                double s[4] = {0, 0, 0, 0};
                 for (int k = 0; k < 3; ++k)
-                    for (int c = 0; c < 3; ++c) s[c] += bestW[k] * pick(cut[nearest][k])[c];
+                    for (int c = 0; c < 4; ++c) s[c] += bestW[k] * pick(cut[nearest][k])[c];
+                if (channel) return (s[0] - target[0]) * (s[0] - target[0]) + (s[1] - target[1]) * (s[1] - target[1]) +
+                                    (s[2] - target[2]) * (s[2] - target[2]) + (s[3] - target[3]) * (s[3] - target[3]);
                 const double length = std::sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
-                return 1 - (s[0] * n[0] + s[1] * n[1] + s[2] * n[2]) / length;
+                return 1 - (s[0] * target[0] + s[1] * target[1] + s[2] * target[2]) / length;
             };
             drawnError += error_of([](const Corner& c) { return c.drawn; });
             sourceError += error_of([](const Corner& c) { return c.source; });
         }
-        EXPECT_LT(drawnError, 0.85 * sourceError);  // 0.77, 0.74 and 0.68 when written (the unit sphere)
+        EXPECT_LT(drawnError, 0.85 * sourceError);  // when written: normals 0.68-0.77, colours 0.77-0.80
     }
 }
 }  // namespace
@@ -402,8 +414,19 @@ TEST(Dag, CoarseLevelsShowTheSurfacesNormals) {
     // cut, the cut's interpolated normal must lie closer to the source's normal than the kept vertices' source normals
     // would. Positions are untouched (the crack-free checks above: every position of every level is a leaf position).
     // Also tiny, and far from the origin (float32 points 0.06 apart there).
-    expect_normals_fit_the_surface(icosphere(5).build(), {0.02, 0.04, 0.08});
-    for (const Source& s : {icosphere(5, 1e-4), icosphere(5, 100.0, 1e6)}) expect_normals_fit_the_surface(s.build(), {0.04});
+    expect_fits_follow_the_surface(icosphere(5).build(), {0.02, 0.04, 0.08});
+    for (const Source& s : {icosphere(5, 1e-4), icosphere(5, 100.0, 1e6)}) expect_fits_follow_the_surface(s.build(), {0.04});
+}
+
+TEST(Dag, CoarseLevelsShowTheSurfacesColours) {
+    // A sphere coloured per vertex, speckled: a coarse triangle would take the speck colours of the vertices it kept;
+    // fitted, it takes the colours of the surface it stands for (displayColor, like any input of the vertex channel).
+    Source s = icosphere(5);
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> speck(-0.25f, 0.25f);
+    for (size_t i = 0; i < s.points.size(); i += 3)
+        for (int k = 0; k < 3; ++k) s.pointColors.push_back(0.5f + 0.2f * std::sin(3.0f * s.points[i + k]) + speck(rng));
+    expect_fits_follow_the_surface(s.build(), {0.04, 0.08}, true);
 }
 
 

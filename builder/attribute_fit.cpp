@@ -1,10 +1,10 @@
-// The least-squares normals of a simplified group (normal_fit.h). Each input position with one vertex in the group is a
-// sample: the normal it is drawn with, weighed by the area around it, at its nearest point on the output. That point is
-// searched among the output triangles around the kept position nearest the sample over the group's edges, and where
-// it lies on the rim of those, around the rim's corners too. The unknowns are the normals of the output's interior
-// vertices; a few Gauss-Seidel sweeps minimise the weighted squared difference between each sample's normal and the
-// output's normals interpolated at its point.
-#include "normal_fit.h"
+// The least-squares normals and vertex channel of a simplified group (attribute_fit.h). Each input position with one
+// vertex in the group is a sample: the values it is drawn with, weighed by the area around it, at its nearest point on
+// the output. That point is searched among the output triangles around the kept position nearest the sample over the
+// group's edges, and where it lies on the rim of those, around the rim's corners too. The unknowns are the values of
+// the output's interior vertices; a few Gauss-Seidel sweeps minimise the weighted squared difference between each
+// sample's values and the output's interpolated at its point.
+#include "attribute_fit.h"
 
 #include "area.h"
 
@@ -15,7 +15,9 @@ namespace tessera {
 namespace {
 
 constexpr int kSweeps = 4;
-constexpr float kUnchanged = 0.99999f;  // cosine above which a fitted normal is the one drawn already
+constexpr float kUnchanged = 0.99999f;          // cosine above which a fitted normal is the one drawn already
+constexpr float kChannelUnchanged = 1.0f / 4096;  // a channel value this close to the one drawn is that one
+constexpr int kNormal = 3, kChannel = 4, kMaxValues = kNormal + kChannel;  // values per vertex: normal, then channel
 constexpr uint32_t kNone = 0xffffffffu;
 
 // A triangle set up for closest-point queries: a corner, the edges from it, and their dot products.
@@ -85,9 +87,20 @@ struct Rows {
 
 }  // namespace
 
-std::vector<FittedNormal> fit_normals(const std::vector<uint32_t>& input, const uint32_t* output, size_t outputCount, const std::vector<float>& positions,
-                                      const std::vector<uint32_t>& positionId, const std::vector<unsigned char>& lock, const NormalTable& drawn) {
-    std::vector<FittedNormal> fitted;
+std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input, const uint32_t* output, size_t outputCount,
+                                             const std::vector<float>& positions, const std::vector<uint32_t>& positionId,
+                                             const std::vector<unsigned char>& lock, const VertexTable& normals, const VertexTable* channel) {
+    std::vector<FittedAttributes> fitted;
+    const int valueCount = channel ? kMaxValues : kNormal;
+    // The values vertex v is drawn with, into `to`.
+    auto drawn = [&](uint32_t v, double* to) {
+        const float* n = normals(v);
+        for (int k = 0; k < kNormal; ++k) to[k] = n[k];
+        if (channel) {
+            const float* c = (*channel)(v);
+            for (int k = 0; k < kChannel; ++k) to[kNormal + k] = c[k];
+        }
+    };
     if (outputCount == 0 || input.empty()) return fitted;
     // The group's positions, numbered in order of first use: an open-addressing table by position id, kept at most
     // half full (a closed mesh has about half as many positions as triangles; a soup, up to three per triangle).
@@ -112,11 +125,12 @@ std::vector<FittedNormal> fit_normals(const std::vector<uint32_t>& input, const 
         }
         find(id) = {id, slot};
     };
-    // Per slot, its first vertex's position and drawn normal are copied once: the mesh's arrays are read at random.
+    // Per slot, its first vertex's position and drawn values are copied once: the mesh's arrays are read at random.
     std::vector<uint32_t> vertexOf;  // slot -> its first vertex
     std::vector<char> seam;          // slot -> several vertices at the position
     std::vector<double> weight;      // slot -> area of its triangles
-    std::vector<std::array<float, 3>> point, normalDrawn;
+    std::vector<std::array<float, 3>> point;
+    std::vector<std::array<double, kMaxValues>> valueDrawn;
     std::vector<uint32_t> corners(input.size());
     for (size_t i = 0; i < input.size(); ++i) {
         const uint32_t v = input[i];
@@ -128,8 +142,8 @@ std::vector<FittedNormal> fit_normals(const std::vector<uint32_t>& input, const 
             seam.push_back(0);
             weight.push_back(0);
             point.push_back({positions[3 * size_t(v)], positions[3 * size_t(v) + 1], positions[3 * size_t(v) + 2]});
-            const float* n = drawn(v);
-            normalDrawn.push_back({n[0], n[1], n[2]});
+            valueDrawn.emplace_back();
+            drawn(v, valueDrawn.back().data());
         } else if (vertexOf[slot] != v) {
             seam[slot] = 1;
         }
@@ -171,12 +185,13 @@ std::vector<FittedNormal> fit_normals(const std::vector<uint32_t>& input, const 
             }
 
     // The unknowns: output vertices alone at their position and not locked.
-    std::vector<uint32_t> unknownOf(slots, kNone), unknownVertex;
+    std::vector<uint32_t> unknownOf(slots, kNone), unknownVertex, unknownSlot;
     for (size_t i = 0; i < outputCount; ++i) {
         const uint32_t slot = outputCorners[i], v = output[i];
         if (seam[slot] || vertexOf[slot] != v || lock[v] != 0 || unknownOf[slot] != kNone) continue;
         unknownOf[slot] = uint32_t(unknownVertex.size());
         unknownVertex.push_back(v);
+        unknownSlot.push_back(slot);
     }
     if (unknownVertex.empty()) return fitted;
 
@@ -184,7 +199,7 @@ std::vector<FittedNormal> fit_normals(const std::vector<uint32_t>& input, const 
     // interpolated one).
     struct Sample {
         uint32_t triangle;
-        double weight, barycentric[3], residual[3];
+        double weight, barycentric[3], residual[kMaxValues];
     };
     std::vector<Triangle> triangles;
     triangles.reserve(outputCount / 3);
@@ -227,12 +242,16 @@ std::vector<FittedNormal> fit_normals(const std::vector<uint32_t>& input, const 
                     if (j != centre) search_fan(outputCorners[first + j]);
         }
         if (best.triangle == kNone) continue;
-        const float* target = normalDrawn[slot].data();
-        for (int k = 0; k < 3; ++k) best.residual[k] = target[k];
+        for (int k = 0; k < valueCount; ++k) best.residual[k] = valueDrawn[slot][k];
         for (int j = 0; j < 3; ++j) {
             const uint32_t corner = output[best.triangle + j], cornerSlot = outputCorners[best.triangle + j];
-            const float* n = vertexOf[cornerSlot] == corner ? normalDrawn[cornerSlot].data() : drawn(corner);  // another wedge: its own
-            for (int k = 0; k < 3; ++k) best.residual[k] -= best.barycentric[j] * n[k];
+            double own[kMaxValues];
+            const double* values = valueDrawn[cornerSlot].data();
+            if (vertexOf[cornerSlot] != corner) {  // another wedge at the position: its own values
+                drawn(corner, own);
+                values = own;
+            }
+            for (int k = 0; k < valueCount; ++k) best.residual[k] -= best.barycentric[j] * values[k];
         }
         samples.push_back(best);
     }
@@ -245,38 +264,51 @@ std::vector<FittedNormal> fit_normals(const std::vector<uint32_t>& input, const 
                 if (unknown != kNone && output[samples[s].triangle + j] == unknownVertex[unknown]) add(unknown, s * 3 + uint32_t(j));
             }
     });
-    std::vector<std::array<double, 3>> normal(unknownVertex.size());
-    for (size_t u = 0; u < unknownVertex.size(); ++u) {
-        const float* n = drawn(unknownVertex[u]);
-        normal[u] = {n[0], n[1], n[2]};
-    }
+    std::vector<std::array<double, kMaxValues>> value(unknownVertex.size());
+    for (size_t u = 0; u < unknownVertex.size(); ++u) value[u] = valueDrawn[unknownSlot[u]];
     for (int sweep = 0; sweep < kSweeps; ++sweep)
         for (size_t u = 0; u < unknownVertex.size(); ++u) {
-            double step[3] = {0, 0, 0}, denominator = 0;
+            double step[kMaxValues] = {}, denominator = 0;
             for (uint32_t k = reach.start[u]; k < reach.start[u + 1]; ++k) {
                 const Sample& s = samples[reach.items[k] / 3];
                 const double b = s.barycentric[reach.items[k] % 3];
-                for (int c = 0; c < 3; ++c) step[c] += s.weight * b * s.residual[c];
+                for (int c = 0; c < valueCount; ++c) step[c] += s.weight * b * s.residual[c];
                 denominator += s.weight * b * b;
             }
             if (!(denominator > 0)) continue;
-            for (int c = 0; c < 3; ++c) {
+            for (int c = 0; c < valueCount; ++c) {
                 step[c] /= denominator;
-                normal[u][c] += step[c];
+                value[u][c] += step[c];
             }
             for (uint32_t k = reach.start[u]; k < reach.start[u + 1]; ++k) {
                 Sample& s = samples[reach.items[k] / 3];
                 const double b = s.barycentric[reach.items[k] % 3];
-                for (int c = 0; c < 3; ++c) s.residual[c] -= b * step[c];
+                for (int c = 0; c < valueCount; ++c) s.residual[c] -= b * step[c];
             }
         }
+    // The channel stays within the range of the group's input (least squares may overshoot it: no negative colour).
+    std::array<double, kMaxValues> lowest, highest;
+    lowest.fill(INFINITY);
+    highest.fill(-INFINITY);
+    for (const auto& v : valueDrawn)
+        for (int k = kNormal; k < valueCount; ++k) {
+            lowest[k] = std::min(lowest[k], v[k]);
+            highest[k] = std::max(highest[k], v[k]);
+        }
     for (size_t u = 0; u < unknownVertex.size(); ++u) {
-        const double length = std::sqrt(normal[u][0] * normal[u][0] + normal[u][1] * normal[u][1] + normal[u][2] * normal[u][2]);
-        if (!(length > 1e-6)) continue;  // the samples cancel out: keep the normal drawn
-        const std::array<float, 3> n = {float(normal[u][0] / length), float(normal[u][1] / length), float(normal[u][2] / length)};
-        const float* now = drawn(unknownVertex[u]);
-        if (n[0] * now[0] + n[1] * now[1] + n[2] * now[2] > kUnchanged) continue;
-        fitted.push_back({unknownVertex[u], n});
+        const std::array<double, kMaxValues>& now = valueDrawn[unknownSlot[u]];
+        FittedAttributes f{unknownVertex[u], {float(now[0]), float(now[1]), float(now[2])}, {}};
+        bool changed = false;
+        const double length = std::sqrt(value[u][0] * value[u][0] + value[u][1] * value[u][1] + value[u][2] * value[u][2]);
+        if (length > 1e-6) {  // else the samples cancel out: keep the normal drawn
+            for (int k = 0; k < kNormal; ++k) f.normal[k] = float(value[u][k] / length);
+            changed = f.normal[0] * now[0] + f.normal[1] * now[1] + f.normal[2] * now[2] <= kUnchanged;
+        }
+        for (int k = 0; k < valueCount - kNormal; ++k) {
+            f.channel[k] = float(std::clamp(value[u][kNormal + k], lowest[kNormal + k], highest[kNormal + k]));
+            changed |= std::abs(f.channel[k] - now[kNormal + k]) > kChannelUnchanged;
+        }
+        if (changed) fitted.push_back(f);
     }
     return fitted;
 }
