@@ -34,7 +34,7 @@ struct Triangle {
         acac = ac[0] * ac[0] + ac[1] * ac[1] + ac[2] * ac[2];
     }
     // The point nearest p, as barycentric weights (of a, b, c); returns the squared distance. In float: the weights
-    // only place a sample's normal, and positions are floats already. Ericson, Real-Time Collision Detection, 5.1.5,
+    // only place a sample's values, and positions are floats already. Ericson, Real-Time Collision Detection, 5.1.5,
     // with the dot products of b - p and c - p derived from those of a - p.
     float closest_point(const float* p, float weights[3]) const {
         const float ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
