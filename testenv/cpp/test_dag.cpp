@@ -316,10 +316,10 @@ double nearest_on_triangle(const float* p, const float* a, const float* b, const
         if (u >= 0 && v >= 0 && u + v <= 1) consider(u, v);
     }
     auto clamp01 = [](double x) { return std::min(1.0, std::max(0.0, x)); };
-    if (a00 > 0) consider(clamp01(b0 / a00), 0);                                    // edge ab
-    if (a11 > 0) consider(0, clamp01(b1 / a11));                                    // edge ac
+    if (a00 > 0) consider(clamp01(b0 / a00), 0);  // edge ab
+    if (a11 > 0) consider(0, clamp01(b1 / a11));  // edge ac
     const auto e2 = sub(c, b), dp = sub(p, b);
-    if (dot(e2, e2) > 0) {                                                            // edge bc
+    if (dot(e2, e2) > 0) {  // edge bc
         const double t = clamp01(dot(e2, dp) / dot(e2, e2));
         consider(1 - t, t);
     }
