@@ -7,6 +7,7 @@
 #include "attribute_fit.h"
 
 #include "area.h"
+#include "rows.h"
 
 #include <algorithm>
 #include <cmath>
@@ -71,20 +72,6 @@ struct Triangle {
     }
 };
 
-// Compressed rows: row r's entries are items[start[r] .. start[r + 1]).
-struct Rows {
-    std::vector<uint32_t> start, items;
-    template <class ForEachPair>
-    void build(size_t rows, ForEachPair for_each_pair) {
-        start.assign(rows + 1, 0);
-        for_each_pair([&](uint32_t row, uint32_t) { ++start[row + 1]; });
-        for (size_t r = 0; r < rows; ++r) start[r + 1] += start[r];
-        items.resize(start[rows]);
-        std::vector<uint32_t> fill(start.begin(), start.end() - 1);
-        for_each_pair([&](uint32_t row, uint32_t item) { items[fill[row]++] = item; });
-    }
-};
-
 }  // namespace
 
 std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input, const uint32_t* output, size_t outputCount,
@@ -112,9 +99,6 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
         while (table[at].first != kNone && table[at].first != id) at = (at + 1) & (capacity - 1);
         return table[at];
     };
-    auto slot_of = [&](uint32_t id) -> uint32_t {  // kNone where the group has no such position
-        return find(id).second;
-    };
     auto insert = [&](uint32_t id, uint32_t slot) {
         if (2 * (slot + 1) > capacity) {  // grow: twice the capacity, every entry placed again
             std::vector<std::pair<uint32_t, uint32_t>> old(2 * capacity, {kNone, kNone});
@@ -134,7 +118,7 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
     std::vector<uint32_t> corners(input.size());
     for (size_t i = 0; i < input.size(); ++i) {
         const uint32_t v = input[i];
-        uint32_t slot = slot_of(positionId[v]);
+        uint32_t slot = find(positionId[v]).second;  // kNone: a position not met yet
         if (slot == kNone) {
             slot = uint32_t(vertexOf.size());
             insert(positionId[v], slot);
@@ -155,7 +139,7 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
     }
     const size_t slots = vertexOf.size();
     std::vector<uint32_t> outputCorners(outputCount);
-    for (size_t i = 0; i < outputCount; ++i) outputCorners[i] = slot_of(positionId[output[i]]);
+    for (size_t i = 0; i < outputCount; ++i) outputCorners[i] = find(positionId[output[i]]).second;
     // The simplifier only removes: every output position is an input one (otherwise, fit nothing).
     if (std::find(outputCorners.begin(), outputCorners.end(), kNone) != outputCorners.end()) return fitted;
 

@@ -6,12 +6,13 @@
 #include "tessera/morton.h"
 
 #include "area.h"
+#include "attribute_fit.h"
 #include "clusters.h"
 #include "cut.h"
 #include "edge_limit.h"
-#include "attribute_fit.h"
 #include "parallel.h"
 #include "phase_timer.h"
+#include "rows.h"
 #include "weld.h"
 
 #include <meshoptimizer.h>
@@ -1050,17 +1051,14 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     });
     // Each vertex's fits in the order they were made (group order), and the fit whose values a cluster made by group
     // `madeBy` draws a vertex with: the latest by that group or an earlier one (kNoFit: the source's values).
-    std::vector<uint32_t> fitStart(local.size() / 3 + 1, 0), fitsOf(fits.size());
-    for (const Fit& fit : fits) ++fitStart[fit.vertex + 1];
-    for (size_t v = 0; v + 1 < fitStart.size(); ++v) fitStart[v + 1] += fitStart[v];
-    {
-        std::vector<uint32_t> fill(fitStart.begin(), fitStart.end() - 1);
-        for (uint32_t k = 0; k < fits.size(); ++k) fitsOf[fill[fits[k].vertex]++] = k;
-    }
+    Rows fitsOf;
+    fitsOf.build(local.size() / 3, [&](auto add) {
+        for (uint32_t k = 0; k < fits.size(); ++k) add(fits[k].vertex, k);
+    });
     constexpr uint32_t kNoFit = 0xffffffffu;
     auto fit_drawn = [&](uint32_t v, int32_t madeBy) {
-        for (uint32_t k = fitStart[v + 1]; k > fitStart[v]; --k)
-            if (int32_t(fits[fitsOf[k - 1]].group) <= madeBy) return fitsOf[k - 1];
+        for (uint32_t k = fitsOf.start[v + 1]; k > fitsOf.start[v]; --k)
+            if (int32_t(fits[fitsOf.items[k - 1]].group) <= madeBy) return fitsOf.items[k - 1];
         return kNoFit;
     };
     parallel_for(order.size(), [&](size_t i) {

@@ -338,6 +338,13 @@ def _row(table, label, result, wall, gpu, reference=None, **extra):
     return row
 
 
+def _speedups(ref_wall, ref_gpu, wall, gpu):
+    """A row's speed against its --no-lod reference: in wall time (the whole render call: the CPU's part included) and in
+    the passes' GPU time alone."""
+    return {"speedup_vs_no_lod": round(ref_wall / wall, 1),
+            "gpu_speedup_vs_no_lod": round(ref_gpu["total"] / gpu["total"], 1) if gpu["total"] > 0 else None}
+
+
 def _render_case(queue, case, stage, resolution, frames, device):
     """Runs in a child process, so that its peak memory is its own and Vulkan starts fresh."""
     try:
@@ -363,19 +370,16 @@ def _render_case(queue, case, stage, resolution, frames, device):
             reference, ref_wall, ref_gpu = _frames(session, 1, lod=False, **settings)  # every source triangle: one frame
             result, wall, gpu = _frames(session, frames, pixel_error=1.0, **settings)
             for label, row_result, row_wall, row_gpu in ((f"{kind}, 1 px", result, wall, gpu), (f"{kind}, --no-lod", reference, ref_wall, ref_gpu)):
-                rows.append(_row("seams", label, row_result, row_wall, row_gpu, reference, speedup_vs_no_lod=round(ref_wall / row_wall, 1),
-                                 gpu_speedup_vs_no_lod=round(ref_gpu["total"] / row_gpu["total"], 1) if row_gpu["total"] > 0 else None))
+                rows.append(_row("seams", label, row_result, row_wall, row_gpu, reference, **_speedups(ref_wall, ref_gpu, row_wall, row_gpu)))
         else:
             reference, ref_wall, ref_gpu = _frames(session, frames, lod=False, **settings)
             for pixel_error in ((1.0,) if case == "brute" else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)):
                 result, wall, gpu = _frames(session, frames, pixel_error=pixel_error, **settings)
-                # In wall time (the whole render call: the CPU's part included) and in the passes' GPU time alone.
                 rows.append(_row("against brute force" if case == "brute" else "speed against error", f"{pixel_error:g} px",
-                                 result, wall, gpu, reference, speedup_vs_no_lod=round(ref_wall / wall, 1),
-                                 gpu_speedup_vs_no_lod=round(ref_gpu["total"] / gpu["total"], 1) if gpu["total"] > 0 else None))
+                                 result, wall, gpu, reference, **_speedups(ref_wall, ref_gpu, wall, gpu)))
             if case == "brute":
-                rows.append(_row("against brute force", "--no-lod", reference, ref_wall, ref_gpu, reference, speedup_vs_no_lod=1.0,
-                                 gpu_speedup_vs_no_lod=1.0))
+                rows.append(_row("against brute force", "--no-lod", reference, ref_wall, ref_gpu, reference,
+                                 **_speedups(ref_wall, ref_gpu, ref_wall, ref_gpu)))
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
         for row in rows:
             row["device"] = session.device_name
