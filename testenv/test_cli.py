@@ -131,8 +131,9 @@ def test_bench_build_prints_a_table_and_writes_json(tmp_path):
 
 def test_bench_render_prints_tables_and_writes_json(tmp_path):
     rows_file, plot = tmp_path / "rows.json", tmp_path / "error.png"
-    done = run("bench", "render", "--resolution", "96x54", "--frames", "1", "--turns", "2", "--max-density", "2", "--stages-dir", tmp_path,
-               "--json", rows_file, "--plot", plot)
+    # The 1e8 field is measured against its cut at 1/16 px (every source triangle would take lavapipe half a minute).
+    done = run("bench", "render", "--resolution", "96x54", "--frames", "1", "--turns", "2", "--max-density", "2", "--no-lod-limit", "1e7",
+               "--stages-dir", tmp_path, "--json", rows_file, "--plot", plot)
     assert done.returncode == 0, done.stderr + done.stdout
     assert "frame ms" in done.stdout and "PSNR dB" in done.stdout
     rows = json.loads(rows_file.read_text())
@@ -143,6 +144,11 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
     assert field["occlusion"] is True and no_occlusion["occlusion"] is False, "measured frames test against the frame before"
     # Both fields were also rendered in turns in one process, and the scaling line compares those frames.
     assert field["frame_in_turns_ms"] > 0 and dense["frame_in_turns_ms"] > 0 and "frame_in_turns_ms" not in no_occlusion
+    # Every density row reports its error bound and its image error, the 1e6 field's against every source triangle.
+    assert field["error_bound_px"] == dense["error_bound_px"] == 1.0
+    assert field["error_reference"] == no_occlusion["error_reference"] == "--no-lod" and dense["error_reference"] == "0.0625 px cut"
+    assert all(20 < r["psnr_db"] <= r["psnr_4x4_db"] and 0 < r["same_prim_percent"] <= 100 for r in (field, no_occlusion, dense))
+    assert "PSNR 4x4 dB" in done.stdout and "error bound px" in done.stdout
     ratio = dense["frame_in_turns_ms"] / field["frame_in_turns_ms"]
     assert f"densest field costs {ratio:.2f}x the lightest (95x the source triangles), rendered in turns" in done.stdout
     brute = {r["case"]: r for r in rows if r["table"] == "against brute force"}

@@ -164,6 +164,9 @@ def _parser() -> argparse.ArgumentParser:
                               help="turns of the density fields rendered in turns in one process (the scaling ratio's frames; default 15)")
     bench_render.add_argument("--max-density", type=int, default=3, choices=(1, 2, 3),
                               help="fields of 1e6, 1e8, 1e10 source triangles: how many of them (default all 3)")
+    bench_render.add_argument("--no-lod-limit", type=float, default=2e8,
+                              help="density fields of at most this many source triangles are measured against --no-lod, "
+                                   "larger ones against the cut at 1/16 px (default 2e8: the 1e10 field against the cut)")
     bench_render.add_argument("--stages-dir", default="out/bench", help="where the generated stages are kept (default out/bench)")
     bench_render.add_argument("--device", help="Vulkan device, as for render")
     bench_render.add_argument("--plot", help="write the speed-against-error plot (PNG) here")
