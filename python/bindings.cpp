@@ -136,6 +136,7 @@ Visualize visualize_from(const std::string& name) {
 nb::dict stats_dict(const FrameStats& s) {
     nb::dict d;
     d["instances"] = s.instances;
+    d["pixel_samples"] = s.pixelSamples;
     d["instance_batches"] = s.instanceBatches;
     d["instance_bytes"] = s.instanceBytes;
     d["visible_instances"] = s.visibleInstances;
@@ -600,6 +601,11 @@ NB_MODULE(_tessera, m) {
         },
         "path"_a, "Reads an image as float32 RGBA (height, width, 4).");
 
+    m.def(
+        "pixel_sample_offset", [](uint32_t index) { return pixel_sample_offset(index); }, "index"_a,
+        "Where anti-aliasing sample `index` lies in its pixel, (x right, y down) in pixels from the centre, within [-0.5, 0.5): "
+        "sample 0 is the centre.");
+
     m.def("release_shared_devices", &Device::release_shared_devices,
           "Lets go of the devices sessions share (each goes when its last session does); called at exit.");
 
@@ -664,8 +670,10 @@ NB_MODULE(_tessera, m) {
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
                const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
                const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate, const std::string& rasterVertices,
-               float softwareRasterArea) {
+               float softwareRasterArea, uint32_t pixelSamples) {
                 RenderPassSettings settings;
+                if (pixelSamples == 0 || pixelSamples > 4096) throw nb::value_error("pixel samples must be between 1 and 4096");
+                settings.render.pixelSamples = pixelSamples;
                 if (!(dicingRate > 0.0f)) throw nb::value_error("the dicing rate must be a number of pixels > 0");
                 if (!(softwareRasterArea > 0.0f) || !std::isfinite(softwareRasterArea))
                     throw nb::value_error("the software raster area must be a number of pixels > 0");
@@ -696,7 +704,7 @@ NB_MODULE(_tessera, m) {
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
             "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f, "raster_vertices"_a = "auto",
-            "software_raster_area"_a = RenderSettings{}.softwareRasterArea)
+            "software_raster_area"_a = RenderSettings{}.softwareRasterArea, "pixel_samples"_a = 1u)
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
         .def_prop_ro(

@@ -195,8 +195,9 @@ struct CameraMatrices {
     std::array<double, 3> position, forward;
 };
 
-// Reversed-Z projection (near -> 1, far -> 0), Vulkan clip space with +Y down, the window fit to the image.
-CameraMatrices camera_matrices(const CameraDesc& camera, uint32_t width, uint32_t height) {
+// Reversed-Z projection (near -> 1, far -> 0), Vulkan clip space with +Y down, the window fit to the image. `pixelOffset`
+// (pixels, x right, y down) moves where each pixel samples the scene: the image shifts the other way by as much.
+CameraMatrices camera_matrices(const CameraDesc& camera, uint32_t width, uint32_t height, std::array<float, 2> pixelOffset = {0, 0}) {
     CameraMatrices out;
     const Matrix4d& c2w = camera.cameraToWorld;
     out.position = {c2w[3], c2w[7], c2w[11]};
@@ -250,6 +251,16 @@ CameraMatrices camera_matrices(const CameraDesc& camera, uint32_t width, uint32_
         proj[10] = 1 / (far - n);
         proj[11] = far / (far - n);
         proj[15] = 1;
+    }
+    // Normalized device coordinates move by -2 offset / size; a perspective divide by w = -z (the terms of z), an
+    // orthographic one by w = 1 (the constant terms).
+    const double shiftX = -2.0 * pixelOffset[0] / width, shiftY = -2.0 * pixelOffset[1] / height;
+    if (!camera.orthographic) {
+        proj[2] -= shiftX;
+        proj[6] -= shiftY;
+    } else {
+        proj[3] += shiftX;
+        proj[7] += shiftY;
     }
     out.projectionScaleY = std::abs(proj[5]);
     out.viewProjection = multiply(proj, view);
@@ -1130,7 +1141,68 @@ void Renderer::set_point_capacity(uint32_t points) {
     impl_->pointCapacity = std::clamp<uint32_t>(points, 1u, 1u << 24);
 }
 
+namespace {
+
+// The FrameStats fields that an image of several pixel samples adds up over its frames: times and redraws.
+template <class Visit>
+void visit_frame_costs(FrameStats& a, const FrameStats& b, Visit visit) {
+    visit(a.cullMs, b.cullMs), visit(a.softwareRasterMs, b.softwareRasterMs), visit(a.rasterMs, b.rasterMs);
+    visit(a.tessellationMs, b.tessellationMs), visit(a.hzbMs, b.hzbMs), visit(a.classifyMs, b.classifyMs);
+    visit(a.resolveMs, b.resolveMs), visit(a.readbackMs, b.readbackMs), visit(a.uploadMs, b.uploadMs);
+    visit(a.cpuRecordMs, b.cpuRecordMs), visit(a.cpuWaitMs, b.cpuWaitMs), visit(a.cpuFrameMs, b.cpuFrameMs);
+    visit(a.overflowRedraws, b.overflowRedraws);
+}
+
+}  // namespace
+
+std::array<float, 2> pixel_sample_offset(uint32_t index) {
+    auto radical_inverse = [](uint32_t i, uint32_t base) {
+        double value = 0, digit = 1.0 / base;
+        for (; i > 0; i /= base, digit /= base) value += digit * (i % base);
+        return value;
+    };
+    auto rotated = [](double h) { return float(h + 0.5 >= 1.0 ? h - 0.5 : h + 0.5) - 0.5f; };
+    return {rotated(radical_inverse(index, 2)), rotated(radical_inverse(index, 3))};
+}
+
 std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs, FrameStats* stats) {
+    if (settings.pixelSamples == 0 || settings.pixelSamples > 4096) throw std::invalid_argument("pixel samples must be between 1 and 4096");
+    if (!std::isfinite(settings.pixelOffset[0]) || !std::isfinite(settings.pixelOffset[1]))
+        throw std::invalid_argument("the pixel offset must be finite");
+    if (settings.pixelSamples == 1) return render_sample(scene, camera, settings, aovs, stats);
+    // Sample 0 (the centre) gives every AOV; later samples add their colour. Sums in double: thousands of samples of
+    // values near 1 would lose the last ones' bits in float.
+    std::vector<Image> images;
+    std::vector<std::vector<double>> sums(aovs.size());
+    FrameStats last, costs;
+    RenderSettings sample = settings;
+    sample.pixelSamples = 1;
+    for (uint32_t k = 0; k < settings.pixelSamples; ++k) {
+        const std::array<float, 2> offset = pixel_sample_offset(k);
+        sample.pixelOffset = {settings.pixelOffset[0] + offset[0], settings.pixelOffset[1] + offset[1]};
+        FrameStats frame;
+        std::vector<Image> drawn = render_sample(scene, camera, sample, aovs, &frame);
+        for (size_t i = 0; i < drawn.size(); ++i) {
+            if (drawn[i].aov != Aov::Color) continue;
+            if (k == 0) sums[i].assign(drawn[i].pixels.begin(), drawn[i].pixels.end());
+            else
+                for (size_t p = 0; p < sums[i].size(); ++p) sums[i][p] += drawn[i].pixels[p];
+        }
+        if (k == 0) images = std::move(drawn);
+        visit_frame_costs(costs, frame, [](auto& sum, const auto& value) { sum += value; });
+        last = frame;  // counts: the last sample's (every sample draws the same cut, the last with the best occlusion)
+    }
+    for (size_t i = 0; i < images.size(); ++i)
+        if (images[i].aov == Aov::Color)
+            for (size_t p = 0; p < sums[i].size(); ++p) images[i].pixels[p] = float(sums[i][p] / settings.pixelSamples);
+    visit_frame_costs(last, costs, [](auto& field, const auto& sum) { field = sum; });
+    last.pixelSamples = settings.pixelSamples;
+    if (stats) *stats = last;
+    return images;
+}
+
+std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs,
+                                           FrameStats* stats) {
     Impl& s = *impl_;
     const std::lock_guard<std::mutex> lock(s.pipelines.mutex);  // other renderers on the device share the pipelines
     if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
@@ -1179,7 +1251,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     const bool countFragments = settings.visualize == Visualize::Overdraw;  // the rasterizers' variants that count
     const VkPipeline softwareRaster = pipelines.software_raster(s.anyMasked, ownCorners, false, countFragments);
     const VkPipeline softwareRasterLarge = pipelines.software_raster(s.anyMasked, ownCorners, true, countFragments);
-    const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height);
+    const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height, settings.pixelOffset);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
     frameStats.swSharedVertices = !ownCorners;

@@ -355,3 +355,40 @@ def test_the_readback_span_times_the_aov_copies(render):
         assert one.stats["gpu_ms"]["readback"] == 0, one.stats["gpu_ms"]
     else:
         assert one.stats["gpu_ms"]["readback"] > 0, one.stats["gpu_ms"]
+
+
+def test_pixel_samples_antialias_the_colour_and_keep_the_centres_ids():
+    # Two quads, one behind the other, on no background (alpha 0): edges against the background and between prims.
+    stage = Usd.Stage.CreateInMemory()
+    for path, x, z in (("/Front", -0.3, 0.0), ("/Back", 0.3, -1.0)):
+        mesh = UsdGeom.Mesh.Define(stage, path)
+        mesh.GetPointsAttr().Set([(x - 0.5, -0.4, z), (x + 0.5, -0.5, z), (x + 0.45, 0.5, z), (x - 0.5, 0.45, z)])
+        mesh.GetFaceVertexCountsAttr().Set([4])
+        mesh.GetFaceVertexIndicesAttr().Set([0, 1, 2, 3])
+    camera = UsdGeom.Camera.Define(stage, "/Camera")
+    camera.AddTranslateOp().Set(Gf.Vec3d(0, 0, 3))
+    session = tessera.Session(stage, validation=True)
+    aovs = ("color", "primId", "depth", "normal")
+    one = session.render(camera="/Camera", resolution=(64, 48), aovs=aovs)
+    many = session.render(camera="/Camera", resolution=(64, 48), aovs=aovs, pixel_samples=8)
+    assert not [e for e in many.errors if e.startswith("validation")]
+    assert (one.stats["pixel_samples"], many.stats["pixel_samples"]) == (1, 8)
+    for aov in ("primId", "depth", "normal"):  # the centre sample's, bit for bit
+        assert np.array_equal(many[aov].pixels, one[aov].pixels, equal_nan=True), aov
+    alpha, single = many["color"].pixels[..., 3], one["color"].pixels[..., 3]
+    assert set(np.unique(single)) <= {0.0, 1.0}
+    assert np.allclose(alpha * 8, np.round(alpha * 8), atol=1e-4), "coverage in eighths"
+    partial = (alpha > 0) & (alpha < 1)
+    assert partial.sum() > 40, "the silhouettes' pixels are partly covered"
+    assert abs(alpha.sum() - single.sum()) < 0.02 * single.sum(), "the same area, spread over the edge pixels"
+    # Inside a prim, away from any edge, the colour is the one sample's (the surface's shading barely moves in a pixel).
+    ids = one["primId"].ids()
+    inside = np.zeros(ids.shape, bool)
+    inside[1:-1, 1:-1] = np.all([ids[1 + dy:ids.shape[0] - 1 + dy, 1 + dx:ids.shape[1] - 1 + dx] == ids[1:-1, 1:-1]
+                                 for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+    inside &= ids != NO_HIT
+    assert inside.sum() > 500
+    assert np.abs(many["color"].pixels[inside] - one["color"].pixels[inside]).max() < 0.02
+    for bad in (0, 4097, 1.5, True):
+        with pytest.raises(tessera.StageError, match="pixel samples"):
+            session.render(camera="/Camera", resolution=(8, 8), pixel_samples=bad)

@@ -214,3 +214,33 @@ def test_session_reads_render_settings():
     result = session.render(camera=product.camera, resolution=product.resolution, aovs=product.aovs)
     assert result["depth"].pixels.shape[:2] == (48, 64)
     assert tessera.Session(Usd.Stage.CreateInMemory()).render_settings() is None
+
+
+def test_pixel_samples_come_from_the_flag_else_the_render_settings(tmp_path):
+    from tessera.usd import render_settings
+
+    stage = Usd.Stage.CreateNew(str(tmp_path / "shot.usda"))
+    _quad(stage, "/Quad", 0.0)
+    _camera(stage, aperture=(20.0, 15.0))
+    settings = UsdRender.Settings.Define(stage, "/Render/Settings")
+    settings.GetResolutionAttr().Set(Gf.Vec2i(32, 24))
+    samples = settings.GetPrim().CreateAttribute("tessera:pixelSamples", Sdf.ValueTypeNames.Int)
+    for bad in (0, 5000):
+        samples.Set(bad)
+        warnings = []
+        assert render_settings.read(stage, None, warnings).pixel_samples is None
+        assert warnings == [f"/Render/Settings: tessera:pixelSamples = {bad} is not a whole number from 1 to 4096; 1 sample is used"]
+    samples.Set(4)
+    assert render_settings.read(stage, None, []).pixel_samples == 4
+    stage.GetRootLayer().Save()
+    stats = tmp_path / "stats.json"
+    out = str(tmp_path / "out.exr")
+    assert cli.main(["render", str(tmp_path / "shot.usda"), "-o", out, "--stats", str(stats)]) == 0
+    saved = json.loads(stats.read_text())
+    assert saved["pixel_samples"] == 4 and saved["resolution"] == [32, 24]
+    alpha = tessera.read_image(out)[..., 3]
+    assert ((alpha > 0) & (alpha < 1)).any(), "the quad's edges are partly covered"
+    assert cli.main(["render", str(tmp_path / "shot.usda"), "-o", out, "--pixel-samples", "2", "--stats", str(stats)]) == 0
+    assert json.loads(stats.read_text())["pixel_samples"] == 2, "the flag wins"
+    with pytest.raises(SystemExit):
+        cli.main(["render", str(tmp_path / "shot.usda"), "--pixel-samples", "0"])

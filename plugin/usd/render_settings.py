@@ -6,6 +6,8 @@ RenderSettings prim under /Render (UsdRender keeps its prims there; the rest of 
 own resolution and camera, when authored, win over the settings'. A RenderVar maps to an AOV by its sourceName
 (`color`, `Ci`, `rgba` or an `C.*` light path expression: color; `depth`, `z`: depth; `normal`, `N`, `Neye`: normal;
 `primId`, `instanceId`, `clusterId`, `triangleId`, `elementId` as the last); any other is a warning naming the var.
+Tessera's own setting on the settings prim, namespaced as renderers' are: `int tessera:pixelSamples` (anti-aliasing
+samples per pixel, 1 to 4096).
 """
 
 from __future__ import annotations
@@ -39,6 +41,21 @@ class RenderSettings:
     resolution: tuple[int, int]
     purposes: tuple[str, ...]  # includedPurposes other than default
     products: list[RenderProduct] = field(default_factory=list)
+    pixel_samples: int | None = None  # tessera:pixelSamples when authored and valid
+
+
+PIXEL_SAMPLES_ATTRIBUTE = "tessera:pixelSamples"
+
+
+def _pixel_samples(prim: Usd.Prim, where: str, warnings: list[str]) -> int | None:
+    attribute = prim.GetAttribute(PIXEL_SAMPLES_ATTRIBUTE)
+    if not attribute or not attribute.HasAuthoredValue():
+        return None
+    value = attribute.Get()
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 4096:
+        warnings.append(f"{where}: {PIXEL_SAMPLES_ATTRIBUTE} = {value!r} is not a whole number from 1 to 4096; 1 sample is used")
+        return None
+    return int(value)
 
 
 def find(stage: Usd.Stage, path: str | None, warnings: list[str]) -> Usd.Prim | None:
@@ -101,7 +118,7 @@ def read(stage: Usd.Stage, path: str | None, warnings: list[str]) -> RenderSetti
     if known != purposes:
         warnings.append(f"{where}: includedPurposes {list(purposes)}: only render, proxy and guide are purposes")
     result = RenderSettings(where, _camera(stage, settings, where, warnings),
-                            _resolution(settings, where, warnings, None), known)
+                            _resolution(settings, where, warnings, None), known, pixel_samples=_pixel_samples(prim, where, warnings))
     for target in settings.GetProductsRel().GetForwardedTargets():
         product_prim = stage.GetPrimAtPath(target)
         if not (product_prim and product_prim.IsA(UsdRender.Product)):

@@ -56,6 +56,16 @@ def _resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _pixel_samples(text: str) -> int:
+    try:
+        samples = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number of samples") from None
+    if not 1 <= samples <= 4096:
+        raise argparse.ArgumentTypeError(f"'{text}': pixel samples must be between 1 and 4096")
+    return samples
+
+
 _FRAME_RANGE = re.compile(r"^(-?\d+(?:\.\d+)?)(?:[-:](-?\d+(?:\.\d+)?)(?:x(\d+(?:\.\d+)?))?)?$")
 
 
@@ -114,6 +124,10 @@ def _parser() -> argparse.ArgumentParser:
                              "one under /Render); its resolution, camera, purposes and products apply unless flags say otherwise")
     render.add_argument("--pixel-error", type=float, default=1.0, metavar="PX",
                         help="screen-space error bound of the level-of-detail cut, in pixels (default 1)")
+    render.add_argument("--pixel-samples", type=_pixel_samples, metavar="N",
+                        help="anti-aliasing: the colour is the mean of N frames sampling each pixel at spread offsets (a box "
+                             "filter one pixel wide; depth, normal and ids are the pixel centres'); each sample costs a frame "
+                             "(default: the render settings' tessera:pixelSamples, else 1)")
     render.add_argument("--no-lod", action="store_true", help="draw every source triangle: the DAG off, the full-detail reference")
     render.add_argument("--dicing-rate", type=float, default=1.0, metavar="PX",
                         help="displaced surfaces are diced into micro-triangles whose edges project to about this many pixels (default 1)")
@@ -233,6 +247,7 @@ def _render(args) -> int:
             if frames is not None:
                 frame_path(output, frames[0])
     purposes = args.purposes or (settings.purposes if settings else ("render",))
+    pixel_samples = args.pixel_samples or (settings.pixel_samples if settings and settings.pixel_samples else 1)
     session = Session(stage, frame=frames[0] if frames else args.frame, device=args.device, complexity=_complexity_of(args),
                       purposes=purposes)
     loaded = time.perf_counter()
@@ -249,7 +264,7 @@ def _render(args) -> int:
             aovs = [aov for aov, _ in job["outputs"]]
             result = session.render(camera=camera, resolution=job["resolution"], aovs=aovs, pixel_error=args.pixel_error,
                                     lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion,
-                                    dicing_rate=args.dicing_rate)
+                                    dicing_rate=args.dicing_rate, pixel_samples=pixel_samples)
             rendered = time.perf_counter()
             where = f"frame {frame:g}: " if frame is not None else ""
             for message in result.warnings:

@@ -1107,6 +1107,80 @@ TEST_F(RendererTest, HugeTrianglesThroughTheNearPlaneAreClippedNotDroppedOrSmear
     }
 }
 
+// A pixel offset moves where each pixel samples the scene (a whole pixel shifts the image by one, in perspective and
+// orthographic views); pixel samples average the colours of their offsets, so a silhouette's alpha is its coverage,
+// and keep the centre sample's ids.
+TEST_F(RendererTest, PixelSamplesAverageShiftedFramesAndKeepTheCentresIds) {
+    EXPECT_EQ(pixel_sample_offset(0), (std::array<float, 2>{0, 0})) << "sample 0 is the pixel's centre";
+    std::set<std::array<float, 2>> offsets;
+    for (uint32_t k = 0; k < 256; ++k) {
+        const std::array<float, 2> o = pixel_sample_offset(k);
+        EXPECT_TRUE(o[0] >= -0.5f && o[0] < 0.5f && o[1] >= -0.5f && o[1] < 0.5f) << k;
+        offsets.insert(o);
+    }
+    EXPECT_EQ(offsets.size(), 256u);
+
+    GpuScene scene;
+    scene.set_instances({identity_instance(scene.add_mesh(bumpy_sphere(24)))});
+    Renderer renderer(*device);
+    const RenderSettings centre{64, 48, {0, 0, 0, 0}};
+    for (bool orthographic : {false, true}) {
+        CameraDesc eye = camera_at(0, 0, 4);
+        if (orthographic) {
+            eye.orthographic = true;
+            eye.horizontalAperture = eye.verticalAperture = 4;
+        }
+        const Image base = renderer.render(scene, eye, centre, {Aov::TriangleId})[0];
+        RenderSettings shifted = centre;
+        shifted.pixelOffset = {1, -2};  // pixel (x, y) samples where pixel (x + 1, y - 2) has its centre
+        const Image moved = renderer.render(scene, eye, shifted, {Aov::TriangleId})[0];
+        size_t same = 0, covered = 0, compared = 0;
+        for (uint32_t y = 2; y < 48; ++y)
+            for (uint32_t x = 0; x + 1 < 64; ++x, ++compared) {
+                same += id_at(moved, x, y) == id_at(base, x + 1, y - 2);
+                covered += id_at(base, x + 1, y - 2) != 0xffffffffu;
+            }
+        EXPECT_GT(covered, compared / 8) << "the sphere covers a seventh of the view";
+        EXPECT_GE(double(same), 0.995 * double(compared)) << (orthographic ? "orthographic" : "perspective");
+    }
+
+    const CameraDesc eye = camera_at(0, 0, 4);
+    RenderSettings antialiased = centre;
+    antialiased.pixelSamples = 16;
+    FrameStats stats;
+    const std::vector<Image> images = renderer.render(scene, eye, antialiased, {Aov::Color, Aov::TriangleId}, &stats);
+    EXPECT_EQ(stats.pixelSamples, 16u);
+    const Image& color = images[0];
+    // Ids: the centre's, exactly as a frame of one sample draws them.
+    const Image single = renderer.render(scene, eye, centre, {Aov::TriangleId})[0];
+    EXPECT_EQ(std::memcmp(images[1].pixels.data(), single.pixels.data(), single.pixels.size() * sizeof(float)), 0);
+    // Colour: the mean of the frames drawn at each sample's offset.
+    std::vector<double> sum(color.pixels.size(), 0.0);
+    for (uint32_t k = 0; k < 16; ++k) {
+        RenderSettings one = centre;
+        one.pixelOffset = pixel_sample_offset(k);
+        const Image frame = renderer.render(scene, eye, one, {Aov::Color})[0];
+        for (size_t p = 0; p < sum.size(); ++p) sum[p] += frame.pixels[p];
+    }
+    float largest = 0;
+    for (size_t p = 0; p < sum.size(); ++p) largest = std::max(largest, std::abs(color.pixels[p] - float(sum[p] / 16)));
+    EXPECT_LE(largest, 1e-6f);
+    // Alpha: the silhouette's coverage, in sixteenths, adding up to the area a frame of 4 x 4 times the pixels covers.
+    double alpha = 0;
+    size_t partial = 0;
+    for (size_t p = 3; p < color.pixels.size(); p += 4) {
+        alpha += color.pixels[p];
+        partial += color.pixels[p] > 0 && color.pixels[p] < 1;
+        EXPECT_NEAR(color.pixels[p] * 16, std::round(color.pixels[p] * 16), 1e-3) << p / 4;
+    }
+    EXPECT_GT(partial, 50u) << "the silhouette's pixels are partly covered";
+    const Image fine = renderer.render(scene, eye, RenderSettings{256, 192, {0, 0, 0, 0}}, {Aov::TriangleId})[0];
+    size_t fineCovered = 0;
+    for (uint32_t y = 0; y < 192; ++y)
+        for (uint32_t x = 0; x < 256; ++x) fineCovered += id_at(fine, x, y) != 0xffffffffu;
+    EXPECT_NEAR(alpha, fineCovered / 16.0, 0.01 * alpha);
+}
+
 TEST_F(RendererTest, MaterialBinsShadeEachMaterialsPixels) {
     // Three grids side by side, each with its own emissive material (no lights: colour is exactly the emission);
     // a fourth material is bound to nothing in view. Each visible material gets a bin of its own.

@@ -231,7 +231,18 @@ struct RenderSettings {
     bool outputBinding = true;
     // Displaced surfaces are diced into micro-triangles whose edges project to about this many pixels.
     float dicingRate = 1.0f;
+    // Anti-aliasing: each pixel's colour is the mean of this many samples (a box filter one pixel wide), each a whole
+    // frame drawn with the camera's window shifted by a sample offset (pixel_sample_offset). The first sample is the
+    // pixel's centre, and the other AOVs (depth, normal, ids) are that sample's: ids stay exact, never blends of two.
+    uint32_t pixelSamples = 1;
+    // Where a frame's one sample lies in each pixel, in pixels from its centre (x right, y down); the samples'
+    // offsets add to it. For tests and for callers that accumulate samples themselves.
+    std::array<float, 2> pixelOffset{0.0f, 0.0f};
 };
+
+// The offset of sample `index` from the pixel's centre, in pixels, within [-0.5, 0.5): the Halton sequence in bases 2
+// and 3 rotated by half a pixel, so sample 0 is the centre and any first n samples spread evenly over the pixel.
+std::array<float, 2> pixel_sample_offset(uint32_t index);
 
 struct FrameStats {
     uint64_t instances = 0;         // every drawn copy of every mesh (batches expanded)
@@ -253,6 +264,7 @@ struct FrameStats {
     bool texelViews = false;        // the passes read the streams through texel views (RenderSettings::texelViews)
     bool outputBinding = false;     // and store the AOVs through the output's binding (RenderSettings::outputBinding)
     bool aovsImported = false;      // the AOVs went straight into the images' memory, not through the readback buffer
+    uint32_t pixelSamples = 1;      // frames drawn for this image (RenderSettings::pixelSamples): the times below add them up
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
@@ -330,7 +342,8 @@ public:
     Renderer(const Renderer&) = delete;
     Renderer& operator=(const Renderer&) = delete;
 
-    // Draws the scene from the camera into the visibility buffer and resolves each requested AOV.
+    // Draws the scene from the camera into the visibility buffer and resolves each requested AOV; with several pixel
+    // samples, once per sample, the colour averaged.
     std::vector<Image> render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings,
                               const std::vector<Aov>& aovs, FrameStats* stats = nullptr);
 
@@ -346,6 +359,8 @@ public:
     Device& device() { return device_; }
 
 private:
+    std::vector<Image> render_sample(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings,
+                                     const std::vector<Aov>& aovs, FrameStats* stats);
     struct Impl;
     Device& device_;
     std::unique_ptr<Impl> impl_;
