@@ -1169,11 +1169,18 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     if (settings.pixelSamples == 0 || settings.pixelSamples > 4096) throw std::invalid_argument("pixel samples must be between 1 and 4096");
     if (!std::isfinite(settings.pixelOffset[0]) || !std::isfinite(settings.pixelOffset[1]))
         throw std::invalid_argument("the pixel offset must be finite");
-    if (settings.pixelSamples == 1) return render_sample(scene, camera, settings, aovs, stats);
-    // Sample 0 (the centre) gives every AOV; later samples add their colour. Sums in double: thousands of samples of
-    // values near 1 would lose the last ones' bits in float.
+    // Only the colour is averaged: without it, one frame (the centre) is the whole image.
+    const auto colour = std::find(aovs.begin(), aovs.end(), Aov::Color);
+    if (settings.pixelSamples == 1 || colour == aovs.end()) {
+        RenderSettings one = settings;
+        one.pixelSamples = 1;
+        return render_sample(scene, camera, one, aovs, stats);
+    }
+    // Sample 0 (the centre) gives every AOV; the later samples draw the colour alone and add it. Sums in double:
+    // thousands of samples of values near 1 would lose the last ones' bits in float.
+    const size_t colourIndex = size_t(colour - aovs.begin());
     std::vector<Image> images;
-    std::vector<std::vector<double>> sums(aovs.size());
+    std::vector<double> sum;
     FrameStats last, costs;
     RenderSettings sample = settings;
     sample.pixelSamples = 1;
@@ -1181,21 +1188,18 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         const std::array<float, 2> offset = pixel_sample_offset(k);
         sample.pixelOffset = {settings.pixelOffset[0] + offset[0], settings.pixelOffset[1] + offset[1]};
         FrameStats frame;
-        std::vector<Image> drawn = render_sample(scene, camera, sample, aovs, &frame);
-        for (size_t i = 0; i < drawn.size(); ++i) {
-            if (drawn[i].aov != Aov::Color) continue;
-            if (k == 0) sums[i].assign(drawn[i].pixels.begin(), drawn[i].pixels.end());
-            else
-                for (size_t p = 0; p < sums[i].size(); ++p) sums[i][p] += drawn[i].pixels[p];
-        }
+        std::vector<Image> drawn = render_sample(scene, camera, sample, k == 0 ? aovs : std::vector<Aov>{Aov::Color}, &frame);
+        const PixelVector& pixels = drawn[k == 0 ? colourIndex : 0].pixels;
+        if (k == 0) sum.assign(pixels.begin(), pixels.end());
+        else
+            for (size_t p = 0; p < sum.size(); ++p) sum[p] += pixels[p];
         if (k == 0) images = std::move(drawn);
-        visit_frame_costs(costs, frame, [](auto& sum, const auto& value) { sum += value; });
+        visit_frame_costs(costs, frame, [](auto& total, const auto& value) { total += value; });
         last = frame;  // counts: the last sample's (every sample draws the same cut, the last with the best occlusion)
     }
-    for (size_t i = 0; i < images.size(); ++i)
-        if (images[i].aov == Aov::Color)
-            for (size_t p = 0; p < sums[i].size(); ++p) images[i].pixels[p] = float(sums[i][p] / settings.pixelSamples);
-    visit_frame_costs(last, costs, [](auto& field, const auto& sum) { field = sum; });
+    PixelVector& averaged = images[colourIndex].pixels;
+    for (size_t p = 0; p < sum.size(); ++p) averaged[p] = float(sum[p] / settings.pixelSamples);
+    visit_frame_costs(last, costs, [](auto& field, const auto& total) { field = total; });
     last.pixelSamples = settings.pixelSamples;
     if (stats) *stats = last;
     return images;

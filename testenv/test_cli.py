@@ -180,6 +180,21 @@ def test_bench_render_seams_gives_a_field_with_a_colour_per_face_its_lod(tmp_pat
         assert rows[f"{kind}, --no-lod"]["psnr_db"] == 99.0 and rows[f"{kind}, 1 px"]["psnr_db"] > 20
 
 
+def test_bench_render_antialiasing_measures_each_sample_count_against_its_reference(tmp_path):
+    rows_file = tmp_path / "rows.json"
+    done = run("bench", "render", "--cases", "antialiasing", "--resolution", "96x54", "--frames", "1", "--stages-dir", tmp_path,
+               "--json", rows_file)
+    assert done.returncode == 0, done.stderr + done.stdout
+    rows = json.loads(rows_file.read_text())
+    assert [(r["table"], r["case"], r["pixel_samples"]) for r in rows] == [
+        ("anti-aliasing", "1 sample", 1), ("anti-aliasing", "4 samples", 4), ("anti-aliasing", "16 samples", 16)]
+    assert [r["error_reference"] for r in rows] == ["--no-lod, 1 sample", "--no-lod, 4 samples", "--no-lod, 16 samples"]
+    assert all(r["ms_per_sample"] > 0 and 20 < r["psnr_db"] and r["psnr_vs_finest_db"] > 20 for r in rows)
+    # Against the 16-sample reference, more samples come closer: the single sample's error is mostly aliasing.
+    assert rows[0]["psnr_vs_finest_db"] < rows[2]["psnr_vs_finest_db"] == rows[2]["psnr_db"]
+    assert "ms per sample" in done.stdout
+
+
 def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):
     rows_file, cache = tmp_path / "rows.json", tmp_path / "cache"
     # --record writes into the cache it runs with: its own here, so that no other test's sessions find the record.

@@ -363,6 +363,10 @@ def _speedups(ref_wall, ref_gpu, wall, gpu):
 DENSITY_REFERENCE_PIXEL_ERROR = 1 / 16
 
 
+# The anti-aliasing table's pixel samples; the last also gives the reference every row is measured against besides its own.
+ANTIALIASING_SAMPLES = (1, 4, 16)
+
+
 def _density_reference(session, source_triangles, settings, no_lod_limit):
     """One frame of a density field with color and primId to measure the rows' image error against, and its name."""
     full = source_triangles <= no_lod_limit
@@ -400,6 +404,16 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
             result, wall, gpu = _frames(session, frames, pixel_error=1.0, **settings)
             for label, row_result, row_wall, row_gpu in ((f"{kind}, 1 px", result, wall, gpu), (f"{kind}, --no-lod", reference, ref_wall, ref_gpu)):
                 rows.append(_row("seams", label, row_result, row_wall, row_gpu, reference, **_speedups(ref_wall, ref_gpu, row_wall, row_gpu)))
+        elif case == "antialiasing":  # pixel samples: cost per sample, error against every source triangle at as many samples
+            references = {samples: _frames(session, 1, lod=False, pixel_samples=samples, **settings)[0] for samples in ANTIALIASING_SAMPLES}
+            finest = references[ANTIALIASING_SAMPLES[-1]]
+            for samples in ANTIALIASING_SAMPLES:
+                result, wall, gpu = _frames(session, frames, pixel_samples=samples, **settings)
+                color, best = result["color"].pixels, finest["color"].pixels
+                rows.append(_row("anti-aliasing", f"{samples} sample{'s' if samples > 1 else ''}", result, wall, gpu, references[samples],
+                                 error_reference=f"--no-lod, {samples} sample{'s' if samples > 1 else ''}",
+                                 pixel_samples=samples, ms_per_sample=round(wall / samples, 1),
+                                 psnr_vs_finest_db=psnr(color, best)))
         else:
             reference, ref_wall, ref_gpu = _frames(session, frames, lod=False, **settings)
             for pixel_error in ((1.0,) if case == "brute" else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)):
@@ -456,7 +470,8 @@ RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("error
                   ("hw_raster_ms", "HW raster"), ("hzb_ms", "HZB"), ("classify_ms", "classify"), ("resolve_ms", "resolve"),
                   ("readback_ms", "readback"), ("occluded_instances", "occluded inst"), ("occluded_clusters", "occluded clusters"),
                   ("peak_memory_mib", "peak MiB"), ("psnr_db", "PSNR dB"), ("psnr_4x4_db", "PSNR 4x4 dB"), ("pixels_off_percent", "px off %"),
-                  ("same_prim_percent", "same prim %"), ("error_reference", "against"), ("speedup_vs_no_lod", "speedup"),
+                  ("same_prim_percent", "same prim %"), ("error_reference", "against"), ("ms_per_sample", "ms per sample"),
+                  ("psnr_vs_finest_db", "PSNR vs 16 samples"), ("speedup_vs_no_lod", "speedup"),
                   ("gpu_speedup_vs_no_lod", "GPU speedup"), ("micro_triangles", "micro tris"),
                   ("tessellation_ms", "tess ms"), ("surface_gpu_mib", "surface GPU MiB")]
 
@@ -496,6 +511,8 @@ def render(args) -> int:
     if "brute" in args.cases or "error" in args.cases:
         single = _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)  # the densest prototype alone, filling the frame
         cases += [(case, single) for case in ("brute", "error") if case in args.cases]
+    if "antialiasing" in args.cases:  # the lightest density field: its --no-lod frames are cheap
+        cases.append(("antialiasing", _stage(args.stages_dir, sides[0], True)))
     if "seams" in args.cases:  # the same field, with a colour per face and with one colour
         cases += [("seams", _stage(args.stages_dir, args.seams_n, True, face_colours)) for face_colours in (True, False)]
     if "displacement" in args.cases:

@@ -1179,6 +1179,11 @@ TEST_F(RendererTest, PixelSamplesAverageShiftedFramesAndKeepTheCentresIds) {
     for (uint32_t y = 0; y < 192; ++y)
         for (uint32_t x = 0; x < 256; ++x) fineCovered += id_at(fine, x, y) != 0xffffffffu;
     EXPECT_NEAR(alpha, fineCovered / 16.0, 0.01 * alpha);
+    // Without a colour AOV there is nothing to average: one frame, the centre's.
+    FrameStats idsOnly;
+    const Image ids = renderer.render(scene, eye, antialiased, {Aov::TriangleId}, &idsOnly)[0];
+    EXPECT_EQ(idsOnly.pixelSamples, 1u);
+    EXPECT_EQ(std::memcmp(ids.pixels.data(), single.pixels.data(), single.pixels.size() * sizeof(float)), 0);
 }
 
 TEST_F(RendererTest, MaterialBinsShadeEachMaterialsPixels) {

@@ -264,7 +264,8 @@ struct FrameStats {
     bool texelViews = false;        // the passes read the streams through texel views (RenderSettings::texelViews)
     bool outputBinding = false;     // and store the AOVs through the output's binding (RenderSettings::outputBinding)
     bool aovsImported = false;      // the AOVs went straight into the images' memory, not through the readback buffer
-    uint32_t pixelSamples = 1;      // frames drawn for this image (RenderSettings::pixelSamples): the times below add them up
+    uint32_t pixelSamples = 1;      // frames drawn for this image (RenderSettings::pixelSamples; 1 without a colour AOV,
+                                    // the only one averaged): the times below add them up
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
