@@ -133,6 +133,12 @@ Visualize visualize_from(const std::string& name) {
     throw nb::value_error(("unknown visualization mode '" + name + "'").c_str());
 }
 
+PixelFilter pixel_filter_from(const std::string& name) {
+    if (name == "box") return PixelFilter::Box;
+    if (name == "gaussian") return PixelFilter::Gaussian;
+    throw nb::value_error(("unknown pixel filter '" + name + "' (box or gaussian)").c_str());
+}
+
 nb::dict stats_dict(const FrameStats& s) {
     nb::dict d;
     d["instances"] = s.instances;
@@ -602,9 +608,13 @@ NB_MODULE(_tessera, m) {
         "path"_a, "Reads an image as float32 RGBA (height, width, 4).");
 
     m.def(
-        "pixel_sample_offset", [](uint32_t index) { return pixel_sample_offset(index); }, "index"_a,
-        "Where anti-aliasing sample `index` lies in its pixel, (x right, y down) in pixels from the centre, within [-0.5, 0.5): "
-        "sample 0 is the centre.");
+        "pixel_sample_offset", [](uint32_t index, const std::string& filter) { return pixel_sample_offset(index, pixel_filter_from(filter)); },
+        "index"_a, "filter"_a = "box",
+        "Where anti-aliasing sample `index` lies, (x right, y down) in pixels from the pixel's centre: within [-0.5, 0.5) for the "
+        "box filter, [-1, 1) for the gaussian; sample 0 is the centre.");
+    m.def(
+        "pixel_filter_weight", [](std::array<float, 2> offset, const std::string& filter) { return pixel_filter_weight(offset, pixel_filter_from(filter)); },
+        "offset"_a, "filter"_a = "box", "The weight of a sample at `offset` (pixels from the centre) under the filter.");
 
     m.def("release_shared_devices", &Device::release_shared_devices,
           "Lets go of the devices sessions share (each goes when its last session does); called at exit.");
@@ -670,10 +680,11 @@ NB_MODULE(_tessera, m) {
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
                const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
                const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate, const std::string& rasterVertices,
-               float softwareRasterArea, uint32_t pixelSamples) {
+               float softwareRasterArea, uint32_t pixelSamples, const std::string& pixelFilter) {
                 RenderPassSettings settings;
                 if (pixelSamples == 0 || pixelSamples > 4096) throw nb::value_error("pixel samples must be between 1 and 4096");
                 settings.render.pixelSamples = pixelSamples;
+                settings.render.pixelFilter = pixel_filter_from(pixelFilter);
                 if (!(dicingRate > 0.0f)) throw nb::value_error("the dicing rate must be a number of pixels > 0");
                 if (!(softwareRasterArea > 0.0f) || !std::isfinite(softwareRasterArea))
                     throw nb::value_error("the software raster area must be a number of pixels > 0");
@@ -704,7 +715,7 @@ NB_MODULE(_tessera, m) {
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
             "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f, "raster_vertices"_a = "auto",
-            "software_raster_area"_a = RenderSettings{}.softwareRasterArea, "pixel_samples"_a = 1u)
+            "software_raster_area"_a = RenderSettings{}.softwareRasterArea, "pixel_samples"_a = 1u, "pixel_filter"_a = "box")
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
         .def_prop_ro(

@@ -1155,14 +1155,31 @@ void visit_frame_costs(FrameStats& a, const FrameStats& b, Visit visit) {
 
 }  // namespace
 
-std::array<float, 2> pixel_sample_offset(uint32_t index) {
+std::array<float, 2> pixel_sample_offset(uint32_t index, PixelFilter filter) {
     auto radical_inverse = [](uint32_t i, uint32_t base) {
         double value = 0, digit = 1.0 / base;
         for (; i > 0; i /= base, digit /= base) value += digit * (i % base);
         return value;
     };
-    auto rotated = [](double h) { return float(h + 0.5 >= 1.0 ? h - 0.5 : h + 0.5) - 0.5f; };
-    return {rotated(radical_inverse(index, 2)), rotated(radical_inverse(index, 3))};
+    if (index == 0) return {0.0f, 0.0f};  // the centre: the other AOVs' sample
+    // The later samples: the Halton points shifted by irrational amounts (a shift keeps them as evenly spread), so that
+    // none lands on the support's edge, where the Gaussian weighs nothing.
+    const float width = filter == PixelFilter::Gaussian ? 2.0f : 1.0f;
+    auto shifted = [width](double h, double shift) {
+        const double u = h + shift;
+        return (float(u - std::floor(u)) - 0.5f) * width;
+    };
+    return {shifted(radical_inverse(index, 2), 0.5 * (std::sqrt(2.0) - 1.0)), shifted(radical_inverse(index, 3), 0.5 * (std::sqrt(3.0) - 1.0))};
+}
+
+float pixel_filter_weight(std::array<float, 2> offset, PixelFilter filter) {
+    if (filter == PixelFilter::Box) return 1.0f;
+    // Separable, sigma 0.4 px, minus its value at 1 px so that it falls to 0 at the support's edge.
+    auto gaussian = [](float x) {
+        const float sigma = 0.4f, edge = std::exp(-1.0f / (2 * sigma * sigma));
+        return std::max(std::exp(-x * x / (2 * sigma * sigma)) - edge, 0.0f);
+    };
+    return gaussian(offset[0]) * gaussian(offset[1]);
 }
 
 std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs, FrameStats* stats) {
@@ -1176,29 +1193,31 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         one.pixelSamples = 1;
         return render_sample(scene, camera, one, aovs, stats);
     }
-    // Sample 0 (the centre) gives every AOV; the later samples draw the colour alone and add it. Sums in double:
-    // thousands of samples of values near 1 would lose the last ones' bits in float.
+    // Sample 0 (the centre) gives every AOV; the later samples draw the colour alone and add it, weighted by the filter.
+    // Sums in double: thousands of samples of values near 1 would lose the last ones' bits in float.
     const size_t colourIndex = size_t(colour - aovs.begin());
     std::vector<Image> images;
     std::vector<double> sum;
+    double weights = 0;
     FrameStats last, costs;
     RenderSettings sample = settings;
     sample.pixelSamples = 1;
     for (uint32_t k = 0; k < settings.pixelSamples; ++k) {
-        const std::array<float, 2> offset = pixel_sample_offset(k);
+        const std::array<float, 2> offset = pixel_sample_offset(k, settings.pixelFilter);
+        const double weight = pixel_filter_weight(offset, settings.pixelFilter);
         sample.pixelOffset = {settings.pixelOffset[0] + offset[0], settings.pixelOffset[1] + offset[1]};
         FrameStats frame;
         std::vector<Image> drawn = render_sample(scene, camera, sample, k == 0 ? aovs : std::vector<Aov>{Aov::Color}, &frame);
         const PixelVector& pixels = drawn[k == 0 ? colourIndex : 0].pixels;
-        if (k == 0) sum.assign(pixels.begin(), pixels.end());
-        else
-            for (size_t p = 0; p < sum.size(); ++p) sum[p] += pixels[p];
+        if (k == 0) sum.assign(pixels.size(), 0.0);
+        for (size_t p = 0; p < sum.size(); ++p) sum[p] += weight * pixels[p];
+        weights += weight;
         if (k == 0) images = std::move(drawn);
         visit_frame_costs(costs, frame, [](auto& total, const auto& value) { total += value; });
         last = frame;  // counts: the last sample's (every sample draws the same cut, the last with the best occlusion)
     }
     PixelVector& averaged = images[colourIndex].pixels;
-    for (size_t p = 0; p < sum.size(); ++p) averaged[p] = float(sum[p] / settings.pixelSamples);
+    for (size_t p = 0; p < sum.size(); ++p) averaged[p] = float(sum[p] / weights);
     visit_frame_costs(last, costs, [](auto& field, const auto& total) { field = total; });
     last.pixelSamples = settings.pixelSamples;
     if (stats) *stats = last;

@@ -186,9 +186,10 @@ def test_bench_render_antialiasing_measures_each_sample_count_against_its_refere
                "--json", rows_file)
     assert done.returncode == 0, done.stderr + done.stdout
     rows = json.loads(rows_file.read_text())
-    assert [(r["table"], r["case"], r["pixel_samples"]) for r in rows] == [
-        ("anti-aliasing", "1 sample", 1), ("anti-aliasing", "4 samples", 4), ("anti-aliasing", "16 samples", 16)]
-    assert [r["error_reference"] for r in rows] == ["--no-lod, 1 sample", "--no-lod, 4 samples", "--no-lod, 16 samples"]
+    assert [(r["table"], r["case"], r["pixel_samples"], r["pixel_filter"]) for r in rows] == [
+        ("anti-aliasing", "1 sample", 1, "box"), ("anti-aliasing", "4 samples", 4, "box"), ("anti-aliasing", "16 samples", 16, "box"),
+        ("anti-aliasing", "16 samples, gaussian", 16, "gaussian")]
+    assert [r["error_reference"] for r in rows] == ["--no-lod, " + r["case"] for r in rows]
     assert all(r["ms_per_sample"] > 0 and 20 < r["psnr_db"] and r["psnr_vs_finest_db"] > 20 for r in rows)
     # Against the 16-sample reference, more samples come closer: the single sample's error is mostly aliasing.
     assert rows[0]["psnr_vs_finest_db"] < rows[2]["psnr_vs_finest_db"] == rows[2]["psnr_db"]

@@ -392,3 +392,12 @@ def test_pixel_samples_antialias_the_colour_and_keep_the_centres_ids():
     for bad in (0, 4097, 1.5, True):
         with pytest.raises(tessera.StageError, match="pixel samples"):
             session.render(camera="/Camera", resolution=(8, 8), pixel_samples=bad)
+    # The Gaussian spreads each edge over a wider band of pixels, with the same area and the same ids.
+    soft = session.render(camera="/Camera", resolution=(64, 48), aovs=aovs, pixel_samples=8, pixel_filter="gaussian")
+    assert np.array_equal(soft["primId"].ids(), one["primId"].ids())
+    soft_alpha = soft["color"].pixels[..., 3]
+    assert ((soft_alpha > 0) & (soft_alpha < 1)).sum() > partial.sum()
+    assert abs(soft_alpha.sum() - single.sum()) < 0.04 * single.sum()
+    assert tessera.pixel_filter_weight((0.0, 0.0), "gaussian") > tessera.pixel_filter_weight((0.5, 0.5), "gaussian") > 0
+    with pytest.raises(tessera.StageError, match="unknown pixel filter 'tent'"):
+        session.render(camera="/Camera", resolution=(8, 8), pixel_filter="tent")

@@ -242,5 +242,18 @@ def test_pixel_samples_come_from_the_flag_else_the_render_settings(tmp_path):
     assert ((alpha > 0) & (alpha < 1)).any(), "the quad's edges are partly covered"
     assert cli.main(["render", str(tmp_path / "shot.usda"), "-o", out, "--pixel-samples", "2", "--stats", str(stats)]) == 0
     assert json.loads(stats.read_text())["pixel_samples"] == 2, "the flag wins"
+    # The filter: the settings' token, else box; an unknown one is a warning naming the prim.
+    pixel_filter = settings.GetPrim().CreateAttribute("tessera:pixelFilter", Sdf.ValueTypeNames.Token)
+    pixel_filter.Set("gaussian")
+    assert render_settings.read(stage, None, []).pixel_filter == "gaussian"
+    pixel_filter.Set("sinc")
+    warnings = []
+    assert render_settings.read(stage, None, warnings).pixel_filter is None
+    assert warnings == ["/Render/Settings: tessera:pixelFilter = 'sinc' is not one of box, gaussian; box is used"]
+    pixel_filter.Set("gaussian")
+    stage.GetRootLayer().Save()
+    assert cli.main(["render", str(tmp_path / "shot.usda"), "-o", out, "--pixel-samples", "16", "--stats", str(stats)]) == 0
+    soft = tessera.read_image(out)[..., 3]
+    assert ((soft > 0) & (soft < 1)).sum() > ((alpha > 0) & (alpha < 1)).sum(), "the Gaussian's band is wider than the box's"
     with pytest.raises(SystemExit):
         cli.main(["render", str(tmp_path / "shot.usda"), "--pixel-samples", "0"])

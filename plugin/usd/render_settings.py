@@ -6,8 +6,8 @@ RenderSettings prim under /Render (UsdRender keeps its prims there; the rest of 
 own resolution and camera, when authored, win over the settings'. A RenderVar maps to an AOV by its sourceName
 (`color`, `Ci`, `rgba` or an `C.*` light path expression: color; `depth`, `z`: depth; `normal`, `N`, `Neye`: normal;
 `primId`, `instanceId`, `clusterId`, `triangleId`, `elementId` as the last); any other is a warning naming the var.
-Tessera's own setting on the settings prim, namespaced as renderers' are: `int tessera:pixelSamples` (anti-aliasing
-samples per pixel, 1 to 4096).
+Tessera's own settings on the settings prim, namespaced as renderers' are: `int tessera:pixelSamples` (anti-aliasing
+samples per pixel, 1 to 4096) and `token tessera:pixelFilter` (`box` or `gaussian`).
 """
 
 from __future__ import annotations
@@ -42,9 +42,24 @@ class RenderSettings:
     purposes: tuple[str, ...]  # includedPurposes other than default
     products: list[RenderProduct] = field(default_factory=list)
     pixel_samples: int | None = None  # tessera:pixelSamples when authored and valid
+    pixel_filter: str | None = None  # tessera:pixelFilter when authored and valid
 
 
 PIXEL_SAMPLES_ATTRIBUTE = "tessera:pixelSamples"
+PIXEL_FILTER_ATTRIBUTE = "tessera:pixelFilter"
+
+
+def _pixel_filter(prim: Usd.Prim, where: str, warnings: list[str]) -> str | None:
+    from tessera.session import PIXEL_FILTERS
+
+    attribute = prim.GetAttribute(PIXEL_FILTER_ATTRIBUTE)
+    if not attribute or not attribute.HasAuthoredValue():
+        return None
+    value = attribute.Get()
+    if str(value) not in PIXEL_FILTERS:
+        warnings.append(f"{where}: {PIXEL_FILTER_ATTRIBUTE} = {value!r} is not one of {', '.join(PIXEL_FILTERS)}; box is used")
+        return None
+    return str(value)
 
 
 def _pixel_samples(prim: Usd.Prim, where: str, warnings: list[str]) -> int | None:
@@ -118,7 +133,8 @@ def read(stage: Usd.Stage, path: str | None, warnings: list[str]) -> RenderSetti
     if known != purposes:
         warnings.append(f"{where}: includedPurposes {list(purposes)}: only render, proxy and guide are purposes")
     result = RenderSettings(where, _camera(stage, settings, where, warnings),
-                            _resolution(settings, where, warnings, None), known, pixel_samples=_pixel_samples(prim, where, warnings))
+                            _resolution(settings, where, warnings, None), known, pixel_samples=_pixel_samples(prim, where, warnings),
+                            pixel_filter=_pixel_filter(prim, where, warnings))
     for target in settings.GetProductsRel().GetForwardedTargets():
         product_prim = stage.GetPrimAtPath(target)
         if not (product_prim and product_prim.IsA(UsdRender.Product)):

@@ -363,8 +363,9 @@ def _speedups(ref_wall, ref_gpu, wall, gpu):
 DENSITY_REFERENCE_PIXEL_ERROR = 1 / 16
 
 
-# The anti-aliasing table's pixel samples; the last also gives the reference every row is measured against besides its own.
-ANTIALIASING_SAMPLES = (1, 4, 16)
+# The anti-aliasing table's pixel samples and filters; the most box samples also give the reference every row is measured
+# against besides its own.
+ANTIALIASING_RUNS = ((1, "box"), (4, "box"), (16, "box"), (16, "gaussian"))
 
 
 def _density_reference(session, source_triangles, settings, no_lod_limit):
@@ -405,15 +406,15 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
             for label, row_result, row_wall, row_gpu in ((f"{kind}, 1 px", result, wall, gpu), (f"{kind}, --no-lod", reference, ref_wall, ref_gpu)):
                 rows.append(_row("seams", label, row_result, row_wall, row_gpu, reference, **_speedups(ref_wall, ref_gpu, row_wall, row_gpu)))
         elif case == "antialiasing":  # pixel samples: cost per sample, error against every source triangle at as many samples
-            references = {samples: _frames(session, 1, lod=False, pixel_samples=samples, **settings)[0] for samples in ANTIALIASING_SAMPLES}
-            finest = references[ANTIALIASING_SAMPLES[-1]]
-            for samples in ANTIALIASING_SAMPLES:
-                result, wall, gpu = _frames(session, frames, pixel_samples=samples, **settings)
-                color, best = result["color"].pixels, finest["color"].pixels
-                rows.append(_row("anti-aliasing", f"{samples} sample{'s' if samples > 1 else ''}", result, wall, gpu, references[samples],
-                                 error_reference=f"--no-lod, {samples} sample{'s' if samples > 1 else ''}",
-                                 pixel_samples=samples, ms_per_sample=round(wall / samples, 1),
-                                 psnr_vs_finest_db=psnr(color, best)))
+            references = {run: _frames(session, 1, lod=False, pixel_samples=run[0], pixel_filter=run[1], **settings)[0]
+                          for run in ANTIALIASING_RUNS}
+            finest = references[(ANTIALIASING_RUNS[-1][0], "box")]
+            for samples, pixel_filter in ANTIALIASING_RUNS:
+                result, wall, gpu = _frames(session, frames, pixel_samples=samples, pixel_filter=pixel_filter, **settings)
+                name = f"{samples} sample{'s' if samples > 1 else ''}" + (f", {pixel_filter}" if pixel_filter != "box" else "")
+                rows.append(_row("anti-aliasing", name, result, wall, gpu, references[(samples, pixel_filter)], error_reference=f"--no-lod, {name}",
+                                 pixel_samples=samples, pixel_filter=pixel_filter, ms_per_sample=round(wall / samples, 1),
+                                 psnr_vs_finest_db=psnr(result["color"].pixels, finest["color"].pixels)))
         else:
             reference, ref_wall, ref_gpu = _frames(session, frames, lod=False, **settings)
             for pixel_error in ((1.0,) if case == "brute" else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)):
@@ -471,7 +472,7 @@ RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("error
                   ("readback_ms", "readback"), ("occluded_instances", "occluded inst"), ("occluded_clusters", "occluded clusters"),
                   ("peak_memory_mib", "peak MiB"), ("psnr_db", "PSNR dB"), ("psnr_4x4_db", "PSNR 4x4 dB"), ("pixels_off_percent", "px off %"),
                   ("same_prim_percent", "same prim %"), ("error_reference", "against"), ("ms_per_sample", "ms per sample"),
-                  ("psnr_vs_finest_db", "PSNR vs 16 samples"), ("speedup_vs_no_lod", "speedup"),
+                  ("psnr_vs_finest_db", "PSNR vs 16 box samples"), ("speedup_vs_no_lod", "speedup"),
                   ("gpu_speedup_vs_no_lod", "GPU speedup"), ("micro_triangles", "micro tris"),
                   ("tessellation_ms", "tess ms"), ("surface_gpu_mib", "surface GPU MiB")]
 

@@ -9,7 +9,7 @@ import re
 import sys
 import time
 
-from .session import AOVS, PURPOSES, RASTER_MODES, VISUALIZATIONS
+from .session import AOVS, PIXEL_FILTERS, PURPOSES, RASTER_MODES, VISUALIZATIONS
 
 
 def _purposes(text: str) -> tuple[str, ...]:
@@ -128,6 +128,10 @@ def _parser() -> argparse.ArgumentParser:
                         help="anti-aliasing: the colour is the mean of N frames sampling each pixel at spread offsets (a box "
                              "filter one pixel wide; depth, normal and ids are the pixel centres'); each sample costs a frame "
                              "(default: the render settings' tessera:pixelSamples, else 1)")
+    render.add_argument("--pixel-filter", choices=PIXEL_FILTERS,
+                        help="how pixel samples combine: box (the mean over the pixel's square; alpha the exact coverage) "
+                             "or gaussian (samples over two pixels' width, weighted: softer edges, less moire) (default: "
+                             "the render settings' tessera:pixelFilter, else box)")
     render.add_argument("--no-lod", action="store_true", help="draw every source triangle: the DAG off, the full-detail reference")
     render.add_argument("--dicing-rate", type=float, default=1.0, metavar="PX",
                         help="displaced surfaces are diced into micro-triangles whose edges project to about this many pixels (default 1)")
@@ -187,8 +191,8 @@ def _parser() -> argparse.ArgumentParser:
     bench_render.add_argument("--cases", type=lambda text: text.split(","), default=["density", "brute", "error", "displacement"],
                               help="which tables, comma-separated (default density,brute,error,displacement; also seams: a "
                                    "field with a colour per face and the same field with one colour, each against --no-lod; "
-                                   "antialiasing: the 1e6 field at 1, 4 and 16 pixel samples, each against --no-lod at as "
-                                   "many samples and at 16)")
+                                   "antialiasing: the 1e6 field at 1, 4 and 16 pixel samples of the box filter and 16 of the "
+                                   "gaussian, each against --no-lod at as many samples and at 16 of the box)")
     bench_render.add_argument("--seams-n", type=int, default=100,
                               help="the seams fields' sphere has 4 n^2 triangles (default 100: 40 k, 41 M in the field)")
     bench_render.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
@@ -250,6 +254,7 @@ def _render(args) -> int:
                 frame_path(output, frames[0])
     purposes = args.purposes or (settings.purposes if settings else ("render",))
     pixel_samples = args.pixel_samples or (settings.pixel_samples if settings and settings.pixel_samples else 1)
+    pixel_filter = args.pixel_filter or (settings.pixel_filter if settings and settings.pixel_filter else "box")
     session = Session(stage, frame=frames[0] if frames else args.frame, device=args.device, complexity=_complexity_of(args),
                       purposes=purposes)
     loaded = time.perf_counter()
@@ -266,7 +271,7 @@ def _render(args) -> int:
             aovs = [aov for aov, _ in job["outputs"]]
             result = session.render(camera=camera, resolution=job["resolution"], aovs=aovs, pixel_error=args.pixel_error,
                                     lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion,
-                                    dicing_rate=args.dicing_rate, pixel_samples=pixel_samples)
+                                    dicing_rate=args.dicing_rate, pixel_samples=pixel_samples, pixel_filter=pixel_filter)
             rendered = time.perf_counter()
             where = f"frame {frame:g}: " if frame is not None else ""
             for message in result.warnings:

@@ -14,6 +14,7 @@ AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triang
 # Debug views the color AOV can show instead of shading (renderer.h: Visualize).
 VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw", "uv", "tessellation")
 RASTER_MODES = ("auto", "hardware", "software")
+PIXEL_FILTERS = ("box", "gaussian")  # how pixel samples combine (Session.render)
 RASTER_VERTICES = ("auto", "shared", "per-triangle")
 # UsdGeom purposes a render may draw besides `default` (which is always drawn).
 PURPOSES = ("render", "proxy", "guide")
@@ -148,7 +149,7 @@ class Session:
                aovs=("color",), background=(0.0, 0.0, 0.0, 0.0), pixel_error: float = 1.0, lod: bool = True,
                vis: str | None = None, raster: str = "auto", occlusion: bool = True, dicing_rate: float = 1.0,
                complexity: float | None = None, raster_vertices: str = "auto", software_raster_area: float | None = None,
-               pixel_samples: int = 1) -> RenderResult:
+               pixel_samples: int = 1, pixel_filter: str = "box") -> RenderResult:
         """Renders the stage at the session's time. `pixel_error` is the DAG cut's screen-space error bound in
         pixels; `lod=False` draws every source triangle (the full-detail reference); `vis` replaces shading in
         the color AOV by a debug view (VISUALIZATIONS); `raster` forces one rasterizer (RASTER_MODES); `occlusion`
@@ -161,9 +162,11 @@ class Session:
         is shared, or $TESSERA_RASTER_VERTICES); `software_raster_area` (None:
         the session's, recorded for its device or the default; see tessera.raster_split) sends clusters of triangles
         smaller than that many pixels to the compute rasterizer (the same pixels either way, a matter of speed);
-        `pixel_samples` anti-aliases: the colour is the mean of that many frames, each sampling the pixels at another
-        offset (tessera.pixel_sample_offset; a box filter one pixel wide, alpha the coverage), while depth, normal and
-        ids are the pixel centres' (the first sample). Each sample costs a frame; stats add the frames' times."""
+        `pixel_samples` anti-aliases: the colour is the filtered mean of that many frames, each sampling the pixels at
+        another offset (tessera.pixel_sample_offset), while depth, normal and ids are the pixel centres' (the first
+        sample). Each sample costs a frame; stats add the frames' times. `pixel_filter` (PIXEL_FILTERS): "box", the
+        plain mean over the pixel's square (alpha the exact coverage), or "gaussian", samples over two pixels' width
+        weighted by a Gaussian (tessera.pixel_filter_weight; softer edges, less moire)."""
         from .usd import framing_camera
 
         width, height = resolution
@@ -181,6 +184,8 @@ class Session:
             raise StageError(f"pixel error must be a number >= 0, not {pixel_error}")
         if isinstance(pixel_samples, bool) or not isinstance(pixel_samples, int) or not 1 <= pixel_samples <= 4096:
             raise StageError(f"pixel samples must be a whole number from 1 to 4096, not {pixel_samples!r}")
+        if pixel_filter not in PIXEL_FILTERS:
+            raise StageError(f"unknown pixel filter '{pixel_filter}' (choose from {', '.join(PIXEL_FILTERS)})")
         if not (dicing_rate > 0.0):
             raise StageError(f"dicing rate must be a number of pixels > 0, not {dicing_rate}")
         complexity = self.complexity if complexity is None else _checked_complexity(complexity)
@@ -205,7 +210,7 @@ class Session:
             raise StageError(f"software raster area must be a number of pixels > 0, not {software_raster_area}")
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
                                            vis or "none", raster, bool(occlusion), float(dicing_rate), raster_vertices, area,
-                                           pixel_samples)
+                                           pixel_samples, pixel_filter)
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)

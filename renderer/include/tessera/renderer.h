@@ -183,6 +183,12 @@ enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primit
 // for the rest. The forced modes exist for tests and measurements (Software still sends clusters that touch the
 // near plane or cover a large area to hardware raster).
 enum class RasterMode { Auto, Hardware, Software };
+
+// How pixel samples combine into a pixel. Box: the plain mean of samples over the pixel's own square (one pixel wide;
+// alpha is the exact coverage). Gaussian: samples over a square two pixels wide, weighted by a Gaussian (standard
+// deviation 0.4 px, truncated at 1 px and shifted to reach 0 there): softer edges and less moire, the usual default of
+// production renderers.
+enum class PixelFilter { Box, Gaussian };
 // How the compute rasterizer's workgroup gets its cluster's vertices on screen (both cover the same pixels, bit for bit).
 // Shared: each vertex transformed once into shared memory, then a barrier, then one thread per triangle, in workgroups of
 // 128 on a GPU and of one subgroup on a CPU device (lavapipe: a barrier in a larger workgroup switches between its
@@ -231,18 +237,21 @@ struct RenderSettings {
     bool outputBinding = true;
     // Displaced surfaces are diced into micro-triangles whose edges project to about this many pixels.
     float dicingRate = 1.0f;
-    // Anti-aliasing: each pixel's colour is the mean of this many samples (a box filter one pixel wide), each a whole
-    // frame drawn with the camera's window shifted by a sample offset (pixel_sample_offset). The first sample is the
-    // pixel's centre, and the other AOVs (depth, normal, ids) are that sample's: ids stay exact, never blends of two.
+    // Anti-aliasing: each pixel's colour is the filtered mean of this many samples (`pixelFilter`), each a whole frame
+    // drawn with the camera's window shifted by a sample offset (pixel_sample_offset). The first sample is the pixel's
+    // centre, and the other AOVs (depth, normal, ids) are that sample's: ids stay exact, never blends of two.
     uint32_t pixelSamples = 1;
+    PixelFilter pixelFilter = PixelFilter::Box;
     // Where a frame's one sample lies in each pixel, in pixels from its centre (x right, y down); the samples'
     // offsets add to it. For tests and for callers that accumulate samples themselves.
     std::array<float, 2> pixelOffset{0.0f, 0.0f};
 };
 
-// The offset of sample `index` from the pixel's centre, in pixels, within [-0.5, 0.5): the Halton sequence in bases 2
-// and 3 rotated by half a pixel, so sample 0 is the centre and any first n samples spread evenly over the pixel.
-std::array<float, 2> pixel_sample_offset(uint32_t index);
+// The offset of sample `index` from the pixel's centre, in pixels, within the filter's support: sample 0 is the centre,
+// the later ones the Halton sequence in bases 2 and 3 (shifted), so that any first n samples spread evenly over it.
+std::array<float, 2> pixel_sample_offset(uint32_t index, PixelFilter filter = PixelFilter::Box);
+// The weight of a sample at `offset` (pixels from the centre): 1 for the box, the Gaussian's value for the other.
+float pixel_filter_weight(std::array<float, 2> offset, PixelFilter filter);
 
 struct FrameStats {
     uint64_t instances = 0;         // every drawn copy of every mesh (batches expanded)
