@@ -45,32 +45,31 @@ class RenderSettings:
     pixel_filter: str | None = None  # tessera:pixelFilter when authored and valid
 
 
-PIXEL_SAMPLES_ATTRIBUTE = "tessera:pixelSamples"
-PIXEL_FILTER_ATTRIBUTE = "tessera:pixelFilter"
+def _tessera_setting(prim: Usd.Prim, where: str, warnings: list[str], name: str, valid, expected: str, fallback: str):
+    """The value of Tessera's setting `name` on the settings prim: None when not authored, or when not `valid` (a
+    warning naming the prim says what it should be and what is used instead)."""
+    attribute = prim.GetAttribute(name)
+    if not attribute or not attribute.HasAuthoredValue():
+        return None
+    value = attribute.Get()
+    if not valid(value):
+        warnings.append(f"{where}: {name} = {value!r} is not {expected}; {fallback} is used")
+        return None
+    return value
+
+
+def _pixel_samples(prim: Usd.Prim, where: str, warnings: list[str]) -> int | None:
+    valid = lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 4096
+    samples = _tessera_setting(prim, where, warnings, "tessera:pixelSamples", valid, "a whole number from 1 to 4096", "1 sample")
+    return None if samples is None else int(samples)
 
 
 def _pixel_filter(prim: Usd.Prim, where: str, warnings: list[str]) -> str | None:
     from tessera.session import PIXEL_FILTERS
 
-    attribute = prim.GetAttribute(PIXEL_FILTER_ATTRIBUTE)
-    if not attribute or not attribute.HasAuthoredValue():
-        return None
-    value = attribute.Get()
-    if str(value) not in PIXEL_FILTERS:
-        warnings.append(f"{where}: {PIXEL_FILTER_ATTRIBUTE} = {value!r} is not one of {', '.join(PIXEL_FILTERS)}; box is used")
-        return None
-    return str(value)
-
-
-def _pixel_samples(prim: Usd.Prim, where: str, warnings: list[str]) -> int | None:
-    attribute = prim.GetAttribute(PIXEL_SAMPLES_ATTRIBUTE)
-    if not attribute or not attribute.HasAuthoredValue():
-        return None
-    value = attribute.Get()
-    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 4096:
-        warnings.append(f"{where}: {PIXEL_SAMPLES_ATTRIBUTE} = {value!r} is not a whole number from 1 to 4096; 1 sample is used")
-        return None
-    return int(value)
+    valid = lambda v: str(v) in PIXEL_FILTERS
+    pixel_filter = _tessera_setting(prim, where, warnings, "tessera:pixelFilter", valid, f"one of {', '.join(PIXEL_FILTERS)}", "box")
+    return None if pixel_filter is None else str(pixel_filter)
 
 
 def find(stage: Usd.Stage, path: str | None, warnings: list[str]) -> Usd.Prim | None:
