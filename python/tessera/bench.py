@@ -408,7 +408,7 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
         elif case == "antialiasing":  # pixel samples: cost per sample, error against every source triangle at as many samples
             references = {run: _frames(session, 1, lod=False, pixel_samples=run[0], pixel_filter=run[1], **settings)[0]
                           for run in ANTIALIASING_RUNS}
-            finest = references[(ANTIALIASING_RUNS[-1][0], "box")]
+            finest = references[max(run for run in ANTIALIASING_RUNS if run[1] == "box")]
             for samples, pixel_filter in ANTIALIASING_RUNS:
                 result, wall, gpu = _frames(session, frames, pixel_samples=samples, pixel_filter=pixel_filter, **settings)
                 name = f"{samples} sample{'s' if samples > 1 else ''}" + (f", {pixel_filter}" if pixel_filter != "box" else "")

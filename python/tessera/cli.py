@@ -125,8 +125,8 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--pixel-error", type=float, default=1.0, metavar="PX",
                         help="screen-space error bound of the level-of-detail cut, in pixels (default 1)")
     render.add_argument("--pixel-samples", type=_pixel_samples, metavar="N",
-                        help="anti-aliasing: the colour is the mean of N frames sampling each pixel at spread offsets (a box "
-                             "filter one pixel wide; depth, normal and ids are the pixel centres'); each sample costs a frame "
+                        help="anti-aliasing: the colour is the filtered mean of N frames sampling each pixel at spread "
+                             "offsets (--pixel-filter; depth, normal and ids are the pixel centres'); each sample costs a frame "
                              "(default: the render settings' tessera:pixelSamples, else 1)")
     render.add_argument("--pixel-filter", choices=PIXEL_FILTERS,
                         help="how pixel samples combine: box (the mean over the pixel's square; alpha the exact coverage) "
