@@ -886,6 +886,10 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             error = std::min(error, float(diameter));
             simplified.resize(kept);
             Result& result = results[g];
+            // Normals and vertex channel fitted to the group's input (attribute_fit.h), on the simplified surface before
+            // Preserve Area moves its open borders (a moved copy is drawn with its source's values).
+            result.fitted = fit_attributes(merged, simplified.data(), simplified.size(), local, positionId, lock, drawnNormals,
+                                           hasColors ? &drawnChannels : nullptr);
             if (settings.preserveArea) {
                 double area = 0;
                 for (size_t i = 0; i < merged.size(); i += 3) area += triangle_area(&local[3 * merged[i]], &local[3 * merged[i + 1]], &local[3 * merged[i + 2]]);
@@ -897,11 +901,6 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             result.simplified = true;
             result.error = error;
             result.pieces = split_into_clusters(simplified, position);
-            // Normals and vertex channel fitted to the group's input (attribute_fit.h). Not with Preserve Area (cards,
-            // foliage): its moved borders take their source's values, and such meshes keep the kept vertices' own.
-            if (!settings.preserveArea)
-                result.fitted = fit_attributes(merged, simplified.data(), simplified.size(), local, positionId, lock, drawnNormals,
-                                               hasColors ? &drawnChannels : nullptr);
         });
 
         phases.mark("round: simplify+split");
@@ -914,27 +913,6 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
                 continue;
             }
             progress = true;
-            // Vertices moved by Preserve Area join the mesh: numbered after those recorded so far.
-            const Dilation& dilation = results[g].dilation;
-            const uint32_t shift = uint32_t(local.size() / 3 - roundVertices);
-            for (size_t i = 0; i < dilation.sources.size(); ++i) {
-                const uint32_t id = uint32_t(local.size() / 3), source = dilation.sources[i];
-                local.insert(local.end(), &dilation.positions[3 * i], &dilation.positions[3 * i] + 3);
-                for (size_t k = 0; k < attributeCount; ++k) {
-                    const float value = attributes[source * attributeCount + k];  // a copy: push_back may reallocate
-                    attributes.push_back(value);
-                }
-                attributeOf.push_back(attributeOf[source]);
-                drawnOf.push_back(drawnOf[source]);
-                positionId.push_back(welder.add(&local[3 * id], id));
-                lock.push_back(0);
-                firstGroup.push_back(-1);
-                shared.push_back(0);
-            }
-            if (shift)
-                for (auto& piece : results[g].pieces)
-                    for (uint32_t& v : piece)
-                        if (v >= roundVertices) v += shift;
             std::vector<Sphere> childSpheres;
             float childError = 0;
             uint32_t childLevel = 0;
@@ -948,12 +926,44 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
             // encloses every child's.
             const Group group{enclose(childSpheres), childError + results[g].error};
             groups.push_back(group);
-            for (const FittedAttributes& fitted : results[g].fitted) {  // drawn so from this group's clusters on
-                drawnOf[fitted.vertex] = uint32_t(vertexCount + fits.size());
-                fits.push_back({uint32_t(groups.size() - 1), fitted.vertex});
-                fittedNormals.insert(fittedNormals.end(), fitted.normal.begin(), fitted.normal.end());
-                if (hasColors) fittedChannels.insert(fittedChannels.end(), fitted.channel.begin(), fitted.channel.end());
+            const uint32_t groupIndex = uint32_t(groups.size() - 1);
+            auto add_fit = [&](uint32_t vertex, const float* normal, const float* channel) {  // drawn so from this group's clusters on
+                drawnOf[vertex] = uint32_t(vertexCount + fits.size());
+                fits.push_back({groupIndex, vertex});
+                fittedNormals.insert(fittedNormals.end(), normal, normal + 3);
+                if (hasColors) fittedChannels.insert(fittedChannels.end(), channel, channel + kChannelComponents);
+            };
+            for (const FittedAttributes& fitted : results[g].fitted) add_fit(fitted.vertex, fitted.normal.data(), fitted.channel.data());
+            // Vertices moved by Preserve Area join the mesh, numbered after those recorded so far, each drawn with its
+            // source's values (this group's fit included).
+            const Dilation& dilation = results[g].dilation;
+            const uint32_t shift = uint32_t(local.size() / 3 - roundVertices);
+            for (size_t i = 0; i < dilation.sources.size(); ++i) {
+                const uint32_t id = uint32_t(local.size() / 3), source = dilation.sources[i];
+                local.insert(local.end(), &dilation.positions[3 * i], &dilation.positions[3 * i] + 3);
+                for (size_t k = 0; k < attributeCount; ++k) {
+                    const float value = attributes[source * attributeCount + k];  // a copy: push_back may reallocate
+                    attributes.push_back(value);
+                }
+                attributeOf.push_back(attributeOf[source]);
+                drawnOf.push_back(drawnOf[source]);
+                if (drawnOf[source] >= vertexCount) {  // a fit's values: copied, since the arrays may grow
+                    const size_t fit = drawnOf[source] - vertexCount;
+                    std::array<float, 3> normal;
+                    std::array<float, kChannelComponents> channel{};
+                    std::copy_n(&fittedNormals[3 * fit], 3, normal.data());
+                    if (hasColors) std::copy_n(&fittedChannels[kChannelComponents * fit], kChannelComponents, channel.data());
+                    add_fit(id, normal.data(), channel.data());
+                }
+                positionId.push_back(welder.add(&local[3 * id], id));
+                lock.push_back(0);
+                firstGroup.push_back(-1);
+                shared.push_back(0);
             }
+            if (shift)
+                for (auto& piece : results[g].pieces)
+                    for (uint32_t& v : piece)
+                        if (v >= roundVertices) v += shift;
             add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, int32_t(groups.size() - 1), next);
         }
         for (const auto& list : distinct)
