@@ -2,7 +2,8 @@
 # Runs on a borrowed GPU machine, from the repository root, with .gpu/ from tools/gpu_bundle.sh beside it: proves the
 # GPU path (the tests with the validation layer on) and measures it (the benchmark without). Each step is
 # time-boxed and logs to $OUT/<step>.log; a failed smoke render stops the rest.
-#   OUT=/some/dir tools/gpu_check.sh [steps...]     steps: smoke cpp bench pytest (default: all, in that order)
+#   OUT=/some/dir tools/gpu_check.sh [steps...]     steps: smoke cpp bench pytest (default: all, in that order), and
+#   antialiasing (bench render --cases antialiasing: what a pixel sample costs where the host adds each sample's colour)
 # NVIDIA's Vulkan driver (libGLX_nvidia.so.0) needs the GL dispatch libraries (libglvnd): on a machine without them,
 # vkCreateInstance finds no driver ("Could not get 'vkCreateInstance' via 'vk_icdGetInstanceProcAddr'"). Debian's
 # packages of them (.gpu/gl, from gpu_bundle.sh) are unpacked into / where libGLdispatch.so.0 is missing, which was
@@ -47,6 +48,8 @@ assert not r.errors" || exit 1 ;;
     cpp) TESSERA_VALIDATION=1 step cpp 120 "$B/gpu/tessera_cpp_tests" --gtest_brief=1 ;;
     bench) step bench 200 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
                --cases density,brute,error --frames 5 --json "$OUT/bench_render.json" ;;
+    antialiasing) step antialiasing 150 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
+               --cases antialiasing --frames 3 --json "$OUT/bench_antialiasing.json" ;;
     pytest) TESSERA_VALIDATION=1 step pytest 200 "$TESSERA_PY" -m pytest -q -rf --tb=line -p no:cacheprovider testenv ;;
     esac
 done
