@@ -610,11 +610,8 @@ NB_MODULE(_tessera, m) {
     m.def(
         "pixel_sample_offset", [](uint32_t index, const std::string& filter) { return pixel_sample_offset(index, pixel_filter_from(filter)); },
         "index"_a, "filter"_a = "box",
-        "Where anti-aliasing sample `index` lies, (x right, y down) in pixels from the pixel's centre: within [-0.5, 0.5) for the "
-        "box filter, [-1, 1) for the gaussian; sample 0 is the centre.");
-    m.def(
-        "pixel_filter_weight", [](std::array<float, 2> offset, const std::string& filter) { return pixel_filter_weight(offset, pixel_filter_from(filter)); },
-        "offset"_a, "filter"_a = "box", "The weight of a sample at `offset` (pixels from the centre) under the filter.");
+        "Where anti-aliasing sample `index` lies, (x right, y down) in pixels from the pixel's centre: evenly spread over "
+        "[-0.5, 0.5) for the box filter, over (-1, 1) and denser towards the centre for the gaussian; sample 0 is the centre.");
 
     m.def("release_shared_devices", &Device::release_shared_devices,
           "Lets go of the devices sessions share (each goes when its last session does); called at exit.");

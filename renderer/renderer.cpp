@@ -1155,6 +1155,39 @@ void visit_frame_costs(FrameStats& a, const FrameStats& b, Visit visit) {
 
 }  // namespace
 
+namespace {
+
+// The Gaussian pixel filter along one axis: sigma 0.4 px, less its value at 1 px so that it falls to 0 there, over
+// [-1, 1] px. Its inverse cumulative distribution: where a sample at quantile u in [0, 1] lies, from a table of 257
+// quantiles made once by integrating the filter (u = 0.5 is the centre: the filter is symmetric).
+float gaussian_quantile(float u) {
+    static const std::array<float, 257> quantiles = [] {
+        constexpr int kSteps = 1 << 14;
+        const double sigma = 0.4, edge = std::exp(-1.0 / (2 * sigma * sigma));
+        auto filter = [&](double x) { return std::max(std::exp(-x * x / (2 * sigma * sigma)) - edge, 0.0); };
+        std::vector<double> cumulative(kSteps + 1, 0.0);
+        for (int i = 0; i < kSteps; ++i) {
+            const double x0 = -1 + 2.0 * i / kSteps, x1 = -1 + 2.0 * (i + 1) / kSteps;
+            cumulative[i + 1] = cumulative[i] + (filter(x0) + filter(x1)) * (x1 - x0) / 2;
+        }
+        std::array<float, 257> table;
+        int i = 0;
+        for (int q = 0; q <= 256; ++q) {
+            const double target = cumulative[kSteps] * q / 256;
+            while (i < kSteps - 1 && cumulative[i + 1] < target) ++i;
+            const double span = cumulative[i + 1] - cumulative[i], t = span > 0 ? std::clamp((target - cumulative[i]) / span, 0.0, 1.0) : 0.0;
+            table[q] = float(-1 + 2.0 * (i + t) / kSteps);
+        }
+        table[128] = 0;  // the centre exactly
+        return table;
+    }();
+    const float at = std::clamp(u, 0.0f, 1.0f) * 256;
+    const int i = std::min(int(at), 255);
+    return quantiles[i] + (at - float(i)) * (quantiles[i + 1] - quantiles[i]);
+}
+
+}  // namespace
+
 std::array<float, 2> pixel_sample_offset(uint32_t index, PixelFilter filter) {
     auto radical_inverse = [](uint32_t i, uint32_t base) {
         double value = 0, digit = 1.0 / base;
@@ -1162,24 +1195,17 @@ std::array<float, 2> pixel_sample_offset(uint32_t index, PixelFilter filter) {
         return value;
     };
     if (index == 0) return {0.0f, 0.0f};  // the centre: the other AOVs' sample
-    // The later samples: the Halton points shifted by irrational amounts (a shift keeps them as evenly spread), so that
-    // none lands on the support's edge, where the Gaussian weighs nothing.
-    const float width = filter == PixelFilter::Gaussian ? 2.0f : 1.0f;
-    auto shifted = [width](double h, double shift) {
+    // The later samples: the Halton points shifted by irrational amounts (a shift keeps them as evenly spread, and the
+    // edge of the square out of reach), then spread as the filter weighs: evenly over the box, denser towards the centre
+    // for the Gaussian (its inverse cumulative distribution), so that every sample counts alike.
+    auto shifted = [](double h, double shift) {
         const double u = h + shift;
-        return (float(u - std::floor(u)) - 0.5f) * width;
+        return float(u - std::floor(u));
     };
-    return {shifted(radical_inverse(index, 2), 0.5 * (std::sqrt(2.0) - 1.0)), shifted(radical_inverse(index, 3), 0.5 * (std::sqrt(3.0) - 1.0))};
-}
-
-float pixel_filter_weight(std::array<float, 2> offset, PixelFilter filter) {
-    if (filter == PixelFilter::Box) return 1.0f;
-    // Separable, sigma 0.4 px, minus its value at 1 px so that it falls to 0 at the support's edge.
-    auto gaussian = [](float x) {
-        const float sigma = 0.4f, edge = std::exp(-1.0f / (2 * sigma * sigma));
-        return std::max(std::exp(-x * x / (2 * sigma * sigma)) - edge, 0.0f);
-    };
-    return gaussian(offset[0]) * gaussian(offset[1]);
+    const float ux = shifted(radical_inverse(index, 2), 0.5 * (std::sqrt(2.0) - 1.0));
+    const float uy = shifted(radical_inverse(index, 3), 0.5 * (std::sqrt(3.0) - 1.0));
+    if (filter == PixelFilter::Box) return {ux - 0.5f, uy - 0.5f};
+    return {gaussian_quantile(ux), gaussian_quantile(uy)};
 }
 
 std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs, FrameStats* stats) {
@@ -1193,34 +1219,32 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         one.pixelSamples = 1;
         return render_sample(scene, camera, one, aovs, stats);
     }
-    // Sample 0 (the centre) gives every AOV; the later samples draw the colour alone and add it into sample 0's colour,
-    // weighted by the filter. In float, in place: no second image in memory, and the sum of n samples is off by at most
-    // n float roundings of its size (2.4e-4 of it at the 4096 samples allowed; half an 8-bit step is 2e-3).
+    // Sample 0 (the centre) gives every AOV; the later samples draw the colour alone and add it into sample 0's colour
+    // (the samples are spread as the filter weighs: each counts alike). In float, in place: no second image in memory,
+    // and the sum of n samples is off by at most n float roundings of its size (2.4e-4 of it at the 4096 samples
+    // allowed; half an 8-bit step is 2e-3).
     const size_t colourIndex = size_t(colour - aovs.begin());
     std::vector<Image> images;
-    double weights = 0;
     FrameStats last, costs;
     RenderSettings sample = settings;
     sample.pixelSamples = 1;
     for (uint32_t k = 0; k < settings.pixelSamples; ++k) {
         const std::array<float, 2> offset = pixel_sample_offset(k, settings.pixelFilter);
-        const double weight = pixel_filter_weight(offset, settings.pixelFilter);
         sample.pixelOffset = {settings.pixelOffset[0] + offset[0], settings.pixelOffset[1] + offset[1]};
         FrameStats frame;
         std::vector<Image> drawn = render_sample(scene, camera, sample, k == 0 ? aovs : std::vector<Aov>{Aov::Color}, &frame);
         if (k == 0) {
             images = std::move(drawn);
-            for (float& value : images[colourIndex].pixels) value *= float(weight);
         } else {
             PixelVector& sum = images[colourIndex].pixels;
             const PixelVector& pixels = drawn[0].pixels;
-            for (size_t p = 0; p < sum.size(); ++p) sum[p] += float(weight) * pixels[p];
+            for (size_t p = 0; p < sum.size(); ++p) sum[p] += pixels[p];
         }
-        weights += weight;
         visit_frame_costs(costs, frame, [](auto& total, const auto& value) { total += value; });
         last = frame;  // counts: the last sample's (every sample draws the same cut, the last with the best occlusion)
     }
-    for (float& value : images[colourIndex].pixels) value = float(value / weights);
+    const float scale = 1.0f / float(settings.pixelSamples);
+    for (float& value : images[colourIndex].pixels) value *= scale;
     visit_frame_costs(last, costs, [](auto& field, const auto& total) { field = total; });
     last.pixelSamples = settings.pixelSamples;
     if (stats) *stats = last;

@@ -398,6 +398,8 @@ def test_pixel_samples_antialias_the_colour_and_keep_the_centres_ids():
     soft_alpha = soft["color"].pixels[..., 3]
     assert ((soft_alpha > 0) & (soft_alpha < 1)).sum() > partial.sum()
     assert abs(soft_alpha.sum() - single.sum()) < 0.04 * single.sum()
-    assert tessera.pixel_filter_weight((0.0, 0.0), "gaussian") > tessera.pixel_filter_weight((0.5, 0.5), "gaussian") > 0
+    offsets = np.array([tessera.pixel_sample_offset(k, "gaussian") for k in range(64)])
+    assert np.abs(offsets).max() < 1 and (np.abs(offsets).max(axis=1) > 0.5).any(), "over two pixels' width"
+    assert (np.abs(offsets).max(axis=1) < 0.25).sum() > 64 / 6, "denser towards the centre"
     with pytest.raises(tessera.StageError, match="unknown pixel filter 'tent'"):
         session.render(camera="/Camera", resolution=(8, 8), pixel_filter="tent")

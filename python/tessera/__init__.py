@@ -24,7 +24,7 @@ if "pxr" in _sys.modules:
 
 import atexit as _atexit
 
-from ._tessera import DeviceError, ImageIoError, MeshError, pixel_filter_weight, pixel_sample_offset, read_image
+from ._tessera import DeviceError, ImageIoError, MeshError, pixel_sample_offset, read_image
 from ._tessera import release_shared_devices as _release_shared_devices
 from .build import BuildSettings, build_mesh
 from .session import AOVS, PIXEL_FILTERS, VISUALIZATIONS, RenderResult, Session, StageError, ocio_config_path
@@ -34,5 +34,5 @@ from .session import AOVS, PIXEL_FILTERS, VISUALIZATIONS, RenderResult, Session,
 _atexit.register(_release_shared_devices)
 
 __version__ = "0.1.0"
-__all__ = ["SCHEMA_PATH", "Session", "RenderResult", "StageError", "DeviceError", "MeshError", "ImageIoError", "read_image", "pixel_sample_offset", "pixel_filter_weight", "ocio_config_path",
+__all__ = ["SCHEMA_PATH", "Session", "RenderResult", "StageError", "DeviceError", "MeshError", "ImageIoError", "read_image", "pixel_sample_offset", "ocio_config_path",
            "AOVS", "VISUALIZATIONS", "PIXEL_FILTERS", "build_mesh", "BuildSettings"]

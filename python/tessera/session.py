@@ -165,8 +165,8 @@ class Session:
         `pixel_samples` anti-aliases: the colour is the filtered mean of that many frames, each sampling the pixels at
         another offset (tessera.pixel_sample_offset), while depth, normal and ids are the pixel centres' (the first
         sample). Each sample costs a frame; stats add the frames' times. `pixel_filter` (PIXEL_FILTERS): "box", the
-        plain mean over the pixel's square (alpha the exact coverage), or "gaussian", samples over two pixels' width
-        weighted by a Gaussian (tessera.pixel_filter_weight; softer edges, less moire)."""
+        mean over the pixel's square (alpha the exact coverage), or "gaussian", samples over two pixels' width, denser
+        towards the centre as a Gaussian weighs (softer edges, less moire)."""
         from .usd import framing_camera
 
         width, height = resolution

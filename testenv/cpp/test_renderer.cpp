@@ -1179,37 +1179,39 @@ TEST_F(RendererTest, PixelSamplesAverageShiftedFramesAndKeepTheCentresIds) {
     for (uint32_t y = 0; y < 192; ++y)
         for (uint32_t x = 0; x < 256; ++x) fineCovered += id_at(fine, x, y) != 0xffffffffu;
     EXPECT_NEAR(alpha, fineCovered / 16.0, 0.01 * alpha);
-    // The Gaussian: samples over two pixels' width, weighted; the colour their weighted mean, ids still the centre's.
+    // The Gaussian: samples over two pixels' width, denser towards the centre; the colour their mean, ids still the
+    // centre's.
     EXPECT_EQ(pixel_sample_offset(0, PixelFilter::Gaussian), (std::array<float, 2>{0, 0}));
-    EXPECT_FLOAT_EQ(pixel_filter_weight({0.3f, -0.7f}, PixelFilter::Box), 1.0f);
-    EXPECT_GT(pixel_filter_weight({0, 0}, PixelFilter::Gaussian), pixel_filter_weight({0.5f, 0}, PixelFilter::Gaussian));
-    EXPECT_EQ(pixel_filter_weight({1.0f, 0}, PixelFilter::Gaussian), 0.0f) << "nothing at the support's edge";
-    bool beyondThePixel = false;
-    for (uint32_t k = 0; k < 16; ++k) {
+    size_t beyondThePixel = 0, nearTheCentre = 0;
+    std::set<std::array<float, 2>> gaussianOffsets;
+    for (uint32_t k = 0; k < 256; ++k) {
         const std::array<float, 2> o = pixel_sample_offset(k, PixelFilter::Gaussian);
-        EXPECT_TRUE(o[0] >= -1 && o[0] < 1 && o[1] >= -1 && o[1] < 1) << k;
-        beyondThePixel = beyondThePixel || std::max(std::abs(o[0]), std::abs(o[1])) > 0.5f;
+        EXPECT_TRUE(o[0] > -1 && o[0] < 1 && o[1] > -1 && o[1] < 1) << k;
+        gaussianOffsets.insert(o);
+        beyondThePixel += std::max(std::abs(o[0]), std::abs(o[1])) > 0.5f;
+        nearTheCentre += std::max(std::abs(o[0]), std::abs(o[1])) < 0.25f;
     }
-    EXPECT_TRUE(beyondThePixel) << "the Gaussian reaches into the neighbouring pixels";
+    EXPECT_EQ(gaussianOffsets.size(), 256u);
+    EXPECT_GT(beyondThePixel, 0u) << "the Gaussian reaches into the neighbouring pixels";
+    // Evenly over the two-pixel square, a sixteenth of the samples would lie within a quarter pixel of the centre; the
+    // Gaussian (sigma 0.4 px) puts about a quarter there.
+    EXPECT_GT(nearTheCentre, 256u / 6) << "denser towards the centre";
     RenderSettings gaussian = antialiased;
     gaussian.pixelFilter = PixelFilter::Gaussian;
     const std::vector<Image> soft = renderer.render(scene, eye, gaussian, {Aov::Color, Aov::TriangleId});
     EXPECT_EQ(std::memcmp(soft[1].pixels.data(), single.pixels.data(), single.pixels.size() * sizeof(float)), 0);
-    std::vector<double> weighted(color.pixels.size(), 0.0);
-    double weights = 0;
+    std::vector<double> softSum(color.pixels.size(), 0.0);
     for (uint32_t k = 0; k < 16; ++k) {
         RenderSettings one = centre;
         one.pixelOffset = pixel_sample_offset(k, PixelFilter::Gaussian);
-        const double w = pixel_filter_weight(one.pixelOffset, PixelFilter::Gaussian);
         const Image frame = renderer.render(scene, eye, one, {Aov::Color})[0];
-        for (size_t p = 0; p < weighted.size(); ++p) weighted[p] += w * frame.pixels[p];
-        weights += w;
+        for (size_t p = 0; p < softSum.size(); ++p) softSum[p] += frame.pixels[p];
     }
     largest = 0;
     double softAlpha = 0;
     size_t softPartial = 0;
-    for (size_t p = 0; p < weighted.size(); ++p) largest = std::max(largest, std::abs(soft[0].pixels[p] - float(weighted[p] / weights)));
-    for (size_t p = 3; p < weighted.size(); p += 4) {
+    for (size_t p = 0; p < softSum.size(); ++p) largest = std::max(largest, std::abs(soft[0].pixels[p] - float(softSum[p] / 16)));
+    for (size_t p = 3; p < softSum.size(); p += 4) {
         softAlpha += soft[0].pixels[p];
         softPartial += soft[0].pixels[p] > 0 && soft[0].pixels[p] < 1;
     }

@@ -184,10 +184,10 @@ enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primit
 // near plane or cover a large area to hardware raster).
 enum class RasterMode { Auto, Hardware, Software };
 
-// How pixel samples combine into a pixel. Box: the plain mean of samples over the pixel's own square (one pixel wide;
-// alpha is the exact coverage). Gaussian: samples over a square two pixels wide, weighted by a Gaussian (standard
-// deviation 0.4 px, truncated at 1 px and shifted to reach 0 there): softer edges and less moire, the usual default of
-// production renderers.
+// How pixel samples combine into a pixel. Box: the mean of samples over the pixel's own square (one pixel wide; alpha
+// is the exact coverage). Gaussian: samples over a square two pixels wide, denser towards the centre as a Gaussian
+// weighs (standard deviation 0.4 px, less its value at 1 px so that it falls to 0 there, separable): softer edges and
+// less moire, the usual default of production renderers.
 enum class PixelFilter { Box, Gaussian };
 // How the compute rasterizer's workgroup gets its cluster's vertices on screen (both cover the same pixels, bit for bit).
 // Shared: each vertex transformed once into shared memory, then a barrier, then one thread per triangle, in workgroups of
@@ -248,10 +248,10 @@ struct RenderSettings {
 };
 
 // The offset of sample `index` from the pixel's centre, in pixels, within the filter's support: sample 0 is the centre,
-// the later ones the Halton sequence in bases 2 and 3 (shifted), so that any first n samples spread evenly over it.
+// the later ones the Halton sequence in bases 2 and 3 (shifted), spread as the filter weighs (evenly over the box's
+// square; for the Gaussian, through its inverse cumulative distribution on each axis), so that any first n samples
+// stand for the filter evenly and their plain mean is the filtered pixel.
 std::array<float, 2> pixel_sample_offset(uint32_t index, PixelFilter filter = PixelFilter::Box);
-// The weight of a sample at `offset` (pixels from the centre): 1 for the box, the Gaussian's value for the other.
-float pixel_filter_weight(std::array<float, 2> offset, PixelFilter filter);
 
 struct FrameStats {
     uint64_t instances = 0;         // every drawn copy of every mesh (batches expanded)
