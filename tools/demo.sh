@@ -4,5 +4,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 tools/bootstrap.sh
 [ -f out/demo/demo.usdc ] || .venv/bin/python testenv/demo/make_demo_stage.py out/demo/demo.usdc
-.venv/bin/tessera render out/demo/demo.usdc -o out/demo.png --resolution 1280x720 --stats out/demo.json
+.venv/bin/tessera render out/demo/demo.usdc -o out/demo.png --resolution 1280x720 --pixel-samples 8 --stats out/demo.json
 echo "wrote out/demo.png (statistics in out/demo.json)"
