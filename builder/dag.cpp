@@ -1050,7 +1050,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.colors.resize(hasColors ? 2 * size_t(vertexTotal) : 0);
     out.uvs.resize(hasUvs ? 2 * size_t(vertexTotal) : 0);
     // Each normal encoded once (a vertex is stored about five times over the levels); vertices Preserve Area moved keep
-    // their source's attributes.
+    // their source's attributes, or its fit (a copy, recorded for the moved vertex when it joined the mesh).
     std::vector<uint32_t> packedNormals(vertexCount);
     parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
         for (size_t a = begin; a < end; ++a) packedNormals[a] = encode_octahedral(mesh.normals[3 * a], mesh.normals[3 * a + 1], mesh.normals[3 * a + 2]);

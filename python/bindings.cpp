@@ -607,6 +607,7 @@ NB_MODULE(_tessera, m) {
         },
         "path"_a, "Reads an image as float32 RGBA (height, width, 4).");
 
+    m.attr("MOST_PIXEL_SAMPLES") = kMostPixelSamples;
     m.def(
         "pixel_sample_offset", [](uint32_t index, const std::string& filter) { return pixel_sample_offset(index, pixel_filter_from(filter)); },
         "index"_a, "filter"_a = "box",
@@ -679,7 +680,6 @@ NB_MODULE(_tessera, m) {
                const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate, const std::string& rasterVertices,
                float softwareRasterArea, uint32_t pixelSamples, const std::string& pixelFilter) {
                 RenderPassSettings settings;
-                if (pixelSamples == 0 || pixelSamples > 4096) throw nb::value_error("pixel samples must be between 1 and 4096");
                 settings.render.pixelSamples = pixelSamples;
                 settings.render.pixelFilter = pixel_filter_from(pixelFilter);
                 if (!(dicingRate > 0.0f)) throw nb::value_error("the dicing rate must be a number of pixels > 0");

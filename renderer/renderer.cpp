@@ -1209,7 +1209,8 @@ std::array<float, 2> pixel_sample_offset(uint32_t index, PixelFilter filter) {
 }
 
 std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs, FrameStats* stats) {
-    if (settings.pixelSamples == 0 || settings.pixelSamples > 4096) throw std::invalid_argument("pixel samples must be between 1 and 4096");
+    if (settings.pixelSamples == 0 || settings.pixelSamples > kMostPixelSamples)
+        throw std::invalid_argument("pixel samples must be between 1 and " + std::to_string(kMostPixelSamples));
     if (!std::isfinite(settings.pixelOffset[0]) || !std::isfinite(settings.pixelOffset[1]))
         throw std::invalid_argument("the pixel offset must be finite");
     // Only the colour is averaged: without it, one frame (the centre) is the whole image.
@@ -1221,7 +1222,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     }
     // Sample 0 (the centre) gives every AOV; the later samples draw the colour alone and add it into sample 0's colour
     // (the samples are spread as the filter weighs: each counts alike). In float, in place: no second image in memory,
-    // and the sum of n samples is off by at most n float roundings of its size (2.4e-4 of it at the 4096 samples
+    // and the sum of n samples is off by at most n float roundings of its size (2.4e-4 of it at the kMostPixelSamples
     // allowed; half an 8-bit step is 2e-3).
     const size_t colourIndex = size_t(colour - aovs.begin());
     std::vector<Image> images;

@@ -59,8 +59,10 @@ def _tessera_setting(prim: Usd.Prim, where: str, warnings: list[str], name: str,
 
 
 def _pixel_samples(prim: Usd.Prim, where: str, warnings: list[str]) -> int | None:
-    valid = lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 4096
-    samples = _tessera_setting(prim, where, warnings, "tessera:pixelSamples", valid, "a whole number from 1 to 4096", "1 sample")
+    from tessera.session import MOST_PIXEL_SAMPLES, valid_pixel_samples
+
+    samples = _tessera_setting(prim, where, warnings, "tessera:pixelSamples", valid_pixel_samples,
+                               f"a whole number from 1 to {MOST_PIXEL_SAMPLES}", "1 sample")
     return None if samples is None else int(samples)
 
 

@@ -368,14 +368,19 @@ DENSITY_REFERENCE_PIXEL_ERROR = 1 / 16
 ANTIALIASING_RUNS = ((1, "box"), (4, "box"), (16, "box"), (16, "gaussian"))
 
 
-def _density_reference(session, source_triangles, settings, no_lod_limit):
-    """One frame of a density field with color and primId to measure the rows' image error against, and its name."""
-    full = source_triangles <= no_lod_limit
-    lod = {"lod": False} if full else {"pixel_error": DENSITY_REFERENCE_PIXEL_ERROR}
-    result = session.render(camera="/World/Camera", **{**settings, "aovs": ("color", "primId")}, **lod)
+def _reference(session, settings, **render_args):
+    """One untimed frame with color and primId for rows to measure their image error against."""
+    result = session.render(camera="/World/Camera", **{**settings, "aovs": ("color", "primId")}, **render_args)
     if result.errors:
         raise RuntimeError("; ".join(result.errors))
-    return result, "--no-lod" if full else f"{DENSITY_REFERENCE_PIXEL_ERROR:g} px cut"
+    return result
+
+
+def _density_reference(session, source_triangles, settings, no_lod_limit):
+    """A density field's reference frame (_reference) and its name."""
+    full = source_triangles <= no_lod_limit
+    lod = {"lod": False} if full else {"pixel_error": DENSITY_REFERENCE_PIXEL_ERROR}
+    return _reference(session, settings, **lod), "--no-lod" if full else f"{DENSITY_REFERENCE_PIXEL_ERROR:g} px cut"
 
 
 def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
@@ -406,8 +411,7 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
             for label, row_result, row_wall, row_gpu in ((f"{kind}, 1 px", result, wall, gpu), (f"{kind}, --no-lod", reference, ref_wall, ref_gpu)):
                 rows.append(_row("seams", label, row_result, row_wall, row_gpu, reference, **_speedups(ref_wall, ref_gpu, row_wall, row_gpu)))
         elif case == "antialiasing":  # pixel samples: cost per sample, error against every source triangle at as many samples
-            references = {run: _frames(session, 1, lod=False, pixel_samples=run[0], pixel_filter=run[1], **settings)[0]
-                          for run in ANTIALIASING_RUNS}
+            references = {run: _reference(session, settings, lod=False, pixel_samples=run[0], pixel_filter=run[1]) for run in ANTIALIASING_RUNS}
             finest = references[max(run for run in ANTIALIASING_RUNS if run[1] == "box")]
             for samples, pixel_filter in ANTIALIASING_RUNS:
                 result, wall, gpu = _frames(session, frames, pixel_samples=samples, pixel_filter=pixel_filter, **settings)

@@ -9,7 +9,7 @@ import re
 import sys
 import time
 
-from .session import AOVS, PIXEL_FILTERS, PURPOSES, RASTER_MODES, VISUALIZATIONS
+from .session import AOVS, MOST_PIXEL_SAMPLES, PIXEL_FILTERS, PURPOSES, RASTER_MODES, VISUALIZATIONS, valid_pixel_samples
 
 
 def _purposes(text: str) -> tuple[str, ...]:
@@ -61,8 +61,8 @@ def _pixel_samples(text: str) -> int:
         samples = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"'{text}' is not a whole number of samples") from None
-    if not 1 <= samples <= 4096:
-        raise argparse.ArgumentTypeError(f"'{text}': pixel samples must be between 1 and 4096")
+    if not valid_pixel_samples(samples):
+        raise argparse.ArgumentTypeError(f"'{text}': pixel samples must be between 1 and {MOST_PIXEL_SAMPLES}")
     return samples
 
 

@@ -15,6 +15,12 @@ AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triang
 VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primitives", "shading-bins", "raster-bins", "overdraw", "uv", "tessellation")
 RASTER_MODES = ("auto", "hardware", "software")
 PIXEL_FILTERS = ("box", "gaussian")  # how pixel samples combine (Session.render)
+MOST_PIXEL_SAMPLES = _tessera.MOST_PIXEL_SAMPLES
+
+
+def valid_pixel_samples(value) -> bool:
+    """A pixel sample count Session.render takes: a whole number from 1 to MOST_PIXEL_SAMPLES (not a bool)."""
+    return isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= MOST_PIXEL_SAMPLES
 RASTER_VERTICES = ("auto", "shared", "per-triangle")
 # UsdGeom purposes a render may draw besides `default` (which is always drawn).
 PURPOSES = ("render", "proxy", "guide")
@@ -182,8 +188,8 @@ class Session:
             raise StageError(f"unknown raster vertices '{raster_vertices}' (choose from {', '.join(RASTER_VERTICES)})")
         if not (pixel_error >= 0.0):
             raise StageError(f"pixel error must be a number >= 0, not {pixel_error}")
-        if isinstance(pixel_samples, bool) or not isinstance(pixel_samples, int) or not 1 <= pixel_samples <= 4096:
-            raise StageError(f"pixel samples must be a whole number from 1 to 4096, not {pixel_samples!r}")
+        if not valid_pixel_samples(pixel_samples):
+            raise StageError(f"pixel samples must be a whole number from 1 to {MOST_PIXEL_SAMPLES}, not {pixel_samples!r}")
         if pixel_filter not in PIXEL_FILTERS:
             raise StageError(f"unknown pixel filter '{pixel_filter}' (choose from {', '.join(PIXEL_FILTERS)})")
         if not (dicing_rate > 0.0):

@@ -184,6 +184,9 @@ enum class Visualize { None, Triangles, Clusters, Groups, Lod, Instances, Primit
 // near plane or cover a large area to hardware raster).
 enum class RasterMode { Auto, Hardware, Software };
 
+// The most pixel samples an image may take (RenderSettings::pixelSamples): their float sum stays within 2.4e-4 of its size.
+constexpr uint32_t kMostPixelSamples = 4096;
+
 // How pixel samples combine into a pixel. Box: the mean of samples over the pixel's own square (one pixel wide; alpha
 // is the exact coverage). Gaussian: samples over a square two pixels wide, denser towards the centre as a Gaussian
 // weighs (standard deviation 0.4 px, less its value at 1 px so that it falls to 0 there, separable): softer edges and
@@ -240,7 +243,7 @@ struct RenderSettings {
     // Anti-aliasing: each pixel's colour is the filtered mean of this many samples (`pixelFilter`), each a whole frame
     // drawn with the camera's window shifted by a sample offset (pixel_sample_offset). The first sample is the pixel's
     // centre, and the other AOVs (depth, normal, ids) are that sample's: ids stay exact, never blends of two.
-    uint32_t pixelSamples = 1;
+    uint32_t pixelSamples = 1;  // 1 to kMostPixelSamples
     PixelFilter pixelFilter = PixelFilter::Box;
     // Where a frame's one sample lies in each pixel, in pixels from its centre (x right, y down); the samples'
     // offsets add to it. For tests and for callers that accumulate samples themselves.
