@@ -10,7 +10,7 @@
 #include "clusters.h"
 #include "cut.h"
 #include "edge_limit.h"
-#include "parallel.h"
+#include "tessera/parallel.h"
 #include "phase_timer.h"
 #include "rows.h"
 #include "weld.h"

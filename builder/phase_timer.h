@@ -3,7 +3,7 @@
 // do not shorten). Off, a timer costs one getenv.
 #pragma once
 
-#include "parallel.h"
+#include "tessera/parallel.h"
 
 #include <chrono>
 #include <cstdio>

@@ -3,7 +3,7 @@
 #include "tessera/builder.h"
 
 #include "subdivide.h"
-#include "parallel.h"
+#include "tessera/parallel.h"
 #include "weld.h"
 
 #include <algorithm>

@@ -1,7 +1,7 @@
 // Internal to the builder: exact welding of positions (prepare.cpp, dag.cpp).
 #pragma once
 
-#include "parallel.h"
+#include "tessera/parallel.h"
 
 #include <array>
 #include <bit>

@@ -1,6 +1,6 @@
-// The builder's parallel loops (builder/parallel.h): every index runs exactly once, whoever calls, however nested,
+// The builder's parallel loops (tessera/parallel.h): every index runs exactly once, whoever calls, however nested,
 // and in a forked child too (whose pool has none of its parent's threads).
-#include "parallel.h"
+#include "tessera/parallel.h"
 
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-// Internal to the builder: one loop on every core (prepare.cpp, weld.h, dag.cpp, pages.cpp).
+// One loop on every core, shared by the builder (prepare.cpp, weld.h, dag.cpp, pages.cpp) and the renderer (its uploads).
 #pragma once
 
 #include <algorithm>
