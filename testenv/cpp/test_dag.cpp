@@ -1,6 +1,8 @@
 // The cluster DAG: monotone bounds, crack-free cuts, no stalls, cluster fill, determinism.
 #include "dag_fixtures.h"
 
+#include <meshoptimizer.h>
+
 using namespace tessera;
 using namespace dagtest;
 
@@ -510,4 +512,42 @@ TEST(Dag, FittedNormalsOpenNoShadingSeams) {
         }
         EXPECT_GT(mixedCuts, 5u) << "cuts that mix levels";
     }
+}
+
+// The cluster normal cone the renderer culls backfaces with (bounds.cpp): every triangle's normal lies inside it in its
+// 8-bit form (a view direction within the cutoff of the axis sees each triangle's back), and it is about as tight as
+// meshoptimizer's cluster bounds, which it replaced (their extra sphere and apex cost 4x more to compute).
+TEST(Dag, NormalConesHoldEveryTriangleAndAreTight) {
+    size_t cones = 0, tighter = 0, looser = 0;
+    for (const Source& s : {icosphere(5), flat_shaded(icosphere(4), 0.05), grid(60), grid(60, true, true)}) {
+        const BuiltMesh m = s.build();
+        for (const Cluster& c : m.clusters) {
+            const NormalCone cone = cluster_normal_cone(m, c);
+            uint32_t indices[kClusterMaxTriangles * 3];
+            for (uint32_t t = 0; t < c.triangleCount; ++t)
+                for (int k = 0; k < 3; ++k) indices[3 * t + k] = (m.triangles[c.triangleOffset + t] >> (8 * k)) & 0xffu;
+            const meshopt_Bounds theirs = meshopt_computeClusterBounds(indices, 3 * c.triangleCount, &m.positions[3 * size_t(c.vertexOffset)],
+                                                                       c.vertexCount, 12);
+            tighter += cone.cutoff8 < theirs.cone_cutoff_s8;
+            looser += cone.cutoff8 > theirs.cone_cutoff_s8 + 1;
+            if (cone.cutoff8 >= 127) continue;  // culls nothing
+            ++cones;
+            const double axis[3] = {cone.axis8[0] / 127.0, cone.axis8[1] / 127.0, cone.axis8[2] / 127.0}, cutoff = cone.cutoff8 / 127.0;
+            for (uint32_t t = 0; t < c.triangleCount; ++t) {
+                const float* p[3];
+                for (int k = 0; k < 3; ++k) p[k] = &m.positions[3 * size_t(c.vertexOffset + indices[3 * t + k])];
+                const double e1[3] = {p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]}, e2[3] = {p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]};
+                const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+                const double length = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+                if (length == 0) continue;
+                // A view direction v (unit, from the viewer) the renderer culls for, dot(v, axis) >= cutoff = sin(a) (the
+                // 8-bit axis normalised), lies within 90 - a degrees of the axis; a normal within a of the axis is then
+                // within 90 degrees of v: the viewer sees that triangle's back.
+                const double cosine = (n[0] * axis[0] + n[1] * axis[1] + n[2] * axis[2]) / length / std::sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]);
+                ASSERT_LE(std::acos(std::clamp(cosine, -1.0, 1.0)), std::asin(cutoff) + 1e-6) << s.name << ": a triangle's normal outside its cluster's cone";
+            }
+        }
+    }
+    EXPECT_GT(cones, 100u) << "clusters with a cone that culls";
+    EXPECT_LT(looser, cones / 20) << "cones more than a step wider than meshoptimizer's: " << looser << " (tighter: " << tighter << ")";
 }
