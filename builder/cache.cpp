@@ -132,9 +132,16 @@ std::string MeshCache::path_of(const std::string& key) const { return directory_
 std::optional<MeshCache::Entry> MeshCache::load(const std::string& key, std::string* problem) const {
     if (!enabled()) return std::nullopt;
     const std::string path = path_of(key);
-    std::ifstream in(path, std::ios::binary);
+    std::ifstream in(path, std::ios::binary | std::ios::ate);
     if (!in) return std::nullopt;
-    std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    // One read of the whole file (a byte at a time through a stream iterator took 0.3 s for a 71 MB page file).
+    const std::streamoff size = in.tellg();
+    std::vector<uint8_t> bytes(size > 0 ? size_t(size) : 0);
+    in.seekg(0);
+    if (size < 0 || !in.read(reinterpret_cast<char*>(bytes.data()), std::streamsize(bytes.size()))) {
+        if (problem) *problem = "cannot read " + path;
+        return std::nullopt;
+    }
     try {
         Entry entry;
         entry.mesh = std::make_shared<BuiltMesh>(decode_pages(bytes, path));

@@ -14,7 +14,7 @@
 
 #include "byte_streams.h"
 #include "cluster_codec.h"
-#include "parallel.h"
+#include "tessera/parallel.h"
 #include "phase_timer.h"
 
 #include <zstd.h>
@@ -278,6 +278,7 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
     if (expectedFirst != clusterCount) throw PageFileError(name + ": holds " + std::to_string(expectedFirst) + " clusters, the header says " + std::to_string(clusterCount));
 
     // Pages decode on their own, on every core; the first page in error is the one reported.
+    PhaseTimer phases;
     std::vector<std::vector<DecodedCluster>> pageClusters(pageCount);
     parallel_for_rethrowing(pageCount, [&](size_t p) {
         const std::string where = name + ": page " + std::to_string(p);
@@ -287,6 +288,7 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
         while (pageClusters[p].size() < entries[p].clusters) units.decode_unit(pageClusters[p]);
         if (pageClusters[p].size() != entries[p].clusters || !units.done()) throw PageFileError(where + ": holds other clusters than its table entry says");
     });
+    phases.mark("decode: pages");
     std::vector<DecodedCluster> decoded(clusterCount);
     std::vector<uint8_t> seen(clusterCount, 0);
     for (uint32_t p = 0; p < pageCount; ++p)
@@ -296,7 +298,16 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
             decoded[d.index] = std::move(d);
         }
 
-    // Back into build order (level 0 first), with the streams laid out as the builder lays them out.
+    // Back into build order (level 0 first), with the streams laid out as the builder lays them out (reserved first:
+    // grown one cluster at a time, a 10 M-triangle mesh's streams were copied over about twice).
+    size_t vertices = 0, triangles = 0;
+    for (const DecodedCluster& d : decoded) vertices += d.normals.size(), triangles += d.triangles.size();
+    mesh.clusters.reserve(clusterCount);
+    mesh.positions.reserve(3 * vertices);
+    mesh.normals.reserve(vertices);
+    mesh.colors.reserve(colors ? 2 * vertices : 0);
+    mesh.uvs.reserve(uvs ? 2 * vertices : 0);
+    mesh.triangles.reserve(triangles);
     for (DecodedCluster& d : decoded) {
         Cluster c = d.cluster;
         c.vertexOffset = uint32_t(mesh.positions.size() / 3);
@@ -307,7 +318,9 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
         mesh.uvs.insert(mesh.uvs.end(), d.uvs.begin(), d.uvs.end());
         mesh.triangles.insert(mesh.triangles.end(), d.triangles.begin(), d.triangles.end());
         append_cluster(mesh, c);
+        d = DecodedCluster{};  // its memory back as it goes
     }
+    phases.mark("decode: streams");
     return mesh;
 }
 
