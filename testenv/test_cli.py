@@ -196,6 +196,22 @@ def test_bench_render_antialiasing_measures_each_sample_count_against_its_refere
     assert "ms per sample" in done.stdout
 
 
+def test_bench_render_first_frame_loads_cached_meshes_and_draws_the_warm_frames_image(tmp_path):
+    rows_file = tmp_path / "rows.json"
+    done = run("bench", "render", "--cases", "first-frame", "--max-density", "1", "--resolution", "96x54", "--frames", "1",
+               "--stages-dir", tmp_path, "--json", rows_file)
+    assert done.returncode == 0, done.stderr + done.stdout
+    rows = json.loads(rows_file.read_text())
+    assert [(r["table"], r["case"]) for r in rows] == [("first frame", "1 M source triangles, a field"), ("first frame", "1 k source triangles, one mesh")]
+    for row in rows:
+        # The parent filled the mesh cache: the first frame loads the mesh from it and builds nothing.
+        assert row["meshes_cached"] == 1 and row["meshes_built"] == 0, row
+        assert row["first_frame_ms"] > row["upload_ms"] > 0 and row["load_seconds"] > 0
+        # Drawn without a frame before (no HZB to test against), its image is the warm frames' all the same.
+        assert row["error_reference"] == "first frame" and row["psnr_db"] == 99.0 and row["same_prim_percent"] == 100.0
+    assert "first frame ms" in done.stdout and "upload ms" in done.stdout
+
+
 def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):
     rows_file, cache = tmp_path / "rows.json", tmp_path / "cache"
     # --record writes into the cache it runs with: its own here, so that no other test's sessions find the record.

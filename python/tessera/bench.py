@@ -419,6 +419,18 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
                 rows.append(_row("anti-aliasing", name, result, wall, gpu, references[(samples, pixel_filter)], error_reference=f"--no-lod, {name}",
                                  pixel_samples=samples, pixel_filter=pixel_filter, ms_per_sample=round(wall / samples, 1),
                                  psnr_vs_finest_db=psnr(result["color"].pixels, finest["color"].pixels)))
+        elif case == "first-frame":  # a batch render's first frame: its meshes from the mesh cache, uploaded, then drawn
+            start = time.perf_counter()
+            first = session.render(camera="/World/Camera", **{**settings, "aovs": ("color", "primId")})
+            first_ms = (time.perf_counter() - start) * 1000
+            if first.errors:
+                raise RuntimeError("; ".join(first.errors))
+            result, wall, gpu = _frames(session, frames, **settings)
+            count = first.stats["source_triangles"]
+            label = (f"{count / 1e6:,.0f} M" if count >= 1e6 else f"{count / 1e3:,.0f} k") + " source triangles" + (", a field" if "field" in stage else ", one mesh")
+            rows.append(_row("first frame", label, result, wall, gpu, first, error_reference="first frame", first_frame_ms=round(first_ms, 1),
+                             upload_ms=round(first.stats["upload_ms"], 1), meshes_cached=first.stats["meshes_cached"],
+                             meshes_built=first.stats["meshes_built"]))
         else:
             reference, ref_wall, ref_gpu = _frames(session, frames, lod=False, **settings)
             for pixel_error in ((1.0,) if case == "brute" else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)):
@@ -436,6 +448,17 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
             row["peak_memory_mib"] = round(peak / 2**20)
         queue.put(rows)
     except Exception as error:  # reported by the parent, which goes on with the other cases
+        queue.put(error)
+
+
+def _fill_cache(queue, stage, device):
+    """Runs in a child process: renders the stage once, small, so that its meshes are in the mesh cache."""
+    try:
+        from tessera import Session
+
+        result = Session(stage, device=device).render(camera="/World/Camera", resolution=(64, 36))
+        queue.put(RuntimeError("; ".join(result.errors)) if result.errors else True)
+    except Exception as error:
         queue.put(error)
 
 
@@ -468,7 +491,7 @@ def _density_in_turns(queue, stages, resolution, turns, device):
         queue.put(error)
 
 
-RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("error_bound_px", "error bound px"), ("visible_instances", "instances"),
+RENDER_COLUMNS = [("table", "table"), ("case", "case"), ("source_triangles", "source tris"), ("error_bound_px", "error bound px"), ("visible_instances", "instances"),
                   ("visible_clusters", "clusters"), ("triangles_drawn", "tris drawn"), ("sw_triangles", "SW tris"), ("frame_ms", "frame ms"),
                   ("frame_in_turns_ms", "in turns ms"), ("frame_cpu_ms", "frame CPU ms"),
                   ("gpu_ms", "GPU ms"), ("cull_ms", "cull"), ("sw_raster_ms", "SW raster"),
@@ -478,7 +501,8 @@ RENDER_COLUMNS = [("case", "case"), ("source_triangles", "source tris"), ("error
                   ("same_prim_percent", "same prim %"), ("error_reference", "against"), ("ms_per_sample", "ms per sample"),
                   ("psnr_vs_finest_db", "PSNR vs 16 box samples"), ("speedup_vs_no_lod", "speedup"),
                   ("gpu_speedup_vs_no_lod", "GPU speedup"), ("micro_triangles", "micro tris"),
-                  ("tessellation_ms", "tess ms"), ("surface_gpu_mib", "surface GPU MiB")]
+                  ("tessellation_ms", "tess ms"), ("surface_gpu_mib", "surface GPU MiB"), ("load_seconds", "load s"),
+                  ("first_frame_ms", "first frame ms"), ("upload_ms", "upload ms"), ("meshes_cached", "meshes cached")]
 
 
 def _write_plot(rows, path):
@@ -516,6 +540,9 @@ def render(args) -> int:
     if "brute" in args.cases or "error" in args.cases:
         single = _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)  # the densest prototype alone, filling the frame
         cases += [(case, single) for case in ("brute", "error") if case in args.cases]
+    if "first-frame" in args.cases:  # each density field, then the densest prototype alone
+        cases += [("first-frame", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
+        cases.append(("first-frame", _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)))
     if "antialiasing" in args.cases:  # the lightest density field: its --no-lod frames are cheap
         cases.append(("antialiasing", _stage(args.stages_dir, sides[0], True)))
     if "seams" in args.cases:  # the same field, with a colour per face and with one colour
@@ -543,7 +570,9 @@ def render(args) -> int:
         in_turns = None
     print(" | ".join(title for _, title in RENDER_COLUMNS))
     for case, stage in cases:
-        outcome = _in_child(_render_case, case, stage, (width, height), args.frames, args.device, args.no_lod_limit)
+        filled = _in_child(_fill_cache, stage, args.device) if case == "first-frame" else True
+        outcome = filled if isinstance(filled, Exception) else _in_child(_render_case, case, stage, (width, height), args.frames, args.device,
+                                                                         args.no_lod_limit)
         if isinstance(outcome, Exception):
             print(f"tessera: error: {case} ({stage}): {outcome}", flush=True)
             failed += 1
