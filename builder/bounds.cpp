@@ -10,7 +10,7 @@ namespace tessera {
 // axis-extreme pairs as a first diameter, grown over every point), its cutoff the sine of the widest angle from it
 // (the cone of view directions that see every triangle's back); in 8 bits rounded outwards, by the axis's rounding too,
 // so that it still holds every normal. Only the cone: meshoptimizer's cluster bounds also fit a sphere around the
-// corners and find a cone apex, which cost 4x more here and which the renderer does not use (it widens the test by the
+// corners and find a cone apex, which cost 2.5x more here and which the renderer does not use (it widens the test by the
 // cluster's own sphere instead).
 NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster) {
     float normals[kClusterMaxTriangles][3];

@@ -516,7 +516,7 @@ TEST(Dag, FittedNormalsOpenNoShadingSeams) {
 
 // The cluster normal cone the renderer culls backfaces with (bounds.cpp): every triangle's normal lies inside it in its
 // 8-bit form (a view direction within the cutoff of the axis sees each triangle's back), and it is about as tight as
-// meshoptimizer's cluster bounds, which it replaced (their extra sphere and apex cost 4x more to compute).
+// meshoptimizer's cluster bounds, which it replaced (their extra sphere and apex cost 2.5x more to compute).
 TEST(Dag, NormalConesHoldEveryTriangleAndAreTight) {
     size_t cones = 0, tighter = 0, looser = 0;
     for (const Source& s : {icosphere(5), flat_shaded(icosphere(4), 0.05), grid(60), grid(60, true, true)}) {
