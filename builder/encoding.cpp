@@ -108,23 +108,6 @@ std::array<float, 3> decode_octahedral(uint32_t packed) {
     return {u / len, v / len, z / len};
 }
 
-void rotate_smallest_first(uint32_t* triangle) {
-    // The smallest of the three rotations: the index codec may rotate a triangle (keeping its winding), and
-    // the decoder turns it back this way.
-    const uint32_t a = triangle[0], b = triangle[1], c = triangle[2];
-    if (a != b && b != c && a != c) {  // the usual case: the smallest index first
-        if (b < a && b < c) triangle[0] = b, triangle[1] = c, triangle[2] = a;
-        else if (c < a && c < b) triangle[0] = c, triangle[1] = a, triangle[2] = b;
-        return;
-    }
-    uint32_t best[3] = {a, b, c};
-    for (int r = 1; r < 3; ++r) {
-        const uint32_t candidate[3] = {triangle[r], triangle[(r + 1) % 3], triangle[(r + 2) % 3]};
-        if (std::lexicographical_compare(candidate, candidate + 3, best, best + 3)) std::copy(candidate, candidate + 3, best);
-    }
-    std::copy(best, best + 3, triangle);
-}
-
 namespace {
 
 // A strip-like walk over a cluster's triangles: each next triangle shares an edge with the last one where it can
