@@ -6,6 +6,7 @@
 #include <cstring>
 #include <iostream>
 #include <map>
+#include <tuple>
 #include <utility>
 
 namespace tessera {
@@ -18,6 +19,7 @@ DeviceOptions DeviceOptions::from_environment() {
     DeviceOptions options;
     if (const char* select = std::getenv("TESSERA_DEVICE")) options.select = select;
     if (const char* validation = std::getenv("TESSERA_VALIDATION")) options.validation = std::strcmp(validation, "0") != 0 && *validation;
+    if (const char* staged = std::getenv("TESSERA_STAGED_UPLOADS")) options.stagedUploads = std::strcmp(staged, "0") != 0 && *staged;
     return options;
 }
 
@@ -129,7 +131,7 @@ std::vector<std::string> Device::take_validation_messages() {
     return std::exchange(messages_, {});
 }
 
-Device::Device(const DeviceOptions& options) {
+Device::Device(const DeviceOptions& options) : stagedUploads_(options.stagedUploads) {
     uint32_t loaderVersion = 0;
     if (vkEnumerateInstanceVersion(&loaderVersion) != VK_SUCCESS || loaderVersion < VK_API_VERSION_1_3)
         throw DeviceError("the Vulkan loader is older than 1.3 (install libvulkan1 from Debian 12 or newer)");
@@ -293,17 +295,19 @@ namespace {
 // Device::shared's devices, by options. Never destroyed by itself: a device must go before the Vulkan loader and driver,
 // which static destruction at exit does not promise; release_shared_devices lets go of them in time.
 std::mutex sharedDevicesMutex;
-auto& sharedDevices = *new std::map<std::pair<std::string, bool>, std::shared_ptr<Device>>;
+using SharedKey = std::tuple<std::string, bool, bool>;  // DeviceOptions: selection, validation, staged uploads
+auto& sharedDevices = *new std::map<SharedKey, std::shared_ptr<Device>>;
 }  // namespace
 
 std::shared_ptr<Device> Device::shared(const DeviceOptions& options) {
     const std::lock_guard<std::mutex> lock(sharedDevicesMutex);
-    std::shared_ptr<Device>& device = sharedDevices[{options.select, options.validation}];
+    const SharedKey key{options.select, options.validation, options.stagedUploads};
+    std::shared_ptr<Device>& device = sharedDevices[key];
     if (!device) {
         try {
             device = std::make_shared<Device>(options);
         } catch (...) {
-            sharedDevices.erase({options.select, options.validation});
+            sharedDevices.erase(key);
             throw;
         }
     }
@@ -311,7 +315,7 @@ std::shared_ptr<Device> Device::shared(const DeviceOptions& options) {
 }
 
 void Device::release_shared_devices() {
-    std::map<std::pair<std::string, bool>, std::shared_ptr<Device>> released;
+    std::map<SharedKey, std::shared_ptr<Device>> released;
     {
         const std::lock_guard<std::mutex> lock(sharedDevicesMutex);
         released.swap(sharedDevices);
@@ -380,7 +384,8 @@ Buffer Device::create_buffer(VkDeviceSize size, MemoryUse use, VkBufferUsageFlag
     if (vkAllocateMemory(device_, &allocate, nullptr, &buffer.memory_) != VK_SUCCESS)
         throw DeviceError("out of device memory allocating " + std::to_string(size >> 20) + " MiB on " + name_);
     check_vk(vkBindBufferMemory(device_, buffer.handle, buffer.memory_, 0), "vkBindBufferMemory");
-    if (memoryProperties_.memoryTypes[allocate.memoryTypeIndex].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
+    if ((memoryProperties_.memoryTypes[allocate.memoryTypeIndex].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT) &&
+        !(use == MemoryUse::Device && stagedUploads_))
         check_vk(vkMapMemory(device_, buffer.memory_, 0, VK_WHOLE_SIZE, 0, &buffer.mapped), "vkMapMemory");
     buffer.address = device_address(device_, buffer.handle);
     return buffer;

@@ -25,6 +25,10 @@ struct DeviceOptions {
     std::string select;
     // Enables the Khronos validation layer (core + synchronization). Defaults to $TESSERA_VALIDATION=1.
     bool validation = false;
+    // Leaves the memory of device buffers unmapped even where the host could map it (a CPU device, integrated or
+    // resizable-BAR GPUs), so that every upload goes through a staging buffer and every read back through a copy, as
+    // with a discrete GPU's memory: those paths are then tested on lavapipe too. Defaults to $TESSERA_STAGED_UPLOADS=1.
+    bool stagedUploads = false;
     static DeviceOptions from_environment();
 };
 
@@ -71,6 +75,7 @@ public:
     VkPhysicalDevice physical() const { return physical_; }
     const std::string& name() const { return name_; }
     bool is_software() const { return software_; }
+    bool staged_uploads() const { return stagedUploads_; }
     float timestamp_period_ns() const { return timestampPeriod_; }
     // Sub-pixel bits of the hardware rasterizer's vertex snapping; the compute rasterizer snaps the same way.
     uint32_t sub_pixel_bits() const { return subPixelBits_; }
@@ -118,6 +123,7 @@ private:
     VkPhysicalDeviceMemoryProperties memoryProperties_{};
     std::string name_;
     bool software_ = false;
+    bool stagedUploads_ = false;
     float timestampPeriod_ = 1.0f;
     uint32_t subPixelBits_ = 8;
     uint32_t maxTexelBufferElements_ = 65536;
