@@ -683,20 +683,23 @@ struct Renderer::Impl {
     }
 
     void upload_geometry(GpuScene& scene) {
-        // Each mesh's records: kept, or derived now; the meshes no longer in the scene are let go.
-        std::vector<std::shared_ptr<const MeshRecords>> records(scene.meshes_.size());
+        // Each mesh's records: kept, or derived now (the new meshes on every core, each also on every core: a stage of
+        // many small meshes as much as one large); the meshes no longer in the scene are let go.
         decltype(meshRecords) kept;
-        for (size_t m = 0; m < scene.meshes_.size(); ++m) {
-            const std::shared_ptr<const BuiltMesh>& mesh = scene.meshes_[m];
-            if (!mesh) continue;
-            auto it = kept.find(mesh.get());
-            if (it == kept.end()) {
-                auto old = meshRecords.find(mesh.get());
-                it = kept.emplace(mesh.get(), old != meshRecords.end() ? old->second : std::make_pair(mesh, derive_records(*mesh))).first;
-            }
-            records[m] = it->second.second;
+        std::vector<std::shared_ptr<const BuiltMesh>> fresh;
+        for (const std::shared_ptr<const BuiltMesh>& mesh : scene.meshes_) {
+            if (!mesh || kept.count(mesh.get())) continue;
+            auto old = meshRecords.find(mesh.get());
+            if (old != meshRecords.end()) kept.emplace(mesh.get(), old->second);
+            else kept.emplace(mesh.get(), std::make_pair(mesh, nullptr)), fresh.push_back(mesh);
         }
+        std::vector<std::shared_ptr<const MeshRecords>> derived(fresh.size());
+        parallel_for_rethrowing(fresh.size(), [&](size_t i) { derived[i] = derive_records(*fresh[i]); });
+        for (size_t i = 0; i < fresh.size(); ++i) kept[fresh[i].get()].second = std::move(derived[i]);
         meshRecords = std::move(kept);
+        std::vector<std::shared_ptr<const MeshRecords>> records(scene.meshes_.size());
+        for (size_t m = 0; m < scene.meshes_.size(); ++m)
+            if (scene.meshes_[m]) records[m] = meshRecords.at(scene.meshes_[m].get()).second;
 
         // The scene's offsets of each mesh's records and streams.
         struct Bases {
