@@ -701,7 +701,7 @@ struct Renderer::Impl {
         for (size_t m = 0; m < scene.meshes_.size(); ++m)
             if (scene.meshes_[m]) records[m] = meshRecords.at(scene.meshes_[m].get()).second;
 
-        // The scene's offsets of each mesh's records and streams.
+        // The scene's offsets of each mesh's records and streams (the shaders index them with 32 bits).
         struct Bases {
             uint32_t cluster = 0, level = 0, block = 0, blockCluster = 0, vertex = 0, triangle = 0, color = 0, uv = 0;
         };
@@ -709,14 +709,18 @@ struct Renderer::Impl {
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
             Bases next = bases[m];
             if (const BuiltMesh* mesh = scene.meshes_[m].get()) {
-                next.cluster += uint32_t(records[m]->clusters.size());
-                next.level += uint32_t(records[m]->levels.size());
-                next.block += uint32_t(records[m]->blocks.size());
-                next.blockCluster += uint32_t(records[m]->blockClusters.size());
-                next.vertex += uint32_t(mesh->normals.size());
-                next.triangle += uint32_t(mesh->triangles.size());
-                next.color += uint32_t(mesh->colors.size());
-                next.uv += uint32_t(mesh->uvs.size());
+                auto add = [](uint32_t& base, size_t count) {
+                    if (count > UINT32_MAX - base) throw std::runtime_error("the scene's distinct meshes hold more than 2^32 vertices, triangles or clusters");
+                    base += uint32_t(count);
+                };
+                add(next.cluster, records[m]->clusters.size());
+                add(next.level, records[m]->levels.size());
+                add(next.block, records[m]->blocks.size());
+                add(next.blockCluster, records[m]->blockClusters.size());
+                add(next.vertex, mesh->normals.size());
+                add(next.triangle, mesh->triangles.size());
+                add(next.color, mesh->colors.size());
+                add(next.uv, mesh->uvs.size());
             }
             bases[m + 1] = next;
         }
@@ -756,67 +760,66 @@ struct Renderer::Impl {
             g.lodRadius = records[m]->lodRadius;
         }
 
-        // Everything else straight into the buffers, each mesh's share on every core, its offsets added.
-        const size_t meshCount = scene.meshes_.size();
-        auto each_mesh = [&](void* destination, auto write) {
-            parallel_for(meshCount, [&](size_t m) {
-                if (scene.meshes_[m]) write(destination, m, *scene.meshes_[m], *records[m], bases[m]);
-            });
-        };
         upload_vector(device, meshes, gpuMeshes);
-        upload_written(device, levels, std::max(total.level, 1u) * sizeof(gpu::GpuLevel), [&](void* to) {
-            if (total.level == 0) *static_cast<gpu::GpuLevel*>(to) = {};
-            each_mesh(to, [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const Bases& b) {
-                gpu::GpuLevel* out = static_cast<gpu::GpuLevel*>(to) + b.level;
-                for (size_t l = 0; l < r.levels.size(); ++l) {
-                    out[l] = r.levels[l];
-                    out[l].blockOffset += b.block;
-                }
-            });
-        });
-        upload_written(device, cutBlocks, std::max(total.block, 1u) * sizeof(gpu::GpuCutBlock), [&](void* to) {
-            if (total.block == 0) *static_cast<gpu::GpuCutBlock*>(to) = {};
-            each_mesh(to, [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const Bases& b) {
-                gpu::GpuCutBlock* out = static_cast<gpu::GpuCutBlock*>(to) + b.block;
-                for (size_t k = 0; k < r.blocks.size(); ++k) {
-                    out[k] = r.blocks[k];
-                    out[k].firstCluster += b.blockCluster;
-                }
-            });
-        });
-        upload_written(device, blockClusters, std::max(total.blockCluster, 1u) * sizeof(uint32_t), [&](void* to) {
-            if (total.blockCluster == 0) *static_cast<uint32_t*>(to) = 0;
-            each_mesh(to, [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const Bases& b) {
-                std::copy(r.blockClusters.begin(), r.blockClusters.end(), static_cast<uint32_t*>(to) + b.blockCluster);
-            });
-        });
-        upload_written(device, clusters, total.cluster * sizeof(gpu::GpuCluster), [&](void* to) {
-            each_mesh(to, [](void* to, size_t m, const BuiltMesh&, const MeshRecords& r, const Bases& b) {
-                gpu::GpuCluster* out = static_cast<gpu::GpuCluster*>(to) + b.cluster;
-                for (size_t i = 0; i < r.clusters.size(); ++i) {
-                    out[i] = r.clusters[i];
-                    out[i].vertexOffset += b.vertex;
-                    out[i].triangleOffset += b.triangle;
-                    out[i].meshIndex = uint32_t(m);
-                }
-            });
-        });
-        upload_written(device, vertices, total.vertex * sizeof(gpu::GpuVertex), [&](void* to) {
-            each_mesh(to, [](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const Bases& b) {
-                gpu::GpuVertex* out = static_cast<gpu::GpuVertex*>(to) + b.vertex;
-                for (size_t v = 0; v < mesh.normals.size(); ++v) {
-                    std::memcpy(&out[v].bits, &mesh.positions[3 * v], 12);
-                    out[v].bits.w = mesh.normals[v];
-                }
-            });
-        });
-        auto upload_stream = [&](Buffer& buffer, uint32_t Bases::*base, auto stream) {
-            upload_written(device, buffer, (total.*base) * sizeof(uint32_t), [&](void* to) {
-                each_mesh(to, [&](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const Bases& b) {
-                    const auto& values = mesh.*stream;
-                    std::memcpy(static_cast<uint32_t*>(to) + b.*base, values.data(), values.size() * sizeof(values[0]));
+        // Everything else straight into the buffers, on every core in runs of at most 64 k elements of one mesh, the
+        // mesh's offsets added: `write(destination, mesh, records, bases, first, end)` writes the mesh's elements
+        // [first, end) of a stream whose scene offset is in Bases at `base`. An empty stream gets one zeroed element.
+        auto upload_runs = [&](Buffer& buffer, size_t elementBytes, uint32_t Bases::*base, auto count, auto write) {
+            constexpr size_t kRun = 65536;
+            std::vector<std::array<size_t, 3>> runs;  // mesh, first, end
+            for (size_t m = 0; m < scene.meshes_.size(); ++m)
+                if (const BuiltMesh* mesh = scene.meshes_[m].get())
+                    for (size_t first = 0, n = count(*mesh, *records[m]); first < n; first += kRun) runs.push_back({m, first, std::min(n, first + kRun)});
+            const size_t elements = total.*base;
+            upload_written(device, buffer, std::max<size_t>(elements, 1) * elementBytes, [&](void* to) {
+                if (elements == 0) std::memset(to, 0, elementBytes);
+                parallel_for(runs.size(), [&](size_t r) {
+                    const auto [m, first, end] = runs[r];
+                    write(static_cast<char*>(to) + size_t(bases[m].*base) * elementBytes, m, *scene.meshes_[m], *records[m], bases[m], first, end);
                 });
             });
+        };
+        upload_runs(levels, sizeof(gpu::GpuLevel), &Bases::level, [](const BuiltMesh&, const MeshRecords& r) { return r.levels.size(); },
+                    [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const Bases& b, size_t first, size_t end) {
+                        for (size_t l = first; l < end; ++l) {
+                            gpu::GpuLevel& out = static_cast<gpu::GpuLevel*>(to)[l] = r.levels[l];
+                            out.blockOffset += b.block;
+                        }
+                    });
+        upload_runs(cutBlocks, sizeof(gpu::GpuCutBlock), &Bases::block, [](const BuiltMesh&, const MeshRecords& r) { return r.blocks.size(); },
+                    [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const Bases& b, size_t first, size_t end) {
+                        for (size_t k = first; k < end; ++k) {
+                            gpu::GpuCutBlock& out = static_cast<gpu::GpuCutBlock*>(to)[k] = r.blocks[k];
+                            out.firstCluster += b.blockCluster;
+                        }
+                    });
+        upload_runs(blockClusters, sizeof(uint32_t), &Bases::blockCluster, [](const BuiltMesh&, const MeshRecords& r) { return r.blockClusters.size(); },
+                    [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const Bases&, size_t first, size_t end) {
+                        std::copy(r.blockClusters.begin() + first, r.blockClusters.begin() + end, static_cast<uint32_t*>(to) + first);
+                    });
+        upload_runs(clusters, sizeof(gpu::GpuCluster), &Bases::cluster, [](const BuiltMesh&, const MeshRecords& r) { return r.clusters.size(); },
+                    [](void* to, size_t m, const BuiltMesh&, const MeshRecords& r, const Bases& b, size_t first, size_t end) {
+                        for (size_t i = first; i < end; ++i) {
+                            gpu::GpuCluster& out = static_cast<gpu::GpuCluster*>(to)[i] = r.clusters[i];
+                            out.vertexOffset += b.vertex;
+                            out.triangleOffset += b.triangle;
+                            out.meshIndex = uint32_t(m);
+                        }
+                    });
+        upload_runs(vertices, sizeof(gpu::GpuVertex), &Bases::vertex, [](const BuiltMesh& mesh, const MeshRecords&) { return mesh.normals.size(); },
+                    [](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const Bases&, size_t first, size_t end) {
+                        for (size_t v = first; v < end; ++v) {
+                            gpu::GpuVertex& out = static_cast<gpu::GpuVertex*>(to)[v];
+                            std::memcpy(&out.bits, &mesh.positions[3 * v], 12);
+                            out.bits.w = mesh.normals[v];
+                        }
+                    });
+        auto upload_stream = [&](Buffer& buffer, uint32_t Bases::*base, auto stream) {
+            upload_runs(buffer, sizeof(uint32_t), base, [&](const BuiltMesh& mesh, const MeshRecords&) { return (mesh.*stream).size(); },
+                        [&](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const Bases&, size_t first, size_t end) {
+                            static_assert(sizeof((mesh.*stream)[0]) == sizeof(uint32_t));
+                            std::memcpy(static_cast<uint32_t*>(to) + first, (mesh.*stream).data() + first, (end - first) * sizeof(uint32_t));
+                        });
         };
         upload_stream(colors, &Bases::color, &BuiltMesh::colors);
         upload_stream(uvs, &Bases::uv, &BuiltMesh::uvs);
