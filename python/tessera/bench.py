@@ -429,7 +429,7 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
             count = first.stats["source_triangles"]
             label = (f"{count / 1e6:,.0f} M" if count >= 1e6 else f"{count / 1e3:,.0f} k") + " source triangles" + (", a field" if "field" in stage else ", one mesh")
             rows.append(_row("first frame", label, result, wall, gpu, first, error_reference="first frame", first_frame_ms=round(first_ms, 1),
-                             upload_ms=round(first.stats["upload_ms"], 1), meshes_cached=first.stats["meshes_cached"],
+                             upload_ms=round(first.stats["upload_ms"], 2), meshes_cached=first.stats["meshes_cached"],
                              meshes_built=first.stats["meshes_built"]))
         else:
             reference, ref_wall, ref_gpu = _frames(session, frames, lod=False, **settings)
