@@ -132,14 +132,21 @@ std::string MeshCache::path_of(const std::string& key) const { return directory_
 std::optional<MeshCache::Entry> MeshCache::load(const std::string& key, std::string* problem) const {
     if (!enabled()) return std::nullopt;
     const std::string path = path_of(key);
-    std::ifstream in(path, std::ios::binary | std::ios::ate);
-    if (!in) return std::nullopt;
-    // One read of the whole file (a byte at a time through a stream iterator took 0.3 s for a 71 MB page file).
-    const std::streamoff size = in.tellg();
-    std::vector<uint8_t> bytes(size > 0 ? size_t(size) : 0);
-    in.seekg(0);
-    if (size < 0 || !in.read(reinterpret_cast<char*>(bytes.data()), std::streamsize(bytes.size()))) {
-        if (problem) *problem = "cannot read " + path;
+    namespace fs = std::filesystem;
+    std::error_code error;
+    const fs::file_status status = fs::status(path, error);
+    if (!fs::exists(status)) return std::nullopt;  // not cached
+    // One read of the whole file, its size asked first (a byte at a time through a stream iterator took 0.3 s for a
+    // 71 MB page file). Not a file (a directory reports a size of 2^63 to a stream) is unreadable, as is a short read.
+    const uintmax_t size = fs::is_regular_file(status) ? fs::file_size(path, error) : 0;
+    std::ifstream in(path, std::ios::binary);
+    std::vector<uint8_t> bytes;
+    if (fs::is_regular_file(status) && !error && in) {
+        bytes.resize(size_t(size));
+        in.read(reinterpret_cast<char*>(bytes.data()), std::streamsize(bytes.size()));
+    }
+    if (!fs::is_regular_file(status) || error || !in) {
+        if (problem) *problem = "cannot read " + path + (fs::is_regular_file(status) ? "" : ": not a file");
         return std::nullopt;
     }
     try {

@@ -150,6 +150,15 @@ TEST(Cache, WarningsAreKeptAndCorruptEntriesRebuilt) {
     ASSERT_FALSE(rebuilt.warnings.empty());
     EXPECT_NE(rebuilt.warnings[0].find("cached build unreadable, rebuilding"), std::string::npos) << rebuilt.warnings[0];
     EXPECT_TRUE(build_through_cache(q.view(), {}, cache).fromCache) << "the rebuilt entry replaced the corrupt one";
+
+    // A directory where the entry should be (a stream reads its size as 2^63): unreadable, rebuilt, never a crash.
+    fs::remove(file);
+    fs::create_directory(file);
+    CachedBuild besideDirectory = build_through_cache(q.view(), {}, cache);
+    EXPECT_FALSE(besideDirectory.fromCache);
+    ASSERT_TRUE(besideDirectory.mesh && !besideDirectory.mesh->clusters.empty());
+    ASSERT_FALSE(besideDirectory.warnings.empty());
+    EXPECT_NE(besideDirectory.warnings[0].find("not a file"), std::string::npos) << besideDirectory.warnings[0];
     fs::remove_all(dir);
 }
 
