@@ -316,7 +316,7 @@ BuiltMesh decode_pages(std::span<const uint8_t> bytes, const std::string& name) 
         stream.reserve(size);
         for (const DecodedCluster& d : decoded) stream.insert(stream.end(), (d.*member).begin(), (d.*member).end());
     };
-    parallel_for(5, [&](size_t stream) {
+    parallel_for_rethrowing(5, [&](size_t stream) {  // rethrowing: running out of memory is an error, not an abort
         if (stream == 0) gather(mesh.positions, &DecodedCluster::positions, 3 * vertices);
         if (stream == 1) gather(mesh.normals, &DecodedCluster::normals, vertices);
         if (stream == 2) gather(mesh.triangles, &DecodedCluster::triangles, triangles);
