@@ -153,6 +153,11 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
         [&] { software_raster(false, ownCorners, true, false); },
         [&] { hardware_raster(false, false, false); },
         [&] { hardware_raster(false, true, false); }};
+    run_on_threads(tasks);
+}
+
+void Pipelines::run_on_threads(const std::vector<std::function<void()>>& tasks) {
+    if (tasks.empty()) return;
     std::atomic<size_t> next{0};
     std::exception_ptr failure;
     std::mutex failureMutex;
@@ -164,7 +169,7 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
                 if (!failure) failure = std::current_exception();
             }
     };
-    std::vector<std::thread> threads(std::min<size_t>(std::max(1u, std::thread::hardware_concurrency()), 8) - 1);
+    std::vector<std::thread> threads(std::min<size_t>({std::max(1u, std::thread::hardware_concurrency()), 8, tasks.size()}) - 1);
     for (std::thread& thread : threads) thread = std::thread(work);
     work();
     for (std::thread& thread : threads) thread.join();
@@ -259,21 +264,37 @@ VkPipeline Pipelines::patch_raster(bool masks, bool countFragments) {
     return variant;
 }
 
+std::pair<uint32_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
+    if (v.output != TS_OUTPUT_SHADE) {
+        v.textured = v.areaLights = v.vertexInputs = false;
+        v.lightCounts = 0;
+    }
+    if (v.output == TS_OUTPUT_ID) v.pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
+    if (!v.textured && v.pixels != TS_BIN_DICED_MICRO) v.textureKinds = 0;  // it reads no texture
+    return {v.textureKinds | uint32_t(v.textured) << 8 | v.pixels << 9 | uint32_t(v.areaLights) << 11 | uint32_t(v.vertexInputs) << 12 |
+                v.output << 13 | v.lightCounts << 16,
+            {.textures = v.textured, .pixels = v.pixels, .areaLights = v.areaLights, .vertexInputs = v.vertexInputs, .output = v.output,
+             .textureKinds = v.textureKinds, .lightCounts = v.lightCounts}};
+}
+
 VkPipeline Pipelines::resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output,
                                       uint32_t lightCounts) {
-    if (output != TS_OUTPUT_SHADE) {
-        textured = areaLights = vertexInputs = false;
-        lightCounts = 0;
-    }
-    if (output == TS_OUTPUT_ID) pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
-    if (!textured && pixels != TS_BIN_DICED_MICRO) textureKinds = 0;  // it reads no texture
-    VkPipeline& variant = resolveVariants[textureKinds | uint32_t(textured) << 8 | pixels << 9 | uint32_t(areaLights) << 11 |
-                                          uint32_t(vertexInputs) << 12 | output << 13 | lightCounts << 16];
-    if (!variant)
-        variant = compute_pipeline(resolve_comp, sizeof(resolve_comp),
-                                   {.textures = textured, .pixels = pixels, .areaLights = areaLights, .vertexInputs = vertexInputs,
-                                    .output = output, .textureKinds = textureKinds, .lightCounts = lightCounts});
+    const auto [key, specialization] = resolve_key({textured, textureKinds, pixels, areaLights, vertexInputs, output, lightCounts});
+    VkPipeline& variant = resolveVariants[key];
+    if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), specialization);
     return variant;
+}
+
+void Pipelines::make_resolve_variants(const std::vector<ResolveVariant>& variants) {
+    // The map's insertions first, then each task writes its own entry.
+    std::vector<std::function<void()>> tasks;
+    for (const ResolveVariant& v : variants) {
+        const auto [key, specialization] = resolve_key(v);
+        const auto [entry, inserted] = resolveVariants.try_emplace(key, VK_NULL_HANDLE);
+        if (!inserted) continue;  // made, or already a task
+        tasks.push_back([this, &slot = entry->second, specialization] { slot = compute_pipeline(resolve_comp, sizeof(resolve_comp), specialization); });
+    }
+    run_on_threads(tasks);  // an entry a failed task left empty is made on its first use (or fails again there)
 }
 
 VkPipeline Pipelines::cull_step(uint32_t step) {

@@ -107,6 +107,16 @@ struct Pipelines {
     // it dices micro-triangles again); `lightCounts` the frame's lights (TS_SPEC_LIGHT_COUNTS).
     VkPipeline resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output,
                                uint32_t lightCounts);
+    // Resolve's arguments for one bin, as resolve_variant takes them.
+    struct ResolveVariant {
+        bool textured = false;
+        uint32_t textureKinds = 0, pixels = TS_BIN_TRIANGLES;
+        bool areaLights = false, vertexInputs = false;
+        uint32_t output = TS_OUTPUT_SHADE, lightCounts = 0;
+    };
+    // Makes those of `variants` not made yet, on the host's threads, before a frame records: a frame of many materials
+    // made each in turn (on two cores 1.1 s of the textures test stage's 2.0 s first frame).
+    void make_resolve_variants(const std::vector<ResolveVariant>& variants);
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
 
@@ -130,6 +140,11 @@ private:
     std::map<uint32_t, VkPipeline> resolveVariants;
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
+    // Resolve's variant's key in resolveVariants and its specialization (the arguments that do not matter to it cleared).
+    static std::pair<uint32_t, Specialization> resolve_key(ResolveVariant variant);
+    // Runs the tasks on as many threads as the host has (a driver compiles a pipeline on the calling thread); each task
+    // writes a slot of its own. Rethrows the first task's exception.
+    static void run_on_threads(const std::vector<std::function<void()>>& tasks);
     // Hardware raster of clusters or of tessellation's patches.
     VkPipeline graphics_pipeline(bool patches, const Specialization& specialization);
 };

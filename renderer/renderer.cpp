@@ -1604,6 +1604,30 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.clusterDisplacement = s.clusterDisplacement.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
+        // Resolve's variant for a bin of an AOV: materials with textures through the variant that samples them; only the
+        // colour AOV shades.
+        auto resolve_variant_of = [&](Aov aov, uint32_t pixels, uint32_t m) {
+            Pipelines::ResolveVariant v;
+            v.textured = aov == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
+            v.textureKinds = m < s.materialTextureKinds.size() ? s.materialTextureKinds[m] : 0u;
+            v.pixels = pixels;
+            v.areaLights = areaLights;
+            v.vertexInputs = s.materialRecords[m].vertexInputs != 0;
+            v.output = aov == Aov::Color ? (settings.visualize == Visualize::None ? TS_OUTPUT_SHADE : TS_OUTPUT_VISUALIZE)
+                     : aov == Aov::Depth  ? TS_OUTPUT_DEPTH
+                     : aov == Aov::Normal ? TS_OUTPUT_NORMAL
+                                          : TS_OUTPUT_ID;
+            v.lightCounts = lightCounts;
+            return v;
+        };
+        // The variants the frame's bins need, made before it records, together on the host's threads.
+        std::vector<Pipelines::ResolveVariant> variants;
+        for (const Aov aov : aovs)
+            for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
+                for (uint32_t m = 0; m < s.materialCount; ++m)
+                    if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) variants.push_back(resolve_variant_of(aov, pixels, m));
+        pipelines.make_resolve_variants(variants);
+
         const auto submitted = std::chrono::steady_clock::now();
         uint32_t timedCopies = 0;  // AOV copies with timestamps around them (Impl::kTimedCopies at most)
         std::chrono::steady_clock::time_point recorded;
@@ -1831,19 +1855,13 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                     barrier(cmd, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 }
-                const uint32_t output = aovs[i] == Aov::Color ? (settings.visualize == Visualize::None ? TS_OUTPUT_SHADE : TS_OUTPUT_VISUALIZE)
-                                      : aovs[i] == Aov::Depth  ? TS_OUTPUT_DEPTH
-                                      : aovs[i] == Aov::Normal ? TS_OUTPUT_NORMAL
-                                                               : TS_OUTPUT_ID;
                 VkPipeline bound = VK_NULL_HANDLE;
                 for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                     for (uint32_t m = 0; m < s.materialCount; ++m) {
                         if (pixels != TS_BIN_TRIANGLES && !s.material_displaced(m)) continue;  // micro-triangles: displaced only
-                        // Materials with textures through the variant that samples them; only the colour AOV shades.
-                        const bool textured = aovs[i] == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
-                        const uint32_t textureKinds = m < s.materialTextureKinds.size() ? s.materialTextureKinds[m] : 0u;
+                        const Pipelines::ResolveVariant v = resolve_variant_of(aovs[i], pixels, m);
                         const VkPipeline pipeline =
-                            pipelines.resolve_variant(textured, textureKinds, pixels, areaLights, s.materialRecords[m].vertexInputs != 0, output, lightCounts);
+                            pipelines.resolve_variant(v.textured, v.textureKinds, v.pixels, v.areaLights, v.vertexInputs, v.output, v.lightCounts);
                         if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                         const uint32_t bin = pixels * s.materialCount + m;
                         ResolvePushConstants shade{{uint32_t(aovs[i]), bin, 0}, s.materialRecords[m]};
