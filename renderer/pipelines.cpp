@@ -285,9 +285,9 @@ VkPipeline Pipelines::resolve_variant(bool textured, uint32_t textureKinds, uint
     return variant;
 }
 
-void Pipelines::make_resolve_variants(const std::vector<ResolveVariant>& variants) {
-    // The map's insertions first, then each task writes its own entry.
-    std::vector<std::function<void()>> tasks;
+void Pipelines::make_for_frame(const std::vector<ResolveVariant>& variants, const std::vector<std::function<void()>>& getters) {
+    // The map's insertions first, then each task writes its own entry (a getter, its own slot).
+    std::vector<std::function<void()>> tasks = getters;
     for (const ResolveVariant& v : variants) {
         const auto [key, specialization] = resolve_key(v);
         const auto [entry, inserted] = resolveVariants.try_emplace(key, VK_NULL_HANDLE);

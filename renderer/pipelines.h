@@ -10,9 +10,11 @@
 
 #include <array>
 #include <cstddef>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <vector>
 
 namespace tessera {
 
@@ -114,9 +116,11 @@ struct Pipelines {
         bool areaLights = false, vertexInputs = false;
         uint32_t output = TS_OUTPUT_SHADE, lightCounts = 0;
     };
-    // Makes those of `variants` not made yet, on the host's threads, before a frame records: a frame of many materials
-    // made each in turn (on two cores 1.1 s of the textures test stage's 2.0 s first frame).
-    void make_resolve_variants(const std::vector<ResolveVariant>& variants);
+    // Makes what a frame needs and is not made yet, together on the host's threads, before the frame records: the
+    // resolve variants of its bins, and what `getters` ask for (calls of the getters above, of distinct pipelines). A
+    // first frame of many materials, or with masks, made each in turn (on two cores 1.1 s of the textures test stage's
+    // 2.0 s first frame).
+    void make_for_frame(const std::vector<ResolveVariant>& variants, const std::vector<std::function<void()>>& getters);
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
 

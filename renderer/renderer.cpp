@@ -1431,8 +1431,6 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     const bool ownCorners = settings.rasterVertices == RasterVertices::Auto ? pipelines.default_own_corners()
                                                                               : settings.rasterVertices == RasterVertices::PerTriangle;
     const bool countFragments = settings.visualize == Visualize::Overdraw;  // the rasterizers' variants that count
-    const VkPipeline softwareRaster = pipelines.software_raster(s.anyMasked, ownCorners, false, countFragments);
-    const VkPipeline softwareRasterLarge = pipelines.software_raster(s.anyMasked, ownCorners, true, countFragments);
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height, settings.pixelOffset);
     s.upload_relative_translations(cam.position);
     FrameStats frameStats;
@@ -1620,13 +1618,24 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             v.lightCounts = lightCounts;
             return v;
         };
-        // The variants the frame's bins need, made before it records, together on the host's threads.
+        // What the frame draws with, made before it records, together on the host's threads: the resolve variants of its
+        // bins, the rasterizers' variants for its masks and views, and tessellation's passes where it displaces.
         std::vector<Pipelines::ResolveVariant> variants;
         for (const Aov aov : aovs)
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
                     if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) variants.push_back(resolve_variant_of(aov, pixels, m));
-        pipelines.make_resolve_variants(variants);
+        const bool masks = s.anyMasked;
+        std::vector<std::function<void()>> getters = {[&] { pipelines.software_raster(masks, ownCorners, false, countFragments); },
+                                                      [&] { pipelines.software_raster(masks, ownCorners, true, countFragments); },
+                                                      [&] { pipelines.hardware_raster(masks, false, countFragments); },
+                                                      [&] { pipelines.hardware_raster(masks, true, countFragments); }};
+        if (s.anyDisplaced)
+            getters.insert(getters.end(), {[&] { pipelines.tessellate(); }, [&] { pipelines.dice(masks, countFragments); },
+                                           [&] { pipelines.patch_raster(masks, countFragments); }});
+        pipelines.make_for_frame(variants, getters);
+        const VkPipeline softwareRaster = pipelines.software_raster(masks, ownCorners, false, countFragments);
+        const VkPipeline softwareRasterLarge = pipelines.software_raster(masks, ownCorners, true, countFragments);
 
         const auto submitted = std::chrono::steady_clock::now();
         uint32_t timedCopies = 0;  // AOV copies with timestamps around them (Impl::kTimedCopies at most)
