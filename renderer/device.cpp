@@ -427,13 +427,17 @@ Buffer Device::import_host_memory(void* pointer, VkDeviceSize bytes) {
 }
 
 void Device::upload(Buffer& buffer, const void* data, size_t bytes) {
+    upload(buffer, bytes, [&](void* destination) { std::memcpy(destination, data, bytes); });
+}
+
+void Device::upload(Buffer& buffer, size_t bytes, const std::function<void(void*)>& write) {
     if (bytes == 0) return;
     if (buffer.mapped) {
-        std::memcpy(buffer.mapped, data, bytes);
+        write(buffer.mapped);
         return;
     }
     Buffer staging = create_buffer(bytes, MemoryUse::Upload);
-    std::memcpy(staging.mapped, data, bytes);
+    write(staging.mapped);
     run([&](VkCommandBuffer cmd) {
         VkBufferCopy region{0, 0, bytes};
         vkCmdCopyBuffer(cmd, staging.handle, buffer.handle, 1, &region);

@@ -277,18 +277,30 @@ std::pair<uint32_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
              .textureKinds = v.textureKinds, .lightCounts = v.lightCounts}};
 }
 
-VkPipeline Pipelines::resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output,
-                                      uint32_t lightCounts) {
-    const auto [key, specialization] = resolve_key({textured, textureKinds, pixels, areaLights, vertexInputs, output, lightCounts});
+VkPipeline Pipelines::resolve_variant(const ResolveVariant& v) {
+    const auto [key, specialization] = resolve_key(v);
     VkPipeline& variant = resolveVariants[key];
     if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), specialization);
     return variant;
 }
 
-void Pipelines::make_for_frame(const std::vector<ResolveVariant>& variants, const std::vector<std::function<void()>>& getters) {
-    // The map's insertions first, then each task writes its own entry (a getter, its own slot).
-    std::vector<std::function<void()>> tasks = getters;
-    for (const ResolveVariant& v : variants) {
+void Pipelines::make_for_frame(const FrameNeeds& needs) {
+    // A task per pipeline not made yet, each writing its own slot: the resolve variants' map entries inserted first.
+    std::vector<std::function<void()>> tasks;
+    auto need = [&](VkPipeline made, std::function<void()> make) {
+        if (!made) tasks.push_back(std::move(make));
+    };
+    const bool masks = needs.masks, corners = needs.ownCorners, counts = needs.countFragments;
+    for (const bool large : {false, true})
+        need(rasterSoftware[masks][counts][corners][large], [=, this] { software_raster(masks, corners, large, counts); });
+    for (const bool doubleSided : {false, true})
+        need(rasterHardware[masks][counts][doubleSided], [=, this] { hardware_raster(masks, doubleSided, counts); });
+    if (needs.displaced) {
+        need(tessellatePatches, [this] { tessellate(); });
+        need(diceVariants[masks][counts], [=, this] { dice(masks, counts); });
+        need(patchRasterVariants[masks][counts], [=, this] { patch_raster(masks, counts); });
+    }
+    for (const ResolveVariant& v : needs.resolves) {
         const auto [key, specialization] = resolve_key(v);
         const auto [entry, inserted] = resolveVariants.try_emplace(key, VK_NULL_HANDLE);
         if (!inserted) continue;  // made, or already a task

@@ -104,23 +104,27 @@ struct Pipelines {
     VkPipeline tessellate();
     VkPipeline dice(bool masks, bool countFragments);
     VkPipeline patch_raster(bool masks, bool countFragments);
-    // Resolve's variant for a bin, made on first use. Textures, area lights and vertex inputs only matter to shading;
-    // `textureKinds` (TS_TEXTURE_KIND_* bits) is what the textures it reads need (a displacement texture too, read where
-    // it dices micro-triangles again); `lightCounts` the frame's lights (TS_SPEC_LIGHT_COUNTS).
-    VkPipeline resolve_variant(bool textured, uint32_t textureKinds, uint32_t pixels, bool areaLights, bool vertexInputs, uint32_t output,
-                               uint32_t lightCounts);
-    // Resolve's arguments for one bin, as resolve_variant takes them.
+    // Resolve's arguments for one bin. Textures, area lights and vertex inputs only matter to shading; `textureKinds`
+    // (TS_TEXTURE_KIND_* bits) is what the textures it reads need (a displacement texture too, read where it dices
+    // micro-triangles again); `lightCounts` the frame's lights (TS_SPEC_LIGHT_COUNTS).
     struct ResolveVariant {
         bool textured = false;
         uint32_t textureKinds = 0, pixels = TS_BIN_TRIANGLES;
         bool areaLights = false, vertexInputs = false;
         uint32_t output = TS_OUTPUT_SHADE, lightCounts = 0;
     };
-    // Makes what a frame needs and is not made yet, together on the host's threads, before the frame records: the
-    // resolve variants of its bins, and what `getters` ask for (calls of the getters above, of distinct pipelines). A
-    // first frame of many materials, or with masks, made each in turn (on two cores 1.1 s of the textures test stage's
-    // 2.0 s first frame).
-    void make_for_frame(const std::vector<ResolveVariant>& variants, const std::vector<std::function<void()>>& getters);
+    // Resolve's variant for a bin, made on first use.
+    VkPipeline resolve_variant(const ResolveVariant& variant);
+    // What a frame draws with: the rasterizers' variants for its masks and views, tessellation's passes where it
+    // displaces, and the resolve variants of its bins.
+    struct FrameNeeds {
+        bool masks = false, ownCorners = false, countFragments = false, displaced = false;
+        std::vector<ResolveVariant> resolves;
+    };
+    // Makes those of `needs` not made yet, together on the host's threads, before the frame records: a first frame of
+    // many materials, or with masks, made each in turn (on two cores 1.1 s of the textures test stage's 2.0 s first
+    // frame). Nothing to make, no thread.
+    void make_for_frame(const FrameNeeds& needs);
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
 

@@ -327,28 +327,15 @@ void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2
     vkCmdPipelineBarrier2(cmd, &dependency);
 }
 
-template <typename T>
-void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
-    const size_t bytes = data.size() * sizeof(T);
-    if (buffer.size < bytes || !buffer.handle) buffer = device.create_buffer(bytes, MemoryUse::Device);
-    device.upload(buffer, data.data(), bytes);
-}
-
-// Fills `buffer` (made again where smaller than `bytes`) through `write(destination)`: straight into its memory where
-// the host maps it (a CPU device), else into a staging buffer copied over. No host copy of the data besides.
+// Fills `buffer` (made again where smaller than `bytes`) through `write(destination)` (Device::upload).
 void upload_written(Device& device, Buffer& buffer, size_t bytes, const std::function<void(void*)>& write) {
     if (buffer.size < bytes || !buffer.handle) buffer = device.create_buffer(bytes, MemoryUse::Device);
-    if (bytes == 0) return;
-    if (buffer.mapped) {
-        write(buffer.mapped);
-        return;
-    }
-    Buffer staging = device.create_buffer(bytes, MemoryUse::Upload);
-    write(staging.mapped);
-    device.run([&](VkCommandBuffer cmd) {
-        const VkBufferCopy region{0, 0, bytes};
-        vkCmdCopyBuffer(cmd, staging.handle, buffer.handle, 1, &region);
-    });
+    device.upload(buffer, bytes, write);
+}
+
+template <typename T>
+void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
+    upload_written(device, buffer, data.size() * sizeof(T), [&](void* to) { std::memcpy(to, data.data(), data.size() * sizeof(T)); });
 }
 
 }  // namespace
@@ -1284,10 +1271,6 @@ void visit_frame_costs(FrameStats& a, const FrameStats& b, Visit visit) {
     visit(a.overflowRedraws, b.overflowRedraws);
 }
 
-}  // namespace
-
-namespace {
-
 // The Gaussian pixel filter along one axis: sigma 0.4 px, less its value at 1 px so that it falls to 0 there, over
 // [-1, 1] px. Its inverse cumulative distribution: where a sample at quantile u in [0, 1] lies, from a table of 257
 // quantiles made once by integrating the filter (u = 0.5 is the centre: the filter is symmetric).
@@ -1618,24 +1601,15 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             v.lightCounts = lightCounts;
             return v;
         };
-        // What the frame draws with, made before it records, together on the host's threads: the resolve variants of its
-        // bins, the rasterizers' variants for its masks and views, and tessellation's passes where it displaces.
-        std::vector<Pipelines::ResolveVariant> variants;
+        // What the frame draws with, made before it records, together on the host's threads (Pipelines::make_for_frame).
+        Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, {}};
         for (const Aov aov : aovs)
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
-                    if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) variants.push_back(resolve_variant_of(aov, pixels, m));
-        const bool masks = s.anyMasked;
-        std::vector<std::function<void()>> getters = {[&] { pipelines.software_raster(masks, ownCorners, false, countFragments); },
-                                                      [&] { pipelines.software_raster(masks, ownCorners, true, countFragments); },
-                                                      [&] { pipelines.hardware_raster(masks, false, countFragments); },
-                                                      [&] { pipelines.hardware_raster(masks, true, countFragments); }};
-        if (s.anyDisplaced)
-            getters.insert(getters.end(), {[&] { pipelines.tessellate(); }, [&] { pipelines.dice(masks, countFragments); },
-                                           [&] { pipelines.patch_raster(masks, countFragments); }});
-        pipelines.make_for_frame(variants, getters);
-        const VkPipeline softwareRaster = pipelines.software_raster(masks, ownCorners, false, countFragments);
-        const VkPipeline softwareRasterLarge = pipelines.software_raster(masks, ownCorners, true, countFragments);
+                    if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) needs.resolves.push_back(resolve_variant_of(aov, pixels, m));
+        pipelines.make_for_frame(needs);
+        const VkPipeline softwareRaster = pipelines.software_raster(s.anyMasked, ownCorners, false, countFragments);
+        const VkPipeline softwareRasterLarge = pipelines.software_raster(s.anyMasked, ownCorners, true, countFragments);
 
         const auto submitted = std::chrono::steady_clock::now();
         uint32_t timedCopies = 0;  // AOV copies with timestamps around them (Impl::kTimedCopies at most)
@@ -1868,9 +1842,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                 for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                     for (uint32_t m = 0; m < s.materialCount; ++m) {
                         if (pixels != TS_BIN_TRIANGLES && !s.material_displaced(m)) continue;  // micro-triangles: displaced only
-                        const Pipelines::ResolveVariant v = resolve_variant_of(aovs[i], pixels, m);
-                        const VkPipeline pipeline =
-                            pipelines.resolve_variant(v.textured, v.textureKinds, v.pixels, v.areaLights, v.vertexInputs, v.output, v.lightCounts);
+                        const VkPipeline pipeline = pipelines.resolve_variant(resolve_variant_of(aovs[i], pixels, m));
                         if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                         const uint32_t bin = pixels * s.materialCount + m;
                         ResolvePushConstants shade{{uint32_t(aovs[i]), bin, 0}, s.materialRecords[m]};

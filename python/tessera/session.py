@@ -16,14 +16,14 @@ VISUALIZATIONS = ("triangles", "clusters", "groups", "lod", "instances", "primit
 RASTER_MODES = ("auto", "hardware", "software")
 PIXEL_FILTERS = ("box", "gaussian")  # how pixel samples combine (Session.render)
 MOST_PIXEL_SAMPLES = _tessera.MOST_PIXEL_SAMPLES
+RASTER_VERTICES = ("auto", "shared", "per-triangle")
+# UsdGeom purposes a render may draw besides `default` (which is always drawn).
+PURPOSES = ("render", "proxy", "guide")
 
 
 def valid_pixel_samples(value) -> bool:
     """A pixel sample count Session.render takes: a whole number from 1 to MOST_PIXEL_SAMPLES (not a bool)."""
     return isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= MOST_PIXEL_SAMPLES
-RASTER_VERTICES = ("auto", "shared", "per-triangle")
-# UsdGeom purposes a render may draw besides `default` (which is always drawn).
-PURPOSES = ("render", "proxy", "guide")
 
 
 class StageError(RuntimeError):

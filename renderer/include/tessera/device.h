@@ -95,6 +95,9 @@ public:
     Buffer import_host_memory(void* pointer, VkDeviceSize bytes);
     // Copies `bytes` into a Device buffer (directly when mapped, else through a staging buffer).
     void upload(Buffer& buffer, const void* data, size_t bytes);
+    // The same, with the bytes written by `write(destination)` straight where they go: the buffer's memory where the
+    // host maps it, else a staging buffer (no copy of the data on the host besides).
+    void upload(Buffer& buffer, size_t bytes, const std::function<void(void*)>& write);
 
     // Records commands into a one-time command buffer, submits it and waits. Callers on several threads take turns.
     void run(const std::function<void(VkCommandBuffer)>& record);
