@@ -1,5 +1,6 @@
 // Built meshes shared by content, built on worker threads while the stage is read (delegate.h MeshTable).
 #include "tessera/delegate.h"
+#include "tessera/parallel.h"
 
 #include <algorithm>
 #include <atomic>
@@ -79,7 +80,7 @@ void MeshTable::publish() {
         std::lock_guard lock(mutex_);
         if (workers_.empty()) {
             // One per core: the syncing thread mostly reads the stage, or waits for these.
-            for (unsigned i = 0, cores = std::max(1u, std::thread::hardware_concurrency()); i < cores; ++i)
+            for (size_t i = 0, cores = core_count(); i < cores; ++i)
                 workers_.emplace_back(&MeshTable::work, this);
         }
         for (auto& build : unpublished_) queue_.push_back(std::move(build));

@@ -4,6 +4,7 @@
 #include "tessera/cache.h"
 #include "tessera/delegate.h"
 #include "tessera/image_io.h"
+#include "tessera/parallel.h"
 
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
@@ -162,6 +163,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["texel_views"] = s.texelViews;
     d["output_binding"] = s.outputBinding;
     d["aovs_imported"] = s.aovsImported;
+    d["aov_imports_made"] = s.aovImportsMade;
     d["overflow_redraws"] = s.overflowRedraws;
     d["visible_cluster_capacity"] = s.visibleClusterCapacity;
     d["occlusion_tested"] = s.occlusionTested;
@@ -613,6 +615,10 @@ NB_MODULE(_tessera, m) {
         "index"_a, "filter"_a = "box",
         "Where anti-aliasing sample `index` lies, (x right, y down) in pixels from the pixel's centre: evenly spread over "
         "[-0.5, 0.5) for the box filter, over (-1, 1) and denser towards the centre for the gaussian; sample 0 is the centre.");
+
+    m.def("core_count", &core_count,
+          "The cores this process may run on (its CPU affinity: a taskset or a cpuset limits it): the builder, the mesh "
+          "table and the renderer's uploads start a thread per core.");
 
     m.def("release_shared_devices", &Device::release_shared_devices,
           "Lets go of the devices sessions share (each goes when its last session does); called at exit.");

@@ -28,6 +28,7 @@ struct Block {
 struct Spare {
     std::mutex mutex;
     std::vector<Block> blocks;
+    std::vector<std::pair<void*, int>> pins;  // blocks a device has imported, with how many imports each
 };
 Spare& spare_blocks() {
     static Spare* spare = new Spare;
@@ -35,6 +36,30 @@ Spare& spare_blocks() {
 }
 
 size_t huge_pages_for(size_t bytes) { return (bytes + kHugePage - 1) / kHugePage * kHugePage; }
+
+bool pinned(const Spare& spare, const void* memory) {
+    for (const auto& [block, count] : spare.pins)
+        if (block == memory) return true;
+    return false;
+}
+
+// Returns the oldest spare blocks to the system while more are kept than the limits allow; a pinned block stays (a
+// device still maps it) and counts towards the limits, so the others go first.
+void trim(Spare& spare) {
+    size_t held = 0;
+    for (const Block& b : spare.blocks) held += b.bytes;
+    size_t count = spare.blocks.size();
+    for (auto it = spare.blocks.begin(); it != spare.blocks.end() && (count > kSpareBlocks || held > kSpareBytes);) {
+        if (pinned(spare, it->memory)) {
+            ++it;
+            continue;
+        }
+        held -= it->bytes;
+        --count;
+        std::free(it->memory);
+        it = spare.blocks.erase(it);
+    }
+}
 
 }  // namespace
 
@@ -47,12 +72,16 @@ void* allocate_pixel_bytes(size_t bytes) {
     {
         Spare& spare = spare_blocks();
         const std::lock_guard lock(spare.mutex);
+        // The newest spare block of this size, a pinned one first: a device has it imported already.
+        auto chosen = spare.blocks.rend();
         for (auto it = spare.blocks.rbegin(); it != spare.blocks.rend(); ++it)
-            if (it->bytes == rounded) {
-                void* memory = it->memory;
-                spare.blocks.erase(std::next(it).base());
-                return memory;
-            }
+            if (it->bytes == rounded && (chosen == spare.blocks.rend() || (pinned(spare, it->memory) && !pinned(spare, chosen->memory))))
+                chosen = it;
+        if (chosen != spare.blocks.rend()) {
+            void* memory = chosen->memory;
+            spare.blocks.erase(std::next(chosen).base());
+            return memory;
+        }
     }
     void* memory = std::aligned_alloc(kHugePage, rounded);
     if (!memory) throw std::bad_alloc();
@@ -71,13 +100,29 @@ void free_pixel_bytes(void* memory, size_t bytes) {
     Spare& spare = spare_blocks();
     const std::lock_guard lock(spare.mutex);
     spare.blocks.push_back({memory, huge_pages_for(bytes)});
-    size_t held = 0;
-    for (const Block& b : spare.blocks) held += b.bytes;
-    while (!spare.blocks.empty() && (spare.blocks.size() > kSpareBlocks || held > kSpareBytes)) {
-        held -= spare.blocks.front().bytes;
-        std::free(spare.blocks.front().memory);
-        spare.blocks.erase(spare.blocks.begin());
-    }
+    trim(spare);
+}
+
+void pin_pixel_block(void* memory) {
+    Spare& spare = spare_blocks();
+    const std::lock_guard lock(spare.mutex);
+    for (auto& [block, count] : spare.pins)
+        if (block == memory) {
+            ++count;
+            return;
+        }
+    spare.pins.emplace_back(memory, 1);
+}
+
+void unpin_pixel_block(void* memory) {
+    Spare& spare = spare_blocks();
+    const std::lock_guard lock(spare.mutex);
+    for (auto it = spare.pins.begin(); it != spare.pins.end(); ++it)
+        if (it->first == memory) {
+            if (--it->second == 0) spare.pins.erase(it);
+            break;
+        }
+    trim(spare);  // a spare block held back by its import may go now
 }
 
 }  // namespace tessera

@@ -1,6 +1,8 @@
 // The renderer's pipelines on one device (pipelines.h): made once per device and choice of sizes, shared by renderers.
 #include "pipelines.h"
 
+#include "tessera/parallel.h"
+
 #include "spirv/background_comp.h"
 #include "spirv/bins_comp.h"
 #include "spirv/classify_comp.h"
@@ -169,7 +171,7 @@ void Pipelines::run_on_threads(const std::vector<std::function<void()>>& tasks) 
                 if (!failure) failure = std::current_exception();
             }
     };
-    std::vector<std::thread> threads(std::min<size_t>({std::max(1u, std::thread::hardware_concurrency()), 8, tasks.size()}) - 1);
+    std::vector<std::thread> threads(std::min<size_t>({core_count(), 8, tasks.size()}) - 1);
     for (std::thread& thread : threads) thread = std::thread(work);
     work();
     for (std::thread& thread : threads) thread.join();

@@ -307,7 +307,7 @@ std::array<uint32_t, 4> background_words(Aov aov, const std::array<float, 4>& co
 // the view spreads over the multiprocessors. A CPU device: a part per core, of 16384 clusters, so that the instances of
 // a field (a few hundred to a few thousand clusters each) stay whole: lavapipe pays about 30 us per workgroup.
 uint32_t cut_parts_word(const Device& device, const RenderSettings& settings) {
-    const uint32_t cores = std::clamp(std::thread::hardware_concurrency(), 1u, 64u);
+    const uint32_t cores = uint32_t(std::clamp<size_t>(core_count(), 1, 64));
     const uint32_t parts = std::clamp(settings.cutParts ? settings.cutParts : device.is_software() ? cores : TS_CUT_MOST_PARTS, 1u, TS_CUT_MOST_PARTS);
     const uint32_t clusters = std::clamp(settings.cutPartClusters ? settings.cutPartClusters : device.is_software() ? 16384u : 1024u, 1u, 0xffffu);
     return parts | clusters << 16;
@@ -448,6 +448,45 @@ struct Renderer::Impl {
     // Frames write AOVs straight into their images where the device can (imports_aovs), unless $TESSERA_IMPORT_AOVS=0 or
     // the driver refused an import.
     bool importAovs = import_aovs_chosen();
+    // A GPU's AOV images are imported once and kept while frames reuse their memory (image_memory.cpp hands a freed
+    // image's block to the next image of its size): importing pins the block's pages in the driver and letting go
+    // unpins them, which beside an H100 cost more CPU than the frame's GPU time. An import not used by this frame or the
+    // three before goes: a caller holding its last result cycles through two blocks per AOV, and two sessions drawing
+    // in turns through three, each session's frames taking the block the other just let go. While kept, a block is
+    // pinned (pin_pixel_block) so that it is never returned to the system.
+    struct KeptImport {
+        void* pixels;
+        VkDeviceSize bytes;
+        Buffer buffer;
+        uint64_t lastFrame;
+        KeptImport(void* p, VkDeviceSize b, Buffer imported, uint64_t frame) : pixels(p), bytes(b), buffer(std::move(imported)), lastFrame(frame) {
+            pin_pixel_block(pixels);
+        }
+        KeptImport(const KeptImport&) = delete;
+        KeptImport& operator=(const KeptImport&) = delete;
+        ~KeptImport() {
+            buffer = Buffer{};  // the device lets go of the memory before the block may be freed
+            unpin_pixel_block(pixels);
+        }
+    };
+    std::vector<std::unique_ptr<KeptImport>> keptImports;
+    static constexpr uint64_t kKeptImportFrames = 4;
+    uint64_t framesRendered = 0;
+    const bool keepImports = [] { const char* v = std::getenv("TESSERA_KEEP_IMPORTS"); return !v || std::string(v) != "0"; }();
+
+    VkBuffer kept_import(void* pixels, VkDeviceSize bytes, uint32_t& made) {
+        for (auto& kept : keptImports)
+            if (kept->pixels == pixels && kept->bytes == bytes) {
+                kept->lastFrame = framesRendered;
+                return kept->buffer.handle;
+            }
+        keptImports.push_back(std::make_unique<KeptImport>(pixels, bytes, device.import_host_memory(pixels, bytes), framesRendered));
+        ++made;
+        return keptImports.back()->buffer.handle;
+    }
+    void forget_old_imports() {
+        std::erase_if(keptImports, [&](const auto& kept) { return !keepImports || kept->lastFrame + kKeptImportFrames < framesRendered; });
+    }
 
     Impl(Device& d, std::shared_ptr<Pipelines> shared) : device(d), sharedPipelines(std::move(shared)), pipelines(*sharedPipelines) {}
 
@@ -974,7 +1013,7 @@ struct Renderer::Impl {
             for (uint64_t c = next++; c < chunks; c = next++) write_range(c * chunk, std::min<uint64_t>(instanceCount, (c + 1) * chunk));
         };
         std::vector<std::thread> pool;
-        for (uint64_t t = 1; t < std::min<uint64_t>(chunks, std::max(1u, std::thread::hardware_concurrency())); ++t) pool.emplace_back(work);
+        for (uint64_t t = 1; t < std::min<uint64_t>(chunks, core_count()); ++t) pool.emplace_back(work);
         work();
         for (auto& thread : pool) thread.join();
         if (stagingInstances.handle || stagingBatches.handle)
@@ -1261,14 +1300,14 @@ void Renderer::set_point_capacity(uint32_t points) {
 
 namespace {
 
-// The FrameStats fields that an image of several pixel samples adds up over its frames: times and redraws.
+// The FrameStats fields that an image of several pixel samples adds up over its frames: times, redraws and imports.
 template <class Visit>
 void visit_frame_costs(FrameStats& a, const FrameStats& b, Visit visit) {
     visit(a.cullMs, b.cullMs), visit(a.softwareRasterMs, b.softwareRasterMs), visit(a.rasterMs, b.rasterMs);
     visit(a.tessellationMs, b.tessellationMs), visit(a.hzbMs, b.hzbMs), visit(a.classifyMs, b.classifyMs);
     visit(a.resolveMs, b.resolveMs), visit(a.readbackMs, b.readbackMs), visit(a.uploadMs, b.uploadMs);
     visit(a.cpuRecordMs, b.cpuRecordMs), visit(a.cpuWaitMs, b.cpuWaitMs), visit(a.cpuFrameMs, b.cpuFrameMs);
-    visit(a.overflowRedraws, b.overflowRedraws);
+    visit(a.overflowRedraws, b.overflowRedraws), visit(a.aovImportsMade, b.aovImportsMade);
 }
 
 // The Gaussian pixel filter along one axis: sigma 0.4 px, less its value at 1 px so that it falls to 0 there, over
@@ -1443,7 +1482,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     for (size_t i = 0; i < aovs.size(); ++i) images[i].width = settings.width, images[i].height = settings.height, images[i].aov = aovs[i];
     bool importAovs = s.imports_aovs(pixels) && !aovs.empty();
     const bool outputImported = importAovs && device_.is_software();
-    std::vector<Buffer> aovTargets;  // per AOV, its image's memory (on a CPU device, the last one is the output instead)
+    std::vector<VkBuffer> aovTargets;  // per AOV, its image's memory (on a CPU device, the last one is the output instead)
     struct ImportedOutput {  // let go of however the frame ends: the last image's memory may go back to the allocator
         Impl& s;
         bool imported;
@@ -1453,14 +1492,19 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         try {
             for (size_t i = 0; i < aovs.size(); ++i) {
                 images[i].pixels.resize(pixels * 4);  // left as it is: written whole by the device
-                Buffer target = device_.import_host_memory(images[i].pixels.data(), pixel_block_bytes(pixels * 16));
-                if (i + 1 == aovs.size() && outputImported) s.aovOutput = std::move(target);
-                else aovTargets.push_back(std::move(target));
+                void* memory = images[i].pixels.data();
+                if (i + 1 == aovs.size() && outputImported) {
+                    s.aovOutput = device_.import_host_memory(memory, pixel_block_bytes(pixels * 16));
+                    ++frameStats.aovImportsMade;
+                } else {
+                    aovTargets.push_back(s.kept_import(memory, pixel_block_bytes(pixels * 16), frameStats.aovImportsMade));
+                }
             }
         } catch (const DeviceError&) {  // the driver refused this memory: this renderer's frames take the readback path
             s.importAovs = false;
             importAovs = false;
             aovTargets.clear();
+            s.keptImports.clear();
             if (outputImported) s.aovOutput = Buffer{};
             importedOutput.imported = false;
         }
@@ -1856,7 +1900,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                 const VkBufferCopy region{0, importAovs ? 0 : sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
                 const bool timed = timedCopies < Impl::kTimedCopies;
                 if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies);
-                vkCmdCopyBuffer(cmd, s.aovOutput.handle, importAovs ? aovTargets[i].handle : s.readback.handle, 1, &region);
+                vkCmdCopyBuffer(cmd, s.aovOutput.handle, importAovs ? aovTargets[i] : s.readback.handle, 1, &region);
                 if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies++ + 1);
             }
             mark();
@@ -1962,9 +2006,9 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
 
     frameStats.instanceBytes = s.instances.size + s.instanceBatches.size + s.batches.size + s.deferredInstances.size + s.cutList.size;
 
-    if (importAovs) {
-        aovTargets.clear();  // the images keep their memory (and the output's import goes with importedOutput)
-    } else {
+    ++s.framesRendered;
+    s.forget_old_imports();
+    if (!importAovs) {
         for (size_t i = 0; i < aovs.size(); ++i) {
             // Copied straight from the mapped readback, or, for a CPU device's last AOV, from the output itself.
             const bool direct = i + 1 == aovs.size() && s.aovOutput.mapped;

@@ -1,6 +1,10 @@
 """tessera.build_mesh's per-mesh settings (Nanite's): trimming, the fallback mesh, Preserve Area, validation, and
 render-wide defaults through tessera.Session."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -100,3 +104,16 @@ def test_session_applies_build_settings_to_every_mesh():
         assert settings["keep_triangle_percent"] == 50 and settings["preserve_area"]
     with pytest.raises(ValueError, match="keep_triangle_percent"):
         tessera.Session(TESTENV / "testCube" / "cube.usda", build_settings={"keep_triangle_percent": 500})
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs two cores to give a process fewer")
+def test_threads_follow_the_processs_cpu_affinity():
+    """A farm slot pinned to some of a machine's cores (taskset, a cpuset) starts a thread per core it may use, not
+    one per core of the machine."""
+    first = min(os.sched_getaffinity(0))
+    count = "from tessera import _tessera; print(_tessera.core_count())"
+    pinned = subprocess.run([sys.executable, "-c", count], capture_output=True, text=True, check=True,
+                            preexec_fn=lambda: os.sched_setaffinity(0, {first}))
+    assert pinned.stdout.strip() == "1"
+    free = subprocess.run([sys.executable, "-c", count], capture_output=True, text=True, check=True)
+    assert free.stdout.strip() == str(len(os.sched_getaffinity(0)))

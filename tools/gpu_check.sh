@@ -3,7 +3,8 @@
 # GPU path (the tests with the validation layer on) and measures it (the benchmark without). Each step is
 # time-boxed and logs to $OUT/<step>.log; a failed smoke render stops the rest.
 #   OUT=/some/dir tools/gpu_check.sh [steps...]     steps: smoke cpp bench pytest (default: all, in that order), and
-#   antialiasing (bench render --cases antialiasing: what a pixel sample costs where the host adds each sample's colour)
+#   antialiasing (bench render --cases antialiasing: what a pixel sample costs where the host adds each sample's colour),
+#   build (bench build on two of the machine's cores, the builder issue's setting: its generated meshes)
 # NVIDIA's Vulkan driver (libGLX_nvidia.so.0) needs the GL dispatch libraries (libglvnd): on a machine without them,
 # vkCreateInstance finds no driver ("Could not get 'vkCreateInstance' via 'vk_icdGetInstanceProcAddr'"). Debian's
 # packages of them (.gpu/gl, from gpu_bundle.sh) are unpacked into / where libGLdispatch.so.0 is missing, which was
@@ -46,10 +47,12 @@ print('errors:', r.errors, 'warnings:', r.warnings)
 print({k: r.stats[k] for k in ('visible_clusters', 'sw_triangles', 'hw_triangles') if k in r.stats})
 assert not r.errors" || exit 1 ;;
     cpp) TESSERA_VALIDATION=1 step cpp 120 "$B/gpu/tessera_cpp_tests" --gtest_brief=1 ;;
-    bench) step bench 200 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
-               --cases density,brute,error --frames 5 --json "$OUT/bench_render.json" ;;
+    bench) step bench 260 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
+               --cases density,brute,error,first-frame --frames 5 --json "$OUT/bench_render.json" ;;
     antialiasing) step antialiasing 150 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
                --cases antialiasing --frames 3 --json "$OUT/bench_antialiasing.json" ;;
+    build) step build 150 taskset -c 0,1 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench build \
+               --json "$OUT/bench_build.json" ;;
     pytest) TESSERA_VALIDATION=1 step pytest 200 "$TESSERA_PY" -m pytest -q -rf --tb=line -p no:cacheprovider testenv ;;
     esac
 done

@@ -779,6 +779,32 @@ TEST_F(RendererTest, AovsWrittenIntoTheirImagesAreTheReadbackOnes) {
     EXPECT_EQ(in.aovsImported, canImport);
 }
 
+// A frame's AOV images are imported into the device once, and the imports kept while later frames reuse the images'
+// memory (a GPU would otherwise pin and unpin 33 MB of pages a frame at 1080p). Frames made while the last frame's
+// images are held import their own; once the frame before last is let go, its blocks serve the next frame and no
+// import is made, but for a CPU device's output, imported every frame. Every frame is the readback renderer's.
+TEST_F(RendererTest, AovImportsAreKeptWhileFramesReuseTheirImages) {
+    if (device->host_import_alignment() == 0) GTEST_SKIP() << "this device cannot import host memory";
+    GpuScene scene;
+    scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));
+    const std::unique_ptr<Renderer> imported = renderer_with(*device, "TESSERA_IMPORT_AOVS", "1");
+    const std::unique_ptr<Renderer> readback = renderer_with(*device, "TESSERA_IMPORT_AOVS", "0");
+    const std::vector<Aov> aovs = {Aov::Depth, Aov::Color, Aov::PrimId};
+    const RenderSettings settings{512, 384, {0.1f, 0.2f, 0.3f, 1.0f}};
+    const uint32_t everyFrame = device->is_software() ? 1 : 0;
+    std::vector<Image> held;
+    for (int f = 0; f < 6; ++f) {
+        const std::string what = "frame " + std::to_string(f);
+        const CameraDesc camera = camera_at(0.1 * f, 0.5, 7);
+        FrameStats stats;
+        std::vector<Image> frame = imported->render(scene, camera, settings, aovs, &stats);
+        expect_same_images(frame, readback->render(scene, camera, settings, aovs), what.c_str());
+        ASSERT_TRUE(stats.aovsImported) << what;
+        EXPECT_EQ(stats.aovImportsMade, f < 2 ? uint32_t(aovs.size()) : everyFrame) << what;
+        held = std::move(frame);  // lets go of the frame before
+    }
+}
+
 // The cull's workgroup size is chosen per device (TS_CULL_GROUP_SIZE on a GPU, one subgroup on a CPU: 8 on lavapipe):
 // every size culls, cuts and defers the same clusters, so the frames are the same bit for bit.
 TEST_F(RendererTest, CullWorkgroupSizesDrawTheSameFrames) {
@@ -1490,4 +1516,37 @@ TEST(ImageMemory, FreedLargeBlocksServeTheNextImageOfTheirSize) {
     EXPECT_EQ(e.data(), newest[0]);
     PixelVector small(64, 2.0f);  // under a megabyte
     EXPECT_EQ(small[63], 2.0f);
+}
+
+// A block a device has imported is pinned (the renderer keeps its AOV images' imports): freed, it waits among the spare
+// blocks however many of its size are freed after it, and serves the next image of its size before a newer one. Pins
+// are counted; unpinned, it is an ordinary spare block again and goes back to the system when its turn comes.
+TEST(ImageMemory, PinnedBlocksAreNeverReturnedToTheSystem) {
+    const size_t frame = size_t(1024) * 768 * 4;
+    PixelVector imported(frame, 0.75f);
+    float* const block = imported.data();
+    pin_pixel_block(block);
+    pin_pixel_block(block);  // imported twice
+    {
+        PixelVector a(frame), b(frame), c(frame);
+        imported = PixelVector();  // spare, the oldest: three freed after it would push out an unpinned block
+    }
+    PixelVector next(frame);
+    EXPECT_EQ(next.data(), block) << "the pinned block waited, and serves before the newer spare ones";
+    EXPECT_EQ(next[frame - 1], 0.75f) << "its pixels never went back to the system";
+    unpin_pixel_block(block);  // one import left
+    {
+        PixelVector a(frame), b(frame), c(frame);
+        next = PixelVector();
+    }
+    PixelVector again(frame);
+    EXPECT_EQ(again.data(), block) << "still pinned by its second import";
+    unpin_pixel_block(block);
+    {
+        PixelVector a(frame), b(frame), c(frame);
+        again = PixelVector();  // spare and unpinned: the oldest, pushed out by the three freed after it
+    }
+    PixelVector x(frame), y(frame);
+    EXPECT_NE(x.data(), block);
+    EXPECT_NE(y.data(), block);
 }

@@ -11,14 +11,22 @@
 #include <thread>
 #include <vector>
 
+#include <sched.h>
 #include <unistd.h>
 
 namespace tessera {
 
-// The number of cores, asked once: std::thread::hardware_concurrency() reads /sys/devices/system/cpu/online on every
-// call (an open, a read and a close), which cost more than building a small mesh's whole DAG.
+// The cores this process may run on, asked once. The affinity mask, not std::thread::hardware_concurrency(): a farm
+// slot pinned to a few of a machine's cores (taskset, a container's or a scheduler's cpuset) would otherwise start a
+// thread for every core of the machine (glibc 2.36 counts the cores online) and run them in turns on the few it has.
+// (hardware_concurrency also reads /sys/devices/system/cpu/online on every call, which cost more than building a
+// small mesh's whole DAG.)
 inline size_t core_count() {
-    static const size_t cores = std::max(1u, std::thread::hardware_concurrency());
+    static const size_t cores = [] {
+        cpu_set_t allowed;
+        if (sched_getaffinity(0, sizeof(allowed), &allowed) == 0 && CPU_COUNT(&allowed) > 0) return size_t(CPU_COUNT(&allowed));
+        return size_t(std::max(1u, std::thread::hardware_concurrency()));  // more than CPU_SETSIZE cores: all of them
+    }();
     return cores;
 }
 

@@ -151,6 +151,11 @@ void free_pixel_bytes(void* memory, size_t bytes);
 // The block an allocation of `bytes` takes: for a large one, whole huge pages at a huge-page boundary (so a device can
 // import it: Device::import_host_memory); 0 for a small one (a plain allocation).
 size_t pixel_block_bytes(size_t bytes);
+// While a device keeps an import of a block (the renderer keeps its AOV images' imports for the frames that reuse
+// them), the block is pinned: freed, it waits among the spare blocks instead of going back to the system. Counted:
+// each pin is undone by one unpin.
+void pin_pixel_block(void* memory);
+void unpin_pixel_block(void* memory);
 template <class T>
 struct PixelAllocator {
     using value_type = T;
@@ -276,6 +281,8 @@ struct FrameStats {
     bool texelViews = false;        // the passes read the streams through texel views (RenderSettings::texelViews)
     bool outputBinding = false;     // and store the AOVs through the output's binding (RenderSettings::outputBinding)
     bool aovsImported = false;      // the AOVs went straight into the images' memory, not through the readback buffer
+    uint32_t aovImportsMade = 0;    // of their memory, blocks imported anew this frame (the renderer keeps its imports
+                                    // while frames reuse the blocks; a CPU device's output is imported every frame)
     uint32_t pixelSamples = 1;      // frames drawn for this image (RenderSettings::pixelSamples; 1 without a colour AOV,
                                     // the only one averaged): the times below add them up
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
