@@ -447,7 +447,7 @@ struct Renderer::Impl {
     const bool allTextureKinds = all_texture_kinds_forced();
     // Frames write AOVs straight into their images where the device can (imports_aovs), unless $TESSERA_IMPORT_AOVS=0 or
     // the driver refused an import.
-    bool importAovs = import_aovs_chosen();
+    bool importAovs = switch_from_environment("TESSERA_IMPORT_AOVS");
     // A GPU's AOV images are imported once and kept while frames reuse their memory (image_memory.cpp hands a freed
     // image's block to the next image of its size): importing pins the block's pages in the driver and letting go
     // unpins them, which beside an H100 cost more CPU than the frame's GPU time. An import not used by this frame or the
@@ -472,7 +472,7 @@ struct Renderer::Impl {
     std::vector<std::unique_ptr<KeptImport>> keptImports;
     static constexpr uint64_t kKeptImportFrames = 4;
     uint64_t framesRendered = 0;
-    const bool keepImports = [] { const char* v = std::getenv("TESSERA_KEEP_IMPORTS"); return !v || std::string(v) != "0"; }();
+    const bool keepImports = switch_from_environment("TESSERA_KEEP_IMPORTS");  // 0: a new import every frame (measurements)
 
     VkBuffer kept_import(void* pixels, VkDeviceSize bytes, uint32_t& made) {
         for (auto& kept : keptImports)
@@ -490,11 +490,12 @@ struct Renderer::Impl {
 
     Impl(Device& d, std::shared_ptr<Pipelines> shared) : device(d), sharedPipelines(std::move(shared)), pipelines(*sharedPipelines) {}
 
-    static bool import_aovs_chosen() {
-        const char* forced = std::getenv("TESSERA_IMPORT_AOVS");
+    // A switch that is on unless the variable says 0 (for tests and measurements).
+    static bool switch_from_environment(const char* name) {
+        const char* forced = std::getenv(name);
         if (!forced || !*forced) return true;
         if (std::string(forced) == "0" || std::string(forced) == "1") return std::string(forced) == "1";
-        throw std::invalid_argument(std::string("TESSERA_IMPORT_AOVS='") + forced + "': expected 0 or 1");
+        throw std::invalid_argument(std::string(name) + "='" + forced + "': expected 0 or 1");
     }
 
     static bool all_texture_kinds_forced() {
