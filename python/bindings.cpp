@@ -164,6 +164,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["output_binding"] = s.outputBinding;
     d["aovs_imported"] = s.aovsImported;
     d["aov_imports_made"] = s.aovImportsMade;
+    d["sample_sums_on_device"] = s.sampleSumsOnDevice;
     d["overflow_redraws"] = s.overflowRedraws;
     d["visible_cluster_capacity"] = s.visibleClusterCapacity;
     d["occlusion_tested"] = s.occlusionTested;

@@ -15,6 +15,7 @@
 #include "spirv/raster_sw_comp.h"
 #include "spirv/raster_vert.h"
 #include "spirv/resolve_comp.h"
+#include "spirv/samples_comp.h"
 #include "spirv/tessellate_comp.h"
 
 #include <algorithm>
@@ -191,6 +192,7 @@ Pipelines::~Pipelines() {
     for (VkPipeline variant : std::span(&patchRasterVariants[0][0], 4)) vkDestroyPipeline(vk, variant, nullptr);
     vkDestroyPipeline(vk, tessellatePatches, nullptr);
     vkDestroyPipeline(vk, backgroundTextured, nullptr);
+    vkDestroyPipeline(vk, pixelSamples, nullptr);
     for (const auto& [key, variant] : resolveVariants) vkDestroyPipeline(vk, variant, nullptr);
     vkDestroyPipelineLayout(vk, layout, nullptr);
     vkDestroyDescriptorSetLayout(vk, frameSetLayout, nullptr);
@@ -214,6 +216,11 @@ VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, const
 VkPipeline Pipelines::textured_background() {
     if (!backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp));
     return backgroundTextured;
+}
+
+VkPipeline Pipelines::pixel_samples() {
+    if (!pixelSamples) pixelSamples = compute_pipeline(samples_comp, sizeof(samples_comp));
+    return pixelSamples;
 }
 
 bool Pipelines::default_own_corners() const {

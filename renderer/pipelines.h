@@ -127,6 +127,8 @@ struct Pipelines {
     void make_for_frame(const FrameNeeds& needs);
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
+    // The sum of an image's pixel samples (samples.comp.glsl), made on first use.
+    VkPipeline pixel_samples();
 
     // RasterVertices::Auto: shared vertices; $TESSERA_RASTER_VERTICES (shared, per-triangle) overrides that, for tests
     // and measurements.
@@ -139,7 +141,7 @@ private:
     // triangles]; for hardware raster, [double-sided].
     VkPipeline rasterSoftware[2][2][2][2] = {};
     VkPipeline rasterHardware[2][2][2] = {};
-    VkPipeline backgroundTextured = VK_NULL_HANDLE, tessellatePatches = VK_NULL_HANDLE, diceVariants[2][2] = {}, patchRasterVariants[2][2] = {};
+    VkPipeline backgroundTextured = VK_NULL_HANDLE, pixelSamples = VK_NULL_HANDLE, tessellatePatches = VK_NULL_HANDLE, diceVariants[2][2] = {}, patchRasterVariants[2][2] = {};
     // Resolve's variants by TS_SPEC_TEXTURE_KINDS | TS_SPEC_TEXTURES << 8 | TS_SPEC_DISPLACEMENT << 9 |
     // TS_SPEC_AREA_LIGHTS << 11 | TS_SPEC_VERTEX_INPUTS << 12 (what its textures need, textured materials, displaced
     // materials, frames with area lights or a textured dome, materials with vertex inputs), TS_SPEC_OUTPUT (what it

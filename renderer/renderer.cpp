@@ -401,6 +401,10 @@ struct Renderer::Impl {
     uint64_t geometryVersion = 0, instancesVersion = 0, materialsVersion = 0;
     // Frame resources.
     Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
+    // An image of several pixel samples: their colours summed on a GPU (samples.comp.glsl; made for the image), on the
+    // host beside a CPU device; $TESSERA_SAMPLE_SUMS (device, host) chooses, for tests and measurements.
+    Buffer sampleSums[2];
+    const bool sampleSumsOnDevice = sample_sums_on_device(device);
     Buffer deferredInstances, deferredClusters;
     Buffer cutList;  // instances the cut step walks (those the instance step did not cull); grows on overflow
     uint32_t cutCapacity = 1u << 12;
@@ -496,6 +500,13 @@ struct Renderer::Impl {
         if (!forced || !*forced) return true;
         if (std::string(forced) == "0" || std::string(forced) == "1") return std::string(forced) == "1";
         throw std::invalid_argument(std::string(name) + "='" + forced + "': expected 0 or 1");
+    }
+
+    static bool sample_sums_on_device(const Device& device) {
+        const char* forced = std::getenv("TESSERA_SAMPLE_SUMS");
+        if (!forced || !*forced) return !device.is_software();
+        if (std::string(forced) == "device" || std::string(forced) == "host") return std::string(forced) == "device";
+        throw std::invalid_argument(std::string("TESSERA_SAMPLE_SUMS='") + forced + "': expected 'device' or 'host'");
     }
 
     static bool all_texture_kinds_forced() {
@@ -1374,22 +1385,32 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         one.pixelSamples = 1;
         return render_sample(scene, camera, one, aovs, stats);
     }
-    // Sample 0 (the centre) gives every AOV; the later samples draw the colour alone and add it into sample 0's colour
-    // (the samples are spread as the filter weighs: each counts alike). In float, in place: no second image in memory,
-    // and the sum of n samples is off by at most n float roundings of its size (2.4e-4 of it at the kMostPixelSamples
-    // allowed; half an 8-bit step is 2e-3).
+    // Sample 0 (the centre) gives every AOV; the later samples draw the colour alone (the samples are spread as the
+    // filter weighs: each counts alike). A GPU sums their colours itself (samples.comp.glsl) and the last sample hands
+    // back their mean; a CPU device hands back each sample's colour and the host adds it into sample 0's (lavapipe's
+    // pass cost more than the host's loop: its loads and stores through an address go a lane at a time). In float, in
+    // the same order either way: the sum of n samples is off by at most n float roundings of its size (2.4e-4 of it at
+    // the kMostPixelSamples allowed; half an 8-bit step is 2e-3).
     const size_t colourIndex = size_t(colour - aovs.begin());
+    const bool onDevice = impl_->sampleSumsOnDevice;
     std::vector<Image> images;
     FrameStats last, costs;
     RenderSettings sample = settings;
     sample.pixelSamples = 1;
+    struct SampleSums {  // the device's two sum buffers: only while an image of several samples is drawn
+        Impl& s;
+        ~SampleSums() { s.sampleSums[0] = Buffer{}, s.sampleSums[1] = Buffer{}; }
+    } sums{*impl_};
     for (uint32_t k = 0; k < settings.pixelSamples; ++k) {
         const std::array<float, 2> offset = pixel_sample_offset(k, settings.pixelFilter);
         sample.pixelOffset = {settings.pixelOffset[0] + offset[0], settings.pixelOffset[1] + offset[1]};
+        const SampleStep step{k, settings.pixelSamples};
         FrameStats frame;
-        std::vector<Image> drawn = render_sample(scene, camera, sample, k == 0 ? aovs : std::vector<Aov>{Aov::Color}, &frame);
+        std::vector<Image> drawn = render_sample(scene, camera, sample, k == 0 ? aovs : std::vector<Aov>{Aov::Color}, &frame, onDevice ? &step : nullptr);
         if (k == 0) {
-            images = std::move(drawn);
+            images = std::move(drawn);  // on the device, its colour went into the sum, not into its image
+        } else if (onDevice) {
+            if (k + 1 == settings.pixelSamples) images[colourIndex] = std::move(drawn[0]);
         } else {
             PixelVector& sum = images[colourIndex].pixels;
             const PixelVector& pixels = drawn[0].pixels;
@@ -1398,8 +1419,11 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
         visit_frame_costs(costs, frame, [](auto& total, const auto& value) { total += value; });
         last = frame;  // counts: the last sample's (every sample draws the same cut, the last with the best occlusion)
     }
-    const float scale = 1.0f / float(settings.pixelSamples);
-    for (float& value : images[colourIndex].pixels) value *= scale;
+    if (!onDevice) {
+        const float scale = 1.0f / float(settings.pixelSamples);
+        for (float& value : images[colourIndex].pixels) value *= scale;
+    }
+    last.sampleSumsOnDevice = onDevice;
     visit_frame_costs(last, costs, [](auto& field, const auto& total) { field = total; });
     last.pixelSamples = settings.pixelSamples;
     if (stats) *stats = last;
@@ -1407,7 +1431,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
 }
 
 std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings, const std::vector<Aov>& aovs,
-                                           FrameStats* stats) {
+                                           FrameStats* stats, const SampleStep* sample) {
     Impl& s = *impl_;
     const std::lock_guard<std::mutex> lock(s.pipelines.mutex);  // other renderers on the device share the pipelines
     if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
@@ -1518,6 +1542,9 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
         const bool occlusion = settings.occlusion && settings.lod;  // --no-lod: every source triangle, the classic way
         if (occlusion) s.ensure_occlusion_buffers();
+        if (sample)
+            for (Buffer& sum : s.sampleSums)
+                if (sum.size < pixels * 16) sum = device_.create_buffer(pixels * 16, MemoryUse::Device);
         s.write_texel_views(pixels);  // after every buffer a view covers is made (the HZB's too)
         s.write_output_binding();
 
@@ -1611,6 +1638,10 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.drawState = s.drawState.address;
         f.visibility = s.visibility.address;
         f.aovOutput = s.aovOutput.address;
+        if (sample) {  // sample k writes sum k % 2, reading the other (that of the samples before it)
+            f.samplesAfter = s.sampleSums[sample->index % 2].address;
+            f.samplesBefore = s.sampleSums[(sample->index + 1) % 2].address;
+        }
         f.deferredInstances = occlusion ? s.deferredInstances.address : 0;
         f.deferredClusters = occlusion ? s.deferredClusters.address : 0;
         if (countFragments && s.overdraw.size < pixels * 4) s.overdraw = device_.create_buffer(pixels * 4, MemoryUse::Device);
@@ -1894,6 +1925,16 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                         vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
                         vkCmdDispatchIndirect(cmd, s.shadingBins.handle, bin * sizeof(gpu::GpuBin));
                     }
+                if (sample && aovs[i] == Aov::Color) {  // the colour into the samples' sum; the last sample's, their mean
+                    barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                            VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                    const uint32_t step = sample->index == 0 ? TS_SAMPLES_FIRST : sample->index + 1 == sample->count ? TS_SAMPLES_MEAN : TS_SAMPLES_ADD;
+                    const PushConstants samples{sample->count, step, 0};
+                    vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(samples), &samples);
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.pixel_samples());
+                    vkCmdDispatch(cmd, tilesX, tilesY, 1);
+                    if (step != TS_SAMPLES_MEAN) continue;  // this sample's colour is in the sum: nothing to hand back
+                }
                 // Read where resolve wrote it: the last image itself where imported, else host-visible output memory.
                 if (i + 1 == aovs.size() && (importAovs ? importedOutput.imported : s.aovOutput.mapped != nullptr)) break;
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,

@@ -35,7 +35,7 @@ layout(set = 0, binding = 0, std140) uniform FrameBlock { GpuFrame frameConstant
 
 // layout: renderer.cpp PushConstants (and ResolvePushConstants). `step`: the cull step (TS_CULL_*), the HZB level being
 // built or resolve's material; `hzb`: the HZB that step tests against or builds; `material`: resolve's, GpuMaterial
-// data[step] (only resolve's dispatches push it).
+// data[step] (only resolve's dispatches push it). samples.comp.glsl reads them as its own (see there).
 layout(push_constant) uniform Push { uint aov; uint step; HzbRef hzb; GpuMaterial material; } push;
 
 // Nearest and farthest view depth of a sphere (camera-relative world).
@@ -360,6 +360,9 @@ void write_output(GpuFrame frame, uint index, uvec4 bits) {
     else OutputRef(frame.aovOutput).data[index] = bits;
 }
 void write_output(GpuFrame frame, uint index, vec4 value) { write_output(frame, index, floatBitsToUint(value)); }
+uvec4 read_output(GpuFrame frame, uint index) {
+    return OUTPUT_BINDING ? aovPixels[index] : OutputRef(frame.aovOutput).data[index];
+}
 // classify.comp.glsl keeps each pixel's (bin, place in the bin) in its output's first two words between its count and
 // scatter steps (resolve writes the AOVs only after): no memory of its own.
 void write_bin_place(GpuFrame frame, uint index, uvec2 binPlace) {

@@ -166,6 +166,12 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_CLASSIFY_COUNT 0u
 #define TS_CLASSIFY_SCATTER 1u
 #define TS_CLASSIFY_ONE_BIN 2u  // a frame whose pixels can only fall in one bin: listed at once, no count or scatter
+
+// samples.comp.glsl's steps (push.step) in an image of several pixel samples: the first sample's colour starts the sum,
+// each later one adds to it, and the last writes the mean into the frame's output.
+#define TS_SAMPLES_FIRST 0u
+#define TS_SAMPLES_ADD 1u
+#define TS_SAMPLES_MEAN 2u
 #define TS_NO_BIN 0xffffffffu   // classify's mark for a pixel nothing covers
 
 // Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
@@ -670,8 +676,12 @@ struct GpuFrame {
     address deferredPatchList; // uint[patch capacity]: patches the main pass deferred to the post pass
     address clusterDisplacement; // float[]: per cluster of a displaced batch's mesh, the largest offset its materials move
                                  // it by (mesh units; GpuInstanceBatch.displacementBounds)
+    // Pixel samples (samples.comp.glsl), 0 in a frame of one: the colours of the samples before this one summed, and
+    // where this sample's sum goes (two buffers, each sample writing the other).
+    address samplesBefore;   // u64vec2[width * height]: a sum's float bits, rgba
+    address samplesAfter;
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 37);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 39);
 
 #ifdef __cplusplus
 }  // namespace tessera::gpu

@@ -1303,6 +1303,46 @@ TEST_F(RendererTest, PixelSamplesAverageShiftedFramesAndKeepTheCentresIds) {
     EXPECT_EQ(std::memcmp(ids.pixels.data(), single.pixels.data(), single.pixels.size() * sizeof(float)), 0);
 }
 
+// Pixel samples summed on the device (samples.comp.glsl: a GPU's way) or on the host (a CPU device's): either way the
+// image's colour is the samples' mean, whichever way the frames hand it back (a large image's imported memory, or the
+// readback of a small one), the other AOVs are the centre's, and a sample drawn again after an overflow counts once.
+TEST_F(RendererTest, PixelSamplesSummedOnTheDeviceOrTheHostGiveTheirMean) {
+    GpuScene scene;
+    scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));
+    const CameraDesc eye = camera_at(0, 0.5, 7);
+    for (const std::string sums : {"device", "host"})
+        for (const auto& [width, height] : std::vector<std::pair<uint32_t, uint32_t>>{{512, 384}, {96, 64}}) {
+            const std::string what = sums + ", " + std::to_string(width) + "x" + std::to_string(height);
+            const RenderSettings centre{width, height, {0.1f, 0.2f, 0.3f, 1.0f}};
+            RenderSettings antialiased = centre;
+            antialiased.pixelSamples = 5;
+            const std::unique_ptr<Renderer> renderer = renderer_with(*device, "TESSERA_SAMPLE_SUMS", sums);
+            FrameStats stats;
+            const std::vector<Image> images = renderer->render(scene, eye, antialiased, {Aov::PrimId, Aov::Color}, &stats);
+            EXPECT_EQ(stats.pixelSamples, 5u);
+            EXPECT_EQ(stats.sampleSumsOnDevice, sums == "device") << what;
+            const Image ids = renderer->render(scene, eye, centre, {Aov::PrimId})[0];
+            EXPECT_EQ(std::memcmp(images[0].pixels.data(), ids.pixels.data(), ids.pixels.size() * sizeof(float)), 0) << what;
+            std::vector<float> sum(images[1].pixels.size(), 0.0f);  // in float and in order, as both sum
+            for (uint32_t k = 0; k < 5; ++k) {
+                RenderSettings one = centre;
+                one.pixelOffset = pixel_sample_offset(k);
+                const Image frame = renderer->render(scene, eye, one, {Aov::Color})[0];
+                for (size_t p = 0; p < sum.size(); ++p) sum[p] += frame.pixels[p];
+            }
+            float largest = 0;
+            for (size_t p = 0; p < sum.size(); ++p) largest = std::max(largest, std::abs(images[1].pixels[p] - sum[p] * (1.0f / 5)));
+            EXPECT_LE(largest, 1e-6f) << what;
+            // The first sample overflows the visible-cluster list and is drawn again: the same image.
+            const std::unique_ptr<Renderer> overflowing = renderer_with(*device, "TESSERA_SAMPLE_SUMS", sums);
+            overflowing->set_visible_cluster_capacity(2);
+            FrameStats redrawn;
+            const std::vector<Image> again = overflowing->render(scene, eye, antialiased, {Aov::PrimId, Aov::Color}, &redrawn);
+            EXPECT_GT(redrawn.overflowRedraws, 0u) << what;
+            expect_same_images(again, images, what.c_str());
+        }
+}
+
 TEST_F(RendererTest, MaterialBinsShadeEachMaterialsPixels) {
     // Three grids side by side, each with its own emissive material (no lights: colour is exactly the emission);
     // a fourth material is bound to nothing in view. Each visible material gets a bin of its own.

@@ -285,6 +285,7 @@ struct FrameStats {
                                     // while frames reuse the blocks; a CPU device's output is imported every frame)
     uint32_t pixelSamples = 1;      // frames drawn for this image (RenderSettings::pixelSamples; 1 without a colour AOV,
                                     // the only one averaged): the times below add them up
+    bool sampleSumsOnDevice = false; // with several, the device summed their colours (a GPU), else the host
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
@@ -379,8 +380,13 @@ public:
     Device& device() { return device_; }
 
 private:
+    // One of an image's pixel samples, and how many it takes: the first starts the colours' sum on the device, the last
+    // hands back their mean as its colour.
+    struct SampleStep {
+        uint32_t index, count;
+    };
     std::vector<Image> render_sample(GpuScene& scene, const CameraDesc& camera, const RenderSettings& settings,
-                                     const std::vector<Aov>& aovs, FrameStats* stats);
+                                     const std::vector<Aov>& aovs, FrameStats* stats, const SampleStep* sample = nullptr);
     struct Impl;
     Device& device_;
     std::unique_ptr<Impl> impl_;
