@@ -404,7 +404,7 @@ struct Renderer::Impl {
     // An image of several pixel samples: their colours summed on a GPU (samples.comp.glsl; made for the image), on the
     // host beside a CPU device; $TESSERA_SAMPLE_SUMS (device, host) chooses, for tests and measurements.
     Buffer sampleSums[2];
-    const bool sampleSumsOnDevice = sample_sums_on_device(device);
+    const bool sampleSumsOnDevice = choice_from_environment("TESSERA_SAMPLE_SUMS", "device", "host", !device.is_software());
     Buffer deferredInstances, deferredClusters;
     Buffer cutList;  // instances the cut step walks (those the instance step did not cull); grows on overflow
     uint32_t cutCapacity = 1u << 12;
@@ -448,10 +448,10 @@ struct Renderer::Impl {
 
     // $TESSERA_TEXTURE_KINDS=all: every textured bin through the variant that reads every texture kind (for tests and
     // measurements; the default, `material`, compiles in only what the bin's textures need).
-    const bool allTextureKinds = all_texture_kinds_forced();
+    const bool allTextureKinds = choice_from_environment("TESSERA_TEXTURE_KINDS", "all", "material", false);
     // Frames write AOVs straight into their images where the device can (imports_aovs), unless $TESSERA_IMPORT_AOVS=0 or
     // the driver refused an import.
-    bool importAovs = switch_from_environment("TESSERA_IMPORT_AOVS");
+    bool importAovs = choice_from_environment("TESSERA_IMPORT_AOVS", "1", "0", true);
     // A GPU's AOV images are imported once and kept while frames reuse their memory (image_memory.cpp hands a freed
     // image's block to the next image of its size): importing pins the block's pages in the driver and letting go
     // unpins them, which beside an H100 cost more CPU than the frame's GPU time. An import not used by this frame or the
@@ -476,7 +476,7 @@ struct Renderer::Impl {
     std::vector<std::unique_ptr<KeptImport>> keptImports;
     static constexpr uint64_t kKeptImportFrames = 4;
     uint64_t framesRendered = 0;
-    const bool keepImports = switch_from_environment("TESSERA_KEEP_IMPORTS");  // 0: a new import every frame (measurements)
+    const bool keepImports = choice_from_environment("TESSERA_KEEP_IMPORTS", "1", "0", true);  // 0: an import every frame
 
     VkBuffer kept_import(void* pixels, VkDeviceSize bytes, uint32_t& made) {
         for (auto& kept : keptImports)
@@ -494,26 +494,13 @@ struct Renderer::Impl {
 
     Impl(Device& d, std::shared_ptr<Pipelines> shared) : device(d), sharedPipelines(std::move(shared)), pipelines(*sharedPipelines) {}
 
-    // A switch that is on unless the variable says 0 (for tests and measurements).
-    static bool switch_from_environment(const char* name) {
+    // A choice of two that an environment variable may force, for tests and measurements: true for `on`, false for
+    // `off`, `fallback` when unset; anything else is an error that names the variable.
+    static bool choice_from_environment(const char* name, const char* on, const char* off, bool fallback) {
         const char* forced = std::getenv(name);
-        if (!forced || !*forced) return true;
-        if (std::string(forced) == "0" || std::string(forced) == "1") return std::string(forced) == "1";
-        throw std::invalid_argument(std::string(name) + "='" + forced + "': expected 0 or 1");
-    }
-
-    static bool sample_sums_on_device(const Device& device) {
-        const char* forced = std::getenv("TESSERA_SAMPLE_SUMS");
-        if (!forced || !*forced) return !device.is_software();
-        if (std::string(forced) == "device" || std::string(forced) == "host") return std::string(forced) == "device";
-        throw std::invalid_argument(std::string("TESSERA_SAMPLE_SUMS='") + forced + "': expected 'device' or 'host'");
-    }
-
-    static bool all_texture_kinds_forced() {
-        const char* forced = std::getenv("TESSERA_TEXTURE_KINDS");
-        if (!forced || !*forced || std::string(forced) == "material") return false;
-        if (std::string(forced) == "all") return true;
-        throw std::invalid_argument(std::string("TESSERA_TEXTURE_KINDS='") + forced + "': expected 'material' or 'all'");
+        if (!forced || !*forced) return fallback;
+        if (std::strcmp(forced, on) == 0 || std::strcmp(forced, off) == 0) return std::strcmp(forced, on) == 0;
+        throw std::invalid_argument(std::string(name) + "='" + forced + "': expected '" + on + "' or '" + off + "'");
     }
 
     ~Impl() {
