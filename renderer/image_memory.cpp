@@ -1,7 +1,8 @@
 // Pixel storage for images (renderer.h PixelAllocator). A 1080p RGBA float image is 33 MB: taking it from the system
 // in 4 KB pages cost 15-20 ms a frame to page faults (both on lavapipe's host and beside an H100, which draws the frame
 // in 3 ms), so large blocks are asked for as transparent huge pages and, once freed, a few are kept for the next
-// image of the same size.
+// image of the same size. A block a device has imported (the renderer keeps its AOV images' imports) is pinned: kept
+// whatever the limits, and handed out first.
 #include "tessera/renderer.h"
 
 #include <sys/mman.h>

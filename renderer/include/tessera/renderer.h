@@ -144,8 +144,8 @@ bool aov_is_id(Aov aov);
 // id's bits (uint32; 0xffffffff where nothing was drawn). For depth, channel 0 is the distance along the
 // view direction (infinity where nothing was drawn).
 // Pixel storage (image_memory.cpp): blocks of a megabyte or more come as transparent huge pages, and the last two freed
-// (at most 160 MB) are kept for the next image of their size, so a frame's readback does not fault in 33 MB of fresh
-// 4 KB pages at 1080p.
+// (at most 160 MB, besides pinned ones: below) are kept for the next image of their size, so a frame's readback does not
+// fault in 33 MB of fresh 4 KB pages at 1080p.
 void* allocate_pixel_bytes(size_t bytes);
 void free_pixel_bytes(void* memory, size_t bytes);
 // The block an allocation of `bytes` takes: for a large one, whole huge pages at a huge-page boundary (so a device can
