@@ -221,7 +221,7 @@ CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& setti
     }
     PreparedMesh prepared = prepare_mesh(mesh);
     if (mesh.bake) prepared = bake_displacement(prepared, *mesh.bake);
-    auto built = std::make_shared<BuiltMesh>(build_mesh(prepared, settings));
+    auto built = std::make_shared<BuiltMesh>(build_mesh(std::move(prepared), settings));  // empties its arrays; its warnings stay
     if (cached) {
         std::string problem;
         if (!cache.store(key, *built, prepared.warnings, &problem)) result.warnings.push_back(mesh.name + ": " + problem);

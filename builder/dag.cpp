@@ -341,9 +341,16 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
     return all;
 }
 
-}  // namespace
+// Frees a vector's memory (clear() keeps it).
+template <class T>
+void release(std::vector<T>& v) {
+    std::vector<T>().swap(v);
+}
 
-BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
+// build_mesh, which empties `spent`'s arrays (the same object as `mesh`, or null) as soon as it is done with them:
+// positions, indices and the per-triangle arrays once the grid and the weld hold the mesh, normals and colours at the
+// end. Both are at the peak of a build otherwise (encoding the pages comes after it, and the largest rounds before).
+BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettings& settings) {
     validate_settings(settings);
     PhaseTimer phases;
     BuiltMesh out;
@@ -544,6 +551,7 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     // The edge length limit, from the source as welded on the grid.
     const double maxEdge = settings.maxEdgeLengthFactor > 0 ? settings.maxEdgeLengthFactor * mean_edge_length(sourceIndices, local) : 0.0;
     phases.mark("grid weld+drop");
+    if (spent) release(spent->positions), release(spent->indices), release(spent->uvs), release(spent->triangleMaterials), release(spent->sourceFaces);
     // Where each vertex takes its normal and colour from (itself, or the vertex Preserve Area moved it from).
     std::vector<uint32_t> attributeOf(vertexCount);
     parallel_blocks(vertexCount, kBlock, [&](size_t begin, size_t end) {
@@ -1094,7 +1102,14 @@ BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) {
     out.fallbackThreshold = fallbackCut.source ? -1.0f : fallbackCut.threshold;  // extracted on demand (fallback_mesh)
     out.fallbackError = measure(nodes, fallbackCut).error;
     phases.mark("emit: vertices");
+    if (spent) release(spent->normals), release(spent->colors);
     return out;
 }
+
+}  // namespace
+
+BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings) { return build(mesh, nullptr, settings); }
+
+BuiltMesh build_mesh(PreparedMesh&& mesh, const BuildSettings& settings) { return build(mesh, &mesh, settings); }
 
 }  // namespace tessera

@@ -791,7 +791,7 @@ NB_MODULE(_tessera, m) {
             {
                 nb::gil_scoped_release release;  // building is pure C++: let other Python threads run
                 prepared = prepare_mesh(view);
-                built = build_mesh(prepared, settings);
+                built = build_mesh(std::move(prepared), settings);  // empties its arrays; its warnings stay
                 pages = encode_pages(built, &layout);
             }
             nb::dict d;

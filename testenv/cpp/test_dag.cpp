@@ -96,6 +96,27 @@ TEST(Dag, Deterministic) {
 }
 
 
+// build_mesh of a mesh it may empty (an rvalue: the cache's and the Python builds) frees the mesh's arrays as it is
+// done with them, and builds the very same mesh as from a mesh it must leave whole (the same page file, byte for byte).
+TEST(Dag, ABuildThatEmptiesItsInputBuildsTheSameMesh) {
+    Source s = icosphere(4);
+    s.name = "/Spent";
+    for (size_t f = 0; f < s.counts.size(); ++f) s.faceMaterials.push_back(int32_t(f % 3));
+    for (size_t p = 0; p < s.points.size(); ++p) s.pointColors.push_back(0.5f + 0.4f * std::sin(3.0f * s.points[p]));
+    MeshView v = polygon_view(s.name, s.points, s.counts, s.indices);
+    v.displayColor = {Interpolation::Vertex, 3, s.pointColors, {}};
+    v.faceMaterials = s.faceMaterials;
+    PreparedMesh spent = prepare_mesh(v);
+    spent.warnings.push_back("a warning");
+    const PreparedMesh whole = spent;
+    const BuiltMesh kept = build_mesh(whole), emptied = build_mesh(std::move(spent));
+    EXPECT_EQ(encode_pages(kept), encode_pages(emptied));
+    EXPECT_TRUE(spent.positions.empty() && spent.indices.empty() && spent.normals.empty() && spent.colors.empty() &&
+                spent.triangleMaterials.empty() && spent.sourceFaces.empty());
+    EXPECT_EQ(spent.warnings, std::vector<std::string>{"a warning"}) << "its warnings stay for the caller";
+    EXPECT_FALSE(whole.positions.empty() || whole.colors.empty() || whole.triangleMaterials.empty());
+}
+
 TEST(Quantization, PositionsLieOnThePowerOfTwoGrid) {
     BuiltMesh m = icosphere(4, 3.0, 123.456).build();
     EXPECT_EQ(std::ldexp(1.0, m.positionPrecision), m.positionStep);

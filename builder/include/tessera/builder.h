@@ -242,6 +242,9 @@ void validate_settings(const BuildSettings& settings);
 // Positions are snapped to the precision grid first, so every level is built from grid points and vertices that
 // neighbouring clusters share stay bit-identical once quantized.
 BuiltMesh build_mesh(const PreparedMesh& mesh, const BuildSettings& settings = {});
+// The same, emptying the mesh's arrays as the build is done with them (its warnings and constant colour stay), for a
+// caller that has no more use for them: less memory at the build's peak (the bunny's 201-205 -> 181-184 B/tri).
+BuiltMesh build_mesh(PreparedMesh&& mesh, const BuildSettings& settings = {});
 
 // The on-disk form of a BuiltMesh (builder/pages.cpp): little-endian, versioned, compressed, every part checksummed.
 // Clusters are stored in pages of at most kPageBytes (before compression too); the children of one group never
