@@ -166,13 +166,13 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_CLASSIFY_COUNT 0u
 #define TS_CLASSIFY_SCATTER 1u
 #define TS_CLASSIFY_ONE_BIN 2u  // a frame whose pixels can only fall in one bin: listed at once, no count or scatter
+#define TS_NO_BIN 0xffffffffu   // classify's mark for a pixel nothing covers
 
 // samples.comp.glsl's steps (push.step) in an image of several pixel samples: the first sample's colour starts the sum,
 // each later one adds to it, and the last writes the mean into the frame's output.
 #define TS_SAMPLES_FIRST 0u
 #define TS_SAMPLES_ADD 1u
 #define TS_SAMPLES_MEAN 2u
-#define TS_NO_BIN 0xffffffffu   // classify's mark for a pixel nothing covers
 
 // Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
 #define TS_VISIBLE_SOFTWARE 0x80000000u
