@@ -138,15 +138,19 @@ std::optional<MeshCache::Entry> MeshCache::load(const std::string& key, std::str
     if (!fs::exists(status)) return std::nullopt;  // not cached
     // One read of the whole file, its size asked first (a byte at a time through a stream iterator took 0.3 s for a
     // 71 MB page file). Not a file (a directory reports a size of 2^63 to a stream) is unreadable, as is a short read.
-    const uintmax_t size = fs::is_regular_file(status) ? fs::file_size(path, error) : 0;
-    std::ifstream in(path, std::ios::binary);
+    const bool file = fs::is_regular_file(status);
     std::vector<uint8_t> bytes;
-    if (fs::is_regular_file(status) && !error && in) {
-        bytes.resize(size_t(size));
-        in.read(reinterpret_cast<char*>(bytes.data()), std::streamsize(bytes.size()));
+    bool read = false;
+    if (file) {
+        const uintmax_t size = fs::file_size(path, error);
+        std::ifstream in(path, std::ios::binary);
+        if (!error && in) {
+            bytes.resize(size_t(size));
+            read = bool(in.read(reinterpret_cast<char*>(bytes.data()), std::streamsize(bytes.size())));
+        }
     }
-    if (!fs::is_regular_file(status) || error || !in) {
-        if (problem) *problem = "cannot read " + path + (fs::is_regular_file(status) ? "" : ": not a file");
+    if (!read) {
+        if (problem) *problem = "cannot read " + path + (file ? "" : ": not a file");
         return std::nullopt;
     }
     try {

@@ -19,12 +19,9 @@
 #include "spirv/tessellate_comp.h"
 
 #include <algorithm>
-#include <atomic>
 #include <cstdlib>
 #include <cstring>
-#include <exception>
 #include <functional>
-#include <thread>
 #include <vector>
 #include <span>
 #include <stdexcept>
@@ -160,23 +157,7 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
 }
 
 void Pipelines::run_on_threads(const std::vector<std::function<void()>>& tasks) {
-    if (tasks.empty()) return;
-    std::atomic<size_t> next{0};
-    std::exception_ptr failure;
-    std::mutex failureMutex;
-    auto work = [&] {
-        for (size_t t; (t = next.fetch_add(1)) < tasks.size();) try {
-                tasks[t]();
-            } catch (...) {
-                const std::lock_guard lock(failureMutex);
-                if (!failure) failure = std::current_exception();
-            }
-    };
-    std::vector<std::thread> threads(std::min<size_t>({core_count(), 8, tasks.size()}) - 1);
-    for (std::thread& thread : threads) thread = std::thread(work);
-    work();
-    for (std::thread& thread : threads) thread.join();
-    if (failure) std::rethrow_exception(failure);
+    parallel_for_rethrowing(tasks.size(), [&](size_t t) { tasks[t](); });
 }
 
 Pipelines::~Pipelines() {

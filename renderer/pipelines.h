@@ -152,8 +152,8 @@ private:
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
     // Resolve's variant's key in resolveVariants and its specialization (the arguments that do not matter to it cleared).
     static std::pair<uint32_t, Specialization> resolve_key(ResolveVariant variant);
-    // Runs the tasks on as many threads as the host has (a driver compiles a pipeline on the calling thread); each task
-    // writes a slot of its own. Rethrows the first task's exception.
+    // Runs the tasks on every core (tessera/parallel.h: a driver compiles a pipeline on the calling thread); each task
+    // writes a slot of its own. Rethrows the exception of the first task that threw.
     static void run_on_threads(const std::vector<std::function<void()>>& tasks);
     // Hardware raster of clusters or of tessellation's patches.
     VkPipeline graphics_pipeline(bool patches, const Specialization& specialization);

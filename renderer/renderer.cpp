@@ -16,13 +16,11 @@
 #include <array>
 #include <cmath>
 #include <cstddef>
-#include <atomic>
 #include <chrono>
 #include <cstdlib>
 #include <cstring>
 #include <map>
 #include <string>
-#include <thread>
 #include <unordered_map>
 
 namespace tessera {
@@ -1006,15 +1004,7 @@ struct Renderer::Impl {
                 words[i] = uint32_t(b) | (determinant3(linear) < 0 ? TS_INSTANCE_BATCH_FLIP : 0u) | (conformal(linear) ? TS_INSTANCE_BATCH_CONFORMAL : 0u);
             }
         };
-        const uint64_t chunk = 1 << 16, chunks = (instanceCount + chunk - 1) / chunk;
-        std::atomic<uint64_t> next{0};
-        auto work = [&] {
-            for (uint64_t c = next++; c < chunks; c = next++) write_range(c * chunk, std::min<uint64_t>(instanceCount, (c + 1) * chunk));
-        };
-        std::vector<std::thread> pool;
-        for (uint64_t t = 1; t < std::min<uint64_t>(chunks, core_count()); ++t) pool.emplace_back(work);
-        work();
-        for (auto& thread : pool) thread.join();
+        parallel_blocks(instanceCount, size_t(1) << 16, write_range);
         if (stagingInstances.handle || stagingBatches.handle)
             device.run([&](VkCommandBuffer cmd) {
                 const VkBufferCopy instanceRegion{0, 0, uint64_t(instanceCount) * sizeof(gpu::GpuInstance)}, wordRegion{0, 0, uint64_t(instanceCount) * 4};

@@ -112,30 +112,26 @@ _TETRAHEDRON = (np.array([0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1], np.float32), np.f
                 np.array([0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3], np.int32))
 
 
-def _status_bytes(field: str):
-    """A size from /proc/self/status (VmRSS: resident now, VmHWM: its peak), in bytes; None where there is none."""
+def _resident_peak_bytes():
+    """The process's resident peak (VmHWM in /proc/self/status), in bytes; None where there is none."""
     try:
         with open("/proc/self/status") as status:
             for line in status:
-                if line.startswith(field + ":"):
+                if line.startswith("VmHWM:"):
                     return int(line.split()[1]) * 1024
     except OSError:
         pass
     return None
 
 
-def _reset_resident_peak() -> bool:
-    """Hands the memory malloc holds unused back to the system and restarts the process's resident peak (VmHWM; Linux
-    4.0 and later), so that a peak read afterwards is what the work since took. False where it cannot."""
-    import ctypes
-
+def _restart_resident_peak() -> bool:
+    """Restarts the process's resident peak at what it holds now (Linux 4.0 and later); False where it cannot."""
     try:
-        ctypes.CDLL(None).malloc_trim(0)
         with open("/proc/self/clear_refs", "w") as refs:
             refs.write("5")
-    except (OSError, AttributeError):
+    except OSError:
         return False
-    return _status_bytes("VmHWM") is not None
+    return _resident_peak_bytes() is not None
 
 
 def _build_one(arrays, queue):
@@ -152,12 +148,13 @@ def _build_one(arrays, queue):
     start = peak_bytes()
     _tessera.build_mesh(*_TETRAHEDRON)
     first_build = peak_bytes() - start
-    restarted = _reset_resident_peak()
-    before = _status_bytes("VmRSS") if restarted else peak_bytes()
+    held = _rss_bytes()  # after handing malloc's unused memory back
+    restarted = _restart_resident_peak()
+    before = held if restarted else peak_bytes()
     start = time.perf_counter()
     stats = _tessera.build_mesh(*arrays)  # includes encoding the pages, and decoding them once
     seconds = time.perf_counter() - start - stats["decode_seconds"]
-    peak = _status_bytes("VmHWM") if restarted else peak_bytes()
+    peak = _resident_peak_bytes() if restarted else peak_bytes()
     queue.put((stats, seconds, peak - before, peak_bytes(), first_build))
 
 
