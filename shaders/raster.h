@@ -52,13 +52,15 @@ void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, i
     ivec3 bias = ivec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
     ivec2 size = hi - lo + 1;
     if (size.x <= 4 && size.y <= 4) {
-        uint covered = 0u;  // bit 4 dy + dx: the pixel (lo.x + dx, lo.y + dy)
-        [[unroll]] for (int dy = 0; dy < 4; ++dy)
-            [[unroll]] for (int dx = 0; dx < 4; ++dx) {
-                ivec3 w = row + stepX * dx + stepY * dy + bias;
-                bool inside = dx < size.x && dy < size.y && min(w.x, min(w.y, w.z)) >= 0;
-                covered |= inside ? 1u << uint(dy * 4 + dx) : 0u;
-            }
+        // A sample lies outside when any of its biased edge functions is negative: the sign bit of their OR.
+        uint outside = 0u;  // bit 4 dy + dx: the pixel (lo.x + dx, lo.y + dy)
+        ivec3 first = row + bias;
+        [[unroll]] for (int dy = 0; dy < 4; ++dy, first += stepY) {
+            ivec3 w = first;
+            [[unroll]] for (int dx = 0; dx < 4; ++dx, w += stepX) outside |= (uint(w.x | w.y | w.z) >> 31u) << uint(dy * 4 + dx);
+        }
+        uvec2 inBox = uvec2(clamp(size, 0, 4));
+        uint covered = ~outside & (0x1111u * ((1u << inBox.x) - 1u)) & ((1u << (4u * inBox.y)) - 1u);
         while (covered != 0u) {
             int bit = findLSB(covered);
             covered &= covered - 1u;
