@@ -37,11 +37,32 @@ void write_pixel(GpuFrame frame, int x, int y, float depth, uint64_t payload, bo
     count_fragment(frame, pixel);
 }
 
-// Where the box holds at most 4 x 4 pixel centres (nearly every triangle of a dense cut), its coverage is found first as
-// a 16-bit mask (straight-line code, no branch), then a loop over the covered pixels alone writes them. On a CPU device
-// lanes run the loops in lockstep and each atomic max is a loop over the lanes, so the cost follows how often the write
-// is reached: once per box pixel of the lane with the largest box before, now once per covered pixel of the lane with the
-// most (lavapipe: the densest field's compute raster 12-15 % faster; docs/benchmarks.md). Larger boxes scan row by row.
+// The pixels of one block of at most 4 x 4 pixel centres of a triangle's box, from `corner` (the block's first pixel)
+// with edge functions `w` there: its coverage first, as a 16-bit mask (straight-line code, no branch), then a loop over
+// the covered pixels alone writes them. On a CPU device lanes run the loops in lockstep and each atomic max is a loop
+// over the lanes, so the cost follows how often the write is reached: once per covered pixel of the lane with the most,
+// where a scan row by row reached it once per box pixel of the lane with the largest box (lavapipe, one core: the densest
+// field's compute raster 156 -> 123 ms, the 1 px sphere's 80 -> 47; docs/benchmarks.md). `inBox`: the block's pixels
+// inside the box, 0-4 each way.
+void scan_block(GpuFrame frame, ivec2 corner, ivec3 w, ivec3 stepX, ivec3 stepY, ivec3 bias, uvec2 inBox, vec4 z, uint64_t payload, bool masked) {
+    // A sample lies outside when any of its biased edge functions is negative: the sign bit of their OR.
+    uint outside = 0u;  // bit 4 dy + dx: the pixel corner + (dx, dy)
+    ivec3 first = w + bias;
+    [[unroll]] for (int dy = 0; dy < 4; ++dy, first += stepY) {
+        ivec3 at = first;
+        [[unroll]] for (int dx = 0; dx < 4; ++dx, at += stepX) outside |= (uint(at.x | at.y | at.z) >> 31u) << uint(dy * 4 + dx);
+    }
+    // Samples past the box are masked off here (their edge functions may exceed the bound that holds inside the box).
+    uint covered = ~outside & (0x1111u * ((1u << inBox.x) - 1u)) & ((1u << (4u * inBox.y)) - 1u);
+    while (covered != 0u) {
+        int bit = findLSB(covered);
+        covered &= covered - 1u;
+        int dx = bit & 3, dy = bit >> 2;
+        write_pixel(frame, corner.x + dx, corner.y + dy, depth_at(vec3(w + stepX * dx + stepY * dy), z), payload, masked);
+    }
+}
+
+// A triangle's box in blocks of 4 x 4 pixel centres (nearly every triangle of a dense cut fits one).
 void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload, bool masked) {
     ivec2 p = lo * step + center;
     ivec3 row = ivec3((b.x - c.x) * (p.y - b.y) - (b.y - c.y) * (p.x - b.x),
@@ -51,28 +72,16 @@ void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, i
     ivec3 stepY = ivec3(b.x - c.x, c.x - a.x, a.x - b.x) * step;
     ivec3 bias = ivec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
     ivec2 size = hi - lo + 1;
-    if (size.x <= 4 && size.y <= 4) {
-        // A sample lies outside when any of its biased edge functions is negative: the sign bit of their OR.
-        uint outside = 0u;  // bit 4 dy + dx: the pixel (lo.x + dx, lo.y + dy)
-        ivec3 first = row + bias;
-        [[unroll]] for (int dy = 0; dy < 4; ++dy, first += stepY) {
-            ivec3 w = first;
-            [[unroll]] for (int dx = 0; dx < 4; ++dx, w += stepX) outside |= (uint(w.x | w.y | w.z) >> 31u) << uint(dy * 4 + dx);
-        }
-        uvec2 inBox = uvec2(clamp(size, 0, 4));
-        uint covered = ~outside & (0x1111u * ((1u << inBox.x) - 1u)) & ((1u << (4u * inBox.y)) - 1u);
-        while (covered != 0u) {
-            int bit = findLSB(covered);
-            covered &= covered - 1u;
-            int dx = bit & 3, dy = bit >> 2;
-            write_pixel(frame, lo.x + dx, lo.y + dy, depth_at(vec3(row + stepX * dx + stepY * dy), z), payload, masked);
-        }
-        return;
-    }
-    for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
-        ivec3 w = row;
-        for (int x = lo.x; x <= hi.x; ++x, w += stepX)
-            if (all(greaterThanEqual(w + bias, ivec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload, masked);
+    // One loop over the blocks, row by row (a nested loop runs its inner loop's mask logic once more per row).
+    int blocks = ((max(size.x, 0) + 3) >> 2) * ((max(size.y, 0) + 3) >> 2);
+    ivec2 block = ivec2(0);
+    ivec3 w = row;
+    for (int k = 0; k < blocks; ++k) {
+        scan_block(frame, lo + block, w, stepX, stepY, bias, uvec2(min(size - block, 4)), z, payload, masked);
+        bool wrap = block.x + 4 >= size.x;
+        row += wrap ? stepY * 4 : ivec3(0);
+        w = wrap ? row : w + stepX * 4;
+        block = wrap ? ivec2(0, block.y + 4) : ivec2(block.x + 4, block.y);
     }
 }
 
