@@ -85,18 +85,20 @@ VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes
 // shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, reads through texel views, TS_SPEC_TEXEL_VIEWS, and stores the AOV output
 // through its binding, TS_SPEC_OUTPUT_BINDING).
 struct SpecializationInfo {
-    uint32_t values[17];
-    VkSpecializationMapEntry entries[17] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+    uint32_t values[18];
+    VkSpecializationMapEntry entries[18] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                            {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
                                            {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4},
-                                           {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}, {TS_SPEC_LIGHT_COUNTS, 60, 4}, {TS_SPEC_OUTPUT_BINDING, 64, 4}};
-    VkSpecializationInfo info{17, entries, sizeof(values), values};
+                                           {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}, {TS_SPEC_LIGHT_COUNTS, 60, 4}, {TS_SPEC_OUTPUT_BINDING, 64, 4},
+                                           {TS_SPEC_DISPLACED_INSTANCES, 68, 4}};
+    VkSpecializationInfo info{18, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews, bool outputBinding)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
                  s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
-                 VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts, VkBool32(outputBinding)} {}
+                 VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts, VkBool32(outputBinding),
+                 VkBool32(s.displacedInstances)} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
@@ -139,10 +141,10 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     const bool ownCorners = default_own_corners();
     VkPipeline& unlit = resolveVariants[0];  // the map's one insertion, before the threads
     const std::vector<std::function<void()>> tasks = {
-        [&] { cull_step(TS_CULL_MAIN_INSTANCES); },
-        [&] { cull_step(TS_CULL_MAIN); },
-        [&] { cull_step(TS_CULL_POST_INSTANCES); },
-        [&] { cull_step(TS_CULL_POST); },
+        [&] { cull_step(TS_CULL_MAIN_INSTANCES, false); },
+        [&] { cull_step(TS_CULL_MAIN, false); },
+        [&] { cull_step(TS_CULL_POST_INSTANCES, false); },
+        [&] { cull_step(TS_CULL_POST, false); },
         [&] { unlit = compute_pipeline(resolve_comp, sizeof(resolve_comp), {.textureKinds = 0}); },
         [&] { hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp)); },
         [&] { bins = compute_pipeline(bins_comp, sizeof(bins_comp)); },
@@ -163,7 +165,7 @@ void Pipelines::run_on_threads(const std::vector<std::function<void()>>& tasks) 
 Pipelines::~Pipelines() {
     device.wait_idle();
     VkDevice vk = device.handle();
-    for (VkPipeline step : cull) vkDestroyPipeline(vk, step, nullptr);
+    for (VkPipeline step : std::span(&cull[0][0], 8)) vkDestroyPipeline(vk, step, nullptr);
     vkDestroyPipeline(vk, hzb, nullptr);
     for (VkPipeline step : classify) vkDestroyPipeline(vk, step, nullptr);
     vkDestroyPipeline(vk, bins, nullptr);
@@ -285,6 +287,8 @@ void Pipelines::make_for_frame(const FrameNeeds& needs) {
         need(rasterSoftware[masks][counts][corners][large], [=, this] { software_raster(masks, corners, large, counts); });
     for (const bool doubleSided : {false, true})
         need(rasterHardware[masks][counts][doubleSided], [=, this] { hardware_raster(masks, doubleSided, counts); });
+    for (uint32_t step = 0; step < 4; ++step)
+        need(cull[step][needs.displacedInstances], [=, this] { cull_step(step, needs.displacedInstances); });
     if (needs.displaced) {
         need(tessellatePatches, [this] { tessellate(); });
         need(diceVariants[masks][counts], [=, this] { dice(masks, counts); });
@@ -299,10 +303,10 @@ void Pipelines::make_for_frame(const FrameNeeds& needs) {
     run_on_threads(tasks);  // an entry a failed task left empty is made on its first use (or fails again there)
 }
 
-VkPipeline Pipelines::cull_step(uint32_t step) {
-    VkPipeline& pipeline = cull[step];
+VkPipeline Pipelines::cull_step(uint32_t step, bool displacedInstances) {
+    VkPipeline& pipeline = cull[step][displacedInstances];
     if (!pipeline)
-        pipeline = compute_pipeline(cull_comp, sizeof(cull_comp), {.cullGroupSize = cullGroupSize, .step = step});
+        pipeline = compute_pipeline(cull_comp, sizeof(cull_comp), {.cullGroupSize = cullGroupSize, .step = step, .displacedInstances = displacedInstances});
     return pipeline;
 }
 

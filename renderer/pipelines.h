@@ -49,6 +49,7 @@ struct Specialization {
     bool countFragments = false;           // TS_SPEC_COUNT_FRAGMENTS: the rasterizers' for the overdraw view
     uint32_t textureKinds = TS_TEXTURE_KINDS_ALL;  // TS_SPEC_TEXTURE_KINDS: what a textured resolve's textures need
     uint32_t lightCounts = 0;              // TS_SPEC_LIGHT_COUNTS: resolve's shading, the frame's lights
+    bool displacedInstances = true;        // TS_SPEC_DISPLACED_INSTANCES: the cull's, off where no instance is displaced
     bool operator==(const Specialization&) const = default;
 };
 
@@ -86,7 +87,8 @@ struct Pipelines {
 
     // The cull's pipeline for one step (TS_CULL_*): the main pass's are made at once, the post pass's when a frame
     // first has one.
-    VkPipeline cull_step(uint32_t step);
+    // The cull's step (TS_CULL_*), in the variant for frames with displaced instances or the one without their code.
+    VkPipeline cull_step(uint32_t step, bool displacedInstances);
     // Classify's pipeline for one step (TS_CLASSIFY_*), made when a frame first needs it: one-material scenes list their
     // pixels in a single step and never make the other two.
     VkPipeline classify_step(uint32_t step);
@@ -118,7 +120,7 @@ struct Pipelines {
     // What a frame draws with: the rasterizers' variants for its masks and views, tessellation's passes where it
     // displaces, and the resolve variants of its bins.
     struct FrameNeeds {
-        bool masks = false, ownCorners = false, countFragments = false, displaced = false;
+        bool masks = false, ownCorners = false, countFragments = false, displaced = false, displacedInstances = false;
         std::vector<ResolveVariant> resolves;
     };
     // Makes those of `needs` not made yet, together on the host's threads, before the frame records: a first frame of
@@ -135,7 +137,7 @@ struct Pipelines {
     bool default_own_corners() const;
 
 private:
-    VkPipeline cull[4] = {};      // a pipeline per step (TS_CULL_*)
+    VkPipeline cull[4][2] = {};   // a pipeline per step (TS_CULL_*), without and with displaced instances' code
     VkPipeline classify[3] = {};  // a pipeline per step (TS_CLASSIFY_*)
     // The rasterizers' variants, by [masks][countFragments] and, for the compute rasterizer, [own corners][large
     // triangles]; for hardware raster, [double-sided].

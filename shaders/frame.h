@@ -415,8 +415,11 @@ uvec2 visible_cluster(GpuFrame frame, uint slot) {
 // How far a displaced instance's surface may move from its mesh (mesh units: times instance_scale in the world); 0
 // when nothing displaces it. An instance with a material table keeps the largest of its materials' in the word before
 // its table.
+// Off in the cull's variant for frames without displaced instances (TS_SPEC_DISPLACED_INSTANCES): no displacement at all.
+layout(constant_id = TS_SPEC_DISPLACED_INSTANCES) const bool DISPLACED_INSTANCES = true;
+
 float instance_displacement(GpuFrame frame, Instance instance) {
-    if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
+    if (!DISPLACED_INSTANCES || (instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
     if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return uintBitsToFloat(material_table_entry(frame, instance.materialIndex - 1u));
     return load_material(frame, instance.materialIndex).displacement.w;
 }
@@ -425,7 +428,7 @@ float instance_displacement(GpuFrame frame, Instance instance) {
 // under it, where the CPU found it (GpuInstanceBatch.displacementBounds), else its materials'. `clusterInMesh` counts
 // from the mesh's first cluster.
 float cluster_displacement(GpuFrame frame, Instance instance, uint clusterInMesh) {
-    if ((instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
+    if (!DISPLACED_INSTANCES || (instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
     if (instance.displacementBounds == TS_NO_STREAM) return instance_displacement(frame, instance);
     return FloatRef(frame.clusterDisplacement).data[instance.displacementBounds + clusterInMesh];
 }

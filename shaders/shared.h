@@ -280,6 +280,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // rather than its address; off in the sets for frames whose output outgrows the device's maxStorageBufferRange (128 MiB
 // on lavapipe: above 8.4 M pixels).
 #define TS_SPEC_OUTPUT_BINDING 16
+// Specialization constant of the cull (boolean, default on): some instance of the frame is displaced
+// (TS_INSTANCE_DISPLACED). Off, the cull carries none of the displacement code (the bounds displacement adds to a
+// cluster, whether it is diced, the tessellation list): lavapipe ran it masked for every cluster of every scene, 12 % of
+// the densest field's cull (docs/benchmarks.md).
+#define TS_SPEC_DISPLACED_INSTANCES 17
 
 // Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
 // streams read per pixel, per triangle or per vertex. The format of each: TS_VIEW_FORMAT_* (renderer.cpp).
