@@ -28,9 +28,26 @@ layout(constant_id = TS_SPEC_OWN_CORNERS) const bool OWN_CORNERS = false;
 // the back (LARGE_TRIANGLES: each triangle picks its scan). Both draw the same pixels for the same triangle.
 layout(constant_id = TS_SPEC_LARGE_TRIANGLES) const bool LARGE_TRIANGLES = false;
 
-// A vertex on screen: sub-pixel position and reversed-Z depth bits (z / w), one word each, read by a triangle's corner as
-// one load (on lavapipe, two arrays cost a load each: 5 % of its compute raster).
+// A vertex on screen: sub-pixel position and reversed-Z depth bits (z / w), read by a triangle's corner as one load (on
+// lavapipe, two arrays cost a load each: 5 % of its compute raster). The back of the software list (LARGE_TRIANGLES)
+// keeps them one word each. The front packs them into one 64-bit word: the position relative to the cluster's first
+// vertex in 16 bits each way (the cull lists there only clusters whose sphere spans less than
+// TS_SW_SMALL_TRIANGLE_SUBPIXELS < 2^15 sub-pixels on screen, so every difference fits), the depth bits above. lavapipe
+// loads shared memory a lane at a time, per component: one word instead of three per corner made the densest field's
+// compute raster 7-8 % cheaper (docs/benchmarks.md).
 shared ivec4 corner[TS_CLUSTER_MAX_VERTICES];
+shared uint64_t packedCorner[TS_CLUSTER_MAX_VERTICES];
+
+uint64_t pack_corner(ivec2 screen, float depth, ivec2 origin) {
+    ivec2 offset = screen - origin;
+    return uint64_t((uint(offset.x) & 0xffffu) | (uint(offset.y) << 16)) | (uint64_t(floatBitsToUint(depth)) << 32);
+}
+
+void unpack_corner(uint64_t packed, ivec2 origin, out ivec2 screen, out float depth) {
+    int offsets = int(uint(packed));
+    screen = origin + ivec2(bitfieldExtract(offsets, 0, 16), offsets >> 16);  // both sign-extended
+    depth = uintBitsToFloat(uint(packed >> 32));
+}
 
 // Vertex (index into the vertex streams) -> framebuffer sub-pixels and depth (Vulkan viewport transform:
 // (ndc * 0.5 + 0.5) * size): the same arithmetic in both variants, so they cover the same pixels bit for bit.
@@ -52,6 +69,12 @@ void main() {
     GpuCluster cluster = load_cluster(frame, visible.y);
     vec3 translation = camera_relative_translation(instance);
 
+    // The packed corners' origin: the cluster's first vertex, the same arithmetic in every thread.
+    ivec2 origin = ivec2(0);
+    if (!OWN_CORNERS && !LARGE_TRIANGLES) {
+        float originDepth;
+        transform_vertex(frame, instance, translation, cluster.vertexOffset, origin, originDepth);
+    }
     if (!OWN_CORNERS) {
         // Each vertex once, into shared memory, for every triangle that uses it.
         uint vertexCount = cluster.levelVertices & 0xffffu;
@@ -59,7 +82,8 @@ void main() {
             ivec2 sv;
             float dv;
             transform_vertex(frame, instance, translation, cluster.vertexOffset + v, sv, dv);
-            corner[v] = ivec4(sv, floatBitsToInt(dv), 0);
+            if (LARGE_TRIANGLES) corner[v] = ivec4(sv, floatBitsToInt(dv), 0);
+            else packedCorner[v] = pack_corner(sv, dv, origin);
         }
         barrier();
     }
@@ -74,7 +98,7 @@ void main() {
             transform_vertex(frame, instance, translation, i0, a, za);
             transform_vertex(frame, instance, translation, i1, b, zb);
             transform_vertex(frame, instance, translation, i2, c, zc);
-        } else {
+        } else if (LARGE_TRIANGLES) {
             i0 -= cluster.vertexOffset;
             i1 -= cluster.vertexOffset;
             i2 -= cluster.vertexOffset;
@@ -85,6 +109,10 @@ void main() {
             za = intBitsToFloat(ca.z);
             zb = intBitsToFloat(cb.z);
             zc = intBitsToFloat(cc.z);
+        } else {
+            unpack_corner(packedCorner[i0 - cluster.vertexOffset], origin, a, za);
+            unpack_corner(packedCorner[i1 - cluster.vertexOffset], origin, b, zb);
+            unpack_corner(packedCorner[i2 - cluster.vertexOffset], origin, c, zc);
         }
         uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
         bool masked = MASKS && (instance.flags & TS_INSTANCE_MASKED) != 0u;
