@@ -81,6 +81,11 @@ VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes
     return module;
 }
 
+// The index of a frame's instance flags (TS_SPEC_INSTANCE_FLAGS) among the cull's and classify's variants.
+uint32_t instance_flags_variant(uint32_t flags) {
+    return ((flags & TS_INSTANCE_DISPLACED) ? 1u : 0u) | ((flags & TS_INSTANCE_MATERIAL_SLOTS) ? 2u : 0u);
+}
+
 // A Specialization as Vulkan takes it, with what is the same for every pipeline of a set (the pixels each resolve thread
 // shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, reads through texel views, TS_SPEC_TEXEL_VIEWS, and stores the AOV output
 // through its binding, TS_SPEC_OUTPUT_BINDING).
@@ -91,14 +96,14 @@ struct SpecializationInfo {
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
                                            {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4},
                                            {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}, {TS_SPEC_LIGHT_COUNTS, 60, 4}, {TS_SPEC_OUTPUT_BINDING, 64, 4},
-                                           {TS_SPEC_DISPLACED_INSTANCES, 68, 4}};
+                                           {TS_SPEC_INSTANCE_FLAGS, 68, 4}};
     VkSpecializationInfo info{18, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews, bool outputBinding)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
                  s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
                  VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts, VkBool32(outputBinding),
-                 VkBool32(s.displacedInstances)} {}
+                 s.instanceFlags} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
@@ -141,16 +146,16 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     const bool ownCorners = default_own_corners();
     VkPipeline& unlit = resolveVariants[0];  // the map's one insertion, before the threads
     const std::vector<std::function<void()>> tasks = {
-        [&] { cull_step(TS_CULL_MAIN_INSTANCES, false); },
-        [&] { cull_step(TS_CULL_MAIN, false); },
-        [&] { cull_step(TS_CULL_POST_INSTANCES, false); },
-        [&] { cull_step(TS_CULL_POST, false); },
+        [&] { cull_step(TS_CULL_MAIN_INSTANCES, 0); },
+        [&] { cull_step(TS_CULL_MAIN, 0); },
+        [&] { cull_step(TS_CULL_POST_INSTANCES, 0); },
+        [&] { cull_step(TS_CULL_POST, 0); },
         [&] { unlit = compute_pipeline(resolve_comp, sizeof(resolve_comp), {.textureKinds = 0}); },
         [&] { hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp)); },
         [&] { bins = compute_pipeline(bins_comp, sizeof(bins_comp)); },
-        [&] { classify_step(TS_CLASSIFY_ONE_BIN); },
-        [&] { classify_step(TS_CLASSIFY_COUNT); },
-        [&] { classify_step(TS_CLASSIFY_SCATTER); },
+        [&] { classify_step(TS_CLASSIFY_ONE_BIN, 0); },
+        [&] { classify_step(TS_CLASSIFY_COUNT, 0); },
+        [&] { classify_step(TS_CLASSIFY_SCATTER, 0); },
         [&] { software_raster(false, ownCorners, false, false); },
         [&] { software_raster(false, ownCorners, true, false); },
         [&] { hardware_raster(false, false, false); },
@@ -165,9 +170,9 @@ void Pipelines::run_on_threads(const std::vector<std::function<void()>>& tasks) 
 Pipelines::~Pipelines() {
     device.wait_idle();
     VkDevice vk = device.handle();
-    for (VkPipeline step : std::span(&cull[0][0], 8)) vkDestroyPipeline(vk, step, nullptr);
+    for (VkPipeline step : std::span(&cull[0][0], sizeof(cull) / sizeof(VkPipeline))) vkDestroyPipeline(vk, step, nullptr);
     vkDestroyPipeline(vk, hzb, nullptr);
-    for (VkPipeline step : classify) vkDestroyPipeline(vk, step, nullptr);
+    for (VkPipeline step : std::span(&classify[0][0], sizeof(classify) / sizeof(VkPipeline))) vkDestroyPipeline(vk, step, nullptr);
     vkDestroyPipeline(vk, bins, nullptr);
     for (VkPipeline variant : std::span(&rasterSoftware[0][0][0][0], sizeof(rasterSoftware) / sizeof(VkPipeline))) vkDestroyPipeline(vk, variant, nullptr);
     for (VkPipeline variant : std::span(&rasterHardware[0][0][0], sizeof(rasterHardware) / sizeof(VkPipeline))) vkDestroyPipeline(vk, variant, nullptr);
@@ -287,8 +292,9 @@ void Pipelines::make_for_frame(const FrameNeeds& needs) {
         need(rasterSoftware[masks][counts][corners][large], [=, this] { software_raster(masks, corners, large, counts); });
     for (const bool doubleSided : {false, true})
         need(rasterHardware[masks][counts][doubleSided], [=, this] { hardware_raster(masks, doubleSided, counts); });
-    for (uint32_t step = 0; step < 4; ++step)
-        need(cull[step][needs.displacedInstances], [=, this] { cull_step(step, needs.displacedInstances); });
+    const uint32_t flags = needs.instanceFlags, variant = instance_flags_variant(flags);
+    for (uint32_t step = 0; step < 4; ++step) need(cull[step][variant], [=, this] { cull_step(step, flags); });
+    for (uint32_t step = 0; step < 3; ++step) need(classify[step][variant], [=, this] { classify_step(step, flags); });
     if (needs.displaced) {
         need(tessellatePatches, [this] { tessellate(); });
         need(diceVariants[masks][counts], [=, this] { dice(masks, counts); });
@@ -303,17 +309,18 @@ void Pipelines::make_for_frame(const FrameNeeds& needs) {
     run_on_threads(tasks);  // an entry a failed task left empty is made on its first use (or fails again there)
 }
 
-VkPipeline Pipelines::cull_step(uint32_t step, bool displacedInstances) {
-    VkPipeline& pipeline = cull[step][displacedInstances];
+VkPipeline Pipelines::cull_step(uint32_t step, uint32_t instanceFlags) {
+    VkPipeline& pipeline = cull[step][instance_flags_variant(instanceFlags)];
     if (!pipeline)
-        pipeline = compute_pipeline(cull_comp, sizeof(cull_comp), {.cullGroupSize = cullGroupSize, .step = step, .displacedInstances = displacedInstances});
+        pipeline = compute_pipeline(cull_comp, sizeof(cull_comp),
+                                    {.cullGroupSize = cullGroupSize, .step = step, .instanceFlags = instanceFlags & TS_SPECIALIZED_INSTANCE_FLAGS});
     return pipeline;
 }
 
-VkPipeline Pipelines::classify_step(uint32_t step) {
-    VkPipeline& pipeline = classify[step];
+VkPipeline Pipelines::classify_step(uint32_t step, uint32_t instanceFlags) {
+    VkPipeline& pipeline = classify[step][instance_flags_variant(instanceFlags)];
     if (!pipeline)
-        pipeline = compute_pipeline(classify_comp, sizeof(classify_comp), {.step = step});
+        pipeline = compute_pipeline(classify_comp, sizeof(classify_comp), {.step = step, .instanceFlags = instanceFlags & TS_SPECIALIZED_INSTANCE_FLAGS});
     return pipeline;
 }
 

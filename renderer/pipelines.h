@@ -49,7 +49,7 @@ struct Specialization {
     bool countFragments = false;           // TS_SPEC_COUNT_FRAGMENTS: the rasterizers' for the overdraw view
     uint32_t textureKinds = TS_TEXTURE_KINDS_ALL;  // TS_SPEC_TEXTURE_KINDS: what a textured resolve's textures need
     uint32_t lightCounts = 0;              // TS_SPEC_LIGHT_COUNTS: resolve's shading, the frame's lights
-    bool displacedInstances = true;        // TS_SPEC_DISPLACED_INSTANCES: the cull's, off where no instance is displaced
+    uint32_t instanceFlags = TS_SPECIALIZED_INSTANCE_FLAGS;  // TS_SPEC_INSTANCE_FLAGS: the cull's and classify's, the frame's
     bool operator==(const Specialization&) const = default;
 };
 
@@ -87,11 +87,12 @@ struct Pipelines {
 
     // The cull's pipeline for one step (TS_CULL_*): the main pass's are made at once, the post pass's when a frame
     // first has one.
-    // The cull's step (TS_CULL_*), in the variant for frames with displaced instances or the one without their code.
-    VkPipeline cull_step(uint32_t step, bool displacedInstances);
+    // The cull's and classify's steps (TS_CULL_*, TS_CLASSIFY_*), in the variant for the instance flags of
+    // TS_SPECIALIZED_INSTANCE_FLAGS some instance of the frame carries (TS_SPEC_INSTANCE_FLAGS).
+    VkPipeline cull_step(uint32_t step, uint32_t instanceFlags);
     // Classify's pipeline for one step (TS_CLASSIFY_*), made when a frame first needs it: one-material scenes list their
     // pixels in a single step and never make the other two.
-    VkPipeline classify_step(uint32_t step);
+    VkPipeline classify_step(uint32_t step, uint32_t instanceFlags);
     // The rasterizers' variants, made on first use (a few tens of ms each on lavapipe, cold): `masks` with texture code
     // (TS_SPEC_TEXTURES) for frames with opacity masks; `countFragments` (TS_SPEC_COUNT_FRAGMENTS) for the overdraw
     // view only, whose count per fragment, present but not run, cost lavapipe 6 % of the compute raster.
@@ -120,7 +121,8 @@ struct Pipelines {
     // What a frame draws with: the rasterizers' variants for its masks and views, tessellation's passes where it
     // displaces, and the resolve variants of its bins.
     struct FrameNeeds {
-        bool masks = false, ownCorners = false, countFragments = false, displaced = false, displacedInstances = false;
+        bool masks = false, ownCorners = false, countFragments = false, displaced = false;
+        uint32_t instanceFlags = 0;  // of TS_SPECIALIZED_INSTANCE_FLAGS
         std::vector<ResolveVariant> resolves;
     };
     // Makes those of `needs` not made yet, together on the host's threads, before the frame records: a first frame of
@@ -137,8 +139,9 @@ struct Pipelines {
     bool default_own_corners() const;
 
 private:
-    VkPipeline cull[4][2] = {};   // a pipeline per step (TS_CULL_*), without and with displaced instances' code
-    VkPipeline classify[3] = {};  // a pipeline per step (TS_CLASSIFY_*)
+    // A pipeline per step (TS_CULL_*, TS_CLASSIFY_*) and frame instance flags (instance_flags_variant).
+    VkPipeline cull[4][4] = {};
+    VkPipeline classify[3][4] = {};
     // The rasterizers' variants, by [masks][countFragments] and, for the compute rasterizer, [own corners][large
     // triangles]; for hardware raster, [double-sided].
     VkPipeline rasterSoftware[2][2][2][2] = {};

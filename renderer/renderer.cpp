@@ -421,7 +421,7 @@ struct Renderer::Impl {
     // texture, which it reads again where it dices a micro-triangle again.
     std::vector<uint32_t> materialTextureKinds;
     bool anyMasked = false;  // an instance is flagged TS_INSTANCE_MASKED: the rasterizers' mask variants draw the frame
-    bool anyDisplacedInstance = false;  // an instance is flagged TS_INSTANCE_DISPLACED: the cull's variant with that code
+    uint32_t instanceFlags = 0;  // TS_SPECIALIZED_INSTANCE_FLAGS some instance carries: the cull's and classify's variant
     // Displacement: per material, whether it displaces; per mesh, whether a displaced instance draws it (those get
     // displacement normals); the lists of runtime tessellation, made only for scenes that displace.
     std::vector<bool> displacedMaterials, displacedMeshes;
@@ -917,7 +917,7 @@ struct Renderer::Impl {
         clusterCount = 0;
         sourceTriangles = 0;
         anyMasked = false;
-        anyDisplacedInstance = false;
+        instanceFlags = 0;
         std::vector<const InstanceDesc*> drawn;  // batch -> its desc
         std::vector<uint64_t> firstInstance;     // batch -> its first instance; one more entry at the end
         uint64_t count = 0;
@@ -945,7 +945,7 @@ struct Renderer::Impl {
             const bool displaced = table ? tableBound != tableDisplacement.end() && tableBound->second > 0 : material_displaced(g.materialIndex);
             g.flags = (desc.doubleSided ? TS_INSTANCE_DOUBLE_SIDED : 0u) | (table ? TS_INSTANCE_MATERIAL_SLOTS : 0u) | (masked ? TS_INSTANCE_MASKED : 0u) |
                       (displaced ? TS_INSTANCE_DISPLACED : 0u);
-            anyDisplacedInstance |= displaced;
+            instanceFlags |= g.flags & TS_SPECIALIZED_INSTANCE_FLAGS;
             // The origin: a single instance's translation with the mesh's origin folded in (its offset is then 0, as
             // when every instance carried its own double translation); an instancer's frame for an array.
             const Matrix4d& m = desc.transform;
@@ -1658,7 +1658,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             return v;
         };
         // What the frame draws with, made before it records, together on the host's threads (Pipelines::make_for_frame).
-        Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.anyDisplacedInstance, {}};
+        Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, {}};
         for (const Aov aov : aovs)
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
@@ -1774,7 +1774,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
 
             // Main pass: instances one per thread, then a workgroup per instance they listed.
             auto cull_step = [&](uint32_t step, const Buffer& hzb) {
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.cull_step(step, s.anyDisplacedInstance));
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.cull_step(step, s.instanceFlags));
                 PushConstants push{0, step, hzb.address};
                 vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(push), &push);
             };
@@ -1841,7 +1841,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             const bool oneBin = s.materialCount * s.bin_kinds() == 1;  // nothing to sort: list the covered pixels
             for (uint32_t step : {oneBin ? TS_CLASSIFY_ONE_BIN : TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
                 if (oneBin && step == TS_CLASSIFY_SCATTER) break;
-                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.classify_step(step));
+                vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.classify_step(step, s.instanceFlags));
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 compute_barrier();
                 if (step != TS_CLASSIFY_SCATTER) {

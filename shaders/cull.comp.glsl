@@ -88,8 +88,8 @@ bool facing_away(GpuFrame frame, Instance instance, GpuCluster cluster, vec3 cen
 // projects to no more than its material's fade-end size, where it has faded out entirely (tessellation.h). Clusters of
 // instances with material tables are always diced (each triangle fades by its own material).
 bool tessellated(GpuFrame frame, Instance instance, vec3 center, float radius, float scale) {
-    if (!DISPLACED_INSTANCES || (instance.flags & TS_INSTANCE_DISPLACED) == 0u) return false;
-    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return true;
+    if (!instance_flag(instance, TS_INSTANCE_DISPLACED)) return false;
+    if (instance_flag(instance, TS_INSTANCE_MATERIAL_SLOTS)) return true;
     GpuMaterial material = load_material(frame, instance.materialIndex);
     float size = material.displacement.w * scale * frame.lod.x;
     if (frame.lod.z == 0.0) {

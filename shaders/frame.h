@@ -392,12 +392,17 @@ struct Payload {
     uint slot, triangle, patchIndex, micro;
 };
 
+// The instance flags some instance of the frame may carry (TS_SPEC_INSTANCE_FLAGS), and an instance's test of one of them:
+// false at compile time for a flag no instance of the frame carries.
+layout(constant_id = TS_SPEC_INSTANCE_FLAGS) const uint FRAME_INSTANCE_FLAGS = TS_SPECIALIZED_INSTANCE_FLAGS;
+bool instance_flag(Instance instance, uint flag) { return (FRAME_INSTANCE_FLAGS & flag) != 0u && (instance.flags & flag) != 0u; }
+
 Payload decode_payload(GpuFrame frame, uint payload) {
     Payload p;
     uint clusterTriangle = payload;
     p.patchIndex = 0xffffffffu;
     p.micro = 0u;
-    if ((payload & TS_VIS_TESSELLATED) != 0u) {
+    if ((FRAME_INSTANCE_FLAGS & TS_INSTANCE_DISPLACED) != 0u && (payload & TS_VIS_TESSELLATED) != 0u) {  // only displaced instances dice
         p.patchIndex = (payload & ~TS_VIS_TESSELLATED) >> TS_VIS_MICRO_BITS;
         p.micro = payload & ((1u << TS_VIS_MICRO_BITS) - 1u);
         clusterTriangle = load_gpu_patch(frame, p.patchIndex).triangle;
@@ -415,12 +420,10 @@ uvec2 visible_cluster(GpuFrame frame, uint slot) {
 // How far a displaced instance's surface may move from its mesh (mesh units: times instance_scale in the world); 0
 // when nothing displaces it. An instance with a material table keeps the largest of its materials' in the word before
 // its table.
-// Off in the cull's variant for frames without displaced instances (TS_SPEC_DISPLACED_INSTANCES): no displacement at all.
-layout(constant_id = TS_SPEC_DISPLACED_INSTANCES) const bool DISPLACED_INSTANCES = true;
 
 float instance_displacement(GpuFrame frame, Instance instance) {
-    if (!DISPLACED_INSTANCES || (instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
-    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0u) return uintBitsToFloat(material_table_entry(frame, instance.materialIndex - 1u));
+    if (!instance_flag(instance, TS_INSTANCE_DISPLACED)) return 0.0;
+    if (instance_flag(instance, TS_INSTANCE_MATERIAL_SLOTS)) return uintBitsToFloat(material_table_entry(frame, instance.materialIndex - 1u));
     return load_material(frame, instance.materialIndex).displacement.w;
 }
 
@@ -428,7 +431,7 @@ float instance_displacement(GpuFrame frame, Instance instance) {
 // under it, where the CPU found it (GpuInstanceBatch.displacementBounds), else its materials'. `clusterInMesh` counts
 // from the mesh's first cluster.
 float cluster_displacement(GpuFrame frame, Instance instance, uint clusterInMesh) {
-    if (!DISPLACED_INSTANCES || (instance.flags & TS_INSTANCE_DISPLACED) == 0u) return 0.0;
+    if (!instance_flag(instance, TS_INSTANCE_DISPLACED)) return 0.0;
     if (instance.displacementBounds == TS_NO_STREAM) return instance_displacement(frame, instance);
     return FloatRef(frame.clusterDisplacement).data[instance.displacementBounds + clusterInMesh];
 }
@@ -436,7 +439,7 @@ float cluster_displacement(GpuFrame frame, Instance instance, uint clusterInMesh
 // The material of a visible triangle: the instance's own, or, for meshes whose triangles carry material slots
 // (GeomSubsets), the slot's entry in the instance's material table.
 uint pixel_material(GpuFrame frame, Instance instance, uint cluster, uint triangle) {
-    if ((instance.flags & TS_INSTANCE_MATERIAL_SLOTS) == 0u) return instance.materialIndex;
+    if (!instance_flag(instance, TS_INSTANCE_MATERIAL_SLOTS)) return instance.materialIndex;
     uint slot = triangle_word(frame, load_cluster(frame, cluster).triangleOffset + triangle) >> 24;
     return material_table_entry(frame, instance.materialIndex + slot);
 }

@@ -280,11 +280,14 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // rather than its address; off in the sets for frames whose output outgrows the device's maxStorageBufferRange (128 MiB
 // on lavapipe: above 8.4 M pixels).
 #define TS_SPEC_OUTPUT_BINDING 16
-// Specialization constant of the cull (boolean, default on): some instance of the frame is displaced
-// (TS_INSTANCE_DISPLACED). Off, the cull carries none of the displacement code (the bounds displacement adds to a
-// cluster, whether it is diced, the tessellation list): lavapipe ran it masked for every cluster of every scene, 12 % of
-// the densest field's cull (docs/benchmarks.md).
-#define TS_SPEC_DISPLACED_INSTANCES 17
+// Specialization constant of the cull and classify: which of TS_SPECIALIZED_INSTANCE_FLAGS some instance of the frame
+// carries (the other passes keep the default, all of them). The code for a flag no instance carries is left out:
+// without TS_INSTANCE_DISPLACED, the bounds displacement adds to a cluster, whether it is diced, the tessellation list
+// and the decoding of micro-triangle payloads; without TS_INSTANCE_MATERIAL_SLOTS, the material table lookup of each
+// pixel's triangle. lavapipe ran them masked for every cluster and pixel of every scene: 13 % of the density fields'
+// cull, 18 % of a frame's classify with 8 materials (docs/benchmarks.md).
+#define TS_SPEC_INSTANCE_FLAGS 17
+#define TS_SPECIALIZED_INSTANCE_FLAGS (TS_INSTANCE_DISPLACED | TS_INSTANCE_MATERIAL_SLOTS)
 
 // Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
 // streams read per pixel, per triangle or per vertex. The format of each: TS_VIEW_FORMAT_* (renderer.cpp).
