@@ -85,13 +85,10 @@ struct Pipelines {
 
     VkPipeline hzb = VK_NULL_HANDLE, bins = VK_NULL_HANDLE;
 
-    // The cull's pipeline for one step (TS_CULL_*): the main pass's are made at once, the post pass's when a frame
-    // first has one.
-    // The cull's and classify's steps (TS_CULL_*, TS_CLASSIFY_*), in the variant for the instance flags of
-    // TS_SPECIALIZED_INSTANCE_FLAGS some instance of the frame carries (TS_SPEC_INSTANCE_FLAGS).
+    // The cull's and classify's pipelines for one step (TS_CULL_*, TS_CLASSIFY_*), in the variant for the instance flags
+    // of TS_SPECIALIZED_INSTANCE_FLAGS some instance of the frame carries (TS_SPEC_INSTANCE_FLAGS). The variant without
+    // any of them is made with the set; the others for a frame that needs them (make_for_frame), or on first use.
     VkPipeline cull_step(uint32_t step, uint32_t instanceFlags);
-    // Classify's pipeline for one step (TS_CLASSIFY_*), made when a frame first needs it: one-material scenes list their
-    // pixels in a single step and never make the other two.
     VkPipeline classify_step(uint32_t step, uint32_t instanceFlags);
     // The rasterizers' variants, made on first use (a few tens of ms each on lavapipe, cold): `masks` with texture code
     // (TS_SPEC_TEXTURES) for frames with opacity masks; `countFragments` (TS_SPEC_COUNT_FRAGMENTS) for the overdraw
@@ -123,6 +120,7 @@ struct Pipelines {
     struct FrameNeeds {
         bool masks = false, ownCorners = false, countFragments = false, displaced = false;
         uint32_t instanceFlags = 0;  // of TS_SPECIALIZED_INSTANCE_FLAGS
+        bool oneBin = true;          // classify's one-bin step, else its count and scatter steps
         std::vector<ResolveVariant> resolves;
     };
     // Makes those of `needs` not made yet, together on the host's threads, before the frame records: a first frame of

@@ -1658,7 +1658,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             return v;
         };
         // What the frame draws with, made before it records, together on the host's threads (Pipelines::make_for_frame).
-        Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, {}};
+        Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, s.materialCount * s.bin_kinds() == 1, {}};
         for (const Aov aov : aovs)
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
@@ -1838,7 +1838,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
             };
             const uint32_t tilesX = (settings.width + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE, tilesY = (settings.height + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE;
-            const bool oneBin = s.materialCount * s.bin_kinds() == 1;  // nothing to sort: list the covered pixels
+            const bool oneBin = needs.oneBin;  // nothing to sort (one material, no displacement): list the covered pixels
             for (uint32_t step : {oneBin ? TS_CLASSIFY_ONE_BIN : TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
                 if (oneBin && step == TS_CLASSIFY_SCATTER) break;
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.classify_step(step, s.instanceFlags));
