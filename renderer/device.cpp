@@ -6,6 +6,7 @@
 #include <cstring>
 #include <iostream>
 #include <map>
+#include <stdexcept>
 #include <tuple>
 #include <utility>
 
@@ -18,9 +19,16 @@ void check_vk(VkResult result, const char* what) {
 DeviceOptions DeviceOptions::from_environment() {
     DeviceOptions options;
     if (const char* select = std::getenv("TESSERA_DEVICE")) options.select = select;
-    if (const char* validation = std::getenv("TESSERA_VALIDATION")) options.validation = std::strcmp(validation, "0") != 0 && *validation;
-    if (const char* staged = std::getenv("TESSERA_STAGED_UPLOADS")) options.stagedUploads = std::strcmp(staged, "0") != 0 && *staged;
+    options.validation = environment_choice("TESSERA_VALIDATION", "1", "0", false);
+    options.stagedUploads = environment_choice("TESSERA_STAGED_UPLOADS", "1", "0", false);
     return options;
+}
+
+bool environment_choice(const char* name, const char* on, const char* off, bool fallback) {
+    const char* forced = std::getenv(name);
+    if (!forced || !*forced) return fallback;
+    if (std::strcmp(forced, on) == 0 || std::strcmp(forced, off) == 0) return std::strcmp(forced, on) == 0;
+    throw std::invalid_argument(std::string(name) + "='" + forced + "': expected '" + on + "' or '" + off + "'");
 }
 
 Buffer& Buffer::operator=(Buffer&& other) noexcept {

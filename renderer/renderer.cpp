@@ -402,7 +402,7 @@ struct Renderer::Impl {
     // An image of several pixel samples: their colours summed on a GPU (samples.comp.glsl; made for the image), on the
     // host beside a CPU device; $TESSERA_SAMPLE_SUMS (device, host) chooses, for tests and measurements.
     Buffer sampleSums[2];
-    const bool sampleSumsOnDevice = choice_from_environment("TESSERA_SAMPLE_SUMS", "device", "host", !device.is_software());
+    const bool sampleSumsOnDevice = environment_choice("TESSERA_SAMPLE_SUMS", "device", "host", !device.is_software());
     Buffer deferredInstances, deferredClusters;
     Buffer cutList;  // instances the cut step walks (those the instance step did not cull); grows on overflow
     uint32_t cutCapacity = 1u << 12;
@@ -447,10 +447,10 @@ struct Renderer::Impl {
 
     // $TESSERA_TEXTURE_KINDS=all: every textured bin through the variant that reads every texture kind (for tests and
     // measurements; the default, `material`, compiles in only what the bin's textures need).
-    const bool allTextureKinds = choice_from_environment("TESSERA_TEXTURE_KINDS", "all", "material", false);
+    const bool allTextureKinds = environment_choice("TESSERA_TEXTURE_KINDS", "all", "material", false);
     // Frames write AOVs straight into their images where the device can (imports_aovs), unless $TESSERA_IMPORT_AOVS=0 or
     // the driver refused an import.
-    bool importAovs = choice_from_environment("TESSERA_IMPORT_AOVS", "1", "0", true);
+    bool importAovs = environment_choice("TESSERA_IMPORT_AOVS", "1", "0", true);
     // A GPU's AOV images are imported once and kept while frames reuse their memory (image_memory.cpp hands a freed
     // image's block to the next image of its size): importing pins the block's pages in the driver and letting go
     // unpins them, which beside an H100 cost more CPU than the frame's GPU time. An import not used by this frame or the
@@ -475,7 +475,7 @@ struct Renderer::Impl {
     std::vector<std::unique_ptr<KeptImport>> keptImports;
     static constexpr uint64_t kKeptImportFrames = 4;
     uint64_t framesRendered = 0;
-    const bool keepImports = choice_from_environment("TESSERA_KEEP_IMPORTS", "1", "0", true);  // 0: an import every frame
+    const bool keepImports = environment_choice("TESSERA_KEEP_IMPORTS", "1", "0", true);  // 0: an import every frame
 
     VkBuffer kept_import(void* pixels, VkDeviceSize bytes, uint32_t& made) {
         for (auto& kept : keptImports)
@@ -492,15 +492,6 @@ struct Renderer::Impl {
     }
 
     Impl(Device& d, std::shared_ptr<Pipelines> shared) : device(d), sharedPipelines(std::move(shared)), pipelines(*sharedPipelines) {}
-
-    // A choice of two that an environment variable may force, for tests and measurements: true for `on`, false for
-    // `off`, `fallback` when unset; anything else is an error that names the variable.
-    static bool choice_from_environment(const char* name, const char* on, const char* off, bool fallback) {
-        const char* forced = std::getenv(name);
-        if (!forced || !*forced) return fallback;
-        if (std::strcmp(forced, on) == 0 || std::strcmp(forced, off) == 0) return std::strcmp(forced, on) == 0;
-        throw std::invalid_argument(std::string(name) + "='" + forced + "': expected '" + on + "' or '" + off + "'");
-    }
 
     ~Impl() {
         device.wait_idle();

@@ -1535,6 +1535,44 @@ TEST(SharedDevice, OnePerOptionsUntilReleased) {
     Device::release_shared_devices();
 }
 
+// The device's switches from the environment: 1 on, 0 or unset off, anything else an error naming the variable (as the
+// renderer's own choices: TESSERA_KEEP_IMPORTS, ...), never a silent guess ("false" once meant on).
+TEST(DeviceOptions, EnvironmentSwitchesAreOneOrZeroAndNameTheVariableOtherwise) {
+    struct Restore {  // the suite runs with TESSERA_VALIDATION set: put both variables back however the test ends
+        std::string validation, staged;
+        bool hadValidation, hadStaged;
+        ~Restore() {
+            if (hadValidation) setenv("TESSERA_VALIDATION", validation.c_str(), 1);
+            else unsetenv("TESSERA_VALIDATION");
+            if (hadStaged) setenv("TESSERA_STAGED_UPLOADS", staged.c_str(), 1);
+            else unsetenv("TESSERA_STAGED_UPLOADS");
+        }
+    };
+    const char* v = std::getenv("TESSERA_VALIDATION");
+    const char* s = std::getenv("TESSERA_STAGED_UPLOADS");
+    const Restore restore{v ? v : "", s ? s : "", v != nullptr, s != nullptr};
+    unsetenv("TESSERA_VALIDATION");
+    unsetenv("TESSERA_STAGED_UPLOADS");
+    EXPECT_FALSE(DeviceOptions::from_environment().validation);
+    EXPECT_FALSE(DeviceOptions::from_environment().stagedUploads);
+    setenv("TESSERA_VALIDATION", "1", 1);
+    setenv("TESSERA_STAGED_UPLOADS", "1", 1);
+    EXPECT_TRUE(DeviceOptions::from_environment().validation);
+    EXPECT_TRUE(DeviceOptions::from_environment().stagedUploads);
+    setenv("TESSERA_VALIDATION", "0", 1);
+    EXPECT_FALSE(DeviceOptions::from_environment().validation);
+    for (const char* variable : {"TESSERA_VALIDATION", "TESSERA_STAGED_UPLOADS"}) {
+        setenv(variable, "false", 1);
+        try {
+            (void)DeviceOptions::from_environment();
+            ADD_FAILURE() << variable << "=false was taken";
+        } catch (const std::invalid_argument& error) {
+            EXPECT_NE(std::string(error.what()).find(variable), std::string::npos) << error.what();
+        }
+        setenv(variable, "1", 1);
+    }
+}
+
 // Image pixels (image_memory.cpp): a freed large block serves the next image of its size, so a frame's readback does
 // not fault in fresh pages; at most two wait; small images are plain allocations.
 TEST(ImageMemory, FreedLargeBlocksServeTheNextImageOfTheirSize) {

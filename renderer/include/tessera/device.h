@@ -23,14 +23,19 @@ struct DeviceOptions {
     // "" picks the best device (discrete > integrated > virtual > cpu); "gpu", "cpu", an index, or a
     // substring of the device name forces one. Defaults to $TESSERA_DEVICE.
     std::string select;
-    // Enables the Khronos validation layer (core + synchronization). Defaults to $TESSERA_VALIDATION=1.
+    // Enables the Khronos validation layer (core + synchronization). Defaults to $TESSERA_VALIDATION=1 (0 or unset: off).
     bool validation = false;
     // Leaves the memory of device buffers unmapped even where the host could map it (a CPU device, integrated or
     // resizable-BAR GPUs), so that every upload goes through a staging buffer and every read back through a copy, as
     // with a discrete GPU's memory: those paths are then tested on lavapipe too. Defaults to $TESSERA_STAGED_UPLOADS=1.
     bool stagedUploads = false;
+    // From the variables above; a switch set to anything but 1 or 0 throws std::invalid_argument naming it.
     static DeviceOptions from_environment();
 };
+
+// A choice of two that environment variable `name` may force: true for the value `on`, false for `off`, `fallback`
+// when unset or empty; anything else throws std::invalid_argument naming the variable and both values.
+bool environment_choice(const char* name, const char* on, const char* off, bool fallback);
 
 enum class MemoryUse { Device, Upload, Readback };
 
