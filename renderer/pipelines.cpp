@@ -294,7 +294,8 @@ void Pipelines::make_for_frame(const FrameNeeds& needs) {
         need(rasterHardware[masks][counts][doubleSided], [=, this] { hardware_raster(masks, doubleSided, counts); });
     const uint32_t flags = needs.instanceFlags, variant = instance_flags_variant(flags);
     for (uint32_t step = 0; step < 4; ++step) need(cull[step][variant], [=, this] { cull_step(step, flags); });
-    for (uint32_t step : needs.oneBin ? std::vector<uint32_t>{TS_CLASSIFY_ONE_BIN} : std::vector<uint32_t>{TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER})
+    static constexpr uint32_t kOneBin[] = {TS_CLASSIFY_ONE_BIN}, kSorted[] = {TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER};
+    for (uint32_t step : needs.oneBin ? std::span<const uint32_t>(kOneBin) : std::span<const uint32_t>(kSorted))
         need(classify[step][variant], [=, this] { classify_step(step, flags); });
     if (needs.displaced) {
         need(tessellatePatches, [this] { tessellate(); });

@@ -353,7 +353,7 @@ def _build(args) -> int:
         except Exception as error:  # a bad prim is reported and the others still build
             return prim_id, None, f"{prim_id}: {error}"
 
-    with ThreadPoolExecutor(max_workers=len(os.sched_getaffinity(0)) or 1) as pool:
+    with ThreadPoolExecutor(max_workers=_tessera.core_count()) as pool:  # the cores this process may use (its affinity)
         for prim_id, result, error in pool.map(build_one, collector.meshes):
             done += 1
             if error:
