@@ -309,3 +309,28 @@ def test_tessera_build_fills_the_cache(tmp_path, monkeypatch):
     assert run("render", stage, "-o", tmp_path / "x.png", "--resolution", "32x24", "--stats", stats_file).returncode == 0
     stats = json.loads(stats_file.read_text())
     assert stats["meshes_built"] == 1 and stats["meshes_cached"] == 2
+
+
+def test_tessera_build_reads_stages_with_materials(tmp_path, monkeypatch):
+    """The stand-in index `tessera build` populates answers every call the scene delegate makes: materials are dirtied
+    while a stage populates (it failed there with an AttributeError, building nothing)."""
+    from pxr import Sdf, Usd, UsdShade
+
+    monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
+    stage_path = _big_and_tiny_meshes(tmp_path / "meshes.usda")
+    stage = Usd.Stage.Open(str(stage_path))
+    material = UsdShade.Material.Define(stage, "/Looks/Red")
+    surface = UsdShade.Shader.Define(stage, "/Looks/Red/Surface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set((0.8, 0.1, 0.1))
+    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    for name in ("/GridA", "/GridB"):
+        UsdShade.MaterialBindingAPI.Apply(stage.GetPrimAtPath(name)).Bind(material)
+    stage.GetRootLayer().Save()
+    done = run("build", stage_path)
+    assert done.returncode == 0, done.stderr
+    assert "built 3 mesh(es), 0 from the cache, 0 failed" in done.stderr
+    stats_file = tmp_path / "stats.json"
+    assert run("render", stage_path, "-o", tmp_path / "x.png", "--resolution", "32x24", "--stats", stats_file).returncode == 0
+    stats = json.loads(stats_file.read_text())
+    assert stats["meshes_built"] == 1 and stats["meshes_cached"] == 2, "the grids were built by tessera build"

@@ -314,7 +314,8 @@ def _render(args) -> int:
 
 
 class _Collector:
-    """Stands in for the render index while the scene delegate populates: records the mesh prims."""
+    """Stands in for the render index while the scene delegate populates: records the mesh prims. It answers every call
+    the delegate makes on an index (a stage with materials dirties them while it populates)."""
 
     def __init__(self):
         self.meshes = []
@@ -327,6 +328,13 @@ class _Collector:
 
     def insert_sprim(self, kind, prim_id):
         pass
+
+    def mark_dirty(self, prim_id, bits):
+        pass  # nothing is drawn: a mesh is read once, when it is built
+
+    def remove_prim(self, prim_id):
+        if prim_id in self.meshes:
+            self.meshes.remove(prim_id)
 
 
 def _build(args) -> int:
