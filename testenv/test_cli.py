@@ -334,3 +334,13 @@ def test_tessera_build_reads_stages_with_materials(tmp_path, monkeypatch):
     assert run("render", stage_path, "-o", tmp_path / "x.png", "--resolution", "32x24", "--stats", stats_file).returncode == 0
     stats = json.loads(stats_file.read_text())
     assert stats["meshes_built"] == 1 and stats["meshes_cached"] == 2, "the grids were built by tessera build"
+
+
+def test_tessera_build_names_each_bad_mesh_once_and_builds_the_rest(tmp_path, monkeypatch):
+    monkeypatch.setenv("TESSERA_CACHE", str(tmp_path / "cache"))
+    done = run("build", TESTENV / "testBadInput" / "bad_meshes.usda")
+    assert done.returncode == 1, "a mesh failed"
+    errors = [line for line in done.stderr.replace("\r", "\n").splitlines() if line.startswith("tessera: error:")]
+    assert errors == ["tessera: error: /CountsDisagree: faceVertexCounts sum to 8 but faceVertexIndices has 4 entries",
+                      "tessera: error: /NegativeIndex: no drawable faces (every face is invalid: a vertex index out of range)"]
+    assert "built 2 mesh(es), 0 from the cache, 2 failed" in done.stderr

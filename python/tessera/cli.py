@@ -359,7 +359,8 @@ def _build(args) -> int:
         try:
             return prim_id, _tessera.cache_mesh(scene.get_mesh(prim_id)), None
         except Exception as error:  # a bad prim is reported and the others still build
-            return prim_id, None, f"{prim_id}: {error}"
+            message = str(error)  # the builder's errors name the prim already
+            return prim_id, None, message if message.startswith(prim_id) else f"{prim_id}: {message}"
 
     with ThreadPoolExecutor(max_workers=_tessera.core_count()) as pool:  # the cores this process may use (its affinity)
         for prim_id, result, error in pool.map(build_one, collector.meshes):
