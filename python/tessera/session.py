@@ -53,6 +53,16 @@ class RenderResult:
         return self.index.prim_path(prim_id)
 
 
+def _usd_error_text(error) -> str:
+    """What a USD error exception says, for a person: each of its errors' own message (a parse error's file, line and
+    column first), without the C++ function and source file that raised it and USD's internal namespace."""
+    import re
+
+    messages = re.findall(r"Error in '[^']*' at line \d+ in file [^\n]* : '(.*?)'\s*(?=\n\s*Error in |\Z)", str(error), re.DOTALL)
+    cleaned = [re.sub(r"pxrInternal_v\w+?__pxrReserved__::", "", m).strip() for m in messages]
+    return "; ".join(m for m in cleaned if m) or str(error).strip()
+
+
 def _open_stage(stage):
     from pxr import Tf, Usd
 
@@ -64,8 +74,7 @@ def _open_stage(stage):
     try:
         opened = Usd.Stage.Open(path)
     except Tf.ErrorException as error:
-        detail = str(error).strip().splitlines()
-        raise StageError(f"{path}: cannot be opened as a USD stage: {detail[-1].strip() if detail else error}") from None
+        raise StageError(f"{path}: cannot be opened as a USD stage: {_usd_error_text(error)}") from None
     if opened is None:
         raise StageError(f"{path}: cannot be opened as a USD stage")
     return opened
