@@ -174,6 +174,8 @@ nb::dict stats_dict(const FrameStats& s) {
     d["hzb_builds"] = s.hzbBuilds;
     d["backface_clusters"] = s.backfaceClusters;
     d["shading_bins"] = s.shadingBins;
+    d["covered_pixels"] = s.coveredPixels;
+    d["resolved_every_pixel"] = s.resolvedEveryPixel;
     d["textures"] = s.textures;
     d["geometry_bytes"] = s.geometryBytes;
     d["texture_bytes"] = s.textureBytes;

@@ -90,20 +90,20 @@ uint32_t instance_flags_variant(uint32_t flags) {
 // shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, reads through texel views, TS_SPEC_TEXEL_VIEWS, and stores the AOV output
 // through its binding, TS_SPEC_OUTPUT_BINDING).
 struct SpecializationInfo {
-    uint32_t values[18];
-    VkSpecializationMapEntry entries[18] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+    uint32_t values[19];
+    VkSpecializationMapEntry entries[19] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                            {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
                                            {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4},
                                            {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}, {TS_SPEC_LIGHT_COUNTS, 60, 4}, {TS_SPEC_OUTPUT_BINDING, 64, 4},
-                                           {TS_SPEC_INSTANCE_FLAGS, 68, 4}};
-    VkSpecializationInfo info{18, entries, sizeof(values), values};
+                                           {TS_SPEC_INSTANCE_FLAGS, 68, 4}, {TS_SPEC_EVERY_PIXEL, 72, 4}};
+    VkSpecializationInfo info{19, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews, bool outputBinding)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
                  s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
                  VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts, VkBool32(outputBinding),
-                 s.instanceFlags} {}
+                 s.instanceFlags, VkBool32(s.everyPixel)} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
@@ -144,13 +144,16 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     // What (nearly) every frame needs, made now, on as many threads as the host has: a driver compiles a pipeline on
     // the calling thread (lavapipe: 1.0 s in all on one thread). Each task writes a slot of its own.
     const bool ownCorners = default_own_corners();
-    VkPipeline& unlit = resolveVariants[0];  // the map's one insertion, before the threads
+    // The map's insertions, before the threads: the unlit resolve of a frame of one bin (every pixel) and of several.
+    VkPipeline& unlit = resolveVariants[resolve_key({}).first];
+    VkPipeline& unlitEveryPixel = resolveVariants[resolve_key({.everyPixel = true}).first];
     const std::vector<std::function<void()>> tasks = {
         [&] { cull_step(TS_CULL_MAIN_INSTANCES, 0); },
         [&] { cull_step(TS_CULL_MAIN, 0); },
         [&] { cull_step(TS_CULL_POST_INSTANCES, 0); },
         [&] { cull_step(TS_CULL_POST, 0); },
-        [&] { unlit = compute_pipeline(resolve_comp, sizeof(resolve_comp), {.textureKinds = 0}); },
+        [&] { unlit = compute_pipeline(resolve_comp, sizeof(resolve_comp), resolve_key({}).second); },
+        [&] { unlitEveryPixel = compute_pipeline(resolve_comp, sizeof(resolve_comp), resolve_key({.everyPixel = true}).second); },
         [&] { hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp)); },
         [&] { bins = compute_pipeline(bins_comp, sizeof(bins_comp)); },
         [&] { classify_step(TS_CLASSIFY_ONE_BIN, 0); },
@@ -261,17 +264,17 @@ VkPipeline Pipelines::patch_raster(bool masks, bool countFragments) {
     return variant;
 }
 
-std::pair<uint32_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
+std::pair<uint64_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
     if (v.output != TS_OUTPUT_SHADE) {
         v.textured = v.areaLights = v.vertexInputs = false;
         v.lightCounts = 0;
     }
     if (v.output == TS_OUTPUT_ID) v.pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
     if (!v.textured && v.pixels != TS_BIN_DICED_MICRO) v.textureKinds = 0;  // it reads no texture
-    return {v.textureKinds | uint32_t(v.textured) << 8 | v.pixels << 9 | uint32_t(v.areaLights) << 11 | uint32_t(v.vertexInputs) << 12 |
-                v.output << 13 | v.lightCounts << 16,
+    return {v.textureKinds | uint64_t(v.textured) << 8 | uint64_t(v.pixels) << 9 | uint64_t(v.areaLights) << 11 | uint64_t(v.vertexInputs) << 12 |
+                uint64_t(v.output) << 13 | uint64_t(v.lightCounts) << 16 | uint64_t(v.everyPixel) << 32,
             {.textures = v.textured, .pixels = v.pixels, .areaLights = v.areaLights, .vertexInputs = v.vertexInputs, .output = v.output,
-             .textureKinds = v.textureKinds, .lightCounts = v.lightCounts}};
+             .textureKinds = v.textureKinds, .lightCounts = v.lightCounts, .everyPixel = v.everyPixel}};
 }
 
 VkPipeline Pipelines::resolve_variant(const ResolveVariant& v) {

@@ -409,6 +409,12 @@ struct Renderer::Impl {
     uint32_t deferredCapacity = 1u << 12;  // the deferred-instance list's (instances the previous HZB hid); grows on overflow
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
+    // The share of the pixels the previous frame covered (-1: none yet). A one-bin frame after one that covered at
+    // least kEveryPixelCoverage is resolved over every pixel, unlisted (TS_SPEC_EVERY_PIXEL). On lavapipe, at 1080p:
+    // listing costs 15-16 ms on one core; reading every pixel instead cost the 1 px sphere (88 % covered) 5 ms more
+    // in resolve, the density fields (47 % covered, many silhouettes) 28 ms more (docs/benchmarks.md).
+    static constexpr double kEveryPixelCoverage = 0.75;
+    double coverage = -1;
     uint32_t materialCount = 1;
     std::vector<gpu::GpuMaterial> materialRecords;  // as uploaded: resolve pushes its bin's
     // Textures: the slots of textured materials, and the pool of the images they read (both empty without textures).
@@ -1632,10 +1638,15 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.clusterDisplacement = s.clusterDisplacement.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
+        // A frame whose pixels can only fall in one bin (one material, no displacement) lists its covered pixels at once,
+        // or, after a frame that covered most pixels, is not classified: its resolve reads every pixel.
+        const bool oneBin = s.materialCount * s.bin_kinds() == 1;
+        const bool everyPixel = oneBin && s.coverage >= Impl::kEveryPixelCoverage;
         // Resolve's variant for a bin of an AOV: materials with textures through the variant that samples them; only the
         // colour AOV shades.
         auto resolve_variant_of = [&](Aov aov, uint32_t pixels, uint32_t m) {
             Pipelines::ResolveVariant v;
+            v.everyPixel = everyPixel;
             v.textured = aov == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
             v.textureKinds = m < s.materialTextureKinds.size() ? s.materialTextureKinds[m] : 0u;
             v.pixels = pixels;
@@ -1649,7 +1660,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             return v;
         };
         // What the frame draws with, made before it records, together on the host's threads (Pipelines::make_for_frame).
-        Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, s.materialCount * s.bin_kinds() == 1, {}};
+        Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, oneBin, {}};
         for (const Aov aov : aovs)
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
@@ -1829,9 +1840,8 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_INDIRECT_COMMAND_READ_BIT);
             };
             const uint32_t tilesX = (settings.width + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE, tilesY = (settings.height + TS_PIXEL_TILE - 1) / TS_PIXEL_TILE;
-            const bool oneBin = needs.oneBin;  // nothing to sort (one material, no displacement): list the covered pixels
             for (uint32_t step : {oneBin ? TS_CLASSIFY_ONE_BIN : TS_CLASSIFY_COUNT, TS_CLASSIFY_SCATTER}) {
-                if (oneBin && step == TS_CLASSIFY_SCATTER) break;
+                if (everyPixel || (oneBin && step == TS_CLASSIFY_SCATTER)) break;
                 vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.classify_step(step, s.instanceFlags));
                 vkCmdDispatch(cmd, tilesX, tilesY, 1);
                 compute_barrier();
@@ -1841,6 +1851,9 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                     compute_barrier();
                 }
             }
+            // An every-pixel resolve: a workgroup per row of shadePixelsPerThread tiles (resolve.comp.glsl).
+            const uint32_t everyPixelTile = TS_PIXEL_TILE * pipelines.shadePixelsPerThread;
+            const uint32_t everyPixelGroupsX = (settings.width + everyPixelTile - 1) / everyPixelTile;
 
             mark();
 
@@ -1894,7 +1907,8 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                         const uint32_t bin = pixels * s.materialCount + m;
                         ResolvePushConstants shade{{uint32_t(aovs[i]), bin, 0}, s.materialRecords[m]};
                         vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
-                        vkCmdDispatchIndirect(cmd, s.shadingBins.handle, bin * sizeof(gpu::GpuBin));
+                        if (everyPixel) vkCmdDispatch(cmd, everyPixelGroupsX, tilesY, 1);
+                        else vkCmdDispatchIndirect(cmd, s.shadingBins.handle, bin * sizeof(gpu::GpuBin));
                     }
                 if (sample && aovs[i] == Aov::Color) {  // the colour into the samples' sum; the last sample's, their mean
                     barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
@@ -1977,7 +1991,11 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         frameStats.postPassClusters = state.postClusters;
         frameStats.hzbBuilds = state.hzbBuilds;
         frameStats.backfaceClusters = state.backfaceClusters;
-        frameStats.shadingBins = state.shadingBins;
+        // An every-pixel frame runs no bins pass: each AOV's resolve counted the covered pixels, and they are its one bin.
+        frameStats.resolvedEveryPixel = everyPixel;
+        frameStats.coveredPixels = everyPixel ? state.coveredPixels / uint32_t(aovs.size()) : state.coveredPixels;
+        frameStats.shadingBins = everyPixel ? uint32_t(frameStats.coveredPixels > 0) : state.shadingBins;
+        s.coverage = double(frameStats.coveredPixels) / double(pixels);
         frameStats.tessellatedClusters = state.tessClustersDrawn;
         frameStats.tessellatedTriangles = state.tessTriangles;
         frameStats.patches = state.patches;

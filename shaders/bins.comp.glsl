@@ -27,6 +27,7 @@ void main() {
     }
     DrawStateRef draw = DrawStateRef(frame.drawState);
     draw.state.shadingBins = used;
+    draw.state.coveredPixels = offset;
     draw.state.keptMicroPixels = micro[TS_BIN_KEPT_MICRO];
     draw.state.dicedMicroPixels = micro[TS_BIN_DICED_MICRO];
 }

@@ -1,9 +1,11 @@
 // Resolve, one dispatch per bin (push.step: the bin, push.material: its material): each covered pixel of the bin (a
 // thread per pixel on a GPU, several per thread on a CPU device): read the visibility buffer, refetch its triangle, find
 // the barycentrics where the pixel's ray meets it, and write the requested AOV. Every visible pixel is shaded exactly
-// once, whatever the overdraw. background.comp.glsl writes the pixels nothing covers.
+// once, whatever the overdraw. The pixels nothing covers keep the background the frame wrote first. A frame of one bin
+// after a mostly covered one runs the variant that reads every pixel instead of a list (TS_SPEC_EVERY_PIXEL).
 #version 460
 #extension GL_GOOGLE_include_directive : require
+#extension GL_KHR_shader_subgroup_ballot : require
 #include "frame.h"
 #include "surface.h"
 #include "tessellation.h"
@@ -26,6 +28,8 @@ const uint DISTANT_LIGHTS = LIGHT_COUNTS & 0xffu, ALL_LIGHTS = LIGHT_COUNTS >> 8
 layout(constant_id = TS_SPEC_OUTPUT) const uint OUTPUT = TS_OUTPUT_SHADE;
 // The variant for materials with inputs from the vertex channel (GpuMaterial.vertexInputs != 0).
 layout(constant_id = TS_SPEC_VERTEX_INPUTS) const bool VERTEX_INPUTS = false;
+// The variant that reads every pixel of the frame, tile by tile, and shades those a surface covers (one bin).
+layout(constant_id = TS_SPEC_EVERY_PIXEL) const bool EVERY_PIXEL = false;
 
 // A well-spread colour for an id (integer hash, then three 8-bit channels lifted away from black).
 vec3 id_color(uint id) {
@@ -230,6 +234,22 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
 void main() {
     GpuFrame frame = frameConstants;
     uint aov = push.aov;
+    if (EVERY_PIXEL) {
+        // A row of PIXELS_PER_THREAD tiles of TS_PIXEL_TILE x TS_PIXEL_TILE pixels per workgroup, each thread a pixel of
+        // each tile (TS_SHADE_GROUP_SIZE is a tile's pixels). Shifts, no division: lavapipe divides lane by lane (a
+        // division per pixel cost a screen-filling frame as much as classify saved). Each subgroup counts its covered
+        // pixels: the frame's coverage, by which the renderer picks this variant or the list for the next frame.
+        uvec2 pixel = gl_WorkGroupID.xy * uvec2(TS_PIXEL_TILE * PIXELS_PER_THREAD, TS_PIXEL_TILE) +
+                      uvec2(gl_LocalInvocationIndex % TS_PIXEL_TILE, gl_LocalInvocationIndex / TS_PIXEL_TILE);
+        uint covered = 0u;  // the same in every lane: no lane leaves the loop before the others
+        for (uint k = 0u; k < PIXELS_PER_THREAD; ++k, pixel.x += TS_PIXEL_TILE) {
+            uint64_t value = all(lessThan(pixel, frame.viewport.xy)) ? visibility_value(frame, pixel.y * frame.viewport.x + pixel.x) : 0ul;
+            covered += subgroupBallotBitCount(subgroupBallot(value != 0ul));
+            if (value != 0ul) shade(frame, pixel, value, aov);
+        }
+        if (subgroupElect() && covered != 0u) atomicAdd(DrawStateRef(frame.drawState).state.coveredPixels, covered);
+        return;
+    }
     // The bin's pixels TS_SHADE_GROUP_SIZE apart, PIXELS_PER_THREAD of them (the same trip count for every thread).
     GpuBin bin = BinRef(frame.bins).data[push.step];
     uint first = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * TS_SHADE_GROUP_SIZE * PIXELS_PER_THREAD + gl_LocalInvocationIndex;

@@ -162,7 +162,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 
 // Material bins: covered pixels are counted per material, given each material a range, and scattered into it, so
 // that each material's pixels are shaded by one indirect dispatch of their own (push constant `step`: the material);
-// a pass of its own writes the background.
+// a pass of its own writes the background. A frame whose pixels can only fall in one bin lists its covered pixels at
+// once (TS_CLASSIFY_ONE_BIN), or, where they cover most of the frame, is not classified at all (TS_SPEC_EVERY_PIXEL).
 #define TS_CLASSIFY_COUNT 0u
 #define TS_CLASSIFY_SCATTER 1u
 #define TS_CLASSIFY_ONE_BIN 2u  // a frame whose pixels can only fall in one bin: listed at once, no count or scatter
@@ -288,6 +289,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // cull, 18 % of a frame's classify with 8 materials (docs/benchmarks.md).
 #define TS_SPEC_INSTANCE_FLAGS 17
 #define TS_SPECIALIZED_INSTANCE_FLAGS (TS_INSTANCE_DISPLACED | TS_INSTANCE_MATERIAL_SLOTS)
+// Specialization constant of resolve: it reads every pixel of the frame, tile by tile, and shades the covered ones,
+// instead of its bin's listed pixels. For one-bin frames (one material, no displacement) whose previous frame covered
+// most pixels, which then run no classify and no bins pass: listing the covered pixels cost lavapipe 9-13 ms of a 1080p
+// frame, while each batch of pixels it reads and finds uncovered costs about half a shaded one (docs/benchmarks.md).
+#define TS_SPEC_EVERY_PIXEL 18
 
 // Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
 // streams read per pixel, per triangle or per vertex. The format of each: TS_VIEW_FORMAT_* (renderer.cpp).
@@ -334,7 +340,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_OCCLUDER_FRACTION 0.125
 #define TS_PIXEL_TILE 8        // classify, background: 8x8 pixels per workgroup
 // resolve: threads per workgroup, each shading the bin's pixels TS_SHADE_GROUP_SIZE apart (TS_SPEC_SHADE_PIXELS_PER_THREAD
-// of them): a workgroup shades TS_SHADE_GROUP_SIZE times that many pixels of its bin.
+// of them): a workgroup shades TS_SHADE_GROUP_SIZE times that many pixels of its bin. The every-pixel variant's
+// workgroup shades that many tiles of TS_PIXEL_TILE x TS_PIXEL_TILE pixels: the two must stay equal.
 #define TS_SHADE_GROUP_SIZE 64
 // The compute rasterizer's workgroup on a GPU: one per cluster, one thread per triangle (a CPU device's is one subgroup).
 #define TS_SW_RASTER_GROUP_SIZE 128
@@ -590,8 +597,10 @@ struct GpuDrawState {
     uint doubleSidedInstanceCount; // (this pass) at the back of the hardware list; the front's (above) cull back faces
     uint doubleSidedFirstVertex;
     uint doubleSidedFirstInstance;
+    uint coveredPixels;    // pixels a surface covers: bins.comp.glsl's total; in a frame resolved over every pixel
+                           // (TS_SPEC_EVERY_PIXEL), the sum of its resolve dispatches' counts, one dispatch per AOV
 };
-TS_CHECK_SIZE(GpuDrawState, 256);
+TS_CHECK_SIZE(GpuDrawState, 260);
 
 // One patch of a displaced triangle (tessellation.h). Each is drawn by an indirect draw of its own (GpuFrame.patchDraws:
 // 3 vertices per micro-triangle, its index as the first instance), written per pass.

@@ -403,3 +403,40 @@ def test_pixel_samples_antialias_the_colour_and_keep_the_centres_ids():
     assert (np.abs(offsets).max(axis=1) < 0.25).sum() > 64 / 6, "denser towards the centre"
     with pytest.raises(tessera.StageError, match="unknown pixel filter 'tent'"):
         session.render(camera="/Camera", resolution=(8, 8), pixel_filter="tent")
+
+
+def _wall_and_box_stage():
+    """A bumpy wall of one material filling a camera's view, a box before it, and a second camera far away."""
+    stage = Usd.Stage.CreateInMemory()
+    n = 16
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    a = (i * (n + 1) + j).ravel()
+    x, y = np.meshgrid(np.linspace(-4, 4, n + 1), np.linspace(-4, 4, n + 1), indexing="ij")
+    wall = UsdGeom.Mesh.Define(stage, "/Wall")
+    wall.CreatePointsAttr([(float(px), float(py), 0.2 * float(np.sin(3 * px) * np.cos(2 * py))) for px, py in zip(x.ravel(), y.ravel())])
+    wall.CreateFaceVertexCountsAttr([4] * (n * n))
+    wall.CreateFaceVertexIndicesAttr(np.stack([a, a + n + 1, a + n + 2, a + 1], -1).ravel().tolist())
+    box = UsdGeom.Cube.Define(stage, "/Box")
+    box.AddTranslateOp().Set(Gf.Vec3d(0.3, -0.2, 2.0))
+    box.AddScaleOp().Set(Gf.Vec3f(0.4))
+    for name, distance in (("/Near", 6.0), ("/Far", 60.0)):
+        UsdGeom.Camera.Define(stage, name).AddTranslateOp().Set(Gf.Vec3d(0.1, 0.1, distance))
+    return stage
+
+
+def test_a_mostly_covered_one_bin_frame_is_resolved_over_every_pixel_as_the_listed_one():
+    """A one-material frame after one that covered most pixels skips classify: resolve reads every pixel and shades the
+    covered ones. Every AOV must match the listed frame's bit for bit, and the covered pixels counted either way must be
+    those a surface covers; a frame after a sparsely covered one is listed again."""
+    session = tessera.Session(_wall_and_box_stage(), validation=True)
+    aovs = ("color", "depth", "normal", "primId", "instanceId", "clusterId")
+    frames = [session.render(camera=camera, resolution=(97, 67), aovs=aovs) for camera in ("/Near", "/Near", "/Far", "/Far")]
+    for frame in frames:
+        assert not frame.errors, frame.errors
+        assert frame.stats["covered_pixels"] == int((frame["primId"].ids() != NO_HIT).sum())
+        assert frame.stats["shading_bins"] == 1
+    assert [f.stats["resolved_every_pixel"] for f in frames] == [False, True, True, False]
+    assert frames[1].stats["covered_pixels"] == 97 * 67 and frames[2].stats["covered_pixels"] < 0.5 * 97 * 67
+    for listed, unlisted in ((frames[0], frames[1]), (frames[3], frames[2])):
+        for aov in aovs:
+            assert np.array_equal(np.asarray(listed[aov].pixels).view(np.uint32), np.asarray(unlisted[aov].pixels).view(np.uint32)), aov

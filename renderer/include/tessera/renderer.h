@@ -296,6 +296,8 @@ struct FrameStats {
     uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
     uint32_t shadingBins = 0;           // bins with visible pixels, each shaded by a dispatch of its own: one a material, or
                                         // up to three for a displaced one (its triangles, kept and diced micro-triangles)
+    uint32_t coveredPixels = 0;         // pixels a surface covers (each shaded once per AOV)
+    bool resolvedEveryPixel = false;    // resolve read every pixel, unlisted: one bin, most pixels covered the frame before
     uint32_t textures = 0;              // images in the texture pool
     uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, cut blocks, vertex streams, triangles
     uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
