@@ -1,4 +1,4 @@
-// Internal to the builder: with TESSERA_BUILD_PHASES set, each phase of a build prints its wall and CPU seconds to
+// Internal to the builder: with TESSERA_BUILD_PHASES=1, each phase of a build prints its wall and CPU seconds to
 // stderr, and an estimate of the CPU seconds that ran on the calling thread alone (the serial part, which more cores
 // do not shorten). Off, a timer costs one getenv.
 #pragma once
@@ -14,7 +14,8 @@ namespace tessera {
 
 class PhaseTimer {
 public:
-    PhaseTimer() : enabled_(std::getenv("TESSERA_BUILD_PHASES") != nullptr) { now(wall_, cpu_, thread_); }
+    // Only "1" prints ("0" is off, as for the other switches; a build does not fail over a diagnostic's spelling).
+    PhaseTimer() : enabled_(is_one(std::getenv("TESSERA_BUILD_PHASES"))) { now(wall_, cpu_, thread_); }
     // Prints the time since the last mark (or construction) under `name`.
     void mark(const char* name) {
         if (!enabled_) return;
@@ -28,6 +29,7 @@ public:
     }
 
 private:
+    static bool is_one(const char* value) { return value && value[0] == '1' && value[1] == '\0'; }
     void now(double& wall, double& cpu, double& thread) const {
         if (!enabled_) return;
         auto seconds = [](clockid_t clock) {

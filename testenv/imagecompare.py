@@ -40,7 +40,10 @@ def compare_arrays(result: np.ndarray, baseline: np.ndarray, fail: float, warn: 
 
 def assert_matches_baseline(image_path: Path, baseline_path: Path, *, fail: float = 0.02, fail_percent: float = 0.5,
                             warn: float = 0.004, warn_percent: float = 1.0) -> Comparison:
-    if os.environ.get("TESSERA_UPDATE_BASELINES") == "1":
+    update = os.environ.get("TESSERA_UPDATE_BASELINES", "0")
+    if update not in ("0", "1"):  # "true" would otherwise compare, silently
+        raise ValueError(f"TESSERA_UPDATE_BASELINES='{update}': expected 1 (write the baselines) or 0 (compare)")
+    if update == "1":
         baseline_path.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(image_path, baseline_path)
     if not baseline_path.exists():
