@@ -291,8 +291,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_SPECIALIZED_INSTANCE_FLAGS (TS_INSTANCE_DISPLACED | TS_INSTANCE_MATERIAL_SLOTS)
 // Specialization constant of resolve: it reads every pixel of the frame, tile by tile, and shades the covered ones,
 // instead of its bin's listed pixels. For one-bin frames (one material, no displacement) whose previous frame covered
-// most pixels, which then run no classify and no bins pass: listing the covered pixels cost lavapipe 9-13 ms of a 1080p
-// frame, while each batch of pixels it reads and finds uncovered costs about half a shaded one (docs/benchmarks.md).
+// most pixels, which then run no classify and no bins pass: listing the covered pixels cost lavapipe 13-16 ms of a
+// 1080p frame, while each batch of pixels it reads and finds uncovered costs about half a shaded one (docs/benchmarks.md).
 #define TS_SPEC_EVERY_PIXEL 18
 
 // Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
@@ -340,8 +340,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_OCCLUDER_FRACTION 0.125
 #define TS_PIXEL_TILE 8        // classify, background: 8x8 pixels per workgroup
 // resolve: threads per workgroup, each shading the bin's pixels TS_SHADE_GROUP_SIZE apart (TS_SPEC_SHADE_PIXELS_PER_THREAD
-// of them): a workgroup shades TS_SHADE_GROUP_SIZE times that many pixels of its bin. The every-pixel variant's
-// workgroup shades that many tiles of TS_PIXEL_TILE x TS_PIXEL_TILE pixels: the two must stay equal.
+// of them): a workgroup shades TS_SHADE_GROUP_SIZE times that many pixels of its bin. The every-pixel variant's workgroup
+// covers TS_SPEC_SHADE_PIXELS_PER_THREAD tiles side by side, a thread per pixel of each: one tile's pixels.
 #define TS_SHADE_GROUP_SIZE 64
 // The compute rasterizer's workgroup on a GPU: one per cluster, one thread per triangle (a CPU device's is one subgroup).
 #define TS_SW_RASTER_GROUP_SIZE 128
@@ -701,6 +701,7 @@ struct GpuFrame {
 TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 39);
 
 #ifdef __cplusplus
+static_assert(TS_SHADE_GROUP_SIZE == TS_PIXEL_TILE * TS_PIXEL_TILE, "resolve's every-pixel workgroup is a thread per pixel of a tile");
 }  // namespace tessera::gpu
 #undef TS_CHECK_SIZE
 #endif
