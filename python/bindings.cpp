@@ -168,6 +168,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["overflow_redraws"] = s.overflowRedraws;
     d["visible_cluster_capacity"] = s.visibleClusterCapacity;
     d["occlusion_tested"] = s.occlusionTested;
+    d["occlusion_rested"] = s.occlusionRested;
     d["occluded_instances"] = s.occludedInstances;
     d["occluded_clusters"] = s.occludedClusters;
     d["post_pass_clusters"] = s.postPassClusters;
@@ -687,7 +688,7 @@ NB_MODULE(_tessera, m) {
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
                const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
                const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate, const std::string& rasterVertices,
-               float softwareRasterArea, uint32_t pixelSamples, const std::string& pixelFilter) {
+               float softwareRasterArea, uint32_t pixelSamples, const std::string& pixelFilter, float occlusionMinimumCulled) {
                 RenderPassSettings settings;
                 settings.render.pixelSamples = pixelSamples;
                 settings.render.pixelFilter = pixel_filter_from(pixelFilter);
@@ -699,6 +700,7 @@ NB_MODULE(_tessera, m) {
                 settings.render.pixelError = pixelError;
                 settings.render.lod = lod;
                 settings.render.occlusion = occlusion;
+                settings.render.occlusionMinimumCulled = occlusionMinimumCulled;
                 settings.render.visualize = visualize_from(visualize);
                 if (raster == "auto") settings.render.raster = RasterMode::Auto;
                 else if (raster == "hardware") settings.render.raster = RasterMode::Hardware;
@@ -721,7 +723,8 @@ NB_MODULE(_tessera, m) {
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
             "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f, "raster_vertices"_a = "auto",
-            "software_raster_area"_a = RenderSettings{}.softwareRasterArea, "pixel_samples"_a = 1u, "pixel_filter"_a = "box")
+            "software_raster_area"_a = RenderSettings{}.softwareRasterArea, "pixel_samples"_a = 1u, "pixel_filter"_a = "box",
+            "occlusion_minimum_culled"_a = RenderSettings{}.occlusionMinimumCulled)
         .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
         .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
         .def_prop_ro(

@@ -445,6 +445,7 @@ struct Renderer::Impl {
     // forgotten when what it shows may have moved (instances, meshes, size).
     Buffer hzbLevels, hzbDispatch;
     bool previousValid = false;
+    uint32_t occlusionRest = 0;  // frames left to draw without occlusion (RenderSettings::occlusionMinimumCulled)
     Matrix4d previousViewProjection{};
     std::array<double, 3> previousCamera{};
     uint32_t capacity = 1u << 16;
@@ -1514,11 +1515,21 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     frameStats.aovsImported = importAovs;
 
     uint32_t lightCounts = 0;  // the frame's distant lights | all its lights << 8 (TS_SPEC_LIGHT_COUNTS)
+    // Occlusion, unless --no-lod (every source triangle, the classic way) or resting after frames where it culled little.
+    const bool occlusionWanted = settings.occlusion && settings.lod;
+    const float minimumCulled = settings.occlusionMinimumCulled >= 0 ? settings.occlusionMinimumCulled
+                                : device_.is_software()            ? RenderSettings::kCpuOcclusionMinimumCulled
+                                                                   : 0.0f;
+    const bool occlusion = occlusionWanted && (s.occlusionRest == 0 || minimumCulled <= 0);
+    if (occlusionWanted && !occlusion) --s.occlusionRest;
+    frameStats.occlusionRested = occlusionWanted && !occlusion;
+    // The last frame of a rest builds its HZB all the same, so that the frame that tries occlusion again tests against
+    // the frame before it, as occlusion does every frame (a first frame only finds what the instances large on screen hide).
+    const bool hzbForNext = occlusion || (frameStats.occlusionRested && s.occlusionRest == 0);
     for (;;) {
         s.ensure_frame_buffers(settings.width, settings.height, aovs.size(), importAovs, importedOutput.imported);
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
-        const bool occlusion = settings.occlusion && settings.lod;  // --no-lod: every source triangle, the classic way
-        if (occlusion) s.ensure_occlusion_buffers();
+        if (hzbForNext) s.ensure_occlusion_buffers();
         if (sample)
             for (Buffer& sum : s.sampleSums)
                 if (sum.size < pixels * 16) sum = device_.create_buffer(pixels * 16, MemoryUse::Device);
@@ -1592,7 +1603,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                                                       cam.position[2] - s.previousCamera[2]);
             f.previousViewProjection = to_gpu(multiply(s.previousViewProjection, shift));
         }
-        f.hzb = {occlusion ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, s.cutCapacity, s.deferredCapacity,
+        f.hzb = {hzbForNext ? uint32_t(hzb_levels(settings.width, settings.height).size()) : 0u, s.cutCapacity, s.deferredCapacity,
                  cut_parts_word(device_, settings)};
         f.cutList = s.cutList.address;
         f.instances = s.instances.address;
@@ -1829,7 +1840,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             }
             // The whole frame's HZB, for the next frame's main pass: unless the HZB of the main pass already is that (the
             // post pass drew nothing).
-            if (occlusion) s.build_hzb(cmd, pipelines, TS_HZB_FINAL);
+            if (hzbForNext) s.build_hzb(cmd, pipelines, TS_HZB_FINAL);
             mark();
 
             // Material bins: count covered pixels per material, give each bin its range and dispatch arguments, scatter
@@ -1943,7 +1954,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         frameStats.cpuRecordMs += std::chrono::duration<double, std::milli>(recorded - submitted).count();
         frameStats.cpuWaitMs += std::chrono::duration<double, std::milli>(finished - recorded).count();
         // The HZB just built is of this camera (an overflowing frame's HZB lacks some geometry: farther, still safe).
-        s.previousValid = occlusion;
+        s.previousValid = hzbForNext;
         s.previousViewProjection = cam.viewProjection;
         s.previousCamera = cam.position;
 
@@ -1988,6 +1999,12 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         frameStats.occlusionTested = previous;
         frameStats.occludedInstances = state.occludedInstances;
         frameStats.occludedClusters = state.occludedClusters;
+        if (occlusion && minimumCulled > 0) {  // did it pay? If not, the next frames rest from it
+            auto kept = [](double drawn, double culled) { return drawn + culled > 0 ? drawn / (drawn + culled) : 1.0; };
+            const double share = kept(state.visibleInstances, state.occludedInstances) * kept(state.visibleClusters, state.occludedClusters) *
+                                 kept(state.patches, state.occludedPatches);
+            if (1.0 - share < minimumCulled) s.occlusionRest = RenderSettings::kOcclusionRest;
+        }
         frameStats.postPassClusters = state.postClusters;
         frameStats.hzbBuilds = state.hzbBuilds;
         frameStats.backfaceClusters = state.backfaceClusters;

@@ -140,16 +140,19 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
     assert "frame ms" in done.stdout and "PSNR dB" in done.stdout
     rows = json.loads(rows_file.read_text())
     assert {r["table"] for r in rows} == {"density scaling", "against brute force", "speed against error", "displacement"}
-    field, no_occlusion, dense, _ = [r for r in rows if r["table"] == "density scaling"]
+    field, every_frame, no_occlusion, dense, _, _ = [r for r in rows if r["table"] == "density scaling"]
     assert field["source_triangles"] == 32 * 32 * 4 * 16 * 16 and field["frame_ms"] > 0
     assert dense["source_triangles"] == 32 * 32 * 4 * 156 * 156
-    assert field["occlusion"] is True and no_occlusion["occlusion"] is False, "measured frames test against the frame before"
+    assert every_frame["occlusion"] is True and no_occlusion["occlusion"] is False, "measured frames test against the frame before"
+    assert not every_frame["occlusion_rested"] and not no_occlusion["occlusion_rested"]
+    assert field["occlusion"] or field["occlusion_rested"], "the default: occlusion where it pays"
     # Both fields were also rendered in turns in one process, and the scaling line compares those frames.
-    assert field["frame_in_turns_ms"] > 0 and dense["frame_in_turns_ms"] > 0 and "frame_in_turns_ms" not in no_occlusion
+    assert field["frame_in_turns_ms"] > 0 and dense["frame_in_turns_ms"] > 0
+    assert "frame_in_turns_ms" not in no_occlusion and "frame_in_turns_ms" not in every_frame
     # Every density row reports its error bound and its image error, the 1e6 field's against every source triangle.
     assert field["error_bound_px"] == dense["error_bound_px"] == 1.0
     assert field["error_reference"] == no_occlusion["error_reference"] == "--no-lod" and dense["error_reference"] == "0.0625 px cut"
-    assert all(20 < r["psnr_db"] <= r["psnr_4x4_db"] and 0 < r["same_prim_percent"] <= 100 for r in (field, no_occlusion, dense))
+    assert all(20 < r["psnr_db"] <= r["psnr_4x4_db"] and 0 < r["same_prim_percent"] <= 100 for r in (field, every_frame, no_occlusion, dense))
     assert "PSNR 4x4 dB" in done.stdout and "error bound px" in done.stdout
     ratio = dense["frame_in_turns_ms"] / field["frame_in_turns_ms"]
     assert f"densest field costs {ratio:.2f}x the lightest (95x the source triangles), rendered in turns" in done.stdout

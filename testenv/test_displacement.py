@@ -304,8 +304,8 @@ def test_patches_hidden_by_the_previous_frame_are_deferred_and_tested_again(tmp_
     orbit.AddTransformOp().Set(view.GetInverse())
     stage.GetRootLayer().Save()
 
-    def frame(session, camera):
-        result = session.render(camera=camera, resolution=(192, 192), aovs=("color", "primId"), dicing_rate=2.0)
+    def frame(session, camera):  # occlusion every frame: a sphere's back hides little of it, and occlusion would rest
+        result = session.render(camera=camera, resolution=(192, 192), aovs=("color", "primId"), dicing_rate=2.0, occlusion="always")
         assert not result.errors
         return result
 

@@ -77,8 +77,8 @@ class Live:
         self.stage = stage or _stage()
         self.session = tessera.Session(self.stage, validation=True)
 
-    def render(self, aovs=("primId",)):
-        result = self.session.render(camera="/Camera", resolution=RESOLUTION, aovs=aovs)
+    def render(self, aovs=("primId",)):  # occlusion every frame: whether an edit keeps the previous HZB is checked too
+        result = self.session.render(camera="/Camera", resolution=RESOLUTION, aovs=aovs, occlusion="always")
         assert not result.errors, result.errors
         return result, dict(self.session.index.last_synced)
 

@@ -440,3 +440,51 @@ def test_a_mostly_covered_one_bin_frame_is_resolved_over_every_pixel_as_the_list
     for listed, unlisted in ((frames[0], frames[1]), (frames[3], frames[2])):
         for aov in aovs:
             assert np.array_equal(np.asarray(listed[aov].pixels).view(np.uint32), np.asarray(unlisted[aov].pixels).view(np.uint32)), aov
+
+
+def _cubes_stage(wall: bool):
+    """A row of 24 small cubes seen from the front, with or without a wall before them that hides them all."""
+    stage = Usd.Stage.CreateInMemory()
+    for k in range(24):
+        cube = UsdGeom.Cube.Define(stage, f"/Cube{k}")
+        cube.AddTranslateOp().Set(Gf.Vec3d(-2.3 + 0.2 * k, 0.0, -3.0))
+        cube.AddScaleOp().Set(Gf.Vec3f(0.08))
+    if wall:
+        quad = UsdGeom.Mesh.Define(stage, "/Wall")
+        quad.CreatePointsAttr([(-6, -4, 0), (6, -4, 0), (6, 4, 0), (-6, 4, 0)])
+        quad.CreateFaceVertexCountsAttr([4])
+        quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    UsdGeom.Camera.Define(stage, "/Camera").AddTranslateOp().Set(Gf.Vec3d(0.0, 0.0, 6.0))
+    return stage
+
+
+def test_occlusion_rests_where_it_culls_little_and_tries_again_against_the_frame_before():
+    """On a CPU device, a frame whose occlusion culled under a quarter of its instances and clusters lets the next 15
+    frames skip it (no HZB, no post pass); the last of them builds its HZB all the same, so that the 17th frame tests
+    against the frame before it. A wall that hides everything keeps occlusion every frame; "always" and False too.
+    The images never change."""
+    aovs = ("color", "primId")
+    session = tessera.Session(_cubes_stage(wall=False), validation=True)
+    if not session.delegate.software_device:
+        pytest.skip("occlusion rests by default only on a CPU device")
+    frames = [session.render(camera="/Camera", resolution=(96, 64), aovs=aovs) for _ in range(18)]
+    assert all(not f.errors for f in frames)
+    assert [f.stats["occlusion_rested"] for f in frames] == [False] + [True] * 15 + [False, True]
+    assert [f.stats["hzb_builds"] for f in frames[1:15]] == [0] * 14, "a resting frame builds no HZB"
+    assert frames[15].stats["hzb_builds"] == 1, "the last resting frame builds the next one's"
+    assert frames[16].stats["occlusion_tested"], "the frame that tries again tests against the frame before it"
+    for frame in frames[1:]:
+        for aov in aovs:
+            assert np.array_equal(np.asarray(frame[aov].pixels).view(np.uint32), np.asarray(frames[0][aov].pixels).view(np.uint32))
+    for occlusion in ("always", False):
+        again = [session.render(camera="/Camera", resolution=(96, 64), aovs=aovs, occlusion=occlusion) for _ in range(3)]
+        assert [f.stats["occlusion_rested"] for f in again] == [False] * 3
+        assert all(bool(f.stats["hzb_builds"]) == (occlusion == "always") for f in again[1:])
+
+    hidden = tessera.Session(_cubes_stage(wall=True), validation=True)
+    frames = [hidden.render(camera="/Camera", resolution=(96, 64), aovs=aovs) for _ in range(4)]
+    assert [f.stats["occlusion_rested"] for f in frames] == [False] * 4
+    assert all(f.stats["visible_instances"] == 1 and f.stats["occluded_instances"] >= 20 for f in frames), \
+        "the wall hides every cube in view (the row's ends are outside it), every frame"
+    with pytest.raises(tessera.StageError, match="occlusion must be one of"):
+        hidden.render(camera="/Camera", resolution=(96, 64), occlusion="sometimes")

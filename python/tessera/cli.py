@@ -138,8 +138,13 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--vis", choices=VISUALIZATIONS, help="show a debug view in the color AOV instead of shading")
     render.add_argument("--raster", choices=RASTER_MODES, default="auto",
                         help="auto: small triangles through the compute rasterizer, large ones through hardware raster (default)")
-    render.add_argument("--no-occlusion", action="store_true",
-                        help="no two-pass HZB occlusion culling (a first frame tests small instances against the large ones; later frames test against the frame before)")
+    occlusion = render.add_mutually_exclusive_group()
+    occlusion.add_argument("--no-occlusion", action="store_true",
+                           help="no two-pass HZB occlusion culling (a first frame tests small instances against the large ones; later frames "
+                                "test against the frame before; on a CPU device, 15 frames after one where it culled under a quarter of the "
+                                "work skip it)")
+    occlusion.add_argument("--occlusion-every-frame", action="store_true",
+                           help="two-pass HZB occlusion culling in every frame, even where it culls little")
     render.add_argument("--stats", help="write frame statistics to this JSON file (with --frames: {\"frames\": [one per frame]})")
     _add_complexity(render)
     render.add_argument("--purposes", type=_purposes, metavar="render,proxy,guide",
@@ -272,7 +277,7 @@ def _render(args) -> int:
             camera = job["camera"] or first_camera
             aovs = [aov for aov, _ in job["outputs"]]
             result = session.render(camera=camera, resolution=job["resolution"], aovs=aovs, pixel_error=args.pixel_error,
-                                    lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=not args.no_occlusion,
+                                    lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=False if args.no_occlusion else "always" if args.occlusion_every_frame else True,
                                     dicing_rate=args.dicing_rate, pixel_samples=pixel_samples, pixel_filter=pixel_filter)
             rendered = time.perf_counter()
             where = f"frame {frame:g}: " if frame is not None else ""

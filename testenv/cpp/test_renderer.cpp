@@ -821,6 +821,7 @@ TEST_F(RendererTest, CullWorkgroupSizesDrawTheSameFrames) {
     scene.set_instances(instances);
     RenderSettings settings{160, 128, {0, 0, 0, 0}};
     settings.pixelError = 0;  // source clusters: a sphere's level holds more clusters than a workgroup has threads
+    settings.occlusionMinimumCulled = 0;  // occlusion in both frames, however little it culls: its deferrals are compared
     const std::vector<Aov> aovs = {Aov::PrimId, Aov::ClusterId, Aov::TriangleId, Aov::Depth};
     std::vector<Image> frames[2][2];
     FrameStats stats[2][2];
@@ -1029,6 +1030,7 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {  // and the AOV 
         settings.raster = c.raster;
         settings.visualize = c.visualize;
         settings.pixelError = c.pixelError;
+        settings.occlusionMinimumCulled = 0;  // occlusion in both frames, however little it culls: compared too
         // Three ways: addresses only, texel views with the AOVs stored through the output's address, and views with the
         // output's binding (the default).
         std::vector<Image> frames[3][2];
@@ -1136,6 +1138,7 @@ TEST_F(RendererTest, ThePostPassDrawsWhatTheLastFrameHid) {
     scene.set_instances(wall_and_spheres(scene.add_mesh(grid_mesh(16)), scene.add_mesh(bumpy_sphere(48))));
     Renderer culling(*device), plain(*device);
     RenderSettings on{128, 128, {0, 0, 0, 0}}, off = on;
+    on.occlusionMinimumCulled = 0;  // every frame: from behind the wall, occlusion culls nothing (it would rest after)
     off.occlusion = false;
     const std::vector<Aov> aovs = {Aov::PrimId, Aov::TriangleId};
     culling.render(scene, camera_at(0, 0, 6), on, aovs);  // the spheres hide behind the wall

@@ -226,6 +226,15 @@ struct RenderSettings {
     // depth pyramid (HZB) of what this frame drew first; the first frame of a view (or after instances move) has no
     // previous frame to ask. Off with lod=false, which draws every source triangle.
     bool occlusion = true;
+    // Occlusion where it pays. A frame whose occlusion culled less than this share of its work (1 minus the product of
+    // the shares of instances, clusters and displaced patches it kept) lets the next kOcclusionRest frames of its renderer run
+    // without it (no HZB, no post pass, no deferral; stats `occlusion_rested`), then tries again. 0: every frame.
+    // Negative: the device's default, kCpuOcclusionMinimumCulled on a CPU device, where the HZB of a 1080p frame costs
+    // about a quarter of a dense frame's culling and rasterization (lavapipe: 15.5 ms against 60-70), 0 on a GPU, where it
+    // costs little.
+    float occlusionMinimumCulled = -1.0f;
+    static constexpr float kCpuOcclusionMinimumCulled = 0.25f;
+    static constexpr uint32_t kOcclusionRest = 15;
     // The cut skips whole blocks of clusters that cannot be drawn (GpuCutBlock, renderer/cut_blocks.cpp). Blocks change the clusters tested and
     // the time, never the cut: false tests each cluster of the levels not ruled out, to compare (tests, measurements).
     bool cutBlocks = true;
@@ -289,6 +298,8 @@ struct FrameStats {
     uint32_t overflowRedraws = 0;   // times the visible-cluster list was too small and the frame was redrawn
     uint32_t visibleClusterCapacity = 0;
     bool occlusionTested = false;       // the frame had a previous frame's HZB to test against
+    bool occlusionRested = false;       // occlusion was on but skipped: it culled too little a few frames before
+                                        // (RenderSettings::occlusionMinimumCulled)
     uint32_t occludedInstances = 0, occludedClusters = 0;  // found hidden by the post pass
     uint32_t postPassClusters = 0;      // clusters drawn by the post pass (hidden last frame, visible now)
     uint32_t hzbBuilds = 0;             // HZB builds: after the main pass if it deferred anything, and at the end unless
