@@ -1594,7 +1594,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         // to hide much (cull.comp.glsl likely_occluder); the post pass tests those against this frame's HZB.
         const bool postPass = occlusion, previous = occlusion && s.previousValid;
         f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags | (previous ? TS_FRAME_PREVIOUS_HZB : 0u) |
-                        (occlusion ? TS_FRAME_OCCLUSION : 0u) | (s.anyDisplaced ? TS_FRAME_MICRO_BINS : 0u) |
+                        (occlusion ? TS_FRAME_OCCLUSION : 0u) | (occlusionWanted ? TS_FRAME_BACKFACES : 0u) | (s.anyDisplaced ? TS_FRAME_MICRO_BINS : 0u) |
                         (settings.cutBlocks ? 0u : TS_FRAME_NO_CUT_BLOCKS),
                     uint32_t(settings.visualize)};
         if (previous) {

@@ -75,7 +75,7 @@ bool small_on_screen(GpuFrame frame, vec3 center, float radius) {
 // True when every triangle of the cluster faces away from the camera (camera-relative centre and radius): the
 // meshoptimizer cone test, widened by the bounding sphere so that it holds for a viewer anywhere near the cluster.
 bool facing_away(GpuFrame frame, Instance instance, GpuCluster cluster, vec3 center, float radius) {
-    if ((frame.counts.z & TS_FRAME_OCCLUSION) == 0u || (frame.counts.z & TS_FRAME_NO_LOD) != 0u) return false;
+    if ((frame.counts.z & TS_FRAME_BACKFACES) == 0u || (frame.counts.z & TS_FRAME_NO_LOD) != 0u) return false;
     if ((instance.flags & (TS_INSTANCE_DOUBLE_SIDED | TS_INSTANCE_CONFORMAL | TS_INSTANCE_DISPLACED)) != TS_INSTANCE_CONFORMAL) return false;
     vec4 cone = unpackSnorm4x8(cluster.normalCone);
     if (cone.w >= 1.0) return false;  // the normals spread too wide

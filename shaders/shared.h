@@ -143,9 +143,11 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_FRAME_HARDWARE_ONLY 2u  // every cluster through hardware raster
 #define TS_FRAME_SOFTWARE_FIRST 4u // every cluster the compute rasterizer can take goes there (tests, measurements)
 #define TS_FRAME_PREVIOUS_HZB 8u   // two-pass occlusion: the main pass tests against the previous frame's HZB
-#define TS_FRAME_OCCLUSION 16u     // occlusion culling on: HZB passes, and clusters facing away (normal cones) culled
+#define TS_FRAME_OCCLUSION 16u     // two-pass HZB occlusion culling this frame (RenderSettings::occlusion, not resting)
 #define TS_FRAME_MICRO_BINS 32u    // displaced materials drawn: the material bins come in TS_BIN_KINDS kinds
 #define TS_FRAME_NO_CUT_BLOCKS 64u // every cut block is tested cluster by cluster (RenderSettings::cutBlocks)
+#define TS_FRAME_BACKFACES 128u    // clusters facing away (normal cones) culled: RenderSettings::occlusion, even in the
+                                   // frames whose HZB passes rest (they cost next to nothing)
 
 // Cull steps (push constant `step`). Two-pass occlusion culling: the main pass draws what the previous frame's HZB
 // does not hide and defers the rest; the post pass tests the deferred instances and clusters against an HZB of

@@ -349,3 +349,21 @@ def test_tessera_build_names_each_bad_mesh_once_and_builds_the_rest(tmp_path, mo
     assert errors == ["tessera: error: /CountsDisagree: faceVertexCounts sum to 8 but faceVertexIndices has 4 entries",
                       "tessera: error: /NegativeIndex: no drawable faces (every face is invalid: a vertex index out of range)"]
     assert "built 2 mesh(es), 0 from the cache, 2 failed" in done.stderr
+
+
+def test_occlusion_every_frame_keeps_the_hzb_passes_that_rest_by_default_on_a_cpu_device(tmp_path):
+    """A cube hides nothing: on a CPU device the frames after the first rest from occlusion's HZB passes, unless
+    --occlusion-every-frame; --no-occlusion and it exclude each other."""
+    rested = {}
+    for flag in ("", "--occlusion-every-frame"):
+        stats_file = tmp_path / f"stats{len(rested)}.json"
+        done = run("render", CUBE, "-o", tmp_path / "c.####.png", "--frames", "1-3", "--resolution", "64x48", "--stats", stats_file,
+                   *([flag] if flag else []))
+        assert done.returncode == 0, done.stderr
+        frames = json.loads(stats_file.read_text())["frames"]
+        rested[flag] = [(f["occlusion_rested"], f["hzb_builds"]) for f in frames]
+    if tessera.Session(CUBE).delegate.software_device:
+        assert rested[""] == [(False, 1), (True, 0), (True, 0)]
+    assert rested["--occlusion-every-frame"] == [(False, 1)] * 3
+    done = run("render", CUBE, "-o", tmp_path / "x.png", "--no-occlusion", "--occlusion-every-frame")
+    assert done.returncode == 2 and "not allowed with argument --no-occlusion" in done.stderr
