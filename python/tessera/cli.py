@@ -140,11 +140,11 @@ def _parser() -> argparse.ArgumentParser:
                         help="auto: small triangles through the compute rasterizer, large ones through hardware raster (default)")
     occlusion = render.add_mutually_exclusive_group()
     occlusion.add_argument("--no-occlusion", action="store_true",
-                           help="no two-pass HZB occlusion culling (a first frame tests small instances against the large ones; later frames "
-                                "test against the frame before; on a CPU device, 15 frames after one where it culled under a quarter of the "
-                                "work skip it)")
+                           help="no occlusion culling: neither normal cones nor the two-pass HZB test (by default both; the HZB test where "
+                                "it pays: a first frame tests small instances against the large ones, later frames against the frame "
+                                "before, and on a CPU device the 15 frames after one where it culled under a quarter of the work skip it)")
     occlusion.add_argument("--occlusion-every-frame", action="store_true",
-                           help="two-pass HZB occlusion culling in every frame, even where it culls little")
+                           help="the two-pass HZB test in every frame, even where it culls little")
     render.add_argument("--stats", help="write frame statistics to this JSON file (with --frames: {\"frames\": [one per frame]})")
     _add_complexity(render)
     render.add_argument("--purposes", type=_purposes, metavar="render,proxy,guide",
@@ -276,8 +276,9 @@ def _render(args) -> int:
             render_started = time.perf_counter()
             camera = job["camera"] or first_camera
             aovs = [aov for aov, _ in job["outputs"]]
+            occlusion = False if args.no_occlusion else "always" if args.occlusion_every_frame else True
             result = session.render(camera=camera, resolution=job["resolution"], aovs=aovs, pixel_error=args.pixel_error,
-                                    lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=False if args.no_occlusion else "always" if args.occlusion_every_frame else True,
+                                    lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=occlusion,
                                     dicing_rate=args.dicing_rate, pixel_samples=pixel_samples, pixel_filter=pixel_filter)
             rendered = time.perf_counter()
             where = f"frame {frame:g}: " if frame is not None else ""
