@@ -144,16 +144,15 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     // What (nearly) every frame needs, made now, on as many threads as the host has: a driver compiles a pipeline on
     // the calling thread (lavapipe: 1.0 s in all on one thread). Each task writes a slot of its own.
     const bool ownCorners = default_own_corners();
-    // The map's insertions, before the threads: the unlit resolve of a frame of one bin (every pixel) and of several.
+    // The map's one insertion, before the threads. (The every-pixel variants are made when a frame first needs one: a
+    // batch render's single frame never does.)
     VkPipeline& unlit = resolveVariants[resolve_key({}).first];
-    VkPipeline& unlitEveryPixel = resolveVariants[resolve_key({.everyPixel = true}).first];
     const std::vector<std::function<void()>> tasks = {
         [&] { cull_step(TS_CULL_MAIN_INSTANCES, 0); },
         [&] { cull_step(TS_CULL_MAIN, 0); },
         [&] { cull_step(TS_CULL_POST_INSTANCES, 0); },
         [&] { cull_step(TS_CULL_POST, 0); },
         [&] { unlit = compute_pipeline(resolve_comp, sizeof(resolve_comp), resolve_key({}).second); },
-        [&] { unlitEveryPixel = compute_pipeline(resolve_comp, sizeof(resolve_comp), resolve_key({.everyPixel = true}).second); },
         [&] { hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp)); },
         [&] { bins = compute_pipeline(bins_comp, sizeof(bins_comp)); },
         [&] { classify_step(TS_CLASSIFY_ONE_BIN, 0); },

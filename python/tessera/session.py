@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -57,8 +58,6 @@ class RenderResult:
 def _usd_error_text(error) -> str:
     """What a USD error exception says, for a person: each of its errors' own message (a parse error's file, line and
     column first), without the C++ function and source file that raised it and USD's internal namespace."""
-    import re
-
     messages = re.findall(r"Error in '[^']*' at line \d+ in file [^\n]* : '(.*?)'\s*(?=\n\s*Error in |\Z)", str(error), re.DOTALL)
     cleaned = [re.sub(r"pxrInternal_v\w+?__pxrReserved__::", "", m).strip() for m in messages]
     return "; ".join(m for m in cleaned if m) or str(error).strip()
