@@ -179,6 +179,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["resolved_every_pixel"] = s.resolvedEveryPixel;
     d["textures"] = s.textures;
     d["geometry_bytes"] = s.geometryBytes;
+    d["geometry_upload_bytes"] = s.geometryUploadBytes;
     d["texture_bytes"] = s.textureBytes;
     d["tessellated_clusters"] = s.tessellatedClusters;
     d["tessellated_triangles"] = s.tessellatedTriangles;

@@ -11,6 +11,7 @@
 #include "displacement.h"
 #include "pipelines.h"
 #include "shared.h"
+#include "stream_arena.h"
 
 #include <algorithm>
 #include <array>
@@ -386,7 +387,10 @@ struct Renderer::Impl {
     static constexpr uint32_t kFrameMarks = 13, kTimedCopies = 8;
     static constexpr uint32_t kTimestamps = kFrameMarks + 2 * kTimedCopies;
     Buffer hardwareList, softwareList;
-    Buffer instances, meshes, levels, cutBlocks, blockClusters, clusters, vertices, colors, uvs, triangles, materials, materialTables;
+    Buffer instances, meshes, materials, materialTables;
+    // The meshes' streams: each mesh keeps its ranges while it is in the scene (upload_geometry).
+    StreamArena levels{sizeof(gpu::GpuLevel)}, cutBlocks{sizeof(gpu::GpuCutBlock)}, blockClusters{sizeof(uint32_t)}, clusters{sizeof(gpu::GpuCluster)},
+        vertices{sizeof(gpu::GpuVertex)}, colors{sizeof(uint32_t)}, uvs{sizeof(uint32_t)}, triangles{sizeof(uint32_t)};
     Buffer instanceBatches, batches;
     uint32_t instanceCount = 0;
     uint64_t clusterCount = 0, sourceTriangles = 0;
@@ -541,24 +545,26 @@ struct Renderer::Impl {
     };
     std::array<ViewedStream, TS_VIEW_COUNT> viewed_streams(uint64_t pixels) const {
         auto whole = [](const Buffer& b, uint64_t texelBytes) { return b.handle ? b.size / texelBytes : 0; };
+        // A mesh stream's texels up to its last range in use (its buffer keeps room to grow).
+        auto streamed = [](const StreamArena& a, uint64_t texelBytes) { return std::max<uint64_t>(a.end(), 1) * a.element_bytes() / texelBytes; };
         return {{{instances, VK_FORMAT_R32G32B32A32_UINT, 16, whole(instances, 16)},
                  {batches, VK_FORMAT_R32G32B32A32_UINT, 16, whole(batches, 16)},
                  {instanceBatches, VK_FORMAT_R32_UINT, 4, whole(instanceBatches, 4)},
-                 {clusters, VK_FORMAT_R32G32B32A32_UINT, 16, whole(clusters, 16)},
+                 {clusters.buffer(), VK_FORMAT_R32G32B32A32_UINT, 16, streamed(clusters, 16)},
                  {meshes, VK_FORMAT_R32G32B32A32_UINT, 16, whole(meshes, 16)},
-                 {vertices, VK_FORMAT_R32G32B32A32_UINT, 16, whole(vertices, 16)},
-                 {triangles, VK_FORMAT_R32_UINT, 4, whole(triangles, 4)},
+                 {vertices.buffer(), VK_FORMAT_R32G32B32A32_UINT, 16, streamed(vertices, 16)},
+                 {triangles.buffer(), VK_FORMAT_R32_UINT, 4, streamed(triangles, 4)},
                  {visibleClusters, VK_FORMAT_R32G32_UINT, 8, TS_VIS_MAX_VISIBLE_CLUSTERS},  // the most a frame may grow it to
                  {visibility, VK_FORMAT_R32G32_UINT, 8, pixels},
                  {binPixels, VK_FORMAT_R32_UINT, 4, pixels},
-                 {levels, VK_FORMAT_R32G32_UINT, 8, whole(levels, 8)},
-                 {cutBlocks, VK_FORMAT_R32G32B32A32_UINT, 16, whole(cutBlocks, 16)},
-                 {blockClusters, VK_FORMAT_R32_UINT, 4, whole(blockClusters, 4)},
+                 {levels.buffer(), VK_FORMAT_R32G32_UINT, 8, streamed(levels, 8)},
+                 {cutBlocks.buffer(), VK_FORMAT_R32G32B32A32_UINT, 16, streamed(cutBlocks, 16)},
+                 {blockClusters.buffer(), VK_FORMAT_R32_UINT, 4, streamed(blockClusters, 4)},
                  {hzbLevels, VK_FORMAT_R32_UINT, 4, whole(hzbLevels, 4)},
                  {textureSlots, VK_FORMAT_R32G32B32A32_UINT, 16, whole(textureSlots, 16)},
                  {texturePool, VK_FORMAT_R32_UINT, 4, whole(texturePool, 4)},
-                 {uvs, VK_FORMAT_R32G32_UINT, 8, whole(uvs, 8)},
-                 {colors, VK_FORMAT_R32G32_UINT, 8, whole(colors, 8)},
+                 {uvs.buffer(), VK_FORMAT_R32G32_UINT, 8, streamed(uvs, 8)},
+                 {colors.buffer(), VK_FORMAT_R32G32_UINT, 8, streamed(colors, 8)},
                  {patches, VK_FORMAT_R32G32B32A32_UINT, 16, whole(patches, 16)},
                  {patchPoints, VK_FORMAT_R32_UINT, 4, whole(patchPoints, 4)},
                  {materials, VK_FORMAT_R32G32B32A32_UINT, 16, whole(materials, 16)},
@@ -704,50 +710,145 @@ struct Renderer::Impl {
         return records;
     }
 
-    void upload_geometry(GpuScene& scene) {
+    // Where each scene mesh handle's streams lie (element offsets into the arenas), and the mesh they hold: kept while
+    // the handle holds that mesh, so that a geometry change writes only the meshes it added.
+    struct MeshRanges {
+        uint32_t cluster = 0, level = 0, block = 0, blockCluster = 0, vertex = 0, triangle = 0, color = 0, uv = 0;
+    };
+    struct ResidentMesh {
+        std::shared_ptr<const BuiltMesh> mesh;  // null: the handle holds nothing
+        MeshRanges at;
+        std::array<size_t, 8> counts{};  // elements in each range (stream_counts)
+    };
+    std::vector<ResidentMesh> resident;  // by scene mesh handle
+    uint64_t geometryUploadBytes = 0;    // the mesh streams the last geometry upload wrote
+
+    std::array<StreamArena*, 8> mesh_streams() { return {&levels, &cutBlocks, &blockClusters, &clusters, &vertices, &colors, &uvs, &triangles}; }
+    std::array<const StreamArena*, 8> mesh_streams() const { return {&levels, &cutBlocks, &blockClusters, &clusters, &vertices, &colors, &uvs, &triangles}; }
+
+    // Each stream's element count for a mesh, in the order of MeshRanges.
+    static std::array<size_t, 8> stream_counts(const BuiltMesh& mesh, const MeshRecords& r) {
+        return {r.clusters.size(), r.levels.size(), r.blocks.size(), r.blockClusters.size(), mesh.normals.size(), mesh.triangles.size(), mesh.colors.size(),
+                mesh.uvs.size()};
+    }
+    static std::array<uint32_t MeshRanges::*, 8> range_fields() {
+        return {&MeshRanges::cluster, &MeshRanges::level, &MeshRanges::block, &MeshRanges::blockCluster, &MeshRanges::vertex, &MeshRanges::triangle,
+                &MeshRanges::color, &MeshRanges::uv};
+    }
+    std::array<StreamArena*, 8> arenas_in_range_order() { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
+
+    // `sameScene`: the scene these streams were uploaded for (else every range is let go first).
+    void upload_geometry(GpuScene& scene, bool sameScene) {
+        if (!sameScene) {
+            for (StreamArena* arena : mesh_streams()) arena->clear();
+            resident.clear();
+        }
+        // Handles whose mesh changed give their ranges back; the meshes now at them are fresh.
+        const auto arenas = arenas_in_range_order();
+        const auto fields = range_fields();
+        auto release = [&](ResidentMesh& r) {
+            if (!r.mesh) return;
+            for (size_t k = 0; k < arenas.size(); ++k) arenas[k]->release({r.at.*fields[k], r.counts[k]});
+            r = {};
+        };
+        for (size_t m = scene.meshes_.size(); m < resident.size(); ++m) release(resident[m]);
+        resident.resize(scene.meshes_.size());
+        std::vector<size_t> fresh;  // handles
+        for (size_t m = 0; m < scene.meshes_.size(); ++m) {
+            if (resident[m].mesh == scene.meshes_[m]) continue;
+            release(resident[m]);
+            if (scene.meshes_[m]) fresh.push_back(m);
+        }
+
         // Each mesh's records: kept, or derived now (the new meshes on every core, each also on every core: a stage of
         // many small meshes as much as one large); the meshes no longer in the scene are let go.
         decltype(meshRecords) kept;
-        std::vector<std::shared_ptr<const BuiltMesh>> fresh;
+        std::vector<std::shared_ptr<const BuiltMesh>> derive;
         for (const std::shared_ptr<const BuiltMesh>& mesh : scene.meshes_) {
             if (!mesh || kept.count(mesh.get())) continue;
             auto old = meshRecords.find(mesh.get());
             if (old != meshRecords.end()) kept.emplace(mesh.get(), old->second);
-            else kept.emplace(mesh.get(), std::make_pair(mesh, nullptr)), fresh.push_back(mesh);
+            else kept.emplace(mesh.get(), std::make_pair(mesh, nullptr)), derive.push_back(mesh);
         }
-        std::vector<std::shared_ptr<const MeshRecords>> derived(fresh.size());
-        parallel_for_rethrowing(fresh.size(), [&](size_t i) { derived[i] = derive_records(*fresh[i]); });
-        for (size_t i = 0; i < fresh.size(); ++i) kept[fresh[i].get()].second = std::move(derived[i]);
+        std::vector<std::shared_ptr<const MeshRecords>> derived(derive.size());
+        parallel_for_rethrowing(derive.size(), [&](size_t i) { derived[i] = derive_records(*derive[i]); });
+        for (size_t i = 0; i < derive.size(); ++i) kept[derive[i].get()].second = std::move(derived[i]);
         meshRecords = std::move(kept);
-        std::vector<std::shared_ptr<const MeshRecords>> records(scene.meshes_.size());
-        for (size_t m = 0; m < scene.meshes_.size(); ++m)
-            if (scene.meshes_[m]) records[m] = meshRecords.at(scene.meshes_[m].get()).second;
+        auto records_of = [&](size_t m) -> const MeshRecords& { return *meshRecords.at(scene.meshes_[m].get()).second; };
 
-        // The scene's offsets of each mesh's records and streams (the shaders index them with 32 bits).
-        struct Bases {
-            uint32_t cluster = 0, level = 0, block = 0, blockCluster = 0, vertex = 0, triangle = 0, color = 0, uv = 0;
-        };
-        std::vector<Bases> bases(scene.meshes_.size() + 1);
-        for (size_t m = 0; m < scene.meshes_.size(); ++m) {
-            Bases next = bases[m];
-            if (const BuiltMesh* mesh = scene.meshes_[m].get()) {
-                auto add = [](uint32_t& base, size_t count) {
-                    if (count > UINT32_MAX - base) throw std::runtime_error("the scene's distinct meshes hold more than 2^32 vertices, triangles or clusters");
-                    base += uint32_t(count);
-                };
-                add(next.cluster, records[m]->clusters.size());
-                add(next.level, records[m]->levels.size());
-                add(next.block, records[m]->blocks.size());
-                add(next.blockCluster, records[m]->blockClusters.size());
-                add(next.vertex, mesh->normals.size());
-                add(next.triangle, mesh->triangles.size());
-                add(next.color, mesh->colors.size());
-                add(next.uv, mesh->uvs.size());
+        // The fresh meshes' ranges (colours and texture coordinates two words per vertex: an even offset, which the
+        // shaders halve), then the arenas grown to hold them; the shaders index each stream with 32 bits.
+        for (size_t m : fresh) {
+            ResidentMesh& r = resident[m];
+            r.counts = stream_counts(*scene.meshes_[m], records_of(m));
+            for (size_t k = 0; k < arenas.size(); ++k) {
+                const size_t offset = arenas[k]->allocate(r.counts[k], arenas[k] == &colors || arenas[k] == &uvs ? 2 : 1);
+                if (offset + r.counts[k] > UINT32_MAX) {  // nothing kept: the next upload starts again from the host
+                    for (StreamArena* arena : mesh_streams()) arena->clear();
+                    resident.clear();
+                    throw std::runtime_error("the scene's distinct meshes hold more than 2^32 vertices, triangles or clusters");
+                }
+                r.at.*fields[k] = uint32_t(offset);
             }
-            bases[m + 1] = next;
+            r.mesh = scene.meshes_[m];
         }
-        const Bases& total = bases.back();
+        for (StreamArena* arena : mesh_streams()) arena->fit(device);
 
+        // The fresh meshes' streams, written into their ranges (their scene offsets added to the records).
+        geometryUploadBytes = 0;
+        auto write_stream = [&](StreamArena& arena, uint32_t MeshRanges::*field, size_t k, auto write) {
+            std::vector<StreamArena::Range> ranges;
+            for (size_t m : fresh) ranges.push_back({resident[m].at.*field, resident[m].counts[k]});
+            geometryUploadBytes += arena.write(device, ranges, [&](size_t range, size_t first, size_t end, void* to) {
+                const size_t m = fresh[range];
+                write(to, m, *scene.meshes_[m], records_of(m), resident[m].at, first, end);
+            });
+        };
+        write_stream(clusters, &MeshRanges::cluster, 0,
+                     [](void* to, size_t m, const BuiltMesh&, const MeshRecords& r, const MeshRanges& b, size_t first, size_t end) {
+                         for (size_t i = first; i < end; ++i) {
+                             gpu::GpuCluster& out = static_cast<gpu::GpuCluster*>(to)[i - first] = r.clusters[i];
+                             out.vertexOffset += b.vertex;
+                             out.triangleOffset += b.triangle;
+                             out.meshIndex = uint32_t(m);
+                         }
+                     });
+        write_stream(levels, &MeshRanges::level, 1, [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const MeshRanges& b, size_t first, size_t end) {
+            for (size_t l = first; l < end; ++l) {
+                gpu::GpuLevel& out = static_cast<gpu::GpuLevel*>(to)[l - first] = r.levels[l];
+                out.blockOffset += b.block;
+            }
+        });
+        write_stream(cutBlocks, &MeshRanges::block, 2,
+                     [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const MeshRanges& b, size_t first, size_t end) {
+                         for (size_t k = first; k < end; ++k) {
+                             gpu::GpuCutBlock& out = static_cast<gpu::GpuCutBlock*>(to)[k - first] = r.blocks[k];
+                             out.firstCluster += b.blockCluster;
+                         }
+                     });
+        write_stream(blockClusters, &MeshRanges::blockCluster, 3,
+                     [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const MeshRanges&, size_t first, size_t end) {
+                         std::copy(r.blockClusters.begin() + first, r.blockClusters.begin() + end, static_cast<uint32_t*>(to));
+                     });
+        write_stream(vertices, &MeshRanges::vertex, 4,
+                     [](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const MeshRanges&, size_t first, size_t end) {
+                         for (size_t v = first; v < end; ++v) {
+                             gpu::GpuVertex& out = static_cast<gpu::GpuVertex*>(to)[v - first];
+                             std::memcpy(&out.bits, &mesh.positions[3 * v], 12);
+                             out.bits.w = mesh.normals[v];
+                         }
+                     });
+        auto write_words = [&](StreamArena& arena, uint32_t MeshRanges::*field, size_t k, auto stream) {
+            write_stream(arena, field, k, [stream](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const MeshRanges&, size_t first, size_t end) {
+                static_assert(sizeof((mesh.*stream)[0]) == sizeof(uint32_t));
+                std::memcpy(to, (mesh.*stream).data() + first, (end - first) * sizeof(uint32_t));
+            });
+        };
+        write_words(triangles, &MeshRanges::triangle, 5, &BuiltMesh::triangles);
+        write_words(colors, &MeshRanges::color, 6, &BuiltMesh::colors);
+        write_words(uvs, &MeshRanges::uv, 7, &BuiltMesh::uvs);
+
+        // The mesh records (small: all of them again) and the displaced meshes' displacement normals and seams.
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
         std::vector<uint32_t> gpuDisplacementNormals, gpuSeams;
         uvBoxes.assign(scene.meshes_.size(), {});
@@ -757,7 +858,8 @@ struct Renderer::Impl {
             g = {};
             g.colorOffset = g.uvOffset = g.displacementNormalOffset = g.seamVertexOffset = g.seamTriangleOffset = TS_NO_STREAM;
             if (!mesh) continue;
-            const Bases& b = bases[m];
+            const MeshRanges& b = resident[m].at;
+            const MeshRecords& records = records_of(m);
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
             g.clusterOffset = b.cluster;
             g.vertexOffset = b.vertex;
@@ -778,74 +880,10 @@ struct Renderer::Impl {
             g.clusterCount = uint32_t(mesh->clusters.size());
             g.leafClusterCount = mesh->leafClusters;
             g.levelOffset = b.level;
-            g.levelCount = uint32_t(records[m]->levels.size());
-            g.lodRadius = records[m]->lodRadius;
+            g.levelCount = uint32_t(records.levels.size());
+            g.lodRadius = records.lodRadius;
         }
-
         upload_vector(device, meshes, gpuMeshes);
-        // Everything else straight into the buffers, on every core in runs of at most 64 k elements of one mesh, the
-        // mesh's offsets added: `write(destination, mesh, records, bases, first, end)` writes the mesh's elements
-        // [first, end) of a stream whose scene offset is in Bases at `base`. An empty stream gets one zeroed element.
-        auto upload_runs = [&](Buffer& buffer, size_t elementBytes, uint32_t Bases::*base, auto count, auto write) {
-            constexpr size_t kRun = 65536;
-            std::vector<std::array<size_t, 3>> runs;  // mesh, first, end
-            for (size_t m = 0; m < scene.meshes_.size(); ++m)
-                if (const BuiltMesh* mesh = scene.meshes_[m].get())
-                    for (size_t first = 0, n = count(*mesh, *records[m]); first < n; first += kRun) runs.push_back({m, first, std::min(n, first + kRun)});
-            const size_t elements = total.*base;
-            upload_written(device, buffer, std::max<size_t>(elements, 1) * elementBytes, [&](void* to) {
-                if (elements == 0) std::memset(to, 0, elementBytes);
-                parallel_for(runs.size(), [&](size_t r) {
-                    const auto [m, first, end] = runs[r];
-                    write(static_cast<char*>(to) + size_t(bases[m].*base) * elementBytes, m, *scene.meshes_[m], *records[m], bases[m], first, end);
-                });
-            });
-        };
-        upload_runs(levels, sizeof(gpu::GpuLevel), &Bases::level, [](const BuiltMesh&, const MeshRecords& r) { return r.levels.size(); },
-                    [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const Bases& b, size_t first, size_t end) {
-                        for (size_t l = first; l < end; ++l) {
-                            gpu::GpuLevel& out = static_cast<gpu::GpuLevel*>(to)[l] = r.levels[l];
-                            out.blockOffset += b.block;
-                        }
-                    });
-        upload_runs(cutBlocks, sizeof(gpu::GpuCutBlock), &Bases::block, [](const BuiltMesh&, const MeshRecords& r) { return r.blocks.size(); },
-                    [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const Bases& b, size_t first, size_t end) {
-                        for (size_t k = first; k < end; ++k) {
-                            gpu::GpuCutBlock& out = static_cast<gpu::GpuCutBlock*>(to)[k] = r.blocks[k];
-                            out.firstCluster += b.blockCluster;
-                        }
-                    });
-        upload_runs(blockClusters, sizeof(uint32_t), &Bases::blockCluster, [](const BuiltMesh&, const MeshRecords& r) { return r.blockClusters.size(); },
-                    [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const Bases&, size_t first, size_t end) {
-                        std::copy(r.blockClusters.begin() + first, r.blockClusters.begin() + end, static_cast<uint32_t*>(to) + first);
-                    });
-        upload_runs(clusters, sizeof(gpu::GpuCluster), &Bases::cluster, [](const BuiltMesh&, const MeshRecords& r) { return r.clusters.size(); },
-                    [](void* to, size_t m, const BuiltMesh&, const MeshRecords& r, const Bases& b, size_t first, size_t end) {
-                        for (size_t i = first; i < end; ++i) {
-                            gpu::GpuCluster& out = static_cast<gpu::GpuCluster*>(to)[i] = r.clusters[i];
-                            out.vertexOffset += b.vertex;
-                            out.triangleOffset += b.triangle;
-                            out.meshIndex = uint32_t(m);
-                        }
-                    });
-        upload_runs(vertices, sizeof(gpu::GpuVertex), &Bases::vertex, [](const BuiltMesh& mesh, const MeshRecords&) { return mesh.normals.size(); },
-                    [](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const Bases&, size_t first, size_t end) {
-                        for (size_t v = first; v < end; ++v) {
-                            gpu::GpuVertex& out = static_cast<gpu::GpuVertex*>(to)[v];
-                            std::memcpy(&out.bits, &mesh.positions[3 * v], 12);
-                            out.bits.w = mesh.normals[v];
-                        }
-                    });
-        auto upload_stream = [&](Buffer& buffer, uint32_t Bases::*base, auto stream) {
-            upload_runs(buffer, sizeof(uint32_t), base, [&](const BuiltMesh& mesh, const MeshRecords&) { return (mesh.*stream).size(); },
-                        [&](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const Bases&, size_t first, size_t end) {
-                            static_assert(sizeof((mesh.*stream)[0]) == sizeof(uint32_t));
-                            std::memcpy(static_cast<uint32_t*>(to) + first, (mesh.*stream).data() + first, (end - first) * sizeof(uint32_t));
-                        });
-        };
-        upload_stream(colors, &Bases::color, &BuiltMesh::colors);
-        upload_stream(uvs, &Bases::uv, &BuiltMesh::uvs);
-        upload_stream(triangles, &Bases::triangle, &BuiltMesh::triangles);
         if (gpuDisplacementNormals.empty()) displacementNormals = Buffer{};
         else upload_vector(device, displacementNormals, gpuDisplacementNormals);
         if (gpuSeams.empty()) seams = Buffer{};
@@ -1290,14 +1328,14 @@ void Renderer::set_point_capacity(uint32_t points) {
 
 namespace {
 
-// The FrameStats fields that an image of several pixel samples adds up over its frames: times, redraws and imports.
+// The FrameStats fields that an image of several pixel samples adds up over its frames: times, redraws, imports and uploads.
 template <class Visit>
 void visit_frame_costs(FrameStats& a, const FrameStats& b, Visit visit) {
     visit(a.cullMs, b.cullMs), visit(a.softwareRasterMs, b.softwareRasterMs), visit(a.rasterMs, b.rasterMs);
     visit(a.tessellationMs, b.tessellationMs), visit(a.hzbMs, b.hzbMs), visit(a.classifyMs, b.classifyMs);
     visit(a.resolveMs, b.resolveMs), visit(a.readbackMs, b.readbackMs), visit(a.uploadMs, b.uploadMs);
     visit(a.cpuRecordMs, b.cpuRecordMs), visit(a.cpuWaitMs, b.cpuWaitMs), visit(a.cpuFrameMs, b.cpuFrameMs);
-    visit(a.overflowRedraws, b.overflowRedraws), visit(a.aovImportsMade, b.aovImportsMade);
+    visit(a.overflowRedraws, b.overflowRedraws), visit(a.aovImportsMade, b.aovImportsMade), visit(a.geometryUploadBytes, b.geometryUploadBytes);
 }
 
 // The Gaussian pixel filter along one axis: sigma 0.4 px, less its value at 1 px so that it falls to 0 there, over
@@ -1422,8 +1460,10 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     }
     // Meshes drawn displaced carry displacement normals: which they are follows the instances and their materials.
     const bool displacedMeshesChanged = (instancesMoved || materialsChanged) && s.update_displaced_meshes(scene);
+    uint64_t geometryUploadBytes = 0;
     if (s.uploadedScene != &scene || s.geometryVersion != scene.geometryVersion_ || displacedMeshesChanged) {
-        s.upload_geometry(scene);
+        s.upload_geometry(scene, s.uploadedScene == &scene);
+        geometryUploadBytes = s.geometryUploadBytes;
         instancesMoved = true;  // instance counts depend on the meshes
     }
     if (instancesMoved || materialsChanged) s.upload_instances(scene, instancesMoved);
@@ -1472,8 +1512,9 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     frameStats.sourceTriangles = s.sourceTriangles;
     frameStats.textures = uint32_t(s.poolImages.size());
     frameStats.textureBytes = s.texturePool.size + s.textureSlots.size;
-    frameStats.geometryBytes = s.meshes.size + s.levels.size + s.cutBlocks.size + s.blockClusters.size + s.clusters.size + s.vertices.size + s.colors.size + s.uvs.size +
-                               s.triangles.size;
+    frameStats.geometryUploadBytes = geometryUploadBytes;
+    frameStats.geometryBytes = s.meshes.size;
+    for (const StreamArena* arena : s.mesh_streams()) frameStats.geometryBytes += arena->buffer().size;
 
     // The AOVs' images are made first, and where the device can import their memory (VK_EXT_external_memory_host) it
     // writes them in place: a GPU copies each AOV from its output into its image; on a CPU device resolve writes the
@@ -1610,14 +1651,14 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.instanceBatches = s.instanceBatches.address;
         f.batches = s.batches.address;
         f.meshes = s.meshes.address;
-        f.levels = s.levels.address;
-        f.cutBlocks = s.cutBlocks.address;
-        f.blockClusters = s.blockClusters.address;
-        f.clusters = s.clusters.address;
-        f.vertices = s.vertices.address;
-        f.colors = s.colors.address;
-        f.uvs = s.uvs.address;
-        f.triangles = s.triangles.address;
+        f.levels = s.levels.buffer().address;
+        f.cutBlocks = s.cutBlocks.buffer().address;
+        f.blockClusters = s.blockClusters.buffer().address;
+        f.clusters = s.clusters.buffer().address;
+        f.vertices = s.vertices.buffer().address;
+        f.colors = s.colors.buffer().address;
+        f.uvs = s.uvs.buffer().address;
+        f.triangles = s.triangles.buffer().address;
         f.materials = s.materials.address;
         f.materialTables = s.materialTables.address;
         f.visibleClusters = s.visibleClusters.address;

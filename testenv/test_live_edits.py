@@ -185,6 +185,43 @@ def test_prims_added_and_removed(live):
     assert live.session.index.rprim_count == 6
 
 
+def test_an_edit_uploads_the_edited_mesh_alone_and_draws_what_a_fresh_session_draws():
+    """Each mesh keeps its place in the GPU streams while it stays in the scene: editing a quad beside a dense grid writes
+    the quad's streams, not the grid's (an edit costs what it changes, not what the scene holds); a removal writes
+    nothing; and each image is the one a fresh session draws of the stage as it then is."""
+    stage = _stage()
+    side = 120
+    u, v = np.meshgrid(np.linspace(-0.5, 0.5, side + 1), np.linspace(-0.5, 0.5, side + 1))
+    dense = UsdGeom.Mesh.Define(stage, "/World/Dense")
+    dense.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.stack([u, v, 0.1 * np.sin(9 * u) * np.cos(7 * v)], -1).reshape(-1, 3).astype(np.float32)))
+    corners = np.arange((side + 1) * side).reshape(side, side + 1)[:, :side]
+    dense.GetFaceVertexCountsAttr().Set(Vt.IntArray([4] * side * side))
+    dense.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(
+        np.stack([corners, corners + 1, corners + side + 2, corners + side + 1], -1).reshape(-1).astype(np.int32)))
+    live = Live(stage)
+    aovs = ("primId", "color")
+    first, _ = live.render(aovs)
+    everything = first.stats["geometry_upload_bytes"]
+    assert everything > 500_000, "the grid's 28 800 triangles are in it"
+    again, _ = live.render(aovs)
+    assert again.stats["geometry_upload_bytes"] == 0
+
+    def fresh_colour():
+        return Live(stage).render(aovs)[0]["color"].pixels
+
+    points = stage.GetPrimAtPath("/World/Right").GetAttribute("points")
+    points.Set(Vt.Vec3fArray([Gf.Vec3f(p[0], 1.5 * p[1], 0) for p in points.Get()]))
+    edited, synced = live.render(aovs)
+    assert synced == {"/World/Right": DIRTY.POINTS}
+    assert 0 < edited.stats["geometry_upload_bytes"] < everything / 100, "the quad's streams alone"
+    assert np.array_equal(edited["color"].pixels, fresh_colour())
+    stage.RemovePrim("/World/Left")
+    removed, _ = live.render(aovs)
+    assert removed.stats["geometry_upload_bytes"] == 0, "a removal writes nothing"
+    assert "/World/Left/Quad" not in _drawn(removed) and "/World/Dense" in _drawn(removed)
+    assert np.array_equal(removed["color"].pixels, fresh_colour())
+
+
 def test_identical_meshes_share_one_build_until_one_is_edited(live):
     twin = UsdGeom.Xform.Define(live.stage, "/World/TwinXform")
     twin.AddTranslateOp().Set(Gf.Vec3d(0, 0.6, 0))

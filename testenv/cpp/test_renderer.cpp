@@ -6,10 +6,12 @@
 #include "device_fixture.h"
 #include "test_meshes.h"
 #include "shared.h"
+#include "stream_arena.h"
 
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <map>
 #include <set>
 #include <memory>
 #include <string>
@@ -1064,10 +1066,59 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {  // and the AOV 
     }
 }
 
+// A stream's ranges: first fit among the freed ones (aligned as asked, the padding kept free), freed neighbours merged,
+// the end dropping back when the last range goes; fit() keeps the ranges in use, grows with room to spare, and gives
+// an empty stream one zeroed element; write() fills the ranges it is given and nothing else.
+TEST_F(RendererTest, StreamArenaReusesFreedRangesAndKeepsTheOnesInUse) {
+    StreamArena arena(sizeof(uint32_t));
+    arena.fit(*device);
+    ASSERT_NE(arena.buffer().handle, VK_NULL_HANDLE);
+    EXPECT_EQ(arena.buffer().size, 16u) << "one zeroed element (the smallest buffer)";
+    EXPECT_EQ(arena.allocate(10), 0u);
+    EXPECT_EQ(arena.allocate(5), 10u);
+    EXPECT_EQ(arena.allocate(4, 2), 16u) << "aligned; the padding at 15 stays free";
+    EXPECT_EQ(arena.end(), 20u);
+    EXPECT_EQ(arena.free_elements(), 1u);
+    arena.release({0, 10});
+    arena.release({10, 5});
+    EXPECT_EQ(arena.free_elements(), 16u) << "0-9, 10-14 and the padding merged";
+    EXPECT_EQ(arena.allocate(12), 0u) << "first fit in the merged range";
+    EXPECT_EQ(arena.allocate(8), 20u) << "too long for the 4 left: past the end";
+    arena.release({20, 8});
+    EXPECT_EQ(arena.end(), 20u) << "the last range went: the end drops back";
+    arena.release({16, 4});
+    EXPECT_EQ(arena.end(), 12u) << "and again, over the free range below it";
+    EXPECT_EQ(arena.free_elements(), 0u);
+
+    // Written, grown (the ranges in use copied over), written again: each range holds what it was given.
+    arena.clear();
+    std::vector<StreamArena::Range> ranges = {{arena.allocate(3), 3}, {arena.allocate(70000), 70000}};
+    arena.fit(*device);
+    auto fill = [](size_t range, size_t first, size_t end, void* to) {
+        for (size_t i = first; i < end; ++i) static_cast<uint32_t*>(to)[i - first] = uint32_t(range * 1000000 + i);
+    };
+    EXPECT_EQ(arena.write(*device, ranges, fill), 70003u * 4);
+    EXPECT_EQ(arena.buffer().size, 70003u * 4) << "an empty stream grows to exactly what it holds";
+    ranges.push_back({arena.allocate(100), 100});
+    arena.fit(*device);
+    EXPECT_EQ(arena.buffer().size, (70003u + 70003u / 4) * 4) << "with a quarter to spare once it holds meshes";
+    EXPECT_EQ(arena.write(*device, std::span(ranges).subspan(2), [&](size_t, size_t first, size_t end, void* to) { fill(2, first, end, to); }), 400u);
+    Buffer readback = device->create_buffer(arena.buffer().size, MemoryUse::Readback);
+    device->run([&](VkCommandBuffer cmd) {
+        const VkBufferCopy whole{0, 0, arena.buffer().size};
+        vkCmdCopyBuffer(cmd, arena.buffer().handle, readback.handle, 1, &whole);
+    });
+    const uint32_t* words = static_cast<const uint32_t*>(readback.mapped);
+    for (size_t r = 0; r < ranges.size(); ++r)
+        for (size_t i = 0; i < ranges[r].count; i += 997) ASSERT_EQ(words[ranges[r].offset + i], r * 1000000 + i) << r << " " << i;
+}
+
 // Uploads through staging buffers (as into a discrete GPU's memory, which the host cannot map) draw what uploads written
-// straight into mapped memory draw; and a scene that gains a mesh, and loses one, after its first frames (the others'
-// derived records kept, their offsets moved) draws what a fresh renderer draws.
-TEST_F(RendererTest, StagedUploadsAndKeptMeshRecordsDrawTheSameFrames) {
+// straight into mapped memory draw. A scene that gains a mesh, and loses one, after its first frames draws what a fresh
+// renderer draws: the meshes already up keep their places in the streams, so the geometry upload writes the added mesh
+// alone, a removal writes nothing, and a later mesh that fits takes the freed place. Cluster and triangle ids number the
+// streams, so a renderer that kept its meshes' places numbers them otherwise than a fresh one: the same pixels, one to one.
+TEST_F(RendererTest, StagedUploadsAndKeptMeshPlacesDrawTheSameFrames) {
     DeviceOptions options = DeviceOptions::from_environment();
     options.stagedUploads = true;
     Device staged(options);
@@ -1081,35 +1132,71 @@ TEST_F(RendererTest, StagedUploadsAndKeptMeshRecordsDrawTheSameFrames) {
     const std::vector<Aov> aovs = {Aov::Color, Aov::PrimId, Aov::ClusterId, Aov::TriangleId};
     const RenderSettings settings{160, 96, {0.25f, 0.5f, 0.75f, 1}};
     const CameraDesc camera = camera_at(0, 0.5, 7);
-    auto expect_same = [&](const std::vector<Image>& a, const std::vector<Image>& b, const char* what) {
+    auto same_bits = [](const Image& a, const Image& b) {  // ids are float bits, the background's a NaN
+        return a.pixels.size() == b.pixels.size() && std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(float)) == 0;
+    };
+    auto same_partition = [](const Image& a, const Image& b) {  // each id of one image stands for one id of the other
+        if (a.pixels.size() != b.pixels.size()) return false;
+        std::map<uint32_t, uint32_t> forward, backward;
+        for (size_t i = 0; i < a.pixels.size(); i += 4) {
+            uint32_t x, y;
+            std::memcpy(&x, &a.pixels[i], 4);
+            std::memcpy(&y, &b.pixels[i], 4);
+            if (forward.emplace(x, y).first->second != y || backward.emplace(y, x).first->second != x) return false;
+        }
+        return true;
+    };
+    auto expect_same = [&](const std::vector<Image>& a, const std::vector<Image>& b, const char* what, bool renumbered) {
         ASSERT_EQ(a.size(), b.size());
-        for (size_t i = 0; i < a.size(); ++i)  // bit for bit: ids are float bits, the background's a NaN
-            EXPECT_TRUE(a[i].pixels.size() == b[i].pixels.size() &&
-                        std::memcmp(a[i].pixels.data(), b[i].pixels.data(), a[i].pixels.size() * sizeof(float)) == 0)
-                << what << ", AOV " << i;
+        for (size_t i = 0; i < a.size(); ++i) {
+            const bool numbersStreams = aovs[i] == Aov::ClusterId || aovs[i] == Aov::TriangleId;
+            if (renumbered && numbersStreams) EXPECT_TRUE(same_partition(a[i], b[i])) << what << ", AOV " << i;
+            else EXPECT_TRUE(same_bits(a[i], b[i])) << what << ", AOV " << i;
+        }
     };
 
     Renderer mapped(*device), throughStaging(staged);
-    const std::vector<Image> first = mapped.render(scene, camera, settings, aovs);
-    expect_same(throughStaging.render(scene, camera, settings, aovs), first, "staged uploads");
+    FrameStats stats, stagedStats;
+    const std::vector<Image> first = mapped.render(scene, camera, settings, aovs, &stats);
+    expect_same(throughStaging.render(scene, camera, settings, aovs, &stagedStats), first, "staged uploads", false);
+    const uint64_t firstUpload = stats.geometryUploadBytes, firstBytes = stats.geometryBytes;
+    EXPECT_GT(firstUpload, 0u);
+    EXPECT_LE(firstUpload, firstBytes);
+    EXPECT_EQ(stagedStats.geometryUploadBytes, firstUpload);
+    mapped.render(scene, camera, settings, aovs, &stats);
+    EXPECT_EQ(stats.geometryUploadBytes, 0u) << "nothing changed, nothing written";
 
-    // A third mesh, then the first one gone: the kept records land at other offsets of every buffer.
+    // A third mesh, then the first one gone, then a small one in its place.
     const uint32_t extra = scene.add_mesh(bumpy_sphere(20));
     InstanceDesc added = identity_instance(extra);
     added.transform[3] = 1.5;
     added.primId = 77;
     instances.push_back(added);
     scene.set_instances(instances);
-    for (const bool removed : {false, true}) {
-        if (removed) {
+    for (const int step : {0, 1, 2}) {
+        if (step == 1) {
             std::erase_if(instances, [&](const InstanceDesc& i) { return i.mesh == wall; });
             scene.set_instances(instances);
             scene.remove_mesh(wall);
         }
-        const char* what = removed ? "a mesh removed" : "a mesh added";
-        const std::vector<Image> kept = mapped.render(scene, camera, settings, aovs);
-        expect_same(kept, Renderer(*device).render(scene, camera, settings, aovs), what);
-        expect_same(throughStaging.render(scene, camera, settings, aovs), kept, what);
+        if (step == 2) {
+            InstanceDesc patch = identity_instance(scene.add_mesh(grid_mesh(4, true)));
+            patch.transform[3] = -1.5;
+            patch.primId = 78;
+            instances.push_back(patch);
+            scene.set_instances(instances);
+        }
+        const char* what = step == 0 ? "a mesh added" : step == 1 ? "a mesh removed" : "a small mesh added after the removal";
+        const uint64_t bytesBefore = stats.geometryBytes;
+        const std::vector<Image> kept = mapped.render(scene, camera, settings, aovs, &stats);
+        expect_same(kept, Renderer(*device).render(scene, camera, settings, aovs), what, true);
+        expect_same(throughStaging.render(scene, camera, settings, aovs, &stagedStats), kept, what, false);
+        EXPECT_EQ(stagedStats.geometryUploadBytes, stats.geometryUploadBytes) << what;
+        if (step == 0) EXPECT_GT(stats.geometryUploadBytes, 0u) << what;
+        if (step == 0) EXPECT_LT(stats.geometryUploadBytes, firstUpload / 2) << what << ": the added sphere alone, not the 48-ring sphere too";
+        if (step == 1) EXPECT_EQ(stats.geometryUploadBytes, 0u) << what;
+        if (step == 2) EXPECT_GT(stats.geometryUploadBytes, 0u) << what;
+        if (step == 2) EXPECT_EQ(stats.geometryBytes, bytesBefore) << what << ": it fits where the wall was";
     }
     EXPECT_EQ(staged.validation_error_count(), 0u);
     for (auto& m : staged.take_validation_messages()) ADD_FAILURE() << m;

@@ -311,6 +311,7 @@ struct FrameStats {
     bool resolvedEveryPixel = false;    // resolve read every pixel, unlisted: one bin, most pixels covered the frame before
     uint32_t textures = 0;              // images in the texture pool
     uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, cut blocks, vertex streams, triangles
+    uint64_t geometryUploadBytes = 0;   // of those, written by this frame's geometry upload: the meshes added since the last (0 without one)
     uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
     // Runtime tessellation (0 without displaced materials): clusters and triangles diced, patches, micro-triangles,
     // and the GPU memory of the patch lists and displacement normals.
