@@ -3,6 +3,9 @@
 
 #include <algorithm>
 #include <cmath>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 #include <deque>
 #include <optional>
 #include <sstream>
@@ -144,10 +147,19 @@ bool same_instances(const std::vector<InstanceDesc>& a, const std::vector<Instan
                x.materialTable == y.materialTable && x.doubleSided == y.doubleSided;
     });
 }
+
+// Hands the memory the allocator holds free back to the system (glibc's malloc_trim; elsewhere nothing).
+void release_free_memory() {
+#if defined(__GLIBC__)
+    malloc_trim(0);
+#endif
+}
+
 }  // namespace
 
 void RenderIndex::sync_all(SceneDelegate& scene, const PrimId& cameraId, uint32_t width, uint32_t height) {
     lastSynced_.clear();
+    const uint32_t meshesLoadedBefore = param_.meshesBuilt + param_.meshesFromCache;
     param_.material = [this](const PrimId& id) -> const MaterialDesc* {
         auto it = sprims_.find(id);
         return it != sprims_.end() && it->second.type == "material" ? &static_cast<const Material&>(*it->second.prim).desc() : nullptr;
@@ -224,6 +236,10 @@ void RenderIndex::sync_all(SceneDelegate& scene, const PrimId& cameraId, uint32_
         }
         while (!building.empty()) finish_first();
     }
+    // Loading and building meshes frees far more than it keeps (pages decoded, clusters built, on the worker threads,
+    // whose allocator arenas keep what they free): given back to the system before the frame allocates its uploads, it
+    // is neither part of the peak nor held after (a 10 M-triangle mesh from the cache: 376 of 1330 MiB).
+    if (param_.meshesBuilt + param_.meshesFromCache > meshesLoadedBefore) release_free_memory();
     if (structureDirty_) {
         commit_resources();
     } else if (!moved.empty()) {

@@ -212,9 +212,10 @@ def test_bench_render_first_frame_loads_cached_meshes_and_draws_the_warm_frames_
         # The parent filled the mesh cache: the first frame loads the mesh from it and builds nothing.
         assert row["meshes_cached"] == 1 and row["meshes_built"] == 0, row
         assert row["first_frame_ms"] > row["upload_ms"] >= 0 and row["load_seconds"] > 0  # a 1 k-triangle mesh uploads in under 0.1 ms
+        assert 0 < row["resident_mib"] <= row["peak_memory_mib"], row
         # Drawn without a frame before (no HZB to test against), its image is the warm frames' all the same.
         assert row["error_reference"] == "first frame" and row["psnr_db"] == 99.0 and row["same_prim_percent"] == 100.0
-    assert "first frame ms" in done.stdout and "upload ms" in done.stdout
+    assert "first frame ms" in done.stdout and "upload ms" in done.stdout and "resident MiB" in done.stdout
 
 
 def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):

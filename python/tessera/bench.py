@@ -458,7 +458,7 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
             label = (f"{count / 1e6:,.0f} M" if count >= 1e6 else f"{count / 1e3:,.0f} k") + " source triangles" + (", a field" if "field" in stage else ", one mesh")
             rows.append(_row("first frame", label, result, wall, gpu, first, error_reference="first frame", first_frame_ms=round(first_ms, 1),
                              upload_ms=round(first.stats["upload_ms"], 2), meshes_cached=first.stats["meshes_cached"],
-                             meshes_built=first.stats["meshes_built"]))
+                             meshes_built=first.stats["meshes_built"], resident_mib=round(_resident_bytes() / 2**20)))
         else:
             reference, ref_wall, ref_gpu = _frames(session, frames, lod=False, **settings)
             for pixel_error in ((1.0,) if case == "brute" else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)):
@@ -537,7 +537,8 @@ RENDER_COLUMNS = [("table", "table"), ("case", "case"), ("source_triangles", "so
                   ("psnr_vs_finest_db", "PSNR vs 16 box samples"), ("speedup_vs_no_lod", "speedup"),
                   ("gpu_speedup_vs_no_lod", "GPU speedup"), ("micro_triangles", "micro tris"),
                   ("tessellation_ms", "tess ms"), ("surface_gpu_mib", "surface GPU MiB"), ("load_seconds", "load s"),
-                  ("first_frame_ms", "first frame ms"), ("upload_ms", "upload ms"), ("meshes_cached", "meshes cached")]
+                  ("first_frame_ms", "first frame ms"), ("upload_ms", "upload ms"), ("meshes_cached", "meshes cached"),
+                  ("resident_mib", "resident MiB")]
 
 
 def _write_plot(rows, path):
@@ -787,6 +788,12 @@ def _write_usd_stage(path, case: str, count: int):
             else:
                 mesh_spec(item, 1.0 + 1e-5 * i if case == "distinct" else 1.0)
     layer.Save()
+
+
+def _resident_bytes() -> int:
+    """Resident memory as it is: what the process holds, its allocator's free memory included."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * resource.getpagesize()
 
 
 def _rss_bytes() -> int:
