@@ -84,32 +84,45 @@ void StreamArena::fit(Device& device) {
 
 uint64_t StreamArena::write(Device& device, std::span<const Range> ranges,
                             const std::function<void(size_t range, size_t first, size_t end, void* to)>& write) {
-    constexpr size_t kRun = 65536;
-    // The runs, and where each range starts in the staging buffer (its ranges packed) where the stream is not host-visible.
-    std::vector<std::array<size_t, 3>> runs;  // range, first, end
-    std::vector<size_t> packed(ranges.size());
-    size_t total = 0;
+    constexpr size_t kRun = 65536;  // elements a core writes at a time
+    struct Run {
+        size_t range, first, end;
+    };
+    std::vector<Run> runs;
+    uint64_t total = 0;
     for (size_t r = 0; r < ranges.size(); ++r) {
-        packed[r] = total;
-        total += ranges[r].count;
+        total += uint64_t(ranges[r].count) * elementBytes_;
         for (size_t first = 0; first < ranges[r].count; first += kRun) runs.push_back({r, first, std::min(ranges[r].count, first + kRun)});
     }
-    if (total == 0) return 0;
-    Buffer staging;
-    if (!buffer_.mapped) staging = device.create_buffer(total * elementBytes_, MemoryUse::Upload);
-    parallel_for(runs.size(), [&](size_t k) {
-        const auto [r, first, end] = runs[k];
-        char* to = buffer_.mapped ? static_cast<char*>(buffer_.mapped) + (ranges[r].offset + first) * elementBytes_
-                                  : static_cast<char*>(staging.mapped) + (packed[r] + first) * elementBytes_;
-        write(r, first, end, to);
-    });
-    if (staging.handle) {
-        std::vector<VkBufferCopy> regions;
-        for (size_t r = 0; r < ranges.size(); ++r)
-            if (ranges[r].count > 0) regions.push_back({packed[r] * elementBytes_, ranges[r].offset * elementBytes_, ranges[r].count * elementBytes_});
-        device.run([&](VkCommandBuffer cmd) { vkCmdCopyBuffer(cmd, staging.handle, buffer_.handle, uint32_t(regions.size()), regions.data()); });
+    if (buffer_.mapped) {
+        parallel_for(runs.size(), [&](size_t k) {
+            const Run& run = runs[k];
+            write(run.range, run.first, run.end, static_cast<char*>(buffer_.mapped) + (ranges[run.range].offset + run.first) * elementBytes_);
+        });
+        return total;
     }
-    return uint64_t(total) * elementBytes_;
+    // Not host-visible: through staging buffers of at most stagingBytes_ (a 10 M-triangle mesh's vertices are 100 MB),
+    // each written on every core, then copied run by run.
+    for (size_t begin = 0; begin < runs.size();) {
+        size_t end = begin, bytes = 0;
+        std::vector<size_t> at;  // each run's place in the staging buffer
+        while (end < runs.size() && (end == begin || bytes + (runs[end].end - runs[end].first) * elementBytes_ <= stagingBytes_)) {
+            at.push_back(bytes);
+            bytes += (runs[end].end - runs[end].first) * elementBytes_;
+            ++end;
+        }
+        Buffer staging = device.create_buffer(bytes, MemoryUse::Upload);
+        parallel_for(end - begin, [&](size_t k) {
+            const Run& run = runs[begin + k];
+            write(run.range, run.first, run.end, static_cast<char*>(staging.mapped) + at[k]);
+        });
+        std::vector<VkBufferCopy> regions;
+        for (size_t k = begin; k < end; ++k)
+            regions.push_back({at[k - begin], (ranges[runs[k].range].offset + runs[k].first) * elementBytes_, (runs[k].end - runs[k].first) * elementBytes_});
+        device.run([&](VkCommandBuffer cmd) { vkCmdCopyBuffer(cmd, staging.handle, buffer_.handle, uint32_t(regions.size()), regions.data()); });
+        begin = end;
+    }
+    return total;
 }
 
 }  // namespace tessera

@@ -20,7 +20,8 @@ public:
         size_t offset = 0, count = 0;  // in elements
     };
 
-    explicit StreamArena(size_t elementBytes) : elementBytes_(elementBytes) {}
+    // `stagingBytes`: the most one staging buffer holds (write()).
+    explicit StreamArena(size_t elementBytes, size_t stagingBytes = size_t(64) << 20) : elementBytes_(elementBytes), stagingBytes_(stagingBytes) {}
 
     // Takes `count` elements at an offset that is a multiple of `alignment` (a power of two): a free range where one
     // fits, else past the end. The buffer may be too small for it until fit().
@@ -35,7 +36,8 @@ public:
     void fit(Device& device);
     // Writes ranges that fit() placed: `write(range, first, end, to)` fills elements [first, end) of ranges[range] at
     // `to`. On every core, in runs of at most 64 k elements; straight into the buffer where it is host-visible, else
-    // through one staging buffer and one copy. Returns the bytes written.
+    // through staging buffers of at most `stagingBytes` (one at a time: a large mesh's upload does not double its memory
+    // on the host). Returns the bytes written.
     uint64_t write(Device& device, std::span<const Range> ranges, const std::function<void(size_t range, size_t first, size_t end, void* to)>& write);
 
     const Buffer& buffer() const { return buffer_; }
@@ -44,7 +46,7 @@ public:
     size_t free_elements() const;        // in released ranges below the end
 
 private:
-    size_t elementBytes_;
+    size_t elementBytes_, stagingBytes_;
     Buffer buffer_;
     size_t end_ = 0;
     std::map<size_t, size_t> free_;  // offset -> count of the released ranges below the end, none adjacent

@@ -1103,14 +1103,30 @@ TEST_F(RendererTest, StreamArenaReusesFreedRangesAndKeepsTheOnesInUse) {
     arena.fit(*device);
     EXPECT_EQ(arena.buffer().size, (70003u + 70003u / 4) * 4) << "with a quarter to spare once it holds meshes";
     EXPECT_EQ(arena.write(*device, std::span(ranges).subspan(2), [&](size_t, size_t first, size_t end, void* to) { fill(2, first, end, to); }), 400u);
-    Buffer readback = device->create_buffer(arena.buffer().size, MemoryUse::Readback);
-    device->run([&](VkCommandBuffer cmd) {
-        const VkBufferCopy whole{0, 0, arena.buffer().size};
-        vkCmdCopyBuffer(cmd, arena.buffer().handle, readback.handle, 1, &whole);
-    });
-    const uint32_t* words = static_cast<const uint32_t*>(readback.mapped);
-    for (size_t r = 0; r < ranges.size(); ++r)
-        for (size_t i = 0; i < ranges[r].count; i += 997) ASSERT_EQ(words[ranges[r].offset + i], r * 1000000 + i) << r << " " << i;
+    auto expect_written = [&](Device& on, const StreamArena& a, const char* what) {
+        Buffer readback = on.create_buffer(a.buffer().size, MemoryUse::Readback);
+        on.run([&](VkCommandBuffer cmd) {
+            const VkBufferCopy whole{0, 0, a.buffer().size};
+            vkCmdCopyBuffer(cmd, a.buffer().handle, readback.handle, 1, &whole);
+        });
+        const uint32_t* words = static_cast<const uint32_t*>(readback.mapped);
+        for (size_t r = 0; r < ranges.size(); ++r)
+            for (size_t i = 0; i < ranges[r].count; i += 997) ASSERT_EQ(words[ranges[r].offset + i], r * 1000000 + i) << what << " " << r << " " << i;
+    };
+    expect_written(*device, arena, "mapped");
+
+    // The same through staging buffers of at most 100 KB (runs of 64 k words: one run a buffer), as to a discrete GPU.
+    DeviceOptions options = DeviceOptions::from_environment();
+    options.stagedUploads = true;
+    Device staged(options);
+    StreamArena throughStaging(sizeof(uint32_t), 100000);
+    for (const StreamArena::Range& range : ranges) EXPECT_EQ(throughStaging.allocate(range.count), range.offset);
+    throughStaging.fit(staged);
+    ASSERT_EQ(throughStaging.buffer().mapped, nullptr);
+    EXPECT_EQ(throughStaging.write(staged, ranges, fill), 70103u * 4);
+    expect_written(staged, throughStaging, "staged");
+    EXPECT_EQ(staged.validation_error_count(), 0u);
+    for (auto& m : staged.take_validation_messages()) ADD_FAILURE() << m;
 }
 
 // Uploads through staging buffers (as into a discrete GPU's memory, which the host cannot map) draw what uploads written
