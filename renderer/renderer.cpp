@@ -759,6 +759,18 @@ struct Renderer::Impl {
             release(resident[m]);
             if (scene.meshes_[m]) fresh.push_back(m);
         }
+        // Removals leave holes that later meshes may not fill: where a stream's holes outgrow what it holds (and 1 MiB),
+        // every mesh goes up again, packed, into buffers of their size.
+        bool compact = false;
+        for (const StreamArena* arena : mesh_streams())
+            compact |= arena->free_elements() * arena->element_bytes() > std::max<size_t>(size_t(1) << 20, (arena->end() - arena->free_elements()) * arena->element_bytes());
+        if (compact) {
+            for (StreamArena* arena : mesh_streams()) arena->clear();
+            resident.assign(scene.meshes_.size(), {});
+            fresh.clear();
+            for (size_t m = 0; m < scene.meshes_.size(); ++m)
+                if (scene.meshes_[m]) fresh.push_back(m);
+        }
 
         // Each mesh's records: kept, or derived now (the new meshes on every core, each also on every core: a stage of
         // many small meshes as much as one large); the meshes no longer in the scene are let go.

@@ -1218,6 +1218,33 @@ TEST_F(RendererTest, StagedUploadsAndKeptMeshPlacesDrawTheSameFrames) {
     for (auto& m : staged.take_validation_messages()) ADD_FAILURE() << m;
 }
 
+// Removals leave holes in the mesh streams: once a stream's holes outgrow what it holds (and 1 MiB), the next geometry
+// upload puts every mesh up again, packed, into buffers of their size, and draws what a fresh renderer draws.
+TEST_F(RendererTest, MeshStreamsArePackedAgainOnceRemovalsLeaveMoreHolesThanMeshes) {
+    GpuScene scene;
+    const uint32_t grid = scene.add_mesh(grid_mesh(300)), sphere = scene.add_mesh(bumpy_sphere(24));
+    InstanceDesc flat = identity_instance(grid), round = identity_instance(sphere);
+    flat.primId = 1;
+    round.primId = 2;
+    round.transform[3] = 0.6;
+    scene.set_instances({flat, round});
+    const std::vector<Aov> aovs = {Aov::Color, Aov::PrimId, Aov::ClusterId};
+    const RenderSettings settings{96, 64};
+    const CameraDesc camera = camera_at(0, 0, 5);
+    Renderer renderer(*device);
+    FrameStats both, alone;
+    renderer.render(scene, camera, settings, aovs, &both);
+    scene.set_instances({round});
+    scene.remove_mesh(grid);
+    const std::vector<Image> packed = renderer.render(scene, camera, settings, aovs, &alone);
+    EXPECT_LT(alone.geometryBytes, both.geometryBytes / 4) << "the grid's 180 k triangles' place given back";
+    EXPECT_GT(alone.geometryUploadBytes, 0u) << "the sphere went up again";
+    const std::vector<Image> fresh = Renderer(*device).render(scene, camera, settings, aovs);
+    ASSERT_EQ(packed.size(), fresh.size());
+    for (size_t i = 0; i < packed.size(); ++i)  // the same places as a fresh renderer's: the same ids too
+        EXPECT_EQ(std::memcmp(packed[i].pixels.data(), fresh[i].pixels.data(), packed[i].pixels.size() * sizeof(float)), 0) << "AOV " << i;
+}
+
 // A frame whose AOV output outgrows the device's storage buffer binding (lavapipe allows 128 MiB: 8.4 M pixels) stores it
 // through its address and still reads the streams through texel views; on a device that allows more, the binding.
 TEST_F(RendererTest, AnOutputLargerThanTheBindingAllowsIsStoredThroughItsAddress) {
