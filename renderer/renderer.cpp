@@ -759,19 +759,6 @@ struct Renderer::Impl {
             release(resident[m]);
             if (scene.meshes_[m]) fresh.push_back(m);
         }
-        // Removals leave holes that later meshes may not fill: where a stream's holes outgrow what it holds (and 1 MiB),
-        // every mesh goes up again, packed, into buffers of their size.
-        bool compact = false;
-        for (const StreamArena* arena : mesh_streams())
-            compact |= arena->free_elements() * arena->element_bytes() > std::max<size_t>(size_t(1) << 20, (arena->end() - arena->free_elements()) * arena->element_bytes());
-        if (compact) {
-            for (StreamArena* arena : mesh_streams()) arena->clear();
-            resident.assign(scene.meshes_.size(), {});
-            fresh.clear();
-            for (size_t m = 0; m < scene.meshes_.size(); ++m)
-                if (scene.meshes_[m]) fresh.push_back(m);
-        }
-
         // Each mesh's records: kept, or derived now (the new meshes on every core, each also on every core: a stage of
         // many small meshes as much as one large); the meshes no longer in the scene are let go.
         decltype(meshRecords) kept;
@@ -787,6 +774,26 @@ struct Renderer::Impl {
         for (size_t i = 0; i < derive.size(); ++i) kept[derive[i].get()].second = std::move(derived[i]);
         meshRecords = std::move(kept);
         auto records_of = [&](size_t m) -> const MeshRecords& { return *meshRecords.at(scene.meshes_[m].get()).second; };
+
+        // Removals leave holes that later meshes may not fill: where a stream's holes outgrow what it will hold (the
+        // meshes kept and the fresh ones) and 1 MiB, every mesh goes up again, packed, into buffers of their size.
+        std::array<size_t, 8> freshCounts{};
+        for (size_t m : fresh) {
+            const auto counts = stream_counts(*scene.meshes_[m], records_of(m));
+            for (size_t k = 0; k < counts.size(); ++k) freshCounts[k] += counts[k];
+        }
+        bool compact = false;
+        for (size_t k = 0; k < arenas.size(); ++k) {
+            const size_t holes = arenas[k]->free_elements(), held = arenas[k]->end() - holes + freshCounts[k];
+            compact |= holes * arenas[k]->element_bytes() > std::max<size_t>(size_t(1) << 20, held * arenas[k]->element_bytes());
+        }
+        if (compact) {
+            for (StreamArena* arena : mesh_streams()) arena->clear();
+            resident.assign(scene.meshes_.size(), {});
+            fresh.clear();
+            for (size_t m = 0; m < scene.meshes_.size(); ++m)
+                if (scene.meshes_[m]) fresh.push_back(m);
+        }
 
         // The fresh meshes' ranges (colours and texture coordinates two words per vertex: an even offset, which the
         // shaders halve), then the arenas grown to hold them; the shaders index each stream with 32 bits.
