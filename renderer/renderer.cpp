@@ -723,10 +723,9 @@ struct Renderer::Impl {
     std::vector<ResidentMesh> resident;  // by scene mesh handle
     uint64_t geometryUploadBytes = 0;    // the mesh streams the last geometry upload wrote
 
-    std::array<StreamArena*, 8> mesh_streams() { return {&levels, &cutBlocks, &blockClusters, &clusters, &vertices, &colors, &uvs, &triangles}; }
-    std::array<const StreamArena*, 8> mesh_streams() const { return {&levels, &cutBlocks, &blockClusters, &clusters, &vertices, &colors, &uvs, &triangles}; }
-
-    // Each stream's element count for a mesh, in the order of MeshRanges.
+    // The streams, each stream's element count for a mesh and its field of MeshRanges, all in one order.
+    std::array<StreamArena*, 8> mesh_streams() { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
+    std::array<const StreamArena*, 8> mesh_streams() const { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
     static std::array<size_t, 8> stream_counts(const BuiltMesh& mesh, const MeshRecords& r) {
         return {r.clusters.size(), r.levels.size(), r.blocks.size(), r.blockClusters.size(), mesh.normals.size(), mesh.triangles.size(), mesh.colors.size(),
                 mesh.uvs.size()};
@@ -735,7 +734,6 @@ struct Renderer::Impl {
         return {&MeshRanges::cluster, &MeshRanges::level, &MeshRanges::block, &MeshRanges::blockCluster, &MeshRanges::vertex, &MeshRanges::triangle,
                 &MeshRanges::color, &MeshRanges::uv};
     }
-    std::array<StreamArena*, 8> arenas_in_range_order() { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
 
     // `sameScene`: the scene these streams were uploaded for (else every range is let go first).
     void upload_geometry(GpuScene& scene, bool sameScene) {
@@ -744,7 +742,7 @@ struct Renderer::Impl {
             resident.clear();
         }
         // Handles whose mesh changed give their ranges back; the meshes now at them are fresh.
-        const auto arenas = arenas_in_range_order();
+        const auto arenas = mesh_streams();
         const auto fields = range_fields();
         auto release = [&](ResidentMesh& r) {
             if (!r.mesh) return;
