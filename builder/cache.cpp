@@ -218,7 +218,7 @@ CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& setti
         if (auto entry = cache.load(key, &problem)) {
             result.mesh = entry->mesh;
             result.warnings = std::move(entry->warnings);
-            result.fromCache = true;
+            result.fromCache = result.inCache = true;
             return result;
         }
         if (!problem.empty()) result.warnings.push_back(mesh.name + ": cached build unreadable, rebuilding (" + problem + ")");
@@ -228,7 +228,8 @@ CachedBuild build_through_cache(const MeshView& mesh, const BuildSettings& setti
     auto built = std::make_shared<BuiltMesh>(build_mesh(std::move(prepared), settings));  // empties its arrays; its warnings stay
     if (cached) {
         std::string problem;
-        if (!cache.store(key, *built, prepared.warnings, &problem)) result.warnings.push_back(mesh.name + ": " + problem);
+        result.inCache = cache.store(key, *built, prepared.warnings, &problem);
+        if (!result.inCache) result.warnings.push_back(mesh.name + ": " + problem);
     }
     result.warnings.insert(result.warnings.end(), prepared.warnings.begin(), prepared.warnings.end());
     result.mesh = std::move(built);

@@ -129,7 +129,7 @@ MeshTable::Handle MeshTable::share(Shared& shared, const MeshCache::Digest& key,
     ++param.meshesShared;
     for (const std::string& warning : shared.warnings)  // this prim has the same problems: say so by its name
         param.warnings.push_back(renamed(warning, shared.name, name));
-    return {shared.gpuMesh, key};
+    return {shared.gpuMesh, key, shared.vertexColors};
 }
 
 MeshTable::Handle MeshTable::finish(const Ticket& ticket, RenderParam& param) {
@@ -160,10 +160,23 @@ MeshTable::Handle MeshTable::finish(const Ticket& ticket, RenderParam& param) {
     } else {
         ++param.meshesShared;  // released by the prim it was built for, before this one finished
     }
+    // A mesh the cache holds can be loaded again: the GPU scene may then let its streams go once they are on the GPU.
+    GpuScene::MeshReload reload;
+    if (build.result.inCache)
+        reload = [cache = cache_, key = build.key.hex(), name = build.name] {
+            std::string problem;
+            std::optional<MeshCache::Entry> entry = cache.load(key, &problem);
+            if (!entry)
+                throw MeshError(name + ": the GPU needs its streams again and its page file " + key + " in the mesh cache " + cache.directory() +
+                                " cannot be read (" + (problem.empty() ? "it is gone" : problem) + "); open the stage again to rebuild it");
+            return entry->mesh;
+        };
+    const bool vertexColors = !build.result.mesh->colors.empty();
     Shared& shared = byKey_[build.key];
-    shared = {scene_.add_mesh(build.result.mesh), 1, build.result.warnings.empty() ? std::string() : build.name, build.result.warnings};
+    shared = {scene_.add_mesh(build.result.mesh, std::move(reload)), 1, vertexColors, build.result.warnings.empty() ? std::string() : build.name,
+              build.result.warnings};
     for (const std::string& warning : build.result.warnings) param.warnings.push_back(renamed(warning, build.name, ticket.name));
-    return {shared.gpuMesh, build.key};
+    return {shared.gpuMesh, build.key, vertexColors};
 }
 
 void MeshTable::release(const Handle& handle) {

@@ -325,7 +325,7 @@ void RenderIndex::commit_resources() {
             }
             // No bound material: the mesh's displayColor (constant, or per vertex), else Hydra's grey; one per colour.
             const auto color = built->hasConstantColor ? built->constantColor : std::array<float, 4>{0.5f, 0.5f, 0.5f, 1.0f};
-            const auto key = std::make_tuple(color[0], color[1], color[2], !built->colors.empty());
+            const auto key = std::make_tuple(color[0], color[1], color[2], mesh.vertex_colors());
             auto [it, added] = fallbackHandles.try_emplace(key, 0);
             if (added) {
                 MaterialDesc fallback;
@@ -409,12 +409,15 @@ std::vector<std::shared_ptr<const Image>> RenderIndex::execute(const RenderPassS
         }
     delegate_.scene().set_lights(std::move(lights));
     std::vector<std::shared_ptr<const Image>> images;
+    FrameStats ownStats;
+    if (!stats) stats = &ownStats;
     for (Image& image : delegate_.renderer().render(delegate_.scene(), camera, render, settings.aovs, stats)) {
         images.push_back(std::make_shared<const Image>(std::move(image)));
         const PrimId bufferId = std::string("aov:") + aov_name(images.back()->aov);
         if (!bprims_.count(bufferId)) insert_bprim("renderBuffer", bufferId);
         static_cast<RenderBuffer&>(*bprims_[bufferId].prim).image = images.back();
     }
+    for (const std::string& error : stats->errors) param_.errors.push_back(error + "; the mesh is not drawn");
     return images;
 }
 

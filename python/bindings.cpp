@@ -180,6 +180,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["textures"] = s.textures;
     d["geometry_bytes"] = s.geometryBytes;
     d["geometry_upload_bytes"] = s.geometryUploadBytes;
+    d["host_mesh_bytes"] = s.hostMeshBytes;
     d["texture_bytes"] = s.textureBytes;
     d["tessellated_clusters"] = s.tessellatedClusters;
     d["tessellated_triangles"] = s.tessellatedTriangles;

@@ -77,22 +77,56 @@ uint64_t GpuScene::instance_count() const {
     return count;
 }
 
-uint32_t GpuScene::add_mesh(std::shared_ptr<const BuiltMesh> mesh) {
+uint32_t GpuScene::add_mesh(std::shared_ptr<const BuiltMesh> mesh, MeshReload reload) {
     ++geometryVersion_;
+    uint32_t handle;
     if (!freeMeshes_.empty()) {
-        const uint32_t handle = freeMeshes_.back();
+        handle = freeMeshes_.back();
         freeMeshes_.pop_back();
-        meshes_[handle] = std::move(mesh);
-        return handle;
+    } else {
+        handle = uint32_t(meshes_.size());
+        meshes_.emplace_back();
+        reloads_.emplace_back();
+        released_.push_back(0);
+        serials_.push_back(0);
     }
-    meshes_.push_back(std::move(mesh));
-    return uint32_t(meshes_.size() - 1);
+    meshes_[handle] = std::move(mesh);
+    reloads_[handle] = std::move(reload);
+    released_[handle] = 0;
+    serials_[handle] = nextSerial_++;
+    return handle;
 }
 
 void GpuScene::remove_mesh(uint32_t handle) {
     meshes_.at(handle).reset();
+    reloads_[handle] = nullptr;
+    released_[handle] = 0;
+    serials_[handle] = 0;
     freeMeshes_.push_back(handle);
     ++geometryVersion_;
+}
+
+void GpuScene::release_streams(uint32_t handle) {
+    if (!meshes_.at(handle) || !reloads_[handle] || released_[handle]) return;
+    meshes_[handle] = std::make_shared<const BuiltMesh>(without_streams(*meshes_[handle]));
+    released_[handle] = 1;
+}
+
+uint64_t GpuScene::held_stream_bytes() const {
+    uint64_t bytes = 0;
+    for (size_t h = 0; h < meshes_.size(); ++h)
+        if (const BuiltMesh* m = meshes_[h].get(); m && !released_[h])
+            bytes += m->positions.size() * sizeof(float) + (m->normals.size() + m->colors.size() + m->triangles.size()) * sizeof(uint32_t) +
+                     m->uvs.size() * sizeof(float) + m->clusters.size() * sizeof(Cluster);
+    return bytes;
+}
+
+const std::shared_ptr<const BuiltMesh>& GpuScene::full_mesh(uint32_t handle) {
+    if (meshes_.at(handle) && released_[handle]) {
+        meshes_[handle] = reloads_[handle]();
+        released_[handle] = 0;
+    }
+    return meshes_[handle];
 }
 
 uint32_t GpuScene::add_material(const MaterialDesc& material) {

@@ -660,8 +660,8 @@ struct Renderer::Impl {
         std::vector<uint32_t> blockClusters;
         float lodRadius = 0;
     };
-    // By mesh, holding the mesh so that its address names no other mesh while the entry lives.
-    std::unordered_map<const BuiltMesh*, std::pair<std::shared_ptr<const BuiltMesh>, std::shared_ptr<const MeshRecords>>> meshRecords;
+    // By scene mesh serial (GpuScene::mesh_serial: a released and reloaded mesh is the same mesh).
+    std::unordered_map<uint64_t, std::shared_ptr<const MeshRecords>> meshRecords;
 
     static std::shared_ptr<const MeshRecords> derive_records(const BuiltMesh& mesh) {
         auto records = std::make_shared<MeshRecords>();
@@ -716,12 +716,13 @@ struct Renderer::Impl {
         uint32_t cluster = 0, level = 0, block = 0, blockCluster = 0, vertex = 0, triangle = 0, color = 0, uv = 0;
     };
     struct ResidentMesh {
-        std::shared_ptr<const BuiltMesh> mesh;  // null: the handle holds nothing
+        uint64_t serial = 0;  // the scene mesh's (GpuScene::mesh_serial); 0: the handle holds nothing
         MeshRanges at;
         std::array<size_t, 8> counts{};  // elements in each range (stream_counts)
     };
     std::vector<ResidentMesh> resident;  // by scene mesh handle
     uint64_t geometryUploadBytes = 0;    // the mesh streams the last geometry upload wrote
+    std::vector<std::string> uploadErrors;  // the meshes it could not draw, for this frame's stats
 
     // The streams, each stream's element count for a mesh and its field of MeshRanges, all in one order.
     std::array<StreamArena*, 8> mesh_streams() { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
@@ -745,7 +746,7 @@ struct Renderer::Impl {
         const auto arenas = mesh_streams();
         const auto fields = range_fields();
         auto release = [&](ResidentMesh& r) {
-            if (!r.mesh) return;
+            if (!r.serial) return;
             for (size_t k = 0; k < arenas.size(); ++k) arenas[k]->release({r.at.*fields[k], r.counts[k]});
             r = {};
         };
@@ -753,31 +754,48 @@ struct Renderer::Impl {
         resident.resize(scene.meshes_.size());
         std::vector<size_t> fresh;  // handles
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
-            if (resident[m].mesh == scene.meshes_[m]) continue;
+            if (resident[m].serial == scene.serials_[m]) continue;
             release(resident[m]);
             if (scene.meshes_[m]) fresh.push_back(m);
         }
+        // The meshes written now, with their streams (held by the scene, or reloaded: full_mesh), by handle. A mesh
+        // whose streams cannot be reloaded (its page file gone) is left out of this frame, named in its errors, and
+        // tried again at the next upload.
+        std::vector<std::shared_ptr<const BuiltMesh>> full(scene.meshes_.size());
+        std::vector<char> lost(scene.meshes_.size(), 0);
+        auto load = [&](size_t m) {
+            if (full[m] || lost[m]) return !lost[m];
+            try {
+                full[m] = scene.full_mesh(uint32_t(m));
+            } catch (const std::exception& e) {
+                uploadErrors.push_back(e.what());
+                lost[m] = 1;
+            }
+            return !lost[m];
+        };
+        auto full_of = [&](size_t m) -> const BuiltMesh& { return *full[m]; };  // after load(m)
         // Each mesh's records: kept, or derived now (the new meshes on every core, each also on every core: a stage of
         // many small meshes as much as one large); the meshes no longer in the scene are let go.
         decltype(meshRecords) kept;
-        std::vector<std::shared_ptr<const BuiltMesh>> derive;
-        for (const std::shared_ptr<const BuiltMesh>& mesh : scene.meshes_) {
-            if (!mesh || kept.count(mesh.get())) continue;
-            auto old = meshRecords.find(mesh.get());
-            if (old != meshRecords.end()) kept.emplace(mesh.get(), old->second);
-            else kept.emplace(mesh.get(), std::make_pair(mesh, nullptr)), derive.push_back(mesh);
+        std::vector<size_t> derive;  // handles
+        for (size_t m = 0; m < scene.meshes_.size(); ++m) {
+            if (!scene.meshes_[m] || kept.count(scene.serials_[m])) continue;
+            auto old = meshRecords.find(scene.serials_[m]);
+            if (old != meshRecords.end()) kept.emplace(scene.serials_[m], old->second);
+            else if (load(m)) kept.emplace(scene.serials_[m], nullptr), derive.push_back(m);  // loaded on this thread, not the workers'
         }
+        std::erase_if(fresh, [&](size_t m) { return !load(m); });
         std::vector<std::shared_ptr<const MeshRecords>> derived(derive.size());
-        parallel_for_rethrowing(derive.size(), [&](size_t i) { derived[i] = derive_records(*derive[i]); });
-        for (size_t i = 0; i < derive.size(); ++i) kept[derive[i].get()].second = std::move(derived[i]);
+        parallel_for_rethrowing(derive.size(), [&](size_t i) { derived[i] = derive_records(*full[derive[i]]); });
+        for (size_t i = 0; i < derive.size(); ++i) kept[scene.serials_[derive[i]]] = std::move(derived[i]);
         meshRecords = std::move(kept);
-        auto records_of = [&](size_t m) -> const MeshRecords& { return *meshRecords.at(scene.meshes_[m].get()).second; };
+        auto records_of = [&](size_t m) -> const MeshRecords& { return *meshRecords.at(scene.serials_[m]); };
 
         // Removals leave holes that later meshes may not fill: where a stream's holes outgrow what it will hold (the
         // meshes kept and the fresh ones) and 1 MiB, every mesh goes up again, packed, into buffers of their size.
         std::array<size_t, 8> freshCounts{};
         for (size_t m : fresh) {
-            const auto counts = stream_counts(*scene.meshes_[m], records_of(m));
+            const auto counts = stream_counts(full_of(m), records_of(m));
             for (size_t k = 0; k < counts.size(); ++k) freshCounts[k] += counts[k];
         }
         bool compact = false;
@@ -790,14 +808,14 @@ struct Renderer::Impl {
             resident.assign(scene.meshes_.size(), {});
             fresh.clear();
             for (size_t m = 0; m < scene.meshes_.size(); ++m)
-                if (scene.meshes_[m]) fresh.push_back(m);
+                if (scene.meshes_[m] && load(m)) fresh.push_back(m);
         }
 
         // The fresh meshes' ranges (colours and texture coordinates two words per vertex: an even offset, which the
         // shaders halve), then the arenas grown to hold them; the shaders index each stream with 32 bits.
         for (size_t m : fresh) {
             ResidentMesh& r = resident[m];
-            r.counts = stream_counts(*scene.meshes_[m], records_of(m));
+            r.counts = stream_counts(full_of(m), records_of(m));
             for (size_t k = 0; k < arenas.size(); ++k) {
                 const size_t offset = arenas[k]->allocate(r.counts[k], arenas[k] == &colors || arenas[k] == &uvs ? 2 : 1);
                 if (offset + r.counts[k] > UINT32_MAX) {  // nothing kept: the next upload starts again from the host
@@ -807,7 +825,7 @@ struct Renderer::Impl {
                 }
                 r.at.*fields[k] = uint32_t(offset);
             }
-            r.mesh = scene.meshes_[m];
+            r.serial = scene.serials_[m];
         }
         for (StreamArena* arena : mesh_streams()) arena->fit(device);
 
@@ -818,7 +836,7 @@ struct Renderer::Impl {
             for (size_t m : fresh) ranges.push_back({resident[m].at.*field, resident[m].counts[k]});
             geometryUploadBytes += arena.write(device, ranges, [&](size_t range, size_t first, size_t end, void* to) {
                 const size_t m = fresh[range];
-                write(to, m, *scene.meshes_[m], records_of(m), resident[m].at, first, end);
+                write(to, m, *full[m], records_of(m), resident[m].at, first, end);  // full[m]: loaded above, on this thread
             });
         };
         write_stream(clusters, &MeshRanges::cluster, 0,
@@ -874,27 +892,30 @@ struct Renderer::Impl {
             gpu::GpuMesh& g = gpuMeshes[m];
             g = {};
             g.colorOffset = g.uvOffset = g.displacementNormalOffset = g.seamVertexOffset = g.seamTriangleOffset = TS_NO_STREAM;
-            if (!mesh) continue;
+            if (!mesh || !resident[m].serial) continue;  // removed, or lost: nothing of it is drawn
             const MeshRanges& b = resident[m].at;
             const MeshRecords& records = records_of(m);
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
             g.clusterOffset = b.cluster;
             g.vertexOffset = b.vertex;
             if (m < displacedMeshes.size() && displacedMeshes[m]) {  // drawn displaced: it needs displacement normals
+                if (!load(m)) continue;  // kept by the scene while it is drawn displaced (below); lost: not drawn
+                const BuiltMesh& withStreams = full_of(m);
                 g.displacementNormalOffset = uint32_t(gpuDisplacementNormals.size());
-                const auto normals = displacement_normals(*mesh);
+                const auto normals = displacement_normals(withStreams);
                 gpuDisplacementNormals.insert(gpuDisplacementNormals.end(), normals.begin(), normals.end());
-                const auto seams = append_uv_seams(*mesh, gpuSeams);
+                const auto seams = append_uv_seams(withStreams, gpuSeams);
                 if (seams[0] != TS_NO_STREAM) {
                     g.seamVertexOffset = seams[0];
                     g.seamTriangleOffset = seams[1] - b.triangle;  // indexed by scene triangle: the base folded in (mod 2^32)
                 }
-                uvBoxes[m] = cluster_uv_boxes(*mesh, gpuSeams, seams);
+                uvBoxes[m] = cluster_uv_boxes(withStreams, gpuSeams, seams);
             }
-            if (!mesh->colors.empty()) g.colorOffset = b.color / 2;
-            if (!mesh->uvs.empty()) g.uvOffset = b.uv / 2;
+            // The counts come from the ranges: a released mesh's description has no streams.
+            if (resident[m].counts[6] > 0) g.colorOffset = b.color / 2;
+            if (resident[m].counts[7] > 0) g.uvOffset = b.uv / 2;
             // The whole DAG goes up; the cull pass picks the cut. Clusters come level by level, level 0 first.
-            g.clusterCount = uint32_t(mesh->clusters.size());
+            g.clusterCount = uint32_t(resident[m].counts[0]);
             g.leafClusterCount = mesh->leafClusters;
             g.levelOffset = b.level;
             g.levelCount = uint32_t(records.levels.size());
@@ -905,6 +926,10 @@ struct Renderer::Impl {
         else upload_vector(device, displacementNormals, gpuDisplacementNormals);
         if (gpuSeams.empty()) seams = Buffer{};
         else upload_vector(device, seams, gpuSeams);
+        // The GPU holds the streams now: the scene lets them go where it can reload them (not a mesh drawn displaced,
+        // whose streams the displacement bounds read at every instance upload).
+        for (size_t m = 0; m < scene.meshes_.size(); ++m)
+            if (scene.meshes_[m] && !(m < displacedMeshes.size() && displacedMeshes[m])) scene.release_streams(uint32_t(m));
     }
 
     // Per mesh drawn displaced, the texture coordinates each cluster reads its displacement at (empty for the others).
@@ -915,7 +940,7 @@ struct Renderer::Impl {
     ClusterDisplacementBounds displacementBounds;
 
     // The runs of frame.clusterDisplacement for the displaced batches, and each batch's first entry.
-    void upload_displacement_bounds(const GpuScene& scene) {
+    void upload_displacement_bounds(GpuScene& scene) {
         std::vector<float> bounds;
         std::map<std::pair<uint32_t, uint32_t>, uint32_t> runs;  // (mesh, material or table | 1 << 31) -> first entry
         for (gpu::GpuInstanceBatch& g : gpuBatches) {
@@ -925,7 +950,7 @@ struct Renderer::Impl {
             const auto [run, fresh] = runs.try_emplace({g.meshIndex, g.materialIndex | (table ? 1u << 31 : 0u)}, uint32_t(bounds.size()));
             g.displacementBounds = run->second;
             if (!fresh) continue;
-            const BuiltMesh& mesh = *scene.meshes_[g.meshIndex];
+            const BuiltMesh& mesh = *scene.full_mesh(g.meshIndex);  // held: a mesh drawn displaced keeps its streams
             auto material = [&](uint32_t index) -> const MaterialDesc* {  // clamped as upload_materials clamps table entries
                 return scene.materials_.empty() ? nullptr : &scene.materials_[std::min<size_t>(index, scene.materials_.size() - 1)];
             };
@@ -1450,6 +1475,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
             for (size_t p = 0; p < sum.size(); ++p) sum[p] += pixels[p];
         }
         visit_frame_costs(costs, frame, [](auto& total, const auto& value) { total += value; });
+        costs.errors.insert(costs.errors.end(), frame.errors.begin(), frame.errors.end());
         last = frame;  // counts: the last sample's (every sample draws the same cut, the last with the best occlusion)
     }
     if (!onDevice) {
@@ -1458,6 +1484,7 @@ std::vector<Image> Renderer::render(GpuScene& scene, const CameraDesc& camera, c
     }
     last.sampleSumsOnDevice = onDevice;
     visit_frame_costs(last, costs, [](auto& field, const auto& total) { field = total; });
+    last.errors = std::move(costs.errors);
     last.pixelSamples = settings.pixelSamples;
     if (stats) *stats = last;
     return images;
@@ -1530,6 +1557,9 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     frameStats.textures = uint32_t(s.poolImages.size());
     frameStats.textureBytes = s.texturePool.size + s.textureSlots.size;
     frameStats.geometryUploadBytes = geometryUploadBytes;
+    frameStats.hostMeshBytes = scene.held_stream_bytes();
+    frameStats.errors = std::move(s.uploadErrors);
+    s.uploadErrors.clear();
     frameStats.geometryBytes = s.meshes.size;
     for (const StreamArena* arena : s.mesh_streams()) frameStats.geometryBytes += arena->buffer().size;
 

@@ -185,19 +185,23 @@ def test_prims_added_and_removed(live):
     assert live.session.index.rprim_count == 6
 
 
+def _wavy_grid(stage, path, side, x=0.0):
+    """A unit grid of 2 side^2 triangles, gently waved, centred at (x, 0): large enough for the mesh cache."""
+    u, v = np.meshgrid(np.linspace(-0.5, 0.5, side + 1), np.linspace(-0.5, 0.5, side + 1))
+    grid = UsdGeom.Mesh.Define(stage, path)
+    grid.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.stack([u + x, v, 0.1 * np.sin(9 * u) * np.cos(7 * v)], -1).reshape(-1, 3).astype(np.float32)))
+    corners = np.arange((side + 1) * side).reshape(side, side + 1)[:, :side]
+    grid.GetFaceVertexCountsAttr().Set(Vt.IntArray([4] * side * side))
+    grid.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(
+        np.stack([corners, corners + 1, corners + side + 2, corners + side + 1], -1).reshape(-1).astype(np.int32)))
+
+
 def test_an_edit_uploads_the_edited_mesh_alone_and_draws_what_a_fresh_session_draws():
     """Each mesh keeps its place in the GPU streams while it stays in the scene: editing a quad beside a dense grid writes
     the quad's streams, not the grid's (an edit costs what it changes, not what the scene holds); a removal writes
     nothing; and each image is the one a fresh session draws of the stage as it then is."""
     stage = _stage()
-    side = 120
-    u, v = np.meshgrid(np.linspace(-0.5, 0.5, side + 1), np.linspace(-0.5, 0.5, side + 1))
-    dense = UsdGeom.Mesh.Define(stage, "/World/Dense")
-    dense.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.stack([u, v, 0.1 * np.sin(9 * u) * np.cos(7 * v)], -1).reshape(-1, 3).astype(np.float32)))
-    corners = np.arange((side + 1) * side).reshape(side, side + 1)[:, :side]
-    dense.GetFaceVertexCountsAttr().Set(Vt.IntArray([4] * side * side))
-    dense.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(
-        np.stack([corners, corners + 1, corners + side + 2, corners + side + 1], -1).reshape(-1).astype(np.int32)))
+    _wavy_grid(stage, "/World/Dense", 120)
     live = Live(stage)
     aovs = ("primId", "color")
     first, _ = live.render(aovs)
@@ -220,6 +224,46 @@ def test_an_edit_uploads_the_edited_mesh_alone_and_draws_what_a_fresh_session_dr
     assert removed.stats["geometry_upload_bytes"] == 0, "a removal writes nothing"
     assert "/World/Left/Quad" not in _drawn(removed) and "/World/Dense" in _drawn(removed)
     assert np.array_equal(removed["color"].pixels, fresh_colour())
+
+
+def test_meshes_the_cache_holds_leave_the_host_once_on_the_gpu_and_come_back_from_it():
+    """A mesh the mesh cache holds is let go on the host once the GPU holds it (`host_mesh_bytes`: what the host still
+    holds, here the quads, too small to be cached). When a large removal has the GPU streams packed again, the mesh left
+    comes back from the cache; each image is the one a fresh session draws."""
+    stage = _stage()
+    _wavy_grid(stage, "/World/Big", 200, x=-2.5)
+    _wavy_grid(stage, "/World/Dense", 120)
+    live = Live(stage)
+    aovs = ("primId", "color")
+    first, _ = live.render(aovs)
+    assert first.stats["host_mesh_bytes"] < 20_000, "the quads alone"
+    assert "/World/Big" in _drawn(first) and "/World/Dense" in _drawn(first)
+    stage.RemovePrim("/World/Big")
+    packed, _ = live.render(aovs)
+    assert packed.stats["geometry_bytes"] < first.stats["geometry_bytes"] / 2, "packed again, without the large grid"
+    assert packed.stats["geometry_upload_bytes"] > 500_000, "/World/Dense went up again, read back from the cache"
+    assert packed.stats["host_mesh_bytes"] == first.stats["host_mesh_bytes"], "and let go again"
+    assert np.array_equal(packed["color"].pixels, Live(stage).render(aovs)[0]["color"].pixels)
+
+
+def test_a_mesh_whose_page_file_is_gone_when_it_must_go_up_again_is_named_and_the_rest_renders(tmp_path, monkeypatch):
+    """The streams the host let go come back from the mesh cache: a page file deleted meanwhile makes that mesh an error
+    naming it and the file, not drawn, while the rest of the stage renders."""
+    monkeypatch.setenv("TESSERA_CACHE", str(tmp_path))
+    stage = _stage()
+    _wavy_grid(stage, "/World/Big", 200, x=-2.5)
+    _wavy_grid(stage, "/World/Dense", 120)
+    live = Live(stage)
+    live.render()
+    pages = list(tmp_path.rglob("*.tsra"))  # the two grids' (the quads are too small to be cached)
+    assert len(pages) == 2
+    for page in pages:
+        page.unlink()
+    stage.RemovePrim("/World/Big")  # the streams are packed again: /World/Dense must go up again
+    result = live.session.render(camera="/Camera", resolution=RESOLUTION, aovs=("primId",), occlusion="always")
+    assert len(result.errors) == 1, result.errors
+    assert result.errors[0].startswith("/World/Dense: ") and "page file" in result.errors[0] and "cannot be read (it is gone)" in result.errors[0] and str(tmp_path) in result.errors[0]
+    assert "/World/Dense" not in _drawn(result) and "/World/Right" in _drawn(result)
 
 
 def test_identical_meshes_share_one_build_until_one_is_edited(live):

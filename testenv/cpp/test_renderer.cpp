@@ -1245,6 +1245,57 @@ TEST_F(RendererTest, MeshStreamsArePackedAgainOnceRemovalsLeaveMoreHolesThanMesh
         EXPECT_EQ(std::memcmp(packed[i].pixels.data(), fresh[i].pixels.data(), packed[i].pixels.size() * sizeof(float)), 0) << "AOV " << i;
 }
 
+// A mesh added with a way to reload it: once a renderer holds its streams on the GPU, the scene keeps its description
+// alone (a mesh added without one keeps them). The renderer that uploaded it never needs them again; a second renderer
+// reloads them (and the scene lets them go again), drawing the same images.
+TEST_F(RendererTest, TheSceneLetsAMeshsStreamsGoOnceTheGpuHoldsThem) {
+    GpuScene scene;
+    const std::shared_ptr<const BuiltMesh> source = bumpy_sphere(48);
+    int reloads = 0;
+    const uint32_t sphere = scene.add_mesh(source, [&] {
+        ++reloads;
+        return source;
+    });
+    const uint32_t wall = scene.add_mesh(grid_mesh(16, true));
+    std::vector<InstanceDesc> instances = wall_and_spheres(wall, sphere);
+    scene.set_instances(instances);
+    const std::vector<Aov> aovs = {Aov::Color, Aov::PrimId, Aov::ClusterId};
+    const RenderSettings settings{128, 80};
+    const CameraDesc camera = camera_at(0, 0.5, 7);
+    EXPECT_TRUE(scene.holds_streams(sphere));
+    const uint64_t bothHeld = scene.held_stream_bytes();
+
+    Renderer first(*device);
+    FrameStats stats;
+    const std::vector<Image> images = first.render(scene, camera, settings, aovs, &stats);
+    EXPECT_FALSE(scene.holds_streams(sphere));
+    EXPECT_TRUE(scene.holds_streams(wall)) << "no way to reload it: kept";
+    EXPECT_TRUE(scene.mesh(sphere)->positions.empty() && scene.mesh(sphere)->clusters.empty());
+    EXPECT_EQ(scene.mesh(sphere)->sourceTriangles, source->sourceTriangles);
+    EXPECT_EQ(stats.hostMeshBytes, scene.held_stream_bytes());
+    EXPECT_LT(stats.hostMeshBytes, bothHeld / 4);
+    instances[1].transform[3] += 0.25;  // an instance moved, then a mesh added: the sphere's streams are not needed
+    scene.set_instances(instances);
+    first.render(scene, camera, settings, aovs);
+    const uint32_t extra = scene.add_mesh(bumpy_sphere(12));
+    first.render(scene, camera, settings, aovs);
+    EXPECT_EQ(reloads, 0);
+    scene.remove_mesh(extra);
+
+    instances[1].transform[3] -= 0.25;
+    scene.set_instances(instances);
+    const std::vector<Image> again = first.render(scene, camera, settings, aovs);
+    Renderer second(*device);
+    const std::vector<Image> reloaded = second.render(scene, camera, settings, aovs);
+    EXPECT_EQ(reloads, 1) << "the second renderer read the streams back";
+    EXPECT_FALSE(scene.holds_streams(sphere)) << "and let them go again";
+    ASSERT_EQ(images.size(), reloaded.size());
+    for (size_t i = 0; i < images.size(); ++i) {
+        EXPECT_EQ(std::memcmp(images[i].pixels.data(), again[i].pixels.data(), images[i].pixels.size() * sizeof(float)), 0) << "AOV " << i;
+        EXPECT_EQ(std::memcmp(images[i].pixels.data(), reloaded[i].pixels.data(), images[i].pixels.size() * sizeof(float)), 0) << "AOV " << i;
+    }
+}
+
 // A frame whose AOV output outgrows the device's storage buffer binding (lavapipe allows 128 MiB: 8.4 M pixels) stores it
 // through its address and still reads the streams through texel views; on a device that allows more, the binding.
 TEST_F(RendererTest, AnOutputLargerThanTheBindingAllowsIsStoredThroughItsAddress) {

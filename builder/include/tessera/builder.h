@@ -209,6 +209,32 @@ struct BuiltMesh {
     float fallbackError = 0;
 };
 
+// The mesh without its streams (positions, normals, colours, texture coordinates, triangles, clusters): its origin,
+// bounds, counts, colour and levels' statistics, what a scene keeps of a mesh the GPU holds (GpuScene::release_streams).
+// Every field but those vectors: keep it current with BuiltMesh.
+inline BuiltMesh without_streams(const BuiltMesh& mesh) {
+    BuiltMesh out;
+    out.origin = mesh.origin;
+    out.leafClusters = mesh.leafClusters;
+    out.leafVertices = mesh.leafVertices;
+    out.leafTriangles = mesh.leafTriangles;
+    out.levels = mesh.levels;
+    out.groups = mesh.groups;
+    out.sphere = mesh.sphere;
+    out.size = mesh.size;
+    out.positionPrecision = mesh.positionPrecision;
+    out.positionStep = mesh.positionStep;
+    out.uvPrecision = mesh.uvPrecision;
+    out.constantColor = mesh.constantColor;
+    out.hasConstantColor = mesh.hasConstantColor;
+    out.materialSlots = mesh.materialSlots;
+    out.sourceTriangles = mesh.sourceTriangles;
+    out.leafError = mesh.leafError;
+    out.fallbackThreshold = mesh.fallbackThreshold;
+    out.fallbackError = mesh.fallbackError;
+    return out;
+}
+
 // Per-mesh build settings (the schema's tessera:* attributes; render-wide defaults), after Nanite's. Relative errors
 // are in percent of the mesh size (the diagonal of its bounding box), as Nanite's are in percent of its size measure.
 struct BuildSettings {

@@ -54,6 +54,7 @@ struct CachedBuild {
     std::shared_ptr<const BuiltMesh> mesh;
     std::vector<std::string> warnings;
     bool fromCache = false;
+    bool inCache = false;  // the cache holds it (loaded from it, or stored there): it can be loaded again by its key
 };
 
 // prepare_mesh + build_mesh through the cache (throws MeshError as prepare_mesh does; nothing is cached then).

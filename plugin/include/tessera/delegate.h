@@ -119,6 +119,7 @@ public:
     struct Handle {
         uint32_t gpuMesh;
         MeshCache::Digest key;
+        bool vertexColors = false;  // the mesh has a colour per vertex (the GPU scene may keep its description alone)
     };
     struct Build;  // one mesh on its way (mesh_table.cpp)
     struct Ticket {
@@ -148,6 +149,7 @@ private:
     // Kept small (100 k distinct meshes are 100 k of these): the name only where there are warnings to rename.
     struct Shared {
         uint32_t gpuMesh = 0, users = 0;
+        bool vertexColors = false;
         std::string name;  // of the prim it was built for, which its warnings name ("" without warnings)
         std::vector<std::string> warnings;
     };
@@ -200,7 +202,9 @@ public:
     std::optional<uint32_t> gpu_mesh() const { return mesh_ ? std::optional(mesh_->gpuMesh) : std::nullopt; }
     const Matrix4d& transform() const { return transform_; }
     const InstanceSet& instances() const { return instances_; }
+    // The mesh's description (its streams may have gone to the GPU alone: GpuScene::release_streams).
     const BuiltMesh* built() const { return mesh_ ? scene_.mesh(mesh_->gpuMesh).get() : nullptr; }
+    bool vertex_colors() const { return mesh_ && mesh_->vertexColors; }
     // Bits whose state the scene delegate gave when it inserted the mesh (DirtyVisibility: visible; DirtyMaterialId: no
     // material and no GeomSubset materials; DirtyTransform: `transform`, what the stage walk computed): the first sync
     // does not ask for them (100 k plain meshes made 400 k calls into Python for nothing). Marking such a bit dirty

@@ -7,6 +7,7 @@
 #include "tessera/textures.h"
 
 #include <array>
+#include <functional>
 #include <memory>
 #include <span>
 #include <utility>
@@ -312,6 +313,8 @@ struct FrameStats {
     uint32_t textures = 0;              // images in the texture pool
     uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, cut blocks, vertex streams, triangles
     uint64_t geometryUploadBytes = 0;   // of those, written by this frame's geometry upload: the meshes added since the last (0 without one)
+    uint64_t hostMeshBytes = 0;         // the meshes' streams the host still holds (GpuScene::release_streams)
+    std::vector<std::string> errors;    // meshes this frame could not draw, and why (streams that could not be reloaded)
     uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
     // Runtime tessellation (0 without displaced materials): clusters and triangles diced, patches, micro-triangles,
     // and the GPU memory of the patch lists and displacement normals.
@@ -337,8 +340,21 @@ struct FrameStats {
 // The GPU scene: meshes shared by any number of instances. Changes are uploaded by the next render.
 class GpuScene {
 public:
-    uint32_t add_mesh(std::shared_ptr<const BuiltMesh> mesh);
+    // Gives a mesh's streams back (from the mesh cache, say); throws where it cannot.
+    using MeshReload = std::function<std::shared_ptr<const BuiltMesh>()>;
+    // `reload`: where the mesh can be had again, so that the scene may let its streams go once a renderer holds them
+    // on the GPU (release_streams); without one the scene keeps them.
+    uint32_t add_mesh(std::shared_ptr<const BuiltMesh> mesh, MeshReload reload = {});
     void remove_mesh(uint32_t handle);
+    // Lets the mesh's streams go, keeping its description (without_streams), where it can be reloaded; mesh() then
+    // returns the description and full_mesh() reloads the streams (and keeps them again).
+    void release_streams(uint32_t handle);
+    // The mesh with its streams: held, or reloaded now.
+    const std::shared_ptr<const BuiltMesh>& full_mesh(uint32_t handle);
+    bool holds_streams(uint32_t handle) const { return !released_.at(handle); }
+    uint64_t held_stream_bytes() const;  // of the meshes whose streams it holds
+    // Changes whenever the handle's mesh does (a released or reloaded mesh is the same mesh).
+    uint64_t mesh_serial(uint32_t handle) const { return serials_.at(handle); }
     uint32_t add_material(const MaterialDesc& material);
     // For meshes whose triangles carry material slots: slot s draws with material handle `materials[s]`. Instances of
     // one prim share a table.
@@ -358,7 +374,11 @@ public:
 
 private:
     friend class Renderer;
-    std::vector<std::shared_ptr<const BuiltMesh>> meshes_;  // null where removed
+    std::vector<std::shared_ptr<const BuiltMesh>> meshes_;  // null where removed; the description alone where released
+    std::vector<MeshReload> reloads_;
+    std::vector<char> released_;
+    std::vector<uint64_t> serials_;
+    uint64_t nextSerial_ = 1;
     std::vector<uint32_t> freeMeshes_;
     std::vector<MaterialDesc> materials_;
     std::vector<uint32_t> materialTables_;  // each table: a header word (shaders/frame.h instance_displacement), then its entries
