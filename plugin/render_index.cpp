@@ -418,6 +418,8 @@ std::vector<std::shared_ptr<const Image>> RenderIndex::execute(const RenderPassS
         static_cast<RenderBuffer&>(*bprims_[bufferId].prim).image = images.back();
     }
     for (const std::string& error : stats->errors) param_.errors.push_back(error + "; the mesh is not drawn");
+    // And once more after a frame that uploaded meshes: the streams the GPU scene let go (GpuScene::release_streams).
+    if (param_.meshesBuilt + param_.meshesFromCache > 0) release_free_memory();
     return images;
 }
 
