@@ -218,6 +218,21 @@ def test_bench_render_first_frame_loads_cached_meshes_and_draws_the_warm_frames_
     assert "first frame ms" in done.stdout and "upload ms" in done.stdout and "resident MiB" in done.stdout
 
 
+def test_bench_render_edit_uploads_the_edited_quad_alone_and_the_host_keeps_no_mesh(tmp_path):
+    rows_file = tmp_path / "rows.json"
+    done = run("bench", "render", "--cases", "edit", "--max-density", "1", "--resolution", "96x54", "--frames", "2",
+               "--stages-dir", tmp_path, "--json", rows_file)
+    assert done.returncode == 0, done.stderr + done.stdout
+    [row] = json.loads(rows_file.read_text())
+    assert (row["table"], row["case"]) == ("live edit", "a quad's points beside the mesh")
+    # Each frame writes the quad's streams alone (a cluster, four vertices, two triangles), not the sphere's; the sphere,
+    # held by the mesh cache, left the host once on the GPU (the quad is too small to be cached: its few bytes stay).
+    assert 0 < row["geometry_upload_bytes"] < 1000, row
+    assert row["source_triangles"] > 1000, "the sphere's 1024 and the quad's 2"
+    assert 0 < row["host_mesh_bytes"] < 1000 and row["host_mesh_mib"] == 0.0, row
+    assert "upload bytes" in done.stdout and "host mesh MiB" in done.stdout
+
+
 def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):
     rows_file, cache = tmp_path / "rows.json", tmp_path / "cache"
     # --record writes into the cache it runs with: its own here, so that no other test's sessions find the record.

@@ -417,6 +417,8 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
         from tessera import Session
 
         started = time.perf_counter()
+        if case == "edit":  # the stage with a small quad added in its session layer, in front of the camera
+            stage = _with_quad(stage)
         session = Session(stage[0] if case == "displacement" else stage, device=device)
         settings = {"resolution": resolution, "aovs": ("color",)}
         load_s = time.perf_counter() - started
@@ -449,6 +451,28 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
                 rows.append(_row("anti-aliasing", name, result, wall, gpu, references[(samples, pixel_filter)], error_reference=f"--no-lod, {name}",
                                  pixel_samples=samples, pixel_filter=pixel_filter, ms_per_sample=round(wall / samples, 1),
                                  psnr_vs_finest_db=psnr(result["color"].pixels, finest["color"].pixels)))
+        elif case == "edit":  # a live edit beside a large mesh: the quad's points move, the mesh is built and goes up alone
+            _reference(session, settings)
+            _reference(session, settings)
+            points = stage.GetPrimAtPath("/World/EditedQuad").GetAttribute("points")
+            uploads, written, walls, cpus, passes = [], [], [], [], []
+            for k in range(frames):
+                points.Set([(x + 0.001 * (k + 1), y, z) for x, y, z in points.Get()])
+                start, cpu = time.perf_counter(), _process_seconds()
+                edited = session.render(camera="/World/Camera", **settings)
+                walls.append((time.perf_counter() - start) * 1000)
+                cpus.append((_process_seconds() - cpu) * 1000)
+                passes.append(edited.stats["gpu_ms"])
+                uploads.append(edited.stats["upload_ms"])
+                written.append(edited.stats["geometry_upload_bytes"])
+                if edited.errors:
+                    raise RuntimeError("; ".join(edited.errors))
+            gpu = {name: float(np.median([p[name] for p in passes])) for name in passes[0]}
+            gpu.update(total=float(np.median([sum(p.values()) for p in passes])), process_cpu=float(np.median(cpus)))
+            rows.append(_row("live edit", "a quad's points beside the mesh", edited, float(np.median(walls)), gpu,
+                             upload_ms=round(float(np.median(uploads)), 2), geometry_upload_bytes=int(np.median(written)),
+                             host_mesh_mib=round(edited.stats["host_mesh_bytes"] / 2**20, 1), host_mesh_bytes=edited.stats["host_mesh_bytes"],
+                             geometry_mib=round(edited.stats["geometry_bytes"] / 2**20, 1)))
         elif case == "first-frame":  # a batch render's first frame: its meshes from the mesh cache, uploaded, then drawn
             start = time.perf_counter()
             first = _reference(session, settings)  # timed: the first frame is the one measured
@@ -477,6 +501,20 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
         queue.put(rows)
     except Exception as error:  # reported by the parent, which goes on with the other cases
         queue.put(error)
+
+
+def _with_quad(path):
+    """The stage at `path` opened with a 4-vertex quad, /World/EditedQuad, defined in its session layer near the camera's
+    line of sight (the stages of `_write_sphere_stage`)."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
+    stage.SetEditTarget(stage.GetSessionLayer())
+    quad = UsdGeom.Mesh.Define(stage, "/World/EditedQuad")
+    quad.GetPointsAttr().Set([(-0.1, -0.1, 1.2), (0.1, -0.1, 1.2), (0.1, 0.1, 1.2), (-0.1, 0.1, 1.2)])
+    quad.GetFaceVertexCountsAttr().Set([4])
+    quad.GetFaceVertexIndicesAttr().Set([0, 1, 2, 3])
+    return stage
 
 
 def _fill_cache(queue, stage, device):
@@ -538,7 +576,8 @@ RENDER_COLUMNS = [("table", "table"), ("case", "case"), ("source_triangles", "so
                   ("gpu_speedup_vs_no_lod", "GPU speedup"), ("micro_triangles", "micro tris"),
                   ("tessellation_ms", "tess ms"), ("surface_gpu_mib", "surface GPU MiB"), ("load_seconds", "load s"),
                   ("first_frame_ms", "first frame ms"), ("upload_ms", "upload ms"), ("meshes_cached", "meshes cached"),
-                  ("resident_mib", "resident MiB")]
+                  ("resident_mib", "resident MiB"), ("geometry_upload_bytes", "upload bytes"), ("geometry_mib", "GPU geometry MiB"),
+                  ("host_mesh_mib", "host mesh MiB")]
 
 
 def _write_plot(rows, path):
@@ -579,6 +618,8 @@ def render(args) -> int:
     if "first-frame" in args.cases:  # each density field, then the densest prototype alone
         cases += [("first-frame", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
         cases.append(("first-frame", _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)))
+    if "edit" in args.cases:  # the densest prototype alone, and a quad edited beside it
+        cases.append(("edit", _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)))
     if "antialiasing" in args.cases:  # the lightest density field: its --no-lod frames are cheap
         cases.append(("antialiasing", _stage(args.stages_dir, sides[0], True)))
     if "seams" in args.cases:  # the same field, with a colour per face and with one colour
@@ -606,7 +647,7 @@ def render(args) -> int:
         in_turns = None
     print(" | ".join(title for _, title in RENDER_COLUMNS))
     for case, stage in cases:
-        filled = _in_child(_fill_cache, stage, args.device) if case == "first-frame" else True
+        filled = _in_child(_fill_cache, stage, args.device) if case in ("first-frame", "edit") else True
         outcome = filled if isinstance(filled, Exception) else _in_child(_render_case, case, stage, (width, height), args.frames, args.device,
                                                                          args.no_lod_limit)
         if isinstance(outcome, Exception):

@@ -199,7 +199,9 @@ def _parser() -> argparse.ArgumentParser:
                                    "antialiasing: the 1e6 field at 1, 4 and 16 pixel samples of the box filter and 16 of the "
                                    "gaussian, each against --no-lod at as many samples and at 16 of the box; first-frame: "
                                    "each density field and the densest prototype alone rendered once in a fresh process with "
-                                   "their meshes in the mesh cache, as a batch render is: load, first frame, upload)")
+                                   "their meshes in the mesh cache, as a batch render is: load, first frame, upload; edit: "
+                                   "the densest prototype alone with a 4-vertex quad beside it whose points move every frame: "
+                                   "the upload's ms and bytes, and the mesh streams the host still holds)")
     bench_render.add_argument("--seams-n", type=int, default=100,
                               help="the seams fields' sphere has 4 n^2 triangles (default 100: 40 k, 41 M in the field)")
     bench_render.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
