@@ -77,6 +77,17 @@ uint64_t GpuScene::instance_count() const {
     return count;
 }
 
+namespace {
+
+// What a built mesh's streams take on the host.
+uint64_t stream_bytes(const BuiltMesh* m) {
+    if (!m) return 0;
+    return m->positions.size() * sizeof(float) + (m->normals.size() + m->colors.size() + m->triangles.size()) * sizeof(uint32_t) +
+           m->uvs.size() * sizeof(float) + m->clusters.size() * sizeof(Cluster);
+}
+
+}  // namespace
+
 uint32_t GpuScene::add_mesh(std::shared_ptr<const BuiltMesh> mesh, MeshReload reload) {
     ++geometryVersion_;
     uint32_t handle;
@@ -90,6 +101,7 @@ uint32_t GpuScene::add_mesh(std::shared_ptr<const BuiltMesh> mesh, MeshReload re
         released_.push_back(0);
         serials_.push_back(0);
     }
+    heldBytes_ += stream_bytes(mesh.get());
     meshes_[handle] = std::move(mesh);
     reloads_[handle] = std::move(reload);
     released_[handle] = 0;
@@ -98,7 +110,8 @@ uint32_t GpuScene::add_mesh(std::shared_ptr<const BuiltMesh> mesh, MeshReload re
 }
 
 void GpuScene::remove_mesh(uint32_t handle) {
-    meshes_.at(handle).reset();
+    if (!released_.at(handle)) heldBytes_ -= stream_bytes(meshes_[handle].get());
+    meshes_[handle].reset();
     reloads_[handle] = nullptr;
     released_[handle] = 0;
     serials_[handle] = 0;
@@ -108,23 +121,16 @@ void GpuScene::remove_mesh(uint32_t handle) {
 
 void GpuScene::release_streams(uint32_t handle) {
     if (!meshes_.at(handle) || !reloads_[handle] || released_[handle]) return;
+    heldBytes_ -= stream_bytes(meshes_[handle].get());
     meshes_[handle] = std::make_shared<const BuiltMesh>(without_streams(*meshes_[handle]));
     released_[handle] = 1;
-}
-
-uint64_t GpuScene::held_stream_bytes() const {
-    uint64_t bytes = 0;
-    for (size_t h = 0; h < meshes_.size(); ++h)
-        if (const BuiltMesh* m = meshes_[h].get(); m && !released_[h])
-            bytes += m->positions.size() * sizeof(float) + (m->normals.size() + m->colors.size() + m->triangles.size()) * sizeof(uint32_t) +
-                     m->uvs.size() * sizeof(float) + m->clusters.size() * sizeof(Cluster);
-    return bytes;
 }
 
 const std::shared_ptr<const BuiltMesh>& GpuScene::full_mesh(uint32_t handle) {
     if (meshes_.at(handle) && released_[handle]) {
         meshes_[handle] = reloads_[handle]();
         released_[handle] = 0;
+        heldBytes_ += stream_bytes(meshes_[handle].get());
     }
     return meshes_[handle];
 }

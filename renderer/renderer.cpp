@@ -710,30 +710,26 @@ struct Renderer::Impl {
         return records;
     }
 
-    // Where each scene mesh handle's streams lie (element offsets into the arenas), and the mesh they hold: kept while
-    // the handle holds that mesh, so that a geometry change writes only the meshes it added.
-    struct MeshRanges {
-        uint32_t cluster = 0, level = 0, block = 0, blockCluster = 0, vertex = 0, triangle = 0, color = 0, uv = 0;
-    };
+    // The mesh streams, in the order of mesh_streams() and stream_counts().
+    enum Stream : size_t { kClusters, kLevels, kBlocks, kBlockClusters, kVertices, kTriangles, kColors, kUvs, kStreams };
+    // Where a scene mesh handle's streams lie in the arenas, and the mesh they hold: kept while the handle holds that
+    // mesh, so that a geometry change writes only the meshes it added.
     struct ResidentMesh {
         uint64_t serial = 0;  // the scene mesh's (GpuScene::mesh_serial); 0: the handle holds nothing
-        MeshRanges at;
-        std::array<size_t, 8> counts{};  // elements in each range (stream_counts)
+        std::array<StreamArena::Range, kStreams> ranges{};
+        uint32_t at(Stream stream) const { return uint32_t(ranges[stream].offset); }  // the shaders index with 32 bits
     };
     std::vector<ResidentMesh> resident;  // by scene mesh handle
     uint64_t geometryUploadBytes = 0;    // the mesh streams the last geometry upload wrote
     std::vector<std::string> uploadErrors;  // the meshes it could not draw, for this frame's stats
 
-    // The streams, each stream's element count for a mesh and its field of MeshRanges, all in one order.
-    std::array<StreamArena*, 8> mesh_streams() { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
-    std::array<const StreamArena*, 8> mesh_streams() const { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
-    static std::array<size_t, 8> stream_counts(const BuiltMesh& mesh, const MeshRecords& r) {
+    std::array<StreamArena*, kStreams> mesh_streams() { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
+    std::array<const StreamArena*, kStreams> mesh_streams() const {
+        return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs};
+    }
+    static std::array<size_t, kStreams> stream_counts(const BuiltMesh& mesh, const MeshRecords& r) {
         return {r.clusters.size(), r.levels.size(), r.blocks.size(), r.blockClusters.size(), mesh.normals.size(), mesh.triangles.size(), mesh.colors.size(),
                 mesh.uvs.size()};
-    }
-    static std::array<uint32_t MeshRanges::*, 8> range_fields() {
-        return {&MeshRanges::cluster, &MeshRanges::level, &MeshRanges::block, &MeshRanges::blockCluster, &MeshRanges::vertex, &MeshRanges::triangle,
-                &MeshRanges::color, &MeshRanges::uv};
     }
 
     // `sameScene`: the scene these streams were uploaded for (else every range is let go first).
@@ -744,10 +740,9 @@ struct Renderer::Impl {
         }
         // Handles whose mesh changed give their ranges back; the meshes now at them are fresh.
         const auto arenas = mesh_streams();
-        const auto fields = range_fields();
         auto release = [&](ResidentMesh& r) {
             if (!r.serial) return;
-            for (size_t k = 0; k < arenas.size(); ++k) arenas[k]->release({r.at.*fields[k], r.counts[k]});
+            for (size_t k = 0; k < kStreams; ++k) arenas[k]->release(r.ranges[k]);
             r = {};
         };
         for (size_t m = scene.meshes_.size(); m < resident.size(); ++m) release(resident[m]);
@@ -793,13 +788,13 @@ struct Renderer::Impl {
 
         // Removals leave holes that later meshes may not fill: where a stream's holes outgrow what it will hold (the
         // meshes kept and the fresh ones) and 1 MiB, every mesh goes up again, packed, into buffers of their size.
-        std::array<size_t, 8> freshCounts{};
+        std::array<size_t, kStreams> freshCounts{};
         for (size_t m : fresh) {
             const auto counts = stream_counts(full_of(m), records_of(m));
             for (size_t k = 0; k < counts.size(); ++k) freshCounts[k] += counts[k];
         }
         bool compact = false;
-        for (size_t k = 0; k < arenas.size(); ++k) {
+        for (size_t k = 0; k < kStreams; ++k) {
             const size_t holes = arenas[k]->free_elements(), held = arenas[k]->end() - holes + freshCounts[k];
             compact |= holes * arenas[k]->element_bytes() > std::max<size_t>(size_t(1) << 20, held * arenas[k]->element_bytes());
         }
@@ -815,15 +810,14 @@ struct Renderer::Impl {
         // shaders halve), then the arenas grown to hold them; the shaders index each stream with 32 bits.
         for (size_t m : fresh) {
             ResidentMesh& r = resident[m];
-            r.counts = stream_counts(full_of(m), records_of(m));
-            for (size_t k = 0; k < arenas.size(); ++k) {
-                const size_t offset = arenas[k]->allocate(r.counts[k], arenas[k] == &colors || arenas[k] == &uvs ? 2 : 1);
-                if (offset + r.counts[k] > UINT32_MAX) {  // nothing kept: the next upload starts again from the host
+            const auto counts = stream_counts(full_of(m), records_of(m));
+            for (size_t k = 0; k < kStreams; ++k) {
+                r.ranges[k] = {arenas[k]->allocate(counts[k], k == kColors || k == kUvs ? 2 : 1), counts[k]};
+                if (r.ranges[k].offset + counts[k] > UINT32_MAX) {  // nothing kept: the next upload starts again from the host
                     for (StreamArena* arena : mesh_streams()) arena->clear();
                     resident.clear();
                     throw std::runtime_error("the scene's distinct meshes hold more than 2^32 vertices, triangles or clusters");
                 }
-                r.at.*fields[k] = uint32_t(offset);
             }
             r.serial = scene.serials_[m];
         }
@@ -831,57 +825,54 @@ struct Renderer::Impl {
 
         // The fresh meshes' streams, written into their ranges (their scene offsets added to the records).
         geometryUploadBytes = 0;
-        auto write_stream = [&](StreamArena& arena, uint32_t MeshRanges::*field, size_t k, auto write) {
+        // `write(to, handle, mesh, records, resident, first, end)` fills elements [first, end) of the mesh's range of `stream`.
+        auto write_stream = [&](Stream stream, auto write) {
             std::vector<StreamArena::Range> ranges;
-            for (size_t m : fresh) ranges.push_back({resident[m].at.*field, resident[m].counts[k]});
-            geometryUploadBytes += arena.write(device, ranges, [&](size_t range, size_t first, size_t end, void* to) {
+            for (size_t m : fresh) ranges.push_back(resident[m].ranges[stream]);
+            geometryUploadBytes += arenas[stream]->write(device, ranges, [&](size_t range, size_t first, size_t end, void* to) {
                 const size_t m = fresh[range];
-                write(to, m, *full[m], records_of(m), resident[m].at, first, end);  // full[m]: loaded above, on this thread
+                write(to, m, *full[m], records_of(m), resident[m], first, end);  // full[m]: loaded above, on this thread
             });
         };
-        write_stream(clusters, &MeshRanges::cluster, 0,
-                     [](void* to, size_t m, const BuiltMesh&, const MeshRecords& r, const MeshRanges& b, size_t first, size_t end) {
-                         for (size_t i = first; i < end; ++i) {
-                             gpu::GpuCluster& out = static_cast<gpu::GpuCluster*>(to)[i - first] = r.clusters[i];
-                             out.vertexOffset += b.vertex;
-                             out.triangleOffset += b.triangle;
-                             out.meshIndex = uint32_t(m);
-                         }
-                     });
-        write_stream(levels, &MeshRanges::level, 1, [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const MeshRanges& b, size_t first, size_t end) {
-            for (size_t l = first; l < end; ++l) {
-                gpu::GpuLevel& out = static_cast<gpu::GpuLevel*>(to)[l - first] = r.levels[l];
-                out.blockOffset += b.block;
+        write_stream(kClusters, [](void* to, size_t m, const BuiltMesh&, const MeshRecords& r, const ResidentMesh& placed, size_t first, size_t end) {
+            for (size_t i = first; i < end; ++i) {
+                gpu::GpuCluster& out = static_cast<gpu::GpuCluster*>(to)[i - first] = r.clusters[i];
+                out.vertexOffset += placed.at(kVertices);
+                out.triangleOffset += placed.at(kTriangles);
+                out.meshIndex = uint32_t(m);
             }
         });
-        write_stream(cutBlocks, &MeshRanges::block, 2,
-                     [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const MeshRanges& b, size_t first, size_t end) {
-                         for (size_t k = first; k < end; ++k) {
-                             gpu::GpuCutBlock& out = static_cast<gpu::GpuCutBlock*>(to)[k - first] = r.blocks[k];
-                             out.firstCluster += b.blockCluster;
-                         }
-                     });
-        write_stream(blockClusters, &MeshRanges::blockCluster, 3,
-                     [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const MeshRanges&, size_t first, size_t end) {
-                         std::copy(r.blockClusters.begin() + first, r.blockClusters.begin() + end, static_cast<uint32_t*>(to));
-                     });
-        write_stream(vertices, &MeshRanges::vertex, 4,
-                     [](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const MeshRanges&, size_t first, size_t end) {
+        write_stream(kLevels, [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const ResidentMesh& placed, size_t first, size_t end) {
+            for (size_t l = first; l < end; ++l) {
+                gpu::GpuLevel& out = static_cast<gpu::GpuLevel*>(to)[l - first] = r.levels[l];
+                out.blockOffset += placed.at(kBlocks);
+            }
+        });
+        write_stream(kBlocks, [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const ResidentMesh& placed, size_t first, size_t end) {
+            for (size_t k = first; k < end; ++k) {
+                gpu::GpuCutBlock& out = static_cast<gpu::GpuCutBlock*>(to)[k - first] = r.blocks[k];
+                out.firstCluster += placed.at(kBlockClusters);
+            }
+        });
+        write_stream(kBlockClusters, [](void* to, size_t, const BuiltMesh&, const MeshRecords& r, const ResidentMesh&, size_t first, size_t end) {
+            std::copy(r.blockClusters.begin() + first, r.blockClusters.begin() + end, static_cast<uint32_t*>(to));
+        });
+        write_stream(kVertices, [](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const ResidentMesh&, size_t first, size_t end) {
                          for (size_t v = first; v < end; ++v) {
                              gpu::GpuVertex& out = static_cast<gpu::GpuVertex*>(to)[v - first];
                              std::memcpy(&out.bits, &mesh.positions[3 * v], 12);
                              out.bits.w = mesh.normals[v];
                          }
                      });
-        auto write_words = [&](StreamArena& arena, uint32_t MeshRanges::*field, size_t k, auto stream) {
-            write_stream(arena, field, k, [stream](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const MeshRanges&, size_t first, size_t end) {
-                static_assert(sizeof((mesh.*stream)[0]) == sizeof(uint32_t));
-                std::memcpy(to, (mesh.*stream).data() + first, (end - first) * sizeof(uint32_t));
+        auto write_words = [&](Stream stream, auto words) {
+            write_stream(stream, [words](void* to, size_t, const BuiltMesh& mesh, const MeshRecords&, const ResidentMesh&, size_t first, size_t end) {
+                static_assert(sizeof((mesh.*words)[0]) == sizeof(uint32_t));
+                std::memcpy(to, (mesh.*words).data() + first, (end - first) * sizeof(uint32_t));
             });
         };
-        write_words(triangles, &MeshRanges::triangle, 5, &BuiltMesh::triangles);
-        write_words(colors, &MeshRanges::color, 6, &BuiltMesh::colors);
-        write_words(uvs, &MeshRanges::uv, 7, &BuiltMesh::uvs);
+        write_words(kTriangles, &BuiltMesh::triangles);
+        write_words(kColors, &BuiltMesh::colors);
+        write_words(kUvs, &BuiltMesh::uvs);
 
         // The mesh records (small: all of them again) and the displaced meshes' displacement normals and seams.
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
@@ -892,12 +883,12 @@ struct Renderer::Impl {
             gpu::GpuMesh& g = gpuMeshes[m];
             g = {};
             g.colorOffset = g.uvOffset = g.displacementNormalOffset = g.seamVertexOffset = g.seamTriangleOffset = TS_NO_STREAM;
-            if (!mesh || !resident[m].serial) continue;  // removed, or lost: nothing of it is drawn
-            const MeshRanges& b = resident[m].at;
+            const ResidentMesh& r = resident[m];
+            if (!mesh || !r.serial) continue;  // removed, or lost: nothing of it is drawn
             const MeshRecords& records = records_of(m);
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
-            g.clusterOffset = b.cluster;
-            g.vertexOffset = b.vertex;
+            g.clusterOffset = r.at(kClusters);
+            g.vertexOffset = r.at(kVertices);
             if (m < displacedMeshes.size() && displacedMeshes[m]) {  // drawn displaced: it needs displacement normals
                 if (!load(m)) continue;  // kept by the scene while it is drawn displaced (below); lost: not drawn
                 const BuiltMesh& withStreams = full_of(m);
@@ -907,17 +898,17 @@ struct Renderer::Impl {
                 const auto seams = append_uv_seams(withStreams, gpuSeams);
                 if (seams[0] != TS_NO_STREAM) {
                     g.seamVertexOffset = seams[0];
-                    g.seamTriangleOffset = seams[1] - b.triangle;  // indexed by scene triangle: the base folded in (mod 2^32)
+                    g.seamTriangleOffset = seams[1] - r.at(kTriangles);  // indexed by scene triangle: the base folded in (mod 2^32)
                 }
                 uvBoxes[m] = cluster_uv_boxes(withStreams, gpuSeams, seams);
             }
             // The counts come from the ranges: a released mesh's description has no streams.
-            if (resident[m].counts[6] > 0) g.colorOffset = b.color / 2;
-            if (resident[m].counts[7] > 0) g.uvOffset = b.uv / 2;
+            if (r.ranges[kColors].count > 0) g.colorOffset = r.at(kColors) / 2;
+            if (r.ranges[kUvs].count > 0) g.uvOffset = r.at(kUvs) / 2;
             // The whole DAG goes up; the cull pass picks the cut. Clusters come level by level, level 0 first.
-            g.clusterCount = uint32_t(resident[m].counts[0]);
+            g.clusterCount = uint32_t(r.ranges[kClusters].count);
             g.leafClusterCount = mesh->leafClusters;
-            g.levelOffset = b.level;
+            g.levelOffset = r.at(kLevels);
             g.levelCount = uint32_t(records.levels.size());
             g.lodRadius = records.lodRadius;
         }

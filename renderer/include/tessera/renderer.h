@@ -352,7 +352,7 @@ public:
     // The mesh with its streams: held, or reloaded now.
     const std::shared_ptr<const BuiltMesh>& full_mesh(uint32_t handle);
     bool holds_streams(uint32_t handle) const { return !released_.at(handle); }
-    uint64_t held_stream_bytes() const;  // of the meshes whose streams it holds
+    uint64_t held_stream_bytes() const { return heldBytes_; }  // of the meshes whose streams it holds
     // Changes whenever the handle's mesh does (a released or reloaded mesh is the same mesh).
     uint64_t mesh_serial(uint32_t handle) const { return serials_.at(handle); }
     uint32_t add_material(const MaterialDesc& material);
@@ -379,6 +379,7 @@ private:
     std::vector<char> released_;
     std::vector<uint64_t> serials_;
     uint64_t nextSerial_ = 1;
+    uint64_t heldBytes_ = 0;  // held_stream_bytes, kept as meshes come, go, are released and reloaded
     std::vector<uint32_t> freeMeshes_;
     std::vector<MaterialDesc> materials_;
     std::vector<uint32_t> materialTables_;  // each table: a header word (shaders/frame.h instance_displacement), then its entries
