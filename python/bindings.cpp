@@ -180,6 +180,8 @@ nb::dict stats_dict(const FrameStats& s) {
     d["textures"] = s.textures;
     d["geometry_bytes"] = s.geometryBytes;
     d["geometry_upload_bytes"] = s.geometryUploadBytes;
+    d["upload_submissions"] = s.uploadSubmissions;
+    d["displaced_meshes_prepared"] = s.displacedMeshesPrepared;
     d["host_mesh_bytes"] = s.hostMeshBytes;
     d["texture_bytes"] = s.textureBytes;
     d["tessellated_clusters"] = s.tessellatedClusters;

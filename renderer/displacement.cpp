@@ -6,50 +6,85 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <unordered_map>
+#include <stdexcept>
+#include <string>
 
 namespace tessera {
 
 namespace {
 
-// A built mesh vertex's position, by its bits: vertices that meet (split at seams and hard edges) have the same key.
-using PositionKey = std::array<uint32_t, 3>;
-struct PositionKeyHash {
-    size_t operator()(const PositionKey& p) const { return (size_t(p[0]) * 73856093u) ^ (size_t(p[1]) * 19349663u) ^ (size_t(p[2]) * 83492791u); }
+// Vertices that meet (split at seams and hard edges) share a position, by its bits: each vertex's position number, the
+// positions numbered in order of first use (an open-addressing table of the first vertex at each).
+struct Positions {
+    std::vector<uint32_t> of;  // by vertex
+    uint32_t count = 0;
 };
-PositionKey position_key(const BuiltMesh& mesh, uint32_t vertex) {
-    PositionKey k;
-    std::memcpy(k.data(), &mesh.positions[3 * size_t(vertex)], 12);
-    return k;
-}
-
-}  // namespace
-
-// Per vertex, the direction displacement moves it: the mean of the distinct normals that the source (level 0) has at its
-// position. Split vertices (hard edges, UV seams) share a position, so they move alike and a displaced hard edge does not
-// tear. Every vertex of every level is a source vertex (simplification only removes vertices), so every level finds its
-// positions here.
-std::vector<uint32_t> displacement_normals(const BuiltMesh& mesh) {
-    auto key = [&](uint32_t v) { return position_key(mesh, v); };
-    std::unordered_map<PositionKey, std::vector<uint32_t>, PositionKeyHash> normalsAt;
-    for (const Cluster& c : mesh.clusters) {
-        if (c.level != 0) break;  // clusters come level by level, level 0 first
-        for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) {
-            auto& normals = normalsAt[key(v)];
-            if (std::find(normals.begin(), normals.end(), mesh.normals[v]) == normals.end()) normals.push_back(mesh.normals[v]);
+Positions number_positions(const BuiltMesh& mesh) {
+    const size_t vertices = mesh.positions.size() / 3;
+    const uint32_t* bits = reinterpret_cast<const uint32_t*>(mesh.positions.data());
+    size_t capacity = 64;
+    while (capacity < 2 * vertices) capacity *= 2;
+    std::vector<uint32_t> table(capacity, UINT32_MAX);  // a position's first vertex
+    Positions p;
+    p.of.resize(vertices);
+    for (uint32_t v = 0; v < vertices; ++v) {
+        const uint32_t* k = &bits[3 * size_t(v)];
+        uint64_t h = (uint64_t(k[0]) * 0x9E3779B97F4A7C15ull) ^ (uint64_t(k[1]) * 0xC2B2AE3D27D4EB4Full) ^ (uint64_t(k[2]) * 0x165667B19E3779F9ull);
+        size_t at = size_t(h ^ (h >> 29)) & (capacity - 1);
+        for (;; at = (at + 1) & (capacity - 1)) {
+            const uint32_t first = table[at];
+            if (first == UINT32_MAX) {
+                table[at] = v;
+                p.of[v] = p.count++;
+                break;
+            }
+            if (std::memcmp(&bits[3 * size_t(first)], k, 12) == 0) {
+                p.of[v] = p.of[first];
+                break;
+            }
         }
     }
+    return p;
+}
+
+// Calls visit(v) for each vertex of the level-0 clusters, in order (clusters come level by level, level 0 first).
+template <class Visit>
+void for_level_zero(const BuiltMesh& mesh, Visit visit) {
+    for (const Cluster& c : mesh.clusters) {
+        if (c.level != 0) break;
+        for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) visit(v);
+    }
+}
+
+std::array<uint32_t, 3> corners_of(const BuiltMesh& mesh, const Cluster& c, uint32_t t) {
+    const uint32_t packed = mesh.triangles[c.triangleOffset + t];
+    return {c.vertexOffset + (packed & 0xffu), c.vertexOffset + ((packed >> 8) & 0xffu), c.vertexOffset + ((packed >> 16) & 0xffu)};
+}
+
+// Per vertex, the direction displacement moves it (see displacement_normals).
+std::vector<uint32_t> normals_by_position(const BuiltMesh& mesh, const Positions& positions) {
+    // Each position's distinct level-0 normals, in the order of its vertices (the sum below adds them in that order).
+    std::vector<uint32_t> start(positions.count + 1, 0), distinct(positions.count, 0);
+    for_level_zero(mesh, [&](uint32_t v) { ++start[positions.of[v] + 1]; });
+    for (uint32_t i = 0; i < positions.count; ++i) start[i + 1] += start[i];
+    std::vector<uint32_t> normals(start.back());
+    for_level_zero(mesh, [&](uint32_t v) {
+        const uint32_t p = positions.of[v];
+        uint32_t* list = &normals[start[p]];
+        if (std::find(list, list + distinct[p], mesh.normals[v]) == list + distinct[p]) list[distinct[p]++] = mesh.normals[v];
+    });
     std::vector<uint32_t> out(mesh.normals.size());
     for (size_t v = 0; v < out.size(); ++v) {
-        const auto it = normalsAt.find(key(uint32_t(v)));
-        if (it == normalsAt.end() || it->second.size() == 1) {
-            out[v] = it == normalsAt.end() ? mesh.normals[v] : it->second[0];
+        const uint32_t p = positions.of[v], n = distinct[p];
+        const uint32_t* list = &normals[start[p]];
+        if (n <= 1) {
+            out[v] = n == 0 ? mesh.normals[v] : list[0];
             continue;
         }
         double sum[3] = {0, 0, 0};
-        for (uint32_t packed : it->second) {
-            const auto n = decode_octahedral(packed);
-            for (int k = 0; k < 3; ++k) sum[k] += n[k];
+        for (uint32_t k = 0; k < n; ++k) {
+            const auto d = decode_octahedral(list[k]);
+            for (int c = 0; c < 3; ++c) sum[c] += d[c];
         }
         const double length = std::sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]);
         out[v] = length > 1e-12 ? encode_octahedral(float(sum[0] / length), float(sum[1] / length), float(sum[2] / length)) : mesh.normals[v];
@@ -57,89 +92,96 @@ std::vector<uint32_t> displacement_normals(const BuiltMesh& mesh) {
     return out;
 }
 
-// The UV seams of a mesh drawn displaced, appended to `words` in the layout of shaders/shared.h (TS_SEAM_COUNT_SHIFT):
-// per vertex, the texture coordinates the source has at its position when there are several; per triangle with a seam
-// edge, the other side's coordinates along each edge (found among the triangles of every level, keyed by the edge's two
-// positions: every level's vertices are source vertices). Returns {first vertex word, first triangle word}, or
-// {TS_NO_STREAM, TS_NO_STREAM} for a mesh without seams (no UVs, or one UV per position).
-std::array<uint32_t, 2> append_uv_seams(const BuiltMesh& mesh, std::vector<uint32_t>& words) {
+// The UV seams (see append_uv_seams).
+std::array<uint32_t, 2> append_seams_by_position(const BuiltMesh& mesh, const Positions& positions, std::vector<uint32_t>& words) {
     if (mesh.uvs.empty()) return {TS_NO_STREAM, TS_NO_STREAM};
-    using Key = PositionKey;
-    using KeyHash = PositionKeyHash;
     using Uv = std::array<uint32_t, 2>;  // float bits
-    auto key = [&](uint32_t v) { return position_key(mesh, v); };
     auto uv = [&](uint32_t v) {
         Uv u;
         std::memcpy(u.data(), &mesh.uvs[2 * size_t(v)], 8);
         return u;
     };
-    std::unordered_map<Key, std::vector<Uv>, KeyHash> uvsAt;  // distinct, sorted
-    for (const Cluster& c : mesh.clusters) {
-        if (c.level != 0) break;
-        for (uint32_t v = c.vertexOffset; v < c.vertexOffset + c.vertexCount; ++v) {
-            auto& list = uvsAt[key(v)];
-            const Uv u = uv(v);
-            if (std::find(list.begin(), list.end(), u) == list.end()) list.insert(std::upper_bound(list.begin(), list.end(), u), u);
+    // Each position's distinct level-0 texture coordinates, sorted.
+    std::vector<std::pair<uint32_t, Uv>> entries;
+    for_level_zero(mesh, [&](uint32_t v) { entries.push_back({positions.of[v], uv(v)}); });
+    std::sort(entries.begin(), entries.end());
+    entries.erase(std::unique(entries.begin(), entries.end()), entries.end());
+    std::vector<uint32_t> start(positions.count + 1, 0);
+    for (const auto& e : entries) ++start[e.first + 1];
+    for (uint32_t i = 0; i < positions.count; ++i) start[i + 1] += start[i];
+    bool any = false;
+    for (uint32_t p = 0; p < positions.count && !any; ++p) any = start[p + 1] - start[p] > 1;
+    if (!any) return {TS_NO_STREAM, TS_NO_STREAM};
+    // Positions whose vertices (of any level) carry more than one texture coordinate: only an edge with such an end
+    // can have two sides that differ, which is a seam edge.
+    std::vector<char> several(positions.count, 0);
+    {
+        std::vector<uint32_t> firstVertex(positions.count, UINT32_MAX);
+        for (uint32_t v = 0; v < positions.of.size(); ++v) {
+            uint32_t& first = firstVertex[positions.of[v]];
+            if (first == UINT32_MAX) first = v;
+            else if (uv(first) != uv(v)) several[positions.of[v]] = 1;
         }
     }
-    // Edges by their two positions (lower first), with the distinct (uv at lower, uv at upper) pairs of their triangles.
-    struct EdgeHash {
-        size_t operator()(const std::array<Key, 2>& e) const { return KeyHash{}(e[0]) * 31 + KeyHash{}(e[1]); }
+    // The edges with such an end, by their two positions (lower number first), with the distinct (uv at lower, uv at
+    // upper) pairs of their triangles, from every level.
+    struct EdgeSide {
+        uint64_t edge;
+        std::array<Uv, 2> pair;
+        bool operator<(const EdgeSide& o) const { return edge != o.edge ? edge < o.edge : pair < o.pair; }
+        bool operator==(const EdgeSide& o) const { return edge == o.edge && pair == o.pair; }
     };
-    std::unordered_map<std::array<Key, 2>, std::vector<std::array<Uv, 2>>, EdgeHash> edges;
-    auto corners = [&](const Cluster& c, uint32_t t) {
-        const uint32_t packed = mesh.triangles[c.triangleOffset + t];
-        return std::array<uint32_t, 3>{c.vertexOffset + (packed & 0xffu), c.vertexOffset + ((packed >> 8) & 0xffu), c.vertexOffset + ((packed >> 16) & 0xffu)};
-    };
-    auto oriented = [&](uint32_t a, uint32_t b, std::array<Key, 2>& edge, std::array<Uv, 2>& pair) {
-        const Key ka = key(a), kb = key(b);
-        const bool swap = kb < ka;
-        edge = swap ? std::array<Key, 2>{kb, ka} : std::array<Key, 2>{ka, kb};
-        pair = swap ? std::array<Uv, 2>{uv(b), uv(a)} : std::array<Uv, 2>{uv(a), uv(b)};
+    auto oriented = [&](uint32_t a, uint32_t b, EdgeSide& side) {  // true where b's position comes first
+        const uint32_t pa = positions.of[a], pb = positions.of[b];
+        const bool swap = pb < pa;
+        side.edge = swap ? uint64_t(pb) << 32 | pa : uint64_t(pa) << 32 | pb;
+        side.pair = swap ? std::array<Uv, 2>{uv(b), uv(a)} : std::array<Uv, 2>{uv(a), uv(b)};
         return swap;
     };
+    std::vector<EdgeSide> sides;
     for (const Cluster& c : mesh.clusters)
         for (uint32_t t = 0; t < c.triangleCount; ++t) {
-            const auto v = corners(c, t);
+            const auto v = corners_of(mesh, c, t);
             for (int k = 0; k < 3; ++k) {
-                std::array<Key, 2> edge;
-                std::array<Uv, 2> pair;
-                oriented(v[k], v[(k + 1) % 3], edge, pair);
-                auto& pairs = edges[edge];
-                if (std::find(pairs.begin(), pairs.end(), pair) == pairs.end()) pairs.push_back(pair);
+                if (!several[positions.of[v[k]]] && !several[positions.of[v[(k + 1) % 3]]]) continue;
+                EdgeSide side;
+                oriented(v[k], v[(k + 1) % 3], side);
+                sides.push_back(side);
             }
         }
-    bool any = false;
-    for (const auto& [k, list] : uvsAt) any |= list.size() > 1;
-    if (!any) return {TS_NO_STREAM, TS_NO_STREAM};
+    std::sort(sides.begin(), sides.end());
+    sides.erase(std::unique(sides.begin(), sides.end()), sides.end());
 
     const uint32_t vertexWords = uint32_t(words.size());
     words.resize(words.size() + mesh.normals.size(), TS_NO_STREAM);
-    std::unordered_map<Key, uint32_t, KeyHash> listAt;  // each position's list stored once
+    std::vector<uint32_t> storedAt(positions.count, TS_NO_STREAM);  // each position's list stored once
     for (uint32_t v = 0; v < mesh.normals.size(); ++v) {
-        const auto it = uvsAt.find(key(v));
-        if (it == uvsAt.end() || it->second.size() < 2) continue;
-        auto [stored, fresh] = listAt.try_emplace(it->first, uint32_t(words.size()));
-        if (fresh)
-            for (const Uv& u : it->second) words.insert(words.end(), u.begin(), u.end());
-        words[vertexWords + v] = stored->second | std::min<uint32_t>(uint32_t(it->second.size()), 15u) << TS_SEAM_COUNT_SHIFT;
+        const uint32_t p = positions.of[v], count = start[p + 1] - start[p];
+        if (count < 2) continue;
+        if (storedAt[p] == TS_NO_STREAM) {
+            storedAt[p] = uint32_t(words.size());
+            for (uint32_t k = start[p]; k < start[p + 1]; ++k) words.insert(words.end(), entries[k].second.begin(), entries[k].second.end());
+        }
+        words[vertexWords + v] = storedAt[p] | std::min<uint32_t>(count, 15u) << TS_SEAM_COUNT_SHIFT;
     }
     const uint32_t triangleWords = uint32_t(words.size());
     words.resize(words.size() + mesh.triangles.size(), TS_NO_STREAM);
     const uint32_t nan = 0x7fc00000u;
     for (const Cluster& c : mesh.clusters)
         for (uint32_t t = 0; t < c.triangleCount; ++t) {
-            const auto v = corners(c, t);
+            const auto v = corners_of(mesh, c, t);
             std::array<uint32_t, 12> record;
             record.fill(nan);
             bool seam = false;
             for (int k = 0; k < 3; ++k) {
-                std::array<Key, 2> edge;
-                std::array<Uv, 2> pair;
-                const bool swapped = oriented(v[k], v[(k + 1) % 3], edge, pair);
-                const auto& pairs = edges[edge];
-                if (pairs.size() != 2) continue;  // inside a UV island (or a non-manifold edge: no single other side)
-                const auto& other = pairs[0] == pair ? pairs[1] : pairs[0];
+                if (!several[positions.of[v[k]]] && !several[positions.of[v[(k + 1) % 3]]]) continue;
+                EdgeSide side;
+                const bool swapped = oriented(v[k], v[(k + 1) % 3], side);
+                const auto first = std::lower_bound(sides.begin(), sides.end(), EdgeSide{side.edge, {}});
+                auto end = first;
+                while (end != sides.end() && end->edge == side.edge) ++end;
+                if (end - first != 2) continue;  // inside a UV island (or a non-manifold edge: no single other side)
+                const auto& other = first->pair == side.pair ? (first + 1)->pair : first->pair;
                 const Uv& atK = swapped ? other[1] : other[0];
                 const Uv& atNext = swapped ? other[0] : other[1];
                 record[4 * k] = atK[0], record[4 * k + 1] = atK[1], record[4 * k + 2] = atNext[0], record[4 * k + 3] = atNext[1];
@@ -152,6 +194,22 @@ std::array<uint32_t, 2> append_uv_seams(const BuiltMesh& mesh, std::vector<uint3
     return {vertexWords, triangleWords};
 }
 
+}  // namespace
+
+// Per vertex, the direction displacement moves it: the mean of the distinct normals that the source (level 0) has at its
+// position. Split vertices (hard edges, UV seams) share a position, so they move alike and a displaced hard edge does not
+// tear. Every vertex of every level is a source vertex (simplification only removes vertices), so every level finds its
+// positions here.
+std::vector<uint32_t> displacement_normals(const BuiltMesh& mesh) { return normals_by_position(mesh, number_positions(mesh)); }
+
+// The UV seams of a mesh drawn displaced, appended to `words` in the layout of shaders/shared.h (TS_SEAM_COUNT_SHIFT):
+// per vertex, the texture coordinates the source has at its position when there are several; per triangle with a seam
+// edge, the other side's coordinates along each edge (found among the triangles of every level, keyed by the edge's two
+// positions: every level's vertices are source vertices). Returns {first vertex word, first triangle word}, or
+// {TS_NO_STREAM, TS_NO_STREAM} for a mesh without seams (no UVs, or one UV per position).
+std::array<uint32_t, 2> append_uv_seams(const BuiltMesh& mesh, std::vector<uint32_t>& words) {
+    return append_seams_by_position(mesh, number_positions(mesh), words);
+}
 
 std::vector<ClusterUvBoxes> cluster_uv_boxes(const BuiltMesh& mesh, const std::vector<uint32_t>& seamWords, std::array<uint32_t, 2> seams) {
     constexpr std::array<float, 4> empty{INFINITY, INFINITY, -INFINITY, -INFINITY};
@@ -188,6 +246,32 @@ std::vector<ClusterUvBoxes> cluster_uv_boxes(const BuiltMesh& mesh, const std::v
         }
     }
     return out;
+}
+
+DisplacementData displacement_data(const BuiltMesh& mesh) {
+    DisplacementData data;
+    data.normals = displacement_normals(mesh);
+    data.seams = append_uv_seams(mesh, data.seamWords);
+    data.triangles = uint32_t(mesh.triangles.size());
+    data.uvBoxes = cluster_uv_boxes(mesh, data.seamWords, data.seams);
+    return data;
+}
+
+std::array<uint32_t, 2> append_seam_words(const DisplacementData& data, std::vector<uint32_t>& words) {
+    if (data.seams[0] == TS_NO_STREAM) return data.seams;
+    constexpr uint32_t kIndex = (1u << TS_SEAM_COUNT_SHIFT) - 1u;
+    const size_t base = words.size();
+    if (base + data.seamWords.size() > kIndex)
+        throw std::runtime_error("the UV seams of the meshes drawn displaced exceed 2^" + std::to_string(TS_SEAM_COUNT_SHIFT) + " words");
+    words.insert(words.end(), data.seamWords.begin(), data.seamWords.end());
+    // The vertex words hold a list's word number (below the count), the triangle words a record's.
+    uint32_t* vertexWords = &words[base + data.seams[0]];
+    for (size_t v = 0; v < data.normals.size(); ++v)
+        if (vertexWords[v] != TS_NO_STREAM) vertexWords[v] = ((vertexWords[v] & kIndex) + uint32_t(base)) | (vertexWords[v] & ~kIndex);
+    uint32_t* triangleWords = &words[base + data.seams[1]];
+    for (uint32_t t = 0; t < data.triangles; ++t)
+        if (triangleWords[t] != TS_NO_STREAM) triangleWords[t] += uint32_t(base);
+    return {data.seams[0] + uint32_t(base), data.seams[1] + uint32_t(base)};
 }
 
 float displacement_bound(const MaterialDesc& material, float low, float high) {

@@ -7,6 +7,8 @@
 #include "tessera/renderer.h"
 #include "tessera/textures.h"
 
+#include "shared.h"
+
 #include <array>
 #include <cstdint>
 #include <map>
@@ -31,6 +33,22 @@ struct ClusterUvBoxes {
 };
 // `seamWords` and `seams` as append_uv_seams left and returned them.
 std::vector<ClusterUvBoxes> cluster_uv_boxes(const BuiltMesh& mesh, const std::vector<uint32_t>& seamWords, std::array<uint32_t, 2> seams);
+
+// What a mesh drawn displaced carries beside its streams, made once per mesh (hash tables over every vertex and edge of
+// every level: a 1 M-triangle mesh takes about a second) and kept by the renderer while the mesh is drawn displaced, so
+// that an edit elsewhere in the scene does not make it again.
+struct DisplacementData {
+    std::vector<uint32_t> normals;    // displacement_normals()
+    std::vector<uint32_t> seamWords;  // append_uv_seams() into an empty list (word numbers from 0: see append_seam_words)
+    std::array<uint32_t, 2> seams{TS_NO_STREAM, TS_NO_STREAM};
+    uint32_t triangles = 0;           // the triangle words' count (the mesh's triangles)
+    std::vector<ClusterUvBoxes> uvBoxes;
+};
+DisplacementData displacement_data(const BuiltMesh& mesh);
+// Appends `data`'s seam words to `words`, the word numbers they hold moved to where they land; returns its seams
+// {first vertex word, first triangle word} there, or {TS_NO_STREAM, TS_NO_STREAM} for a mesh without seams. Throws
+// std::runtime_error where the words would outgrow the numbers a vertex word holds (2^TS_SEAM_COUNT_SHIFT).
+std::array<uint32_t, 2> append_seam_words(const DisplacementData& data, std::vector<uint32_t>& words);
 
 // The largest offset (mesh units, any sign) a material moves a surface by, for displacement values in [low, high].
 float displacement_bound(const MaterialDesc& material, float low, float high);

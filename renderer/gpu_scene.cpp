@@ -1,11 +1,17 @@
 #include "tessera/renderer.h"
 
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
 #include <string>
 
 namespace tessera {
+
+uint64_t GpuScene::next_serial() {
+    static std::atomic<uint64_t> next{1};
+    return next.fetch_add(1, std::memory_order_relaxed);
+}
 
 Matrix4d identity_matrix() { return {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1}; }
 
@@ -105,7 +111,7 @@ uint32_t GpuScene::add_mesh(std::shared_ptr<const BuiltMesh> mesh, MeshReload re
     meshes_[handle] = std::move(mesh);
     reloads_[handle] = std::move(reload);
     released_[handle] = 0;
-    serials_[handle] = nextSerial_++;
+    serials_[handle] = next_serial();
     return handle;
 }
 

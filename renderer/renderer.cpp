@@ -326,15 +326,12 @@ void barrier(VkCommandBuffer cmd, VkPipelineStageFlags2 srcStage, VkAccessFlags2
     vkCmdPipelineBarrier2(cmd, &dependency);
 }
 
-// Fills `buffer` (made again where smaller than `bytes`) through `write(destination)` (Device::upload).
-void upload_written(Device& device, Buffer& buffer, size_t bytes, const std::function<void(void*)>& write) {
-    if (buffer.size < bytes || !buffer.handle) buffer = device.create_buffer(bytes, MemoryUse::Device);
-    device.upload(buffer, bytes, write);
-}
-
+// Copies `data` into `buffer` (made again where smaller) through the frame's upload batch.
 template <typename T>
-void upload_vector(Device& device, Buffer& buffer, const std::vector<T>& data) {
-    upload_written(device, buffer, data.size() * sizeof(T), [&](void* to) { std::memcpy(to, data.data(), data.size() * sizeof(T)); });
+void upload_vector(Device& device, UploadBatch& uploads, Buffer& buffer, const std::vector<T>& data) {
+    const size_t bytes = data.size() * sizeof(T);
+    if (buffer.size < bytes || !buffer.handle) buffer = device.create_buffer(bytes, MemoryUse::Device);
+    if (bytes > 0) std::memcpy(uploads.write(buffer, 0, bytes), data.data(), bytes);
 }
 
 }  // namespace
@@ -394,7 +391,7 @@ struct Renderer::Impl {
     Buffer instanceBatches, batches;
     uint32_t instanceCount = 0;
     uint64_t clusterCount = 0, sourceTriangles = 0;
-    const GpuScene* uploadedScene = nullptr;
+    uint64_t uploadedScene = 0;  // the id of the scene last uploaded (GpuScene::id_; 0: none)
     // Instance batches: their GPU records and world origins in double, re-expressed relative to the camera when it
     // moves. Per-instance data is written straight into the GPU buffers and kept nowhere else.
     std::vector<gpu::GpuInstanceBatch> gpuBatches;
@@ -721,6 +718,7 @@ struct Renderer::Impl {
     };
     std::vector<ResidentMesh> resident;  // by scene mesh handle
     uint64_t geometryUploadBytes = 0;    // the mesh streams the last geometry upload wrote
+    uint32_t displacedMeshesPrepared = 0;  // the meshes whose displacement data it made
     std::vector<std::string> uploadErrors;  // the meshes it could not draw, for this frame's stats
 
     std::array<StreamArena*, kStreams> mesh_streams() { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
@@ -733,7 +731,7 @@ struct Renderer::Impl {
     }
 
     // `sameScene`: the scene these streams were uploaded for (else every range is let go first).
-    void upload_geometry(GpuScene& scene, bool sameScene) {
+    void upload_geometry(GpuScene& scene, bool sameScene, UploadBatch& uploads) {
         if (!sameScene) {
             for (StreamArena* arena : mesh_streams()) arena->clear();
             resident.clear();
@@ -821,7 +819,7 @@ struct Renderer::Impl {
             }
             r.serial = scene.serials_[m];
         }
-        for (StreamArena* arena : mesh_streams()) arena->fit(device);
+        for (StreamArena* arena : mesh_streams()) arena->fit(device, uploads);
 
         // The fresh meshes' streams, written into their ranges (their scene offsets added to the records).
         geometryUploadBytes = 0;
@@ -829,7 +827,7 @@ struct Renderer::Impl {
         auto write_stream = [&](Stream stream, auto write) {
             std::vector<StreamArena::Range> ranges;
             for (size_t m : fresh) ranges.push_back(resident[m].ranges[stream]);
-            geometryUploadBytes += arenas[stream]->write(device, ranges, [&](size_t range, size_t first, size_t end, void* to) {
+            geometryUploadBytes += arenas[stream]->write(uploads, ranges, [&](size_t range, size_t first, size_t end, void* to) {
                 const size_t m = fresh[range];
                 write(to, m, *full[m], records_of(m), resident[m], first, end);  // full[m]: loaded above, on this thread
             });
@@ -874,10 +872,26 @@ struct Renderer::Impl {
         write_words(kColors, &BuiltMesh::colors);
         write_words(kUvs, &BuiltMesh::uvs);
 
-        // The mesh records (small: all of them again) and the displaced meshes' displacement normals and seams.
+        // The displaced meshes' displacement normals, seams and UV boxes: kept, or made now (the new ones on every core).
+        decltype(displacementData) keptData;
+        std::vector<size_t> make;  // handles
+        displacementOf.assign(scene.meshes_.size(), nullptr);
+        for (size_t m = 0; m < scene.meshes_.size(); ++m) {
+            if (!scene.meshes_[m] || !resident[m].serial || !(m < displacedMeshes.size() && displacedMeshes[m]) || !load(m)) continue;
+            const auto old = displacementData.find(scene.serials_[m]);
+            if (old != displacementData.end()) keptData.emplace(scene.serials_[m], old->second);
+            else if (keptData.emplace(scene.serials_[m], nullptr).second) make.push_back(m);
+        }
+        std::vector<std::shared_ptr<const DisplacementData>> made(make.size());
+        parallel_for_rethrowing(make.size(), [&](size_t i) { made[i] = std::make_shared<const DisplacementData>(displacement_data(*full[make[i]])); });
+        for (size_t i = 0; i < make.size(); ++i) keptData[scene.serials_[make[i]]] = std::move(made[i]);
+        displacedMeshesPrepared = uint32_t(make.size());
+        displacementData = std::move(keptData);
+
+        // The mesh records (small: all of them again) and the displaced meshes' displacement normals and seams (all of
+        // them again: a few words a vertex, copied).
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
         std::vector<uint32_t> gpuDisplacementNormals, gpuSeams;
-        uvBoxes.assign(scene.meshes_.size(), {});
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
             const BuiltMesh* mesh = scene.meshes_[m].get();
             gpu::GpuMesh& g = gpuMeshes[m];
@@ -891,16 +905,14 @@ struct Renderer::Impl {
             g.vertexOffset = r.at(kVertices);
             if (m < displacedMeshes.size() && displacedMeshes[m]) {  // drawn displaced: it needs displacement normals
                 if (!load(m)) continue;  // kept by the scene while it is drawn displaced (below); lost: not drawn
-                const BuiltMesh& withStreams = full_of(m);
+                const auto& data = displacementOf[m] = displacementData.at(scene.serials_[m]);
                 g.displacementNormalOffset = uint32_t(gpuDisplacementNormals.size());
-                const auto normals = displacement_normals(withStreams);
-                gpuDisplacementNormals.insert(gpuDisplacementNormals.end(), normals.begin(), normals.end());
-                const auto seams = append_uv_seams(withStreams, gpuSeams);
+                gpuDisplacementNormals.insert(gpuDisplacementNormals.end(), data->normals.begin(), data->normals.end());
+                const auto seams = append_seam_words(*data, gpuSeams);
                 if (seams[0] != TS_NO_STREAM) {
                     g.seamVertexOffset = seams[0];
                     g.seamTriangleOffset = seams[1] - r.at(kTriangles);  // indexed by scene triangle: the base folded in (mod 2^32)
                 }
-                uvBoxes[m] = cluster_uv_boxes(withStreams, gpuSeams, seams);
             }
             // The counts come from the ranges: a released mesh's description has no streams.
             if (r.ranges[kColors].count > 0) g.colorOffset = r.at(kColors) / 2;
@@ -912,31 +924,33 @@ struct Renderer::Impl {
             g.levelCount = uint32_t(records.levels.size());
             g.lodRadius = records.lodRadius;
         }
-        upload_vector(device, meshes, gpuMeshes);
+        upload_vector(device, uploads, meshes, gpuMeshes);
         if (gpuDisplacementNormals.empty()) displacementNormals = Buffer{};
-        else upload_vector(device, displacementNormals, gpuDisplacementNormals);
+        else upload_vector(device, uploads, displacementNormals, gpuDisplacementNormals);
         if (gpuSeams.empty()) seams = Buffer{};
-        else upload_vector(device, seams, gpuSeams);
+        else upload_vector(device, uploads, seams, gpuSeams);
         // The GPU holds the streams now: the scene lets them go where it can reload them (not a mesh drawn displaced,
         // whose streams the displacement bounds read at every instance upload).
         for (size_t m = 0; m < scene.meshes_.size(); ++m)
             if (scene.meshes_[m] && !(m < displacedMeshes.size() && displacedMeshes[m])) scene.release_streams(uint32_t(m));
     }
 
-    // Per mesh drawn displaced, the texture coordinates each cluster reads its displacement at (empty for the others).
-    std::vector<std::vector<ClusterUvBoxes>> uvBoxes;
+    // The displacement data of the meshes drawn displaced, by mesh serial (made once a mesh is drawn displaced, let go
+    // when it no longer is), and by scene mesh handle (null for the others): what each cluster reads its displacement at.
+    std::unordered_map<uint64_t, std::shared_ptr<const DisplacementData>> displacementData;
+    std::vector<std::shared_ptr<const DisplacementData>> displacementOf;
     // Per-cluster displacement bounds of the displaced batches (frame.clusterDisplacement), one run per mesh and
     // material (or table) that some batch draws, and what they are computed from.
     Buffer clusterDisplacement;
     ClusterDisplacementBounds displacementBounds;
 
     // The runs of frame.clusterDisplacement for the displaced batches, and each batch's first entry.
-    void upload_displacement_bounds(GpuScene& scene) {
+    void upload_displacement_bounds(GpuScene& scene, UploadBatch& uploads) {
         std::vector<float> bounds;
         std::map<std::pair<uint32_t, uint32_t>, uint32_t> runs;  // (mesh, material or table | 1 << 31) -> first entry
         for (gpu::GpuInstanceBatch& g : gpuBatches) {
             g.displacementBounds = TS_NO_STREAM;
-            if ((g.flags & TS_INSTANCE_DISPLACED) == 0 || g.meshIndex >= uvBoxes.size() || uvBoxes[g.meshIndex].empty()) continue;
+            if ((g.flags & TS_INSTANCE_DISPLACED) == 0 || g.meshIndex >= displacementOf.size() || !displacementOf[g.meshIndex]) continue;
             const bool table = (g.flags & TS_INSTANCE_MATERIAL_SLOTS) != 0;
             const auto [run, fresh] = runs.try_emplace({g.meshIndex, g.materialIndex | (table ? 1u << 31 : 0u)}, uint32_t(bounds.size()));
             g.displacementBounds = run->second;
@@ -949,11 +963,11 @@ struct Renderer::Impl {
             if (!table) materials.push_back(material(g.materialIndex));
             else
                 for (uint32_t k = 0; k < mesh.materialSlots; ++k) materials.push_back(material(scene.materialTables_[g.materialIndex + k]));
-            const std::vector<float> run_bounds = displacementBounds.compute(mesh, uvBoxes[g.meshIndex], materials);
+            const std::vector<float> run_bounds = displacementBounds.compute(mesh, displacementOf[g.meshIndex]->uvBoxes, materials);
             bounds.insert(bounds.end(), run_bounds.begin(), run_bounds.end());
         }
         if (bounds.empty()) clusterDisplacement = Buffer{};
-        else upload_vector(device, clusterDisplacement, bounds);
+        else upload_vector(device, uploads, clusterDisplacement, bounds);
     }
 
     bool material_displaced(uint32_t material) const { return material < displacedMaterials.size() && displacedMaterials[material]; }
@@ -980,7 +994,7 @@ struct Renderer::Impl {
     }
 
     // `moved`: the instances may have moved (else only their material flags changed, and the last frame's depths hold).
-    void upload_instances(GpuScene& scene, bool moved) {
+    void upload_instances(GpuScene& scene, bool moved, UploadBatch& uploads) {
         gpuBatches.clear();
         origins.clear();
         clusterCount = 0;
@@ -1031,11 +1045,11 @@ struct Renderer::Impl {
             sourceTriangles += uint64_t(mesh->sourceTriangles) * copies;
         }
         firstInstance.push_back(count);
-        upload_displacement_bounds(scene);
+        upload_displacement_bounds(scene, uploads);
         if (count > 0xffffffffull) throw std::runtime_error("more than 2^32 - 1 instances: " + std::to_string(count));
         if (gpuBatches.size() > TS_INSTANCE_BATCH_MASK) throw std::runtime_error("more than 2^30 instance batches");
         instanceCount = uint32_t(count);
-        write_instances(scene, drawn, firstInstance);
+        write_instances(scene, drawn, firstInstance, uploads);
         relativeTo = {NAN, NAN, NAN};
         if (moved) previousValid = false;  // last frame's depths say nothing about instances that moved
         // Every cluster of every instance is an upper bound on the visible ones: start there (8 bytes each, within
@@ -1048,17 +1062,17 @@ struct Renderer::Impl {
     }
 
     // Each instance's transform relative to its batch's origin, and its batch word, written straight into the GPU
-    // buffers (through a transient staging buffer where those are not host-visible), on every core.
-    void write_instances(const GpuScene& scene, const std::vector<const InstanceDesc*>& drawn, const std::vector<uint64_t>& firstInstance) {
+    // buffers (into the frame's upload batch where those are not host-visible), on every core.
+    void write_instances(const GpuScene& scene, const std::vector<const InstanceDesc*>& drawn, const std::vector<uint64_t>& firstInstance,
+                         UploadBatch& uploads) {
         const uint64_t count = std::max<uint64_t>(instanceCount, 1);
         if (instances.size < count * sizeof(gpu::GpuInstance) || !instances.handle)
             instances = device.create_buffer(count * sizeof(gpu::GpuInstance), MemoryUse::Device);
         if (instanceBatches.size < count * 4 || !instanceBatches.handle) instanceBatches = device.create_buffer(count * 4, MemoryUse::Device);
-        Buffer stagingInstances, stagingBatches;
-        auto* records = static_cast<gpu::GpuInstance*>(instances.mapped);
-        auto* words = static_cast<uint32_t*>(instanceBatches.mapped);
-        if (!records) records = static_cast<gpu::GpuInstance*>((stagingInstances = device.create_buffer(count * sizeof(gpu::GpuInstance), MemoryUse::Upload)).mapped);
-        if (!words) words = static_cast<uint32_t*>((stagingBatches = device.create_buffer(count * 4, MemoryUse::Upload)).mapped);
+        const UploadBatch::Piece pieces[2] = {{&instances, 0, uint64_t(instanceCount) * sizeof(gpu::GpuInstance)}, {&instanceBatches, 0, uint64_t(instanceCount) * 4}};
+        const std::vector<void*> places = uploads.write(pieces);
+        auto* records = static_cast<gpu::GpuInstance*>(places[0]);
+        auto* words = static_cast<uint32_t*>(places[1]);
 
         auto write_range = [&](uint64_t begin, uint64_t end) {
             size_t b = std::upper_bound(firstInstance.begin(), firstInstance.end(), begin) - firstInstance.begin() - 1;
@@ -1077,17 +1091,11 @@ struct Renderer::Impl {
             }
         };
         parallel_blocks(instanceCount, size_t(1) << 16, write_range);
-        if (stagingInstances.handle || stagingBatches.handle)
-            device.run([&](VkCommandBuffer cmd) {
-                const VkBufferCopy instanceRegion{0, 0, uint64_t(instanceCount) * sizeof(gpu::GpuInstance)}, wordRegion{0, 0, uint64_t(instanceCount) * 4};
-                if (instanceCount && stagingInstances.handle) vkCmdCopyBuffer(cmd, stagingInstances.handle, instances.handle, 1, &instanceRegion);
-                if (instanceCount && stagingBatches.handle) vkCmdCopyBuffer(cmd, stagingBatches.handle, instanceBatches.handle, 1, &wordRegion);
-            });
     }
 
     // Camera-relative rendering: batch origins minus the camera position, subtracted in double, so geometry far
     // from the origin renders like geometry at the origin. Re-uploaded only when the camera moves.
-    void upload_relative_translations(const std::array<double, 3>& camera) {
+    void upload_relative_translations(const std::array<double, 3>& camera, UploadBatch& uploads) {
         if (camera == relativeTo) return;
         for (size_t i = 0; i < gpuBatches.size(); ++i)
             for (int r = 0; r < 3; ++r) {
@@ -1096,7 +1104,7 @@ struct Renderer::Impl {
                 (&gpuBatches[i].originHigh.x)[r] = high;
                 (&gpuBatches[i].originLow.x)[r] = low;
             }
-        upload_vector(device, batches, gpuBatches);
+        upload_vector(device, uploads, batches, gpuBatches);
         relativeTo = camera;
     }
 
@@ -1187,7 +1195,7 @@ struct Renderer::Impl {
         return g;
     }
 
-    void upload_materials(GpuScene& scene) {
+    void upload_materials(GpuScene& scene, UploadBatch& uploads) {
         std::vector<gpu::GpuMaterial> gpuMaterials;
         std::vector<gpu::GpuTextureSlot> slots;
         std::vector<std::shared_ptr<const TextureImage>> images;
@@ -1216,7 +1224,7 @@ struct Renderer::Impl {
             fallback.vertexInputs = kDisplayColorInputs;
             gpuMaterials.push_back(fallback);
         }
-        upload_vector(device, materials, gpuMaterials);
+        upload_vector(device, uploads, materials, gpuMaterials);
         materialCount = uint32_t(gpuMaterials.size());
         materialRecords = gpuMaterials;
         // Tables: entries clamped to the materials there are; each header holds the table's largest displacement.
@@ -1231,19 +1239,19 @@ struct Renderer::Impl {
             std::memcpy(&tables[first - 1], &largest, 4);
             tableDisplacement[first] = largest;
         }
-        upload_vector(device, materialTables, tables);
+        upload_vector(device, uploads, materialTables, tables);
         // Room for every kind of bin (TS_BIN_*), a few bytes a material, whether or not displacement comes later.
         if (shadingBins.size < uint64_t(materialCount) * TS_BIN_KINDS * sizeof(gpu::GpuBin))
             shadingBins = device.create_buffer(uint64_t(materialCount) * TS_BIN_KINDS * sizeof(gpu::GpuBin), MemoryUse::Device,
                                                VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         // No textures, no texture memory.
         if (slots.empty()) textureSlots = Buffer{};
-        else upload_vector(device, textureSlots, slots);
+        else upload_vector(device, uploads, textureSlots, slots);
         materialImages = std::move(images);  // the pool follows at the next frame, with the dome lights' images
     }
 
     // The texture pool: a GpuTexture record per image, then every image's words. Rebuilt when the set of images changes.
-    void upload_texture_pool(std::vector<std::shared_ptr<const TextureImage>> images) {
+    void upload_texture_pool(std::vector<std::shared_ptr<const TextureImage>> images, UploadBatch& uploads) {
         poolImages = std::move(images);
         texturePool = Buffer{};
         if (poolImages.empty()) return;
@@ -1258,7 +1266,7 @@ struct Renderer::Impl {
             offset += uint32_t(image->words.size());
         }
         for (const auto& image : poolImages) pool.insert(pool.end(), image->words.begin(), image->words.end());
-        upload_vector(device, texturePool, pool);
+        upload_vector(device, uploads, texturePool, pool);
     }
 
     // `aovsImported`: this frame's AOVs go straight into their images' memory (Renderer::render), the readback buffer
@@ -1368,7 +1376,8 @@ void visit_frame_costs(FrameStats& a, const FrameStats& b, Visit visit) {
     visit(a.tessellationMs, b.tessellationMs), visit(a.hzbMs, b.hzbMs), visit(a.classifyMs, b.classifyMs);
     visit(a.resolveMs, b.resolveMs), visit(a.readbackMs, b.readbackMs), visit(a.uploadMs, b.uploadMs);
     visit(a.cpuRecordMs, b.cpuRecordMs), visit(a.cpuWaitMs, b.cpuWaitMs), visit(a.cpuFrameMs, b.cpuFrameMs);
-    visit(a.overflowRedraws, b.overflowRedraws), visit(a.aovImportsMade, b.aovImportsMade), visit(a.geometryUploadBytes, b.geometryUploadBytes);
+    visit(a.overflowRedraws, b.overflowRedraws), visit(a.aovImportsMade, b.aovImportsMade), visit(a.geometryUploadBytes, b.geometryUploadBytes),
+        visit(a.uploadSubmissions, b.uploadSubmissions), visit(a.displacedMeshesPrepared, b.displacedMeshesPrepared);
 }
 
 // The Gaussian pixel filter along one axis: sigma 0.4 px, less its value at 1 px so that it falls to 0 there, over
@@ -1488,21 +1497,24 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     if (settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384)
         throw std::invalid_argument("resolution must be between 1x1 and 16384x16384");
     const auto uploadStarted = std::chrono::steady_clock::now();
-    bool instancesMoved = s.uploadedScene != &scene || s.instancesVersion != scene.instancesVersion_, materialsChanged = false;
-    if (s.uploadedScene != &scene || s.materialsVersion != scene.materialsVersion_) {
-        s.upload_materials(scene);
+    UploadBatch uploads(s.device);  // everything this frame changes, sent in one submission (submitted below)
+    bool instancesMoved = s.uploadedScene != scene.id_ || s.instancesVersion != scene.instancesVersion_, materialsChanged = false;
+    if (s.uploadedScene != scene.id_ || s.materialsVersion != scene.materialsVersion_) {
+        s.upload_materials(scene, uploads);
         materialsChanged = true;  // instance flags say which materials mask pixels, displace and have slots
     }
     // Meshes drawn displaced carry displacement normals: which they are follows the instances and their materials.
     const bool displacedMeshesChanged = (instancesMoved || materialsChanged) && s.update_displaced_meshes(scene);
     uint64_t geometryUploadBytes = 0;
-    if (s.uploadedScene != &scene || s.geometryVersion != scene.geometryVersion_ || displacedMeshesChanged) {
-        s.upload_geometry(scene, s.uploadedScene == &scene);
+    uint32_t displacedMeshesPrepared = 0;
+    if (s.uploadedScene != scene.id_ || s.geometryVersion != scene.geometryVersion_ || displacedMeshesChanged) {
+        s.upload_geometry(scene, s.uploadedScene == scene.id_, uploads);
         geometryUploadBytes = s.geometryUploadBytes;
+        displacedMeshesPrepared = s.displacedMeshesPrepared;
         instancesMoved = true;  // instance counts depend on the meshes
     }
-    if (instancesMoved || materialsChanged) s.upload_instances(scene, instancesMoved);
-    s.uploadedScene = &scene;
+    if (instancesMoved || materialsChanged) s.upload_instances(scene, instancesMoved, uploads);
+    s.uploadedScene = scene.id_;
     s.geometryVersion = scene.geometryVersion_;
     s.instancesVersion = scene.instancesVersion_;
     s.materialsVersion = scene.materialsVersion_;
@@ -1518,7 +1530,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         }
     }
     areaLights = areaLights || texturedDome;
-    if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages));
+    if (poolImages != s.poolImages) s.upload_texture_pool(std::move(poolImages), uploads);
     // Every pass reads the streams through texel views where they fit, and stores the AOVs through the output's binding
     // where it fits, in the set that does both (whose lock is held); otherwise in the set for what does not fit (its lock
     // too).
@@ -1532,7 +1544,8 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                                                                               : settings.rasterVertices == RasterVertices::PerTriangle;
     const bool countFragments = settings.visualize == Visualize::Overdraw;  // the rasterizers' variants that count
     const CameraMatrices cam = camera_matrices(camera, settings.width, settings.height, settings.pixelOffset);
-    s.upload_relative_translations(cam.position);
+    s.upload_relative_translations(cam.position, uploads);
+    uploads.submit();
     FrameStats frameStats;
     frameStats.swSharedVertices = !ownCorners;
     frameStats.cullGroupSize = pipelines.cullGroupSize;
@@ -1548,6 +1561,8 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     frameStats.textures = uint32_t(s.poolImages.size());
     frameStats.textureBytes = s.texturePool.size + s.textureSlots.size;
     frameStats.geometryUploadBytes = geometryUploadBytes;
+    frameStats.uploadSubmissions = uploads.submissions();
+    frameStats.displacedMeshesPrepared = displacedMeshesPrepared;
     frameStats.hostMeshBytes = scene.held_stream_bytes();
     frameStats.errors = std::move(s.uploadErrors);
     s.uploadErrors.clear();

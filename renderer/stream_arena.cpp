@@ -61,28 +61,19 @@ size_t StreamArena::free_elements() const {
     return total;
 }
 
-void StreamArena::fit(Device& device) {
+void StreamArena::fit(Device& device, UploadBatch& batch) {
     const size_t capacity = buffer_.handle ? buffer_.size / elementBytes_ : 0;
     if (buffer_.handle && end_ <= capacity) return;
     const size_t elements = capacity == 0 ? std::max<size_t>(end_, 1) : std::max(end_, capacity + capacity / 4);
     Buffer grown = device.create_buffer(elements * elementBytes_, MemoryUse::Device);
     const size_t kept = std::min(end_, capacity) * elementBytes_;  // the ranges in use before this allocation
-    if (kept > 0 && buffer_.mapped && grown.mapped) {
-        std::memcpy(grown.mapped, buffer_.mapped, kept);
-    } else if (kept > 0 || end_ == 0) {
-        device.run([&](VkCommandBuffer cmd) {
-            if (kept > 0) {
-                const VkBufferCopy region{0, 0, kept};
-                vkCmdCopyBuffer(cmd, buffer_.handle, grown.handle, 1, &region);
-            } else {
-                vkCmdFillBuffer(cmd, grown.handle, 0, VK_WHOLE_SIZE, 0);  // the empty stream's zeroed element
-            }
-        });
-    }
+    if (kept > 0 && buffer_.mapped && grown.mapped) std::memcpy(grown.mapped, buffer_.mapped, kept);
+    else if (kept > 0) batch.copy(std::move(buffer_), grown, kept);
+    else if (end_ == 0) std::memset(batch.write(grown, 0, grown.size), 0, grown.size);  // the empty stream's zeroed element
     buffer_ = std::move(grown);
 }
 
-uint64_t StreamArena::write(Device& device, std::span<const Range> ranges,
+uint64_t StreamArena::write(UploadBatch& batch, std::span<const Range> ranges,
                             const std::function<void(size_t range, size_t first, size_t end, void* to)>& write) {
     constexpr size_t kRun = 65536;  // elements a core writes at a time
     struct Run {
@@ -94,33 +85,22 @@ uint64_t StreamArena::write(Device& device, std::span<const Range> ranges,
         total += uint64_t(ranges[r].count) * elementBytes_;
         for (size_t first = 0; first < ranges[r].count; first += kRun) runs.push_back({r, first, std::min(ranges[r].count, first + kRun)});
     }
-    if (buffer_.mapped) {
-        parallel_for(runs.size(), [&](size_t k) {
-            const Run& run = runs[k];
-            write(run.range, run.first, run.end, static_cast<char*>(buffer_.mapped) + (ranges[run.range].offset + run.first) * elementBytes_);
-        });
-        return total;
-    }
-    // Not host-visible: through staging buffers of at most stagingBytes_ (a 10 M-triangle mesh's vertices are 100 MB),
-    // each written on every core, then copied run by run.
+    // In parts of at most the batch's staging bound (one run at least), each written on every core.
     for (size_t begin = 0; begin < runs.size();) {
-        size_t end = begin, bytes = 0;
-        std::vector<size_t> at;  // each run's place in the staging buffer
-        while (end < runs.size() && (end == begin || bytes + (runs[end].end - runs[end].first) * elementBytes_ <= stagingBytes_)) {
-            at.push_back(bytes);
-            bytes += (runs[end].end - runs[end].first) * elementBytes_;
-            ++end;
+        std::vector<UploadBatch::Piece> pieces;
+        size_t bytes = 0;
+        for (size_t end = begin; end < runs.size(); ++end) {
+            const size_t runBytes = (runs[end].end - runs[end].first) * elementBytes_;
+            if (!buffer_.mapped && !pieces.empty() && bytes + runBytes + 16 * (pieces.size() + 1) > batch.staging_bound()) break;
+            pieces.push_back({&buffer_, (ranges[runs[end].range].offset + runs[end].first) * elementBytes_, runBytes});
+            bytes += runBytes;
         }
-        Buffer staging = device.create_buffer(bytes, MemoryUse::Upload);
-        parallel_for(end - begin, [&](size_t k) {
+        const std::vector<void*> places = batch.write(pieces);
+        parallel_for(pieces.size(), [&](size_t k) {
             const Run& run = runs[begin + k];
-            write(run.range, run.first, run.end, static_cast<char*>(staging.mapped) + at[k]);
+            write(run.range, run.first, run.end, places[k]);
         });
-        std::vector<VkBufferCopy> regions;
-        for (size_t k = begin; k < end; ++k)
-            regions.push_back({at[k - begin], (ranges[runs[k].range].offset + runs[k].first) * elementBytes_, (runs[k].end - runs[k].first) * elementBytes_});
-        device.run([&](VkCommandBuffer cmd) { vkCmdCopyBuffer(cmd, staging.handle, buffer_.handle, uint32_t(regions.size()), regions.data()); });
-        begin = end;
+        begin += pieces.size();
     }
     return total;
 }

@@ -5,6 +5,7 @@
 #pragma once
 
 #include "tessera/device.h"
+#include "upload_batch.h"
 
 #include <cstddef>
 #include <cstdint>
@@ -20,8 +21,7 @@ public:
         size_t offset = 0, count = 0;  // in elements
     };
 
-    // `stagingBytes`: the most one staging buffer holds (write()).
-    explicit StreamArena(size_t elementBytes, size_t stagingBytes = size_t(64) << 20) : elementBytes_(elementBytes), stagingBytes_(stagingBytes) {}
+    explicit StreamArena(size_t elementBytes) : elementBytes_(elementBytes) {}
 
     // Takes `count` elements at an offset that is a multiple of `alignment` (a power of two): a free range where one
     // fits, else past the end. The buffer may be too small for it until fit().
@@ -31,14 +31,14 @@ public:
     // Every range given back, and the buffer too.
     void clear();
     // Makes the buffer hold every range allocated: exactly that where it was empty, else with a quarter to spare, so
-    // that a run of edits that add meshes copies it seldom; the ranges in use are copied on the device. An empty stream
-    // gets one zeroed element (a buffer to bind and address).
-    void fit(Device& device);
+    // that a run of edits that add meshes copies it seldom; the ranges in use are copied on the device (in the batch, ahead
+    // of its writes). An empty stream gets one zeroed element (a buffer to bind and address).
+    void fit(Device& device, UploadBatch& batch);
     // Writes ranges that fit() placed: `write(range, first, end, to)` fills elements [first, end) of ranges[range] at
     // `to`. On every core, in runs of at most 64 k elements; straight into the buffer where it is host-visible, else
-    // through staging buffers of at most `stagingBytes` (one at a time: a large mesh's upload does not double its memory
-    // on the host). Returns the bytes written.
-    uint64_t write(Device& device, std::span<const Range> ranges, const std::function<void(size_t range, size_t first, size_t end, void* to)>& write);
+    // into the batch's staging, a bounded part at a time (a large mesh's upload does not double its memory on the host).
+    // Returns the bytes written.
+    uint64_t write(UploadBatch& batch, std::span<const Range> ranges, const std::function<void(size_t range, size_t first, size_t end, void* to)>& write);
 
     const Buffer& buffer() const { return buffer_; }
     size_t element_bytes() const { return elementBytes_; }
@@ -46,7 +46,7 @@ public:
     size_t free_elements() const;        // in released ranges below the end
 
 private:
-    size_t elementBytes_, stagingBytes_;
+    size_t elementBytes_;
     Buffer buffer_;
     size_t end_ = 0;
     std::map<size_t, size_t> free_;  // offset -> count of the released ranges below the end, none adjacent

@@ -223,14 +223,19 @@ def test_bench_render_edit_uploads_the_edited_quad_alone_and_the_host_keeps_no_m
     done = run("bench", "render", "--cases", "edit", "--max-density", "1", "--resolution", "96x54", "--frames", "2",
                "--stages-dir", tmp_path, "--json", rows_file)
     assert done.returncode == 0, done.stderr + done.stdout
-    [row] = json.loads(rows_file.read_text())
+    [row, displaced] = json.loads(rows_file.read_text())
     assert (row["table"], row["case"]) == ("live edit", "a quad's points beside the mesh")
+    assert (displaced["table"], displaced["case"]) == ("live edit", "a quad's points beside a displaced sphere")
+    # Beside a sphere drawn displaced, an edit writes the quad's streams alone too, and makes none of the sphere's
+    # displacement data again (made at its first frame, kept).
+    assert displaced["micro_triangles"] > 0 and displaced["displaced_meshes_prepared"] == 0, displaced
+    assert 0 < displaced["geometry_upload_bytes"] < 1000, displaced
     # Each frame writes the quad's streams alone (a cluster, four vertices, two triangles), not the sphere's; the sphere,
     # held by the mesh cache, left the host once on the GPU (the quad is too small to be cached: its few bytes stay).
     assert 0 < row["geometry_upload_bytes"] < 1000, row
     assert row["source_triangles"] > 1000, "the sphere's 1024 and the quad's 2"
     assert 0 < row["host_mesh_bytes"] < 1000 and row["host_mesh_mib"] == 0.0, row
-    assert "upload bytes" in done.stdout and "host mesh MiB" in done.stdout
+    assert "upload bytes" in done.stdout and "host mesh MiB" in done.stdout and "displaced prepared" in done.stdout
 
 
 def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):

@@ -502,3 +502,55 @@ def test_static_displacement_does_not_tear_at_hard_edges_or_uv_seams(tmp_path):
     result = session_render(path)
     assert result.stats["source_triangles"] > 12 * 16 and result.stats["micro_triangles"] == 0
     assert enclosed_background(covered(result)) == 0, "no background shows through the baked cube's edges"
+
+
+def test_edits_beside_displaced_meshes_keep_their_displacement_data_and_draw_what_a_fresh_session_draws(tmp_path):
+    """A mesh drawn displaced gets its displacement normals, UV seams and UV boxes once (`displaced_meshes_prepared`);
+    a second displaced mesh, a quad edited beside them and a removal make none again, and each frame is the one a fresh
+    session draws of the stage as it then is (the second sphere's seam words placed after the first's)."""
+    runtime_stage, _ = write_stages(tmp_path, n=1)
+    stage = Usd.Stage.Open(str(runtime_stage))
+    stage.SetEditTarget(stage.GetSessionLayer())
+    live = tessera.Session(stage, validation=True)
+
+    def render(session):
+        result = session.render(camera="/Camera", resolution=(160, 160), aovs=("color", "primId"), dicing_rate=2.0)
+        assert not result.errors, "\n".join(result.errors)
+        return result
+
+    def expect_fresh(result, what):
+        assert np.array_equal(result["color"].pixels, render(tessera.Session(stage, validation=True))["color"].pixels), what
+
+    first = render(live)
+    assert first.stats["displaced_meshes_prepared"] == 1 and first.stats["micro_triangles"] > 0
+    assert render(live).stats["displaced_meshes_prepared"] == 0, "nothing changed"
+
+    sphere = UsdGeom.Mesh(stage.GetPrimAtPath("/Sphere"))
+    second = UsdGeom.Mesh.Define(stage, "/Small")
+    second.GetPointsAttr().Set([Gf.Vec3f(0.4 * p[0] + 0.9, 0.4 * p[1] + 0.6, 0.4 * p[2] + 0.5) for p in sphere.GetPointsAttr().Get()])
+    for name in ("faceVertexCounts", "faceVertexIndices", "normals", "subdivisionScheme", "primvars:st"):
+        source = sphere.GetPrim().GetAttribute(name)
+        target = second.GetPrim().CreateAttribute(name, source.GetTypeName())
+        target.Set(source.Get())
+        for key in ("interpolation",):
+            if source.HasMetadata(key):
+                target.SetMetadata(key, source.GetMetadata(key))
+    bind(second, UsdShade.MaterialBindingAPI(sphere.GetPrim()).GetDirectBinding().GetMaterial())
+    added = render(live)
+    assert added.stats["displaced_meshes_prepared"] == 1, "the small sphere's alone"
+    assert len(set(added["primId"].ids().ravel()) - {NO_HIT}) == 2
+    expect_fresh(added, "a second displaced mesh")
+
+    quad = UsdGeom.Mesh.Define(stage, "/Quad")
+    quad.GetFaceVertexCountsAttr().Set([4])
+    quad.GetFaceVertexIndicesAttr().Set([0, 1, 2, 3])
+    for step in range(2):
+        x = -1.2 + 0.1 * step
+        quad.GetPointsAttr().Set([(x, -1.0, 0.8), (x + 0.5, -1.0, 0.8), (x + 0.5, -0.5, 0.8), (x, -0.5, 0.8)])
+        edited = render(live)
+        assert edited.stats["displaced_meshes_prepared"] == 0 and edited.stats["geometry_upload_bytes"] > 0
+        expect_fresh(edited, f"a quad edited beside them ({step})")
+    stage.RemovePrim("/Small")
+    removed = render(live)
+    assert removed.stats["displaced_meshes_prepared"] == 0
+    expect_fresh(removed, "the small sphere removed")

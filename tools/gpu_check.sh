@@ -48,7 +48,7 @@ print({k: r.stats[k] for k in ('visible_clusters', 'sw_triangles', 'hw_triangles
 assert not r.errors" || exit 1 ;;
     cpp) TESSERA_VALIDATION=1 step cpp 120 "$B/gpu/tessera_cpp_tests" --gtest_brief=1 ;;
     bench) step bench 260 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
-               --cases density,brute,error,first-frame --frames 5 --json "$OUT/bench_render.json" ;;
+               --cases density,brute,error,first-frame,edit --frames 5 --json "$OUT/bench_render.json" ;;
     antialiasing) step antialiasing 150 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
                --cases antialiasing --frames 3 --json "$OUT/bench_antialiasing.json" ;;
     build) step build 150 taskset -c 0,1 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench build \

@@ -299,6 +299,52 @@ def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False):
     stage.GetRootLayer().Save()
 
 
+def _displaced_stage(directory, segments: int) -> str:
+    """A stage holding one UV sphere of about 2 segments^2 triangles (a wrap seam, texture coordinates) displaced at render
+    time by a height map, filling the frame as the single sphere of `_write_sphere_stage` does (its camera, its lights)."""
+    from pathlib import Path
+
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
+
+    from .bench_displacement import displaced_material, height_map, uv_sphere, write_height_png
+
+    path = Path(directory) / f"displaced_sphere_{segments}.usdc"
+    if path.exists():
+        return str(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    heights = path.with_name(f"displaced_sphere_{segments}_heights.png")
+    write_height_png(heights, height_map(512, 256, bumps=8))
+    temporary = path.with_suffix(".tmp.usdc")
+    stage = Usd.Stage.CreateNew(str(temporary))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    points, normals, uvs, triangles = uv_sphere(segments, segments // 2)
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Sphere")
+    mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)))
+    mesh.GetFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.full(len(triangles), 3, np.int32)))
+    mesh.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(triangles.astype(np.int32).reshape(-1)))
+    mesh.GetSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
+    mesh.GetNormalsAttr().Set(Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set(Vt.Vec2fArray.FromNumpy(uvs.astype(np.float32)))
+    material = displaced_material(stage, "/World/Looks/Bumps", texture=heights.name, magnitude=0.05, center=0.5)
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
+    camera.GetFocalLengthAttr().Set(35.0)
+    camera.GetHorizontalApertureAttr().Set(36.0)
+    camera.GetVerticalApertureAttr().Set(20.25)
+    camera.GetClippingRangeAttr().Set(Gf.Vec2f(0.01, 100.0))
+    camera.AddTransformOp().Set(Gf.Matrix4d().SetLookAt(Gf.Vec3d(0.0, 0.4, 2.3), Gf.Vec3d(0.0, 0.0, 0.0), Gf.Vec3d(0, 1, 0)).GetInverse())
+    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    sun.CreateIntensityAttr(3.0)
+    sun.CreateNormalizeAttr(True)
+    sun.AddRotateXYZOp().Set(Gf.Vec3f(-45.0, 30.0, 0.0))
+    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.3)
+    stage.GetRootLayer().Save()
+    temporary.rename(path)
+    return str(path)
+
+
 def _stage(directory, n: int, field: bool, face_colours: bool = False) -> str:
     from pathlib import Path
 
@@ -417,6 +463,7 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
         from tessera import Session
 
         started = time.perf_counter()
+        beside = "a displaced sphere" if "displaced_sphere" in str(stage) else "the mesh"  # what an edit case edits beside
         if case == "edit":  # the stage with a small quad added in its session layer, in front of the camera
             stage = _with_quad(stage)
         session = Session(stage[0] if case == "displacement" else stage, device=device)
@@ -455,7 +502,7 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
             _reference(session, settings)
             _reference(session, settings)
             points = stage.GetPrimAtPath("/World/EditedQuad").GetAttribute("points")
-            uploads, written, walls, cpus, passes = [], [], [], [], []
+            uploads, written, walls, cpus, passes, prepared, submissions = [], [], [], [], [], [], []
             for k in range(frames):
                 points.Set([(x + 0.001 * (k + 1), y, z) for x, y, z in points.Get()])
                 start, cpu = time.perf_counter(), _process_seconds()
@@ -465,12 +512,16 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
                 passes.append(edited.stats["gpu_ms"])
                 uploads.append(edited.stats["upload_ms"])
                 written.append(edited.stats["geometry_upload_bytes"])
+                prepared.append(edited.stats["displaced_meshes_prepared"])
+                submissions.append(edited.stats["upload_submissions"])
                 if edited.errors:
                     raise RuntimeError("; ".join(edited.errors))
             gpu = {name: float(np.median([p[name] for p in passes])) for name in passes[0]}
             gpu.update(total=float(np.median([sum(p.values()) for p in passes])), process_cpu=float(np.median(cpus)))
-            rows.append(_row("live edit", "a quad's points beside the mesh", edited, float(np.median(walls)), gpu,
+            rows.append(_row("live edit", f"a quad's points beside {beside}", edited, float(np.median(walls)), gpu,
                              upload_ms=round(float(np.median(uploads)), 2), geometry_upload_bytes=int(np.median(written)),
+                             displaced_meshes_prepared=max(prepared), upload_submissions=int(np.median(submissions)),
+                             micro_triangles=edited.stats["micro_triangles"],
                              host_mesh_mib=round(edited.stats["host_mesh_bytes"] / 2**20, 1), host_mesh_bytes=edited.stats["host_mesh_bytes"],
                              geometry_mib=round(edited.stats["geometry_bytes"] / 2**20, 1)))
         elif case == "first-frame":  # a batch render's first frame: its meshes from the mesh cache, uploaded, then drawn
@@ -577,7 +628,8 @@ RENDER_COLUMNS = [("table", "table"), ("case", "case"), ("source_triangles", "so
                   ("tessellation_ms", "tess ms"), ("surface_gpu_mib", "surface GPU MiB"), ("load_seconds", "load s"),
                   ("first_frame_ms", "first frame ms"), ("upload_ms", "upload ms"), ("meshes_cached", "meshes cached"),
                   ("resident_mib", "resident MiB"), ("geometry_upload_bytes", "upload bytes"), ("geometry_mib", "GPU geometry MiB"),
-                  ("host_mesh_mib", "host mesh MiB")]
+                  ("host_mesh_mib", "host mesh MiB"), ("displaced_meshes_prepared", "displaced prepared"),
+                  ("upload_submissions", "upload submits")]
 
 
 def _write_plot(rows, path):
@@ -618,8 +670,9 @@ def render(args) -> int:
     if "first-frame" in args.cases:  # each density field, then the densest prototype alone
         cases += [("first-frame", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
         cases.append(("first-frame", _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)))
-    if "edit" in args.cases:  # the densest prototype alone, and a quad edited beside it
+    if "edit" in args.cases:  # a quad edited beside the densest prototype alone, then beside a sphere drawn displaced
         cases.append(("edit", _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)))
+        cases.append(("edit", _displaced_stage(args.stages_dir, (32, 256, 1024)[min(args.max_density, 3) - 1])))
     if "antialiasing" in args.cases:  # the lightest density field: its --no-lod frames are cheap
         cases.append(("antialiasing", _stage(args.stages_dir, sides[0], True)))
     if "seams" in args.cases:  # the same field, with a colour per face and with one colour

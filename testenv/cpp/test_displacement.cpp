@@ -138,3 +138,28 @@ TEST(Displacement, ConstantAndBakedMaterialsBoundAlike) {
     MaterialDesc none;
     EXPECT_EQ(material_displacement_bound(none), 0.0f);
 }
+
+// A mesh's displacement data is made once and its seam words placed later, after other meshes' words: they must read
+// as the words made in place would (every list and record number moved by where they land).
+TEST(Displacement, SeamWordsPlacedAfterOthersMatchThoseMadeInPlace) {
+    std::vector<float> points, uvs;
+    std::vector<int32_t> counts, indices;
+    const BuiltMesh mesh = grid_with_seam(24, points, counts, indices, uvs);
+    const DisplacementData data = displacement_data(mesh);
+    ASSERT_NE(data.seams[0], TS_NO_STREAM) << "the grid has a UV seam";
+    EXPECT_EQ(data.normals, displacement_normals(mesh));
+    std::vector<uint32_t> inPlace(777, 5u), placed(777, 5u);  // another mesh's words before
+    const auto madeInPlace = append_uv_seams(mesh, inPlace);
+    const auto moved = append_seam_words(data, placed);
+    EXPECT_EQ(moved, madeInPlace);
+    EXPECT_EQ(placed, inPlace);
+    std::vector<uint32_t> fromZero;
+    EXPECT_EQ(append_seam_words(data, fromZero), data.seams);
+    EXPECT_EQ(fromZero, data.seamWords);
+    // A mesh without texture coordinates has no seams, and appends nothing.
+    const BuiltMesh plain = build_mesh(prepare_mesh(polygon_view("/Plain", points, counts, indices)));
+    const DisplacementData none = displacement_data(plain);
+    std::vector<uint32_t> untouched(3, 1u);
+    EXPECT_EQ(append_seam_words(none, untouched)[0], TS_NO_STREAM);
+    EXPECT_EQ(untouched.size(), 3u);
+}

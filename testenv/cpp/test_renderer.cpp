@@ -7,6 +7,7 @@
 #include "test_meshes.h"
 #include "shared.h"
 #include "stream_arena.h"
+#include "upload_batch.h"
 
 #include <cmath>
 #include <cstdlib>
@@ -1068,10 +1069,14 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {  // and the AOV 
 
 // A stream's ranges: first fit among the freed ones (aligned as asked, the padding kept free), freed neighbours merged,
 // the end dropping back when the last range goes; fit() keeps the ranges in use, grows with room to spare, and gives
-// an empty stream one zeroed element; write() fills the ranges it is given and nothing else.
+// an empty stream one zeroed element; write() fills the ranges it is given and nothing else. Through staging (a
+// discrete GPU), the upload batch sends its writes in parts of at most its bound, and a grown stream's copy on the
+// device before the writes into it, in the same submission.
 TEST_F(RendererTest, StreamArenaReusesFreedRangesAndKeepsTheOnesInUse) {
+    UploadBatch uploads(*device);
     StreamArena arena(sizeof(uint32_t));
-    arena.fit(*device);
+    arena.fit(*device, uploads);
+    uploads.submit();
     ASSERT_NE(arena.buffer().handle, VK_NULL_HANDLE);
     EXPECT_EQ(arena.buffer().size, 16u) << "one zeroed element (the smallest buffer)";
     EXPECT_EQ(arena.allocate(10), 0u);
@@ -1093,16 +1098,19 @@ TEST_F(RendererTest, StreamArenaReusesFreedRangesAndKeepsTheOnesInUse) {
     // Written, grown (the ranges in use copied over), written again: each range holds what it was given.
     arena.clear();
     std::vector<StreamArena::Range> ranges = {{arena.allocate(3), 3}, {arena.allocate(70000), 70000}};
-    arena.fit(*device);
+    arena.fit(*device, uploads);
     auto fill = [](size_t range, size_t first, size_t end, void* to) {
         for (size_t i = first; i < end; ++i) static_cast<uint32_t*>(to)[i - first] = uint32_t(range * 1000000 + i);
     };
-    EXPECT_EQ(arena.write(*device, ranges, fill), 70003u * 4);
+    EXPECT_EQ(arena.write(uploads, ranges, fill), 70003u * 4);
+    uploads.submit();
     EXPECT_EQ(arena.buffer().size, 70003u * 4) << "an empty stream grows to exactly what it holds";
     ranges.push_back({arena.allocate(100), 100});
-    arena.fit(*device);
+    arena.fit(*device, uploads);
     EXPECT_EQ(arena.buffer().size, (70003u + 70003u / 4) * 4) << "with a quarter to spare once it holds meshes";
-    EXPECT_EQ(arena.write(*device, std::span(ranges).subspan(2), [&](size_t, size_t first, size_t end, void* to) { fill(2, first, end, to); }), 400u);
+    EXPECT_EQ(arena.write(uploads, std::span(ranges).subspan(2), [&](size_t, size_t first, size_t end, void* to) { fill(2, first, end, to); }), 400u);
+    uploads.submit();
+    if (arena.buffer().mapped) EXPECT_EQ(uploads.submissions(), 0u) << "the host wrote the device's memory itself";
     auto expect_written = [&](Device& on, const StreamArena& a, const char* what) {
         Buffer readback = on.create_buffer(a.buffer().size, MemoryUse::Readback);
         on.run([&](VkCommandBuffer cmd) {
@@ -1115,22 +1123,39 @@ TEST_F(RendererTest, StreamArenaReusesFreedRangesAndKeepsTheOnesInUse) {
     };
     expect_written(*device, arena, "mapped");
 
-    // The same through staging buffers of at most 100 KB (runs of 64 k words: one run a buffer), as to a discrete GPU.
+    // The same through staging of at most 100 KB, as to a discrete GPU. Runs of 64 k words (256 KB): the 3 words go in a
+    // part of their own, the first run in one of its size, the rest of the stream in a third part.
     DeviceOptions options = DeviceOptions::from_environment();
     options.stagedUploads = true;
     Device staged(options);
-    StreamArena throughStaging(sizeof(uint32_t), 100000);
-    for (const StreamArena::Range& range : ranges) EXPECT_EQ(throughStaging.allocate(range.count), range.offset);
-    throughStaging.fit(staged);
-    ASSERT_EQ(throughStaging.buffer().mapped, nullptr);
-    EXPECT_EQ(throughStaging.write(staged, ranges, fill), 70103u * 4);
-    expect_written(staged, throughStaging, "staged");
+    UploadBatch throughStaging(staged, 100000);
+    StreamArena stagedArena(sizeof(uint32_t));
+    for (const StreamArena::Range& range : ranges) EXPECT_EQ(stagedArena.allocate(range.count), range.offset);
+    stagedArena.fit(staged, throughStaging);
+    ASSERT_EQ(stagedArena.buffer().mapped, nullptr);
+    EXPECT_EQ(stagedArena.write(throughStaging, ranges, fill), 70103u * 4);
+    throughStaging.submit();
+    EXPECT_EQ(throughStaging.submissions(), 3u);
+    expect_written(staged, stagedArena, "staged");
+    // Grown in one submission: the ranges in use copied on the device, then a range written where a released one was
+    // (inside what the copy wrote: the copy must come first) and one past the old end.
+    stagedArena.release(ranges[0]);
+    ranges[0] = {stagedArena.allocate(3), 3};
+    ASSERT_EQ(ranges[0].offset, 0u) << "the released place";
+    ranges.push_back({stagedArena.allocate(20000), 20000});
+    stagedArena.fit(staged, throughStaging);
+    const std::array<StreamArena::Range, 2> written = {ranges[0], ranges[3]};
+    const size_t writtenIndex[2] = {0, 3};
+    stagedArena.write(throughStaging, written, [&](size_t range, size_t first, size_t end, void* to) { fill(writtenIndex[range], first, end, to); });
+    throughStaging.submit();
+    EXPECT_EQ(throughStaging.submissions(), 4u) << "the copy and the writes together";
+    expect_written(staged, stagedArena, "staged, grown");
     EXPECT_EQ(staged.validation_error_count(), 0u);
     for (auto& m : staged.take_validation_messages()) ADD_FAILURE() << m;
 }
 
 // Uploads through staging buffers (as into a discrete GPU's memory, which the host cannot map) draw what uploads written
-// straight into mapped memory draw. A scene that gains a mesh, and loses one, after its first frames draws what a fresh
+// straight into mapped memory draw, and a frame sends all of its uploads in one submission. A scene that gains a mesh, and loses one, after its first frames draws what a fresh
 // renderer draws: the meshes already up keep their places in the streams, so the geometry upload writes the added mesh
 // alone, a removal writes nothing, and a later mesh that fits takes the freed place. Cluster and triangle ids number the
 // streams, so a renderer that kept its meshes' places numbers them otherwise than a fresh one: the same pixels, one to one.
@@ -1179,6 +1204,7 @@ TEST_F(RendererTest, StagedUploadsAndKeptMeshPlacesDrawTheSameFrames) {
     EXPECT_GT(firstUpload, 0u);
     EXPECT_LE(firstUpload, firstBytes);
     EXPECT_EQ(stagedStats.geometryUploadBytes, firstUpload);
+    EXPECT_EQ(stagedStats.uploadSubmissions, 1u) << "the first frame's uploads, all of them in one submission";
     mapped.render(scene, camera, settings, aovs, &stats);
     EXPECT_EQ(stats.geometryUploadBytes, 0u) << "nothing changed, nothing written";
 
@@ -1208,12 +1234,15 @@ TEST_F(RendererTest, StagedUploadsAndKeptMeshPlacesDrawTheSameFrames) {
         expect_same(kept, Renderer(*device).render(scene, camera, settings, aovs), what, true);
         expect_same(throughStaging.render(scene, camera, settings, aovs, &stagedStats), kept, what, false);
         EXPECT_EQ(stagedStats.geometryUploadBytes, stats.geometryUploadBytes) << what;
+        EXPECT_EQ(stagedStats.uploadSubmissions, 1u) << what << ": streams grown on the device, written, instances: one submission";
         if (step == 0) EXPECT_GT(stats.geometryUploadBytes, 0u) << what;
         if (step == 0) EXPECT_LT(stats.geometryUploadBytes, firstUpload / 2) << what << ": the added sphere alone, not the 48-ring sphere too";
         if (step == 1) EXPECT_EQ(stats.geometryUploadBytes, 0u) << what;
         if (step == 2) EXPECT_GT(stats.geometryUploadBytes, 0u) << what;
         if (step == 2) EXPECT_EQ(stats.geometryBytes, bytesBefore) << what << ": it fits where the wall was";
     }
+    throughStaging.render(scene, camera, settings, aovs, &stagedStats);
+    EXPECT_EQ(stagedStats.uploadSubmissions, 0u) << "nothing changed, nothing sent";
     EXPECT_EQ(staged.validation_error_count(), 0u);
     for (auto& m : staged.take_validation_messages()) ADD_FAILURE() << m;
 }

@@ -314,6 +314,11 @@ struct FrameStats {
     uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, cut blocks, vertex streams, triangles
     uint64_t geometryUploadBytes = 0;   // of those, written by this frame's geometry upload: the meshes added since the last (0 without one)
     uint64_t hostMeshBytes = 0;         // the meshes' streams the host still holds (GpuScene::release_streams)
+    uint32_t displacedMeshesPrepared = 0;  // meshes this frame made displacement normals, UV seams and UV boxes for: once
+                                           // a mesh is drawn displaced, then kept (0 in a frame that uploads no geometry)
+    uint32_t uploadSubmissions = 0;     // submissions this frame's uploads took: 1 where anything went through staging (a
+                                        // discrete GPU), 0 where the host wrote the device's memory or nothing changed;
+                                        // more for a stream grown on the device or staging past its bound (64 MiB)
     std::vector<std::string> errors;    // meshes this frame could not draw, and why (streams that could not be reloaded)
     uint64_t textureBytes = 0;          // GPU memory of the texture pool and texture slots (0 without textures)
     // Runtime tessellation (0 without displaced materials): clusters and triangles diced, patches, micro-triangles,
@@ -377,8 +382,11 @@ private:
     std::vector<std::shared_ptr<const BuiltMesh>> meshes_;  // null where removed; the description alone where released
     std::vector<MeshReload> reloads_;
     std::vector<char> released_;
+    // Mesh serials and the scene's own number come from one count of the process: a renderer that drew another scene
+    // (even one since destroyed, whose memory this scene took over) tells this one and its meshes from those.
     std::vector<uint64_t> serials_;
-    uint64_t nextSerial_ = 1;
+    uint64_t id_ = next_serial();
+    static uint64_t next_serial();
     uint64_t heldBytes_ = 0;  // held_stream_bytes, kept as meshes come, go, are released and reloaded
     std::vector<uint32_t> freeMeshes_;
     std::vector<MaterialDesc> materials_;
