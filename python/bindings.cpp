@@ -41,6 +41,17 @@ std::shared_ptr<const void> keep_alive(nb::object object) {
     });
 }
 
+// Runs `call` in the delegate's turn (RenderDelegate::turn) with the GIL released. The scene delegate's calls take it
+// back themselves (nanobind's trampolines), as do the Python objects C++ lets go of (keep_alive). The GIL goes first, so
+// that a thread waiting for its turn never holds it while the thread in turn needs it. `call` returns C++ values: Python
+// objects are made once the GIL is back.
+template <class Call>
+auto in_turn(RenderDelegate& delegate, Call&& call) {
+    nb::gil_scoped_release release;
+    const std::lock_guard<std::mutex> turn(delegate.turn());
+    return call();
+}
+
 // The index's mesh of that id; a KeyError names an id it lacks.
 const Mesh& rprim_of(const RenderIndex& index, const PrimId& id) {
     const Mesh* mesh = index.rprim(id);
@@ -647,9 +658,9 @@ NB_MODULE(_tessera, m) {
         .def("take_validation_messages", [](RenderDelegate& d) { return d.device().take_validation_messages(); })
         .def_prop_ro("validation_error_count", [](RenderDelegate& d) { return d.device().validation_error_count(); })
         .def_prop_ro("cache_directory", [](RenderDelegate& d) { return d.cache().directory(); })
-        .def("set_visible_cluster_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_visible_cluster_capacity(c); })
-        .def("set_patch_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_patch_capacity(c); })
-        .def("set_point_capacity", [](RenderDelegate& d, uint32_t c) { d.renderer().set_point_capacity(c); })
+        .def("set_visible_cluster_capacity", [](RenderDelegate& d, uint32_t c) { in_turn(d, [&] { d.renderer().set_visible_cluster_capacity(c); }); })
+        .def("set_patch_capacity", [](RenderDelegate& d, uint32_t c) { in_turn(d, [&] { d.renderer().set_patch_capacity(c); }); })
+        .def("set_point_capacity", [](RenderDelegate& d, uint32_t c) { in_turn(d, [&] { d.renderer().set_point_capacity(c); }); })
         .def_static("supported_rprim_types", &RenderDelegate::supported_rprim_types)
         .def_static("supported_sprim_types", &RenderDelegate::supported_sprim_types)
         .def_static("supported_bprim_types", &RenderDelegate::supported_bprim_types);
@@ -657,7 +668,7 @@ NB_MODULE(_tessera, m) {
     nb::class_<RenderIndex>(m, "RenderIndex")
         .def(nb::init<RenderDelegate&>(), "delegate"_a, nb::keep_alive<1, 2>())
         .def("insert_rprim", [](RenderIndex& index, const std::string& type, const PrimId& id, const PrimId& instancerId, uint32_t defaults) {
-                 index.insert_rprim(type, id, instancerId, defaults);
+                 in_turn(index.delegate(), [&] { index.insert_rprim(type, id, instancerId, defaults); });
              }, "type"_a, "id"_a, "instancer_id"_a = "", "defaults"_a = 0,
              "defaults: dirty bits (VISIBILITY: visible, MATERIAL_ID: no material nor subset materials) the delegate knows "
              "to be in their default state, which the first sync then does not ask for")
@@ -669,24 +680,34 @@ NB_MODULE(_tessera, m) {
                     throw std::invalid_argument(std::to_string(defaults->size()) + " defaults for " + std::to_string(ids.size()) + " ids");
                 if (transforms && transforms->shape(0) != ids.size())
                     throw std::invalid_argument(std::to_string(transforms->shape(0)) + " transforms for " + std::to_string(ids.size()) + " ids");
-                for (size_t i = 0; i < ids.size(); ++i) {
-                    Matrix4d transform;
-                    if (transforms)  // Gf's layout (row vectors): transposed into the C++ convention
-                        for (size_t r = 0; r < 4; ++r)
-                            for (size_t c = 0; c < 4; ++c) transform[r * 4 + c] = transforms->data()[i * 16 + c * 4 + r];
-                    index.insert_rprim(type, ids[i], "", defaults ? (*defaults)[i] : 0u, transforms ? &transform : nullptr);
-                }
+                in_turn(index.delegate(), [&] {
+                    for (size_t i = 0; i < ids.size(); ++i) {
+                        Matrix4d transform;
+                        if (transforms)  // Gf's layout (row vectors): transposed into the C++ convention
+                            for (size_t r = 0; r < 4; ++r)
+                                for (size_t c = 0; c < 4; ++c) transform[r * 4 + c] = transforms->data()[i * 16 + c * 4 + r];
+                        index.insert_rprim(type, ids[i], "", defaults ? (*defaults)[i] : 0u, transforms ? &transform : nullptr);
+                    }
+                });
             },
             "type"_a, "ids"_a, "defaults"_a = nb::none(), "transforms"_a = nb::none(),
             "insert_rprim for each id in turn (no instancer), with its defaults if given: one call for a whole walk's finds. "
             "`transforms`: (N, 16) world transforms in Gf's layout (row vectors), used where `defaults` has dirty.TRANSFORM.")
-        .def("insert_sprim", &RenderIndex::insert_sprim, "type"_a, "id"_a)
-        .def("remove_prim", &RenderIndex::remove_prim, "id"_a)
-        .def("mark_dirty", &RenderIndex::mark_dirty, "id"_a, "bits"_a)
-        .def("mark_all_dirty", &RenderIndex::mark_all_dirty, "bits"_a)
-        .def("sync_all", &RenderIndex::sync_all, "scene_delegate"_a, "camera"_a = "", "width"_a = 0, "height"_a = 0,
-             "Syncs what is dirty; with a camera sprim and a resolution, meshes that view does not see wait to be built")
-        .def_prop_ro("meshes_out_of_view", &RenderIndex::meshes_out_of_view)
+        .def("insert_sprim", [](RenderIndex& index, const std::string& type, const PrimId& id) { in_turn(index.delegate(), [&] { index.insert_sprim(type, id); }); },
+             "type"_a, "id"_a)
+        .def("remove_prim", [](RenderIndex& index, const PrimId& id) { in_turn(index.delegate(), [&] { index.remove_prim(id); }); }, "id"_a)
+        .def("mark_dirty", [](RenderIndex& index, const PrimId& id, uint32_t bits) { in_turn(index.delegate(), [&] { index.mark_dirty(id, bits); }); },
+             "id"_a, "bits"_a)
+        .def("mark_all_dirty", [](RenderIndex& index, uint32_t bits) { in_turn(index.delegate(), [&] { index.mark_all_dirty(bits); }); }, "bits"_a)
+        .def(
+            "sync_all",
+            [](RenderIndex& index, SceneDelegate& scene, const PrimId& camera, uint32_t width, uint32_t height) {
+                in_turn(index.delegate(), [&] { index.sync_all(scene, camera, width, height); });
+            },
+            "scene_delegate"_a, "camera"_a = "", "width"_a = 0, "height"_a = 0,
+            "Syncs what is dirty; with a camera sprim and a resolution, meshes that view does not see wait to be built. Runs "
+            "without the GIL (the scene delegate's calls take it back), one thread at a time per delegate.")
+        .def_prop_ro("meshes_out_of_view", [](RenderIndex& index) { return in_turn(index.delegate(), [&] { return index.meshes_out_of_view(); }); })
         .def(
             "execute",
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
@@ -722,31 +743,35 @@ NB_MODULE(_tessera, m) {
                 settings.aovs.clear();
                 for (auto& a : aovs) settings.aovs.push_back(aov_from(a));
                 FrameStats stats;
-                std::vector<std::shared_ptr<const Image>> images = index.execute(settings, &stats);  // shared with the render buffers
+                std::vector<std::shared_ptr<const Image>> images =  // shared with the render buffers
+                    in_turn(index.delegate(), [&] { return index.execute(settings, &stats); });
                 return std::make_pair(std::move(images), stats_dict(stats));
             },
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
             "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f, "raster_vertices"_a = "auto",
             "software_raster_area"_a = RenderSettings{}.softwareRasterArea, "pixel_samples"_a = 1u, "pixel_filter"_a = "box",
             "occlusion_minimum_culled"_a = RenderSettings{}.occlusionMinimumCulled)
-        .def("prim_path", &RenderIndex::prim_path, "prim_id"_a)
-        .def_prop_ro("sync_counts", &RenderIndex::sync_counts)
+        .def("prim_path", [](RenderIndex& index, uint32_t primId) { return in_turn(index.delegate(), [&] { return index.prim_path(primId); }); }, "prim_id"_a)
+        .def_prop_ro("sync_counts", [](RenderIndex& index) { return in_turn(index.delegate(), [&] { return index.sync_counts(); }); })
         .def_prop_ro(
-            "last_synced", [](const RenderIndex& index) {
+            "last_synced", [](RenderIndex& index) {
+                const auto synced = in_turn(index.delegate(), [&] { return index.last_synced(); });
                 nb::dict d;  // prim id -> the dirty bits it was synced with
-                for (const auto& [id, bits] : index.last_synced()) d[nb::cast(id)] = bits;
+                for (const auto& [id, bits] : synced) d[nb::cast(id)] = bits;
                 return d;
             },
             "The prims the last sync synced: {id: dirty bits} (tessera._tessera.dirty names the bits).")
-        .def_prop_ro("rprim_count", &RenderIndex::rprim_count)
+        .def_prop_ro("rprim_count", [](RenderIndex& index) { return in_turn(index.delegate(), [&] { return index.rprim_count(); }); })
         .def(
-            "rprim_transform", [](const RenderIndex& index, const PrimId& id) { return rprim_of(index, id).transform(); }, "id"_a,
+            "rprim_transform", [](RenderIndex& index, const PrimId& id) { return in_turn(index.delegate(), [&] { return rprim_of(index, id).transform(); }); },
+            "id"_a,
             "The mesh's world transform (row-major, column vectors): as synced, or as given at insertion.")
         .def(
-            "rprim_defaults", [](const RenderIndex& index, const PrimId& id) { return rprim_of(index, id).defaults(); }, "id"_a,
+            "rprim_defaults", [](RenderIndex& index, const PrimId& id) { return in_turn(index.delegate(), [&] { return rprim_of(index, id).defaults(); }); },
+            "id"_a,
             "The dirty bits whose state the mesh was given at insertion and its next sync will not ask for.")
         .def("take_diagnostics", [](RenderIndex& index) {
-            RenderParam p = index.take_diagnostics();
+            RenderParam p = in_turn(index.delegate(), [&] { return index.take_diagnostics(); });
             nb::dict d;
             d["warnings"] = p.warnings;
             d["errors"] = p.errors;

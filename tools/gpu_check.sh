@@ -4,7 +4,9 @@
 # time-boxed and logs to $OUT/<step>.log; a failed smoke render stops the rest.
 #   OUT=/some/dir tools/gpu_check.sh [steps...]     steps: smoke cpp bench pytest (default: all, in that order), and
 #   antialiasing (bench render --cases antialiasing: what a pixel sample costs where the host adds each sample's colour),
-#   build (bench build on two of the machine's cores, the builder issue's setting: its generated meshes)
+#   build (bench build on two of the machine's cores, the builder issue's setting: its generated meshes),
+#   edit (bench render --cases edit alone: a live edit's upload), live (the live-edit and thread tests, which need no
+#   image files: a short look at the upload and threading paths)
 # NVIDIA's Vulkan driver (libGLX_nvidia.so.0) needs the GL dispatch libraries (libglvnd): on a machine without them,
 # vkCreateInstance finds no driver ("Could not get 'vkCreateInstance' via 'vk_icdGetInstanceProcAddr'"). Debian's
 # packages of them (.gpu/gl, from gpu_bundle.sh) are unpacked into / where libGLdispatch.so.0 is missing, which was
@@ -49,6 +51,10 @@ assert not r.errors" || exit 1 ;;
     cpp) TESSERA_VALIDATION=1 step cpp 120 "$B/gpu/tessera_cpp_tests" --gtest_brief=1 ;;
     bench) step bench 260 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
                --cases density,brute,error,first-frame,edit --frames 5 --json "$OUT/bench_render.json" ;;
+    edit) step edit 150 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
+               --cases edit --frames 5 --json "$OUT/bench_edit.json" ;;
+    live) TESSERA_VALIDATION=1 step live 120 "$TESSERA_PY" -m pytest -q -rf --tb=short -p no:cacheprovider testenv/test_live_edits.py \
+               testenv/test_displacement.py -k "thread or another_edits or edits_beside or an_edit_uploads" ;;
     antialiasing) step antialiasing 150 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
                --cases antialiasing --frames 3 --json "$OUT/bench_antialiasing.json" ;;
     build) step build 150 taskset -c 0,1 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench build \

@@ -37,6 +37,7 @@ visibility, material or instancer change is read alone.
 
 from __future__ import annotations
 
+import threading
 import weakref
 from typing import NamedTuple
 
@@ -103,17 +104,20 @@ def classify(prim: Usd.Prim, name: str) -> Effect | None:
 
 
 class ChangeTracker:
-    """Collects the paths a stage's change notices name, until `take()` hands them over."""
+    """Collects the paths a stage's change notices name, until `take()` hands them over. Notices arrive on the thread
+    that edits the stage, which may not be the one that renders: recording and taking hold a lock."""
 
     def __init__(self, stage: Usd.Stage):
         self.resynced: set[str] = set()  # prim paths whose subtree was recomposed
         self.changed: dict[str, set[str]] = {}  # prim path -> names of properties whose value changed
+        self._lock = threading.Lock()
         me = weakref.ref(self)  # the listener must not keep the tracker alive
 
         def on_change(notice, sender):
             tracker = me()
             if tracker is not None:
-                tracker._record(notice)
+                with tracker._lock:
+                    tracker._record(notice)
 
         self._on_change = on_change  # Tf holds its callbacks weakly
         self._listener = Tf.Notice.Register(Usd.Notice.ObjectsChanged, on_change, stage)
@@ -131,8 +135,9 @@ class ChangeTracker:
 
     def take(self) -> tuple[set[str], dict[str, set[str]]]:
         """The edits since the last take: (resynced prim paths, {prim path: changed property names})."""
-        resynced, changed = self.resynced, self.changed
-        self.resynced, self.changed = set(), {}
+        with self._lock:
+            resynced, changed = self.resynced, self.changed
+            self.resynced, self.changed = set(), {}
         return resynced, changed
 
     def close(self) -> None:

@@ -310,8 +310,12 @@ public:
     MeshTable& meshes() { return meshes_; }
     const MeshCache& cache() const { return cache_; }
     void set_cache(MeshCache cache) { cache_ = std::move(cache); }
+    // One thread at a time uses a delegate and its index. Python's bindings take turns here, and run sync and execute
+    // without the GIL (other Python threads, a viewer's UI among them, go on meanwhile).
+    std::mutex& turn() { return turn_; }
 
 private:
+    std::mutex turn_;
     MeshCache cache_ = MeshCache::from_environment();
     std::shared_ptr<Device> device_;
     Renderer renderer_;
@@ -360,6 +364,7 @@ public:
     RenderParam take_diagnostics() { return std::exchange(param_, {}); }
     size_t rprim_count() const { return rprims_.size(); }
     const Mesh* rprim(const PrimId& id) const;  // null if there is none
+    RenderDelegate& delegate() const { return delegate_; }
 
 private:
     void commit_resources();
