@@ -257,20 +257,27 @@ DisplacementData displacement_data(const BuiltMesh& mesh) {
     return data;
 }
 
+void place_seam_words(const DisplacementData& data, uint32_t base, size_t first, size_t end, uint32_t* to) {
+    constexpr uint32_t kIndex = (1u << TS_SEAM_COUNT_SHIFT) - 1u;
+    if (size_t(base) + data.seamWords.size() > kIndex)
+        throw std::runtime_error("the UV seams of the meshes drawn displaced exceed 2^" + std::to_string(TS_SEAM_COUNT_SHIFT) + " words");
+    // The vertex words hold a list's word number (below the count), the triangle words a record's; the lists and records
+    // hold texture coordinates.
+    const size_t vertexWords = data.seams[0], vertexEnd = vertexWords + data.normals.size();
+    const size_t triangleWords = data.seams[1], triangleEnd = triangleWords + data.triangles;
+    for (size_t i = first; i < end; ++i) {
+        uint32_t word = data.seamWords[i];
+        if (word != TS_NO_STREAM && i >= vertexWords && i < vertexEnd) word = ((word & kIndex) + base) | (word & ~kIndex);
+        else if (word != TS_NO_STREAM && i >= triangleWords && i < triangleEnd) word += base;
+        to[i - first] = word;
+    }
+}
+
 std::array<uint32_t, 2> append_seam_words(const DisplacementData& data, std::vector<uint32_t>& words) {
     if (data.seams[0] == TS_NO_STREAM) return data.seams;
-    constexpr uint32_t kIndex = (1u << TS_SEAM_COUNT_SHIFT) - 1u;
     const size_t base = words.size();
-    if (base + data.seamWords.size() > kIndex)
-        throw std::runtime_error("the UV seams of the meshes drawn displaced exceed 2^" + std::to_string(TS_SEAM_COUNT_SHIFT) + " words");
-    words.insert(words.end(), data.seamWords.begin(), data.seamWords.end());
-    // The vertex words hold a list's word number (below the count), the triangle words a record's.
-    uint32_t* vertexWords = &words[base + data.seams[0]];
-    for (size_t v = 0; v < data.normals.size(); ++v)
-        if (vertexWords[v] != TS_NO_STREAM) vertexWords[v] = ((vertexWords[v] & kIndex) + uint32_t(base)) | (vertexWords[v] & ~kIndex);
-    uint32_t* triangleWords = &words[base + data.seams[1]];
-    for (uint32_t t = 0; t < data.triangles; ++t)
-        if (triangleWords[t] != TS_NO_STREAM) triangleWords[t] += uint32_t(base);
+    words.resize(base + data.seamWords.size());
+    place_seam_words(data, uint32_t(base), 0, data.seamWords.size(), words.data() + base);
     return {data.seams[0] + uint32_t(base), data.seams[1] + uint32_t(base)};
 }
 

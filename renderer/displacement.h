@@ -49,6 +49,8 @@ DisplacementData displacement_data(const BuiltMesh& mesh);
 // {first vertex word, first triangle word} there, or {TS_NO_STREAM, TS_NO_STREAM} for a mesh without seams. Throws
 // std::runtime_error where the words would outgrow the numbers a vertex word holds (2^TS_SEAM_COUNT_SHIFT).
 std::array<uint32_t, 2> append_seam_words(const DisplacementData& data, std::vector<uint32_t>& words);
+// Words [first, end) of `data`'s seam words into `to`, as placed at word `base` (append_seam_words, a part at a time).
+void place_seam_words(const DisplacementData& data, uint32_t base, size_t first, size_t end, uint32_t* to);
 
 // The largest offset (mesh units, any sign) a material moves a surface by, for displacement values in [low, high].
 float displacement_bound(const MaterialDesc& material, float low, float high);

@@ -388,6 +388,8 @@ struct Renderer::Impl {
     // The meshes' streams: each mesh keeps its ranges while it is in the scene (upload_geometry).
     StreamArena levels{sizeof(gpu::GpuLevel)}, cutBlocks{sizeof(gpu::GpuCutBlock)}, blockClusters{sizeof(uint32_t)}, clusters{sizeof(gpu::GpuCluster)},
         vertices{sizeof(gpu::GpuVertex)}, colors{sizeof(uint32_t)}, uvs{sizeof(uint32_t)}, triangles{sizeof(uint32_t)};
+    // Those of the meshes drawn displaced (empty without them): displacement normals and UV seam words (displacement.h).
+    StreamArena displacementNormals{sizeof(uint32_t)}, seams{sizeof(uint32_t)};
     Buffer instanceBatches, batches;
     uint32_t instanceCount = 0;
     uint64_t clusterCount = 0, sourceTriangles = 0;
@@ -433,7 +435,7 @@ struct Renderer::Impl {
     // displacement normals); the lists of runtime tessellation, made only for scenes that displace.
     std::vector<bool> displacedMaterials, displacedMeshes;
     bool anyDisplaced = false;
-    Buffer displacementNormals, seams, tessellationList, patches, patchDraws, dicePatches, deferredPatchList;
+    Buffer tessellationList, patches, patchDraws, dicePatches, deferredPatchList;
     static constexpr uint32_t kFirstPatchCapacity = 1u << 16, kFirstPointCapacity = 1u << 18;
     uint32_t patchCapacity = kFirstPatchCapacity;
     // The compute patch rasterizer's diced points, kept for resolve: a pool that grows (for the next frame) to what the
@@ -708,11 +710,13 @@ struct Renderer::Impl {
     }
 
     // The mesh streams, in the order of mesh_streams() and stream_counts().
-    enum Stream : size_t { kClusters, kLevels, kBlocks, kBlockClusters, kVertices, kTriangles, kColors, kUvs, kStreams };
+    // The last two hold something only for a mesh drawn displaced (and count as tessellation memory, not geometry).
+    enum Stream : size_t { kClusters, kLevels, kBlocks, kBlockClusters, kVertices, kTriangles, kColors, kUvs, kDisplacementNormals, kSeams, kStreams };
     // Where a scene mesh handle's streams lie in the arenas, and the mesh they hold: kept while the handle holds that
     // mesh, so that a geometry change writes only the meshes it added.
     struct ResidentMesh {
         uint64_t serial = 0;  // the scene mesh's (GpuScene::mesh_serial); 0: the handle holds nothing
+        bool displaced = false;  // written with its displacement streams (a mesh that turns displaced, or plain, goes up again)
         std::array<StreamArena::Range, kStreams> ranges{};
         uint32_t at(Stream stream) const { return uint32_t(ranges[stream].offset); }  // the shaders index with 32 bits
     };
@@ -721,14 +725,18 @@ struct Renderer::Impl {
     uint32_t displacedMeshesPrepared = 0;  // the meshes whose displacement data it made
     std::vector<std::string> uploadErrors;  // the meshes it could not draw, for this frame's stats
 
-    std::array<StreamArena*, kStreams> mesh_streams() { return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs}; }
+    std::array<StreamArena*, kStreams> mesh_streams() {
+        return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs, &displacementNormals, &seams};
+    }
     std::array<const StreamArena*, kStreams> mesh_streams() const {
-        return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs};
+        return {&clusters, &levels, &cutBlocks, &blockClusters, &vertices, &triangles, &colors, &uvs, &displacementNormals, &seams};
     }
-    static std::array<size_t, kStreams> stream_counts(const BuiltMesh& mesh, const MeshRecords& r) {
+    // `displacement`: the mesh's displacement data where it is drawn displaced, else null.
+    static std::array<size_t, kStreams> stream_counts(const BuiltMesh& mesh, const MeshRecords& r, const DisplacementData* displacement) {
         return {r.clusters.size(), r.levels.size(), r.blocks.size(), r.blockClusters.size(), mesh.normals.size(), mesh.triangles.size(), mesh.colors.size(),
-                mesh.uvs.size()};
+                mesh.uvs.size(), displacement ? displacement->normals.size() : 0, displacement ? displacement->seamWords.size() : 0};
     }
+    bool drawn_displaced(size_t m) const { return m < displacedMeshes.size() && displacedMeshes[m]; }
 
     // `sameScene`: the scene these streams were uploaded for (else every range is let go first).
     void upload_geometry(GpuScene& scene, bool sameScene, UploadBatch& uploads) {
@@ -747,7 +755,7 @@ struct Renderer::Impl {
         resident.resize(scene.meshes_.size());
         std::vector<size_t> fresh;  // handles
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
-            if (resident[m].serial == scene.serials_[m]) continue;
+            if (resident[m].serial == scene.serials_[m] && resident[m].displaced == drawn_displaced(m)) continue;
             release(resident[m]);
             if (scene.meshes_[m]) fresh.push_back(m);
         }
@@ -784,11 +792,29 @@ struct Renderer::Impl {
         meshRecords = std::move(kept);
         auto records_of = [&](size_t m) -> const MeshRecords& { return *meshRecords.at(scene.serials_[m]); };
 
+        // The displaced meshes' displacement normals, seams and UV boxes: kept, or made now (the new ones on every core).
+        decltype(displacementData) keptData;
+        std::vector<size_t> make;  // handles
+        displacementOf.assign(scene.meshes_.size(), nullptr);
+        for (size_t m = 0; m < scene.meshes_.size(); ++m) {
+            if (!scene.meshes_[m] || !drawn_displaced(m) || !load(m)) continue;
+            const auto old = displacementData.find(scene.serials_[m]);
+            if (old != displacementData.end()) keptData.emplace(scene.serials_[m], old->second);
+            else if (keptData.emplace(scene.serials_[m], nullptr).second) make.push_back(m);
+        }
+        std::vector<std::shared_ptr<const DisplacementData>> made(make.size());
+        parallel_for_rethrowing(make.size(), [&](size_t i) { made[i] = std::make_shared<const DisplacementData>(displacement_data(*full[make[i]])); });
+        for (size_t i = 0; i < make.size(); ++i) keptData[scene.serials_[make[i]]] = std::move(made[i]);
+        displacedMeshesPrepared = uint32_t(make.size());
+        displacementData = std::move(keptData);
+        for (size_t m = 0; m < scene.meshes_.size(); ++m)
+            if (scene.meshes_[m] && drawn_displaced(m) && !lost[m]) displacementOf[m] = displacementData.at(scene.serials_[m]);
+
         // Removals leave holes that later meshes may not fill: where a stream's holes outgrow what it will hold (the
         // meshes kept and the fresh ones) and 1 MiB, every mesh goes up again, packed, into buffers of their size.
         std::array<size_t, kStreams> freshCounts{};
         for (size_t m : fresh) {
-            const auto counts = stream_counts(full_of(m), records_of(m));
+            const auto counts = stream_counts(full_of(m), records_of(m), displacementOf[m].get());
             for (size_t k = 0; k < counts.size(); ++k) freshCounts[k] += counts[k];
         }
         bool compact = false;
@@ -808,16 +834,20 @@ struct Renderer::Impl {
         // shaders halve), then the arenas grown to hold them; the shaders index each stream with 32 bits.
         for (size_t m : fresh) {
             ResidentMesh& r = resident[m];
-            const auto counts = stream_counts(full_of(m), records_of(m));
+            const auto counts = stream_counts(full_of(m), records_of(m), displacementOf[m].get());
             for (size_t k = 0; k < kStreams; ++k) {
                 r.ranges[k] = {arenas[k]->allocate(counts[k], k == kColors || k == kUvs ? 2 : 1), counts[k]};
-                if (r.ranges[k].offset + counts[k] > UINT32_MAX) {  // nothing kept: the next upload starts again from the host
+                // A seam word holds a word number below its count (TS_SEAM_COUNT_SHIFT bits).
+                const size_t limit = k == kSeams ? (size_t(1) << TS_SEAM_COUNT_SHIFT) - 1 : UINT32_MAX;
+                if (r.ranges[k].offset + counts[k] > limit) {  // nothing kept: the next upload starts again from the host
                     for (StreamArena* arena : mesh_streams()) arena->clear();
                     resident.clear();
-                    throw std::runtime_error("the scene's distinct meshes hold more than 2^32 vertices, triangles or clusters");
+                    throw std::runtime_error(k == kSeams ? "the UV seams of the meshes drawn displaced exceed 2^28 words"
+                                                         : "the scene's distinct meshes hold more than 2^32 vertices, triangles or clusters");
                 }
             }
             r.serial = scene.serials_[m];
+            r.displaced = drawn_displaced(m);
         }
         for (StreamArena* arena : mesh_streams()) arena->fit(device, uploads);
 
@@ -871,27 +901,16 @@ struct Renderer::Impl {
         write_words(kTriangles, &BuiltMesh::triangles);
         write_words(kColors, &BuiltMesh::colors);
         write_words(kUvs, &BuiltMesh::uvs);
+        write_stream(kDisplacementNormals, [&](void* to, size_t m, const BuiltMesh&, const MeshRecords&, const ResidentMesh&, size_t first, size_t end) {
+            std::copy(displacementOf[m]->normals.begin() + first, displacementOf[m]->normals.begin() + end, static_cast<uint32_t*>(to));
+        });
+        write_stream(kSeams, [&](void* to, size_t m, const BuiltMesh&, const MeshRecords&, const ResidentMesh& placed, size_t first, size_t end) {
+            place_seam_words(*displacementOf[m], placed.at(kSeams), first, end, static_cast<uint32_t*>(to));
+        });
 
-        // The displaced meshes' displacement normals, seams and UV boxes: kept, or made now (the new ones on every core).
-        decltype(displacementData) keptData;
-        std::vector<size_t> make;  // handles
-        displacementOf.assign(scene.meshes_.size(), nullptr);
-        for (size_t m = 0; m < scene.meshes_.size(); ++m) {
-            if (!scene.meshes_[m] || !resident[m].serial || !(m < displacedMeshes.size() && displacedMeshes[m]) || !load(m)) continue;
-            const auto old = displacementData.find(scene.serials_[m]);
-            if (old != displacementData.end()) keptData.emplace(scene.serials_[m], old->second);
-            else if (keptData.emplace(scene.serials_[m], nullptr).second) make.push_back(m);
-        }
-        std::vector<std::shared_ptr<const DisplacementData>> made(make.size());
-        parallel_for_rethrowing(make.size(), [&](size_t i) { made[i] = std::make_shared<const DisplacementData>(displacement_data(*full[make[i]])); });
-        for (size_t i = 0; i < make.size(); ++i) keptData[scene.serials_[make[i]]] = std::move(made[i]);
-        displacedMeshesPrepared = uint32_t(make.size());
-        displacementData = std::move(keptData);
 
-        // The mesh records (small: all of them again) and the displaced meshes' displacement normals and seams (all of
-        // them again: a few words a vertex, copied).
+        // The mesh records (small: all of them again).
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
-        std::vector<uint32_t> gpuDisplacementNormals, gpuSeams;
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
             const BuiltMesh* mesh = scene.meshes_[m].get();
             gpu::GpuMesh& g = gpuMeshes[m];
@@ -903,15 +922,13 @@ struct Renderer::Impl {
             g.sphere = {mesh->sphere[0], mesh->sphere[1], mesh->sphere[2], mesh->sphere[3]};
             g.clusterOffset = r.at(kClusters);
             g.vertexOffset = r.at(kVertices);
-            if (m < displacedMeshes.size() && displacedMeshes[m]) {  // drawn displaced: it needs displacement normals
-                if (!load(m)) continue;  // kept by the scene while it is drawn displaced (below); lost: not drawn
-                const auto& data = displacementOf[m] = displacementData.at(scene.serials_[m]);
-                g.displacementNormalOffset = uint32_t(gpuDisplacementNormals.size());
-                gpuDisplacementNormals.insert(gpuDisplacementNormals.end(), data->normals.begin(), data->normals.end());
-                const auto seams = append_seam_words(*data, gpuSeams);
-                if (seams[0] != TS_NO_STREAM) {
-                    g.seamVertexOffset = seams[0];
-                    g.seamTriangleOffset = seams[1] - r.at(kTriangles);  // indexed by scene triangle: the base folded in (mod 2^32)
+            if (r.displaced && !displacementOf[m]) continue;  // its streams lost since (not drawn)
+            if (r.displaced) {  // drawn displaced: its displacement normals and seams (kept by the scene while so, below)
+                const DisplacementData& data = *displacementOf[m];
+                g.displacementNormalOffset = r.at(kDisplacementNormals);
+                if (data.seams[0] != TS_NO_STREAM) {
+                    g.seamVertexOffset = data.seams[0] + r.at(kSeams);
+                    g.seamTriangleOffset = data.seams[1] + r.at(kSeams) - r.at(kTriangles);  // indexed by scene triangle: the base folded in (mod 2^32)
                 }
             }
             // The counts come from the ranges: a released mesh's description has no streams.
@@ -925,10 +942,6 @@ struct Renderer::Impl {
             g.lodRadius = records.lodRadius;
         }
         upload_vector(device, uploads, meshes, gpuMeshes);
-        if (gpuDisplacementNormals.empty()) displacementNormals = Buffer{};
-        else upload_vector(device, uploads, displacementNormals, gpuDisplacementNormals);
-        if (gpuSeams.empty()) seams = Buffer{};
-        else upload_vector(device, uploads, seams, gpuSeams);
         // The GPU holds the streams now: the scene lets them go where it can reload them (not a mesh drawn displaced,
         // whose streams the displacement bounds read at every instance upload).
         for (size_t m = 0; m < scene.meshes_.size(); ++m)
@@ -1567,7 +1580,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     frameStats.errors = std::move(s.uploadErrors);
     s.uploadErrors.clear();
     frameStats.geometryBytes = s.meshes.size;
-    for (const StreamArena* arena : s.mesh_streams()) frameStats.geometryBytes += arena->buffer().size;
+    for (size_t k = 0; k < Impl::kDisplacementNormals; ++k) frameStats.geometryBytes += s.mesh_streams()[k]->buffer().size;
 
     // The AOVs' images are made first, and where the device can import their memory (VK_EXT_external_memory_host) it
     // writes them in place: a GPU copies each AOV from its output into its image; on a CPU device resolve writes the
@@ -1732,11 +1745,11 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.binPixels = s.binPixels.address;
         f.textureSlots = s.textureSlots.address;
         f.textures = s.texturePool.address;
-        f.displacementNormals = s.anyDisplaced ? s.displacementNormals.address : 0;
+        f.displacementNormals = s.anyDisplaced ? s.displacementNormals.buffer().address : 0;
         f.tessellationList = s.anyDisplaced ? s.tessellationList.address : 0;
         f.patches = s.anyDisplaced ? s.patches.address : 0;
         f.patchDraws = s.anyDisplaced ? s.patchDraws.address : 0;
-        f.seams = s.anyDisplaced ? s.seams.address : 0;
+        f.seams = s.anyDisplaced ? s.seams.buffer().address : 0;
         f.dicePatches = s.anyDisplaced ? s.dicePatches.address : 0;
         f.deferredPatchList = s.anyDisplaced ? s.deferredPatchList.address : 0;
         f.patchPoints = s.anyDisplaced ? s.patchPoints.address : 0;
@@ -2125,7 +2138,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         if (state.patches < s.patchCapacity / 4 && s.patchCapacity > Impl::kFirstPatchCapacity)
             s.patchCapacity = std::max(Impl::kFirstPatchCapacity, 2 * state.patches);
         frameStats.tessellationBytes =
-            s.anyDisplaced ? s.displacementNormals.size + s.seams.size + s.clusterDisplacement.size + s.tessellationList.size + s.patches.size + s.patchDraws.size + s.dicePatches.size + s.deferredPatchList.size +
+            s.anyDisplaced ? s.displacementNormals.buffer().size + s.seams.buffer().size + s.clusterDisplacement.size + s.tessellationList.size + s.patches.size + s.patchDraws.size + s.dicePatches.size + s.deferredPatchList.size +
                                   s.patchPoints.size
                             : 0;
         uint64_t ticks[Impl::kTimestamps] = {};

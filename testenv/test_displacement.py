@@ -505,9 +505,10 @@ def test_static_displacement_does_not_tear_at_hard_edges_or_uv_seams(tmp_path):
 
 
 def test_edits_beside_displaced_meshes_keep_their_displacement_data_and_draw_what_a_fresh_session_draws(tmp_path):
-    """A mesh drawn displaced gets its displacement normals, UV seams and UV boxes once (`displaced_meshes_prepared`);
-    a second displaced mesh, a quad edited beside them and a removal make none again, and each frame is the one a fresh
-    session draws of the stage as it then is (the second sphere's seam words placed after the first's)."""
+    """A mesh drawn displaced gets its displacement normals, UV seams and UV boxes once (`displaced_meshes_prepared`),
+    and they go up with its streams, kept in place after: a second displaced mesh, a quad edited beside them and a
+    removal make and write none again, and each frame is the one a fresh session draws of the stage as it then is (the
+    second sphere's seam words placed after the first's)."""
     runtime_stage, _ = write_stages(tmp_path, n=1)
     stage = Usd.Stage.Open(str(runtime_stage))
     stage.SetEditTarget(stage.GetSessionLayer())
@@ -548,7 +549,8 @@ def test_edits_beside_displaced_meshes_keep_their_displacement_data_and_draw_wha
         x = -1.2 + 0.1 * step
         quad.GetPointsAttr().Set([(x, -1.0, 0.8), (x + 0.5, -1.0, 0.8), (x + 0.5, -0.5, 0.8), (x, -0.5, 0.8)])
         edited = render(live)
-        assert edited.stats["displaced_meshes_prepared"] == 0 and edited.stats["geometry_upload_bytes"] > 0
+        assert edited.stats["displaced_meshes_prepared"] == 0
+        assert 0 < edited.stats["geometry_upload_bytes"] < 1000, "the quad's streams alone, not the spheres' normals and seams"
         expect_fresh(edited, f"a quad edited beside them ({step})")
     stage.RemovePrim("/Small")
     removed = render(live)
