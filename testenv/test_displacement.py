@@ -556,3 +556,9 @@ def test_edits_beside_displaced_meshes_keep_their_displacement_data_and_draw_wha
     removed = render(live)
     assert removed.stats["displaced_meshes_prepared"] == 0
     expect_fresh(removed, "the small sphere removed")
+    # A displacement edit: the per-cluster bounds kept through the edits above are made again from the new magnitude.
+    material = UsdShade.MaterialBindingAPI(sphere.GetPrim()).GetDirectBinding().GetMaterial().GetPrim()
+    material.GetAttribute("tessera:displacement:magnitude").Set(0.3)
+    deeper = render(live)
+    assert not np.array_equal(deeper["color"].pixels, removed["color"].pixels)
+    expect_fresh(deeper, "the displacement magnitude edited")

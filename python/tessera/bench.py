@@ -255,7 +255,7 @@ FIELD_SIDE = 32  # fields are FIELD_SIDE^2 instances of one displaced sphere on 
 def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False):
     """A stage holding one displaced sphere of 4 n^2 triangles, alone or instanced FIELD_SIDE^2 times; with
     `face_colours`, a colour per face (uniform displayColor, varying smoothly over the sphere: a seam at every edge)."""
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, Vt
+    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
     points, counts, indices = displaced_sphere(n)
     stage = Usd.Stage.CreateNew(str(path))
@@ -273,10 +273,6 @@ def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False):
         primvar.Set(Vt.Vec3fArray.FromNumpy(colours.astype(np.float32)))
     else:
         mesh.GetDisplayColorAttr().Set([Gf.Vec3f(0.6, 0.55, 0.5)])
-    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
-    camera.GetFocalLengthAttr().Set(24.0 if field else 35.0)
-    camera.GetHorizontalApertureAttr().Set(36.0)
-    camera.GetVerticalApertureAttr().Set(20.25)
     if field:
         instancer = UsdGeom.PointInstancer.Define(stage, "/World/Field")
         instancer.GetPrototypesRel().SetTargets([mesh.GetPath()])
@@ -285,6 +281,19 @@ def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False):
         positions = np.stack([x.ravel(), np.zeros(x.size, np.float32), z.ravel()], 1)
         instancer.GetPositionsAttr().Set(Vt.Vec3fArray.FromNumpy(positions))
         instancer.GetProtoIndicesAttr().Set(Vt.IntArray.FromNumpy(np.zeros(x.size, np.int32)))
+    _camera_and_lights(stage, field)
+    stage.GetRootLayer().Save()
+
+
+def _camera_and_lights(stage, field: bool):
+    """/World/Camera over the field, or framing a unit sphere at the origin; a sun and a dim sky."""
+    from pxr import Gf, UsdGeom, UsdLux
+
+    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
+    camera.GetFocalLengthAttr().Set(24.0 if field else 35.0)
+    camera.GetHorizontalApertureAttr().Set(36.0)
+    camera.GetVerticalApertureAttr().Set(20.25)
+    if field:
         eye, target = Gf.Vec3d(-6.0, 14.0, -6.0), Gf.Vec3d(46.5, 0.0, 46.5)
         camera.GetClippingRangeAttr().Set(Gf.Vec2f(0.1, 1000.0))
     else:
@@ -296,7 +305,6 @@ def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False):
     sun.CreateNormalizeAttr(True)
     sun.AddRotateXYZOp().Set(Gf.Vec3f(-45.0, 30.0, 0.0))
     UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.3)
-    stage.GetRootLayer().Save()
 
 
 def _displaced_stage(directory, segments: int) -> str:
@@ -304,7 +312,7 @@ def _displaced_stage(directory, segments: int) -> str:
     time by a height map, filling the frame as the single sphere of `_write_sphere_stage` does (its camera, its lights)."""
     from pathlib import Path
 
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
+    from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
 
     from .bench_displacement import displaced_material, height_map, uv_sphere, write_height_png
 
@@ -329,17 +337,7 @@ def _displaced_stage(directory, segments: int) -> str:
     st.Set(Vt.Vec2fArray.FromNumpy(uvs.astype(np.float32)))
     material = displaced_material(stage, "/World/Looks/Bumps", texture=heights.name, magnitude=0.05, center=0.5)
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
-    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
-    camera.GetFocalLengthAttr().Set(35.0)
-    camera.GetHorizontalApertureAttr().Set(36.0)
-    camera.GetVerticalApertureAttr().Set(20.25)
-    camera.GetClippingRangeAttr().Set(Gf.Vec2f(0.01, 100.0))
-    camera.AddTransformOp().Set(Gf.Matrix4d().SetLookAt(Gf.Vec3d(0.0, 0.4, 2.3), Gf.Vec3d(0.0, 0.0, 0.0), Gf.Vec3d(0, 1, 0)).GetInverse())
-    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
-    sun.CreateIntensityAttr(3.0)
-    sun.CreateNormalizeAttr(True)
-    sun.AddRotateXYZOp().Set(Gf.Vec3f(-45.0, 30.0, 0.0))
-    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.3)
+    _camera_and_lights(stage, False)
     stage.GetRootLayer().Save()
     temporary.rename(path)
     return str(path)
