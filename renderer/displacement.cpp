@@ -250,8 +250,9 @@ std::vector<ClusterUvBoxes> cluster_uv_boxes(const BuiltMesh& mesh, const std::v
 
 DisplacementData displacement_data(const BuiltMesh& mesh) {
     DisplacementData data;
-    data.normals = displacement_normals(mesh);
-    data.seams = append_uv_seams(mesh, data.seamWords);
+    const Positions positions = number_positions(mesh);
+    data.normals = normals_by_position(mesh, positions);
+    data.seams = append_seams_by_position(mesh, positions, data.seamWords);
     data.triangles = uint32_t(mesh.triangles.size());
     data.uvBoxes = cluster_uv_boxes(mesh, data.seamWords, data.seams);
     return data;

@@ -910,7 +910,6 @@ struct Renderer::Impl {
             place_seam_words(*displacementOf[m], placed.at(kSeams), first, end, static_cast<uint32_t*>(to));
         });
 
-
         // The mesh records (small: all of them again).
         std::vector<gpu::GpuMesh> gpuMeshes(std::max<size_t>(scene.meshes_.size(), 1));
         for (size_t m = 0; m < scene.meshes_.size(); ++m) {
@@ -947,7 +946,7 @@ struct Renderer::Impl {
         // The GPU holds the streams now: the scene lets them go where it can reload them (not a mesh drawn displaced,
         // whose streams the displacement bounds read at every instance upload).
         for (size_t m = 0; m < scene.meshes_.size(); ++m)
-            if (scene.meshes_[m] && !(m < displacedMeshes.size() && displacedMeshes[m])) scene.release_streams(uint32_t(m));
+            if (scene.meshes_[m] && !drawn_displaced(m)) scene.release_streams(uint32_t(m));
     }
 
     // The displacement data of the meshes drawn displaced, by mesh serial (made once a mesh is drawn displaced, let go
