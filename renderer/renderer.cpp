@@ -422,6 +422,7 @@ struct Renderer::Impl {
     std::vector<gpu::GpuMaterial> materialRecords;  // as uploaded: resolve pushes its bin's
     std::vector<gpu::GpuTextureSlot> materialSlotRecords;  // as uploaded (upload_materials compares them with the next)
     std::vector<uint32_t> materialTableRecords;             // the scene's tables as last uploaded, likewise
+    std::vector<std::array<uint32_t, 2>> materialTableRangeRecords;
     // Textures: the slots of textured materials, and the pool of the images they read (both empty without textures).
     Buffer textureSlots, texturePool;
     std::vector<std::shared_ptr<const TextureImage>> poolImages;  // the materials' images, then the dome lights'
@@ -1220,7 +1221,11 @@ struct Renderer::Impl {
         return g;
     }
 
-    void upload_materials(GpuScene& scene, UploadBatch& uploads) {
+    // Returns whether they changed: the plugin hands every material over again after any sync, and where they read as
+    // before (the same records, texture slots, images and tables) nothing is uploaded and what was computed from them
+    // stays (an edit beside a displaced 1 M-triangle sphere otherwise made its displacement bounds again, 2.4 ms on
+    // lavapipe, and wrote every instance again); else that goes (the images may have changed).
+    bool upload_materials(GpuScene& scene, UploadBatch& uploads) {
         std::vector<gpu::GpuMaterial> gpuMaterials;
         std::vector<gpu::GpuTextureSlot> slots;
         std::vector<std::shared_ptr<const TextureImage>> images;
@@ -1248,23 +1253,20 @@ struct Renderer::Impl {
             fallback.vertexInputs = kDisplayColorInputs;
             gpuMaterials.push_back(fallback);
         }
-        upload_vector(device, uploads, materials, gpuMaterials);
-        materialCount = uint32_t(gpuMaterials.size());
-        // The plugin hands every material over again after any sync: where they read as before (the same records, texture
-        // slots, images and tables), what was computed from them stays (an edit beside a displaced 1 M-triangle sphere
-        // otherwise made its displacement bounds again, 2.4 ms on lavapipe); else it goes (the images may have changed).
         auto same_bytes = [](const auto& a, const auto& b) {
             return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(a[0])) == 0);
         };
-        const bool sameMaterials = same_bytes(gpuMaterials, materialRecords) && same_bytes(slots, materialSlotRecords) && images == materialImages &&
-                                   scene.materialTables_ == materialTableRecords;
-        if (!sameMaterials) {
-            displacementBounds.clear();
-            boundsOf.clear();
-        }
+        if (same_bytes(gpuMaterials, materialRecords) && same_bytes(slots, materialSlotRecords) && images == materialImages &&
+            scene.materialTables_ == materialTableRecords && scene.materialTableRanges_ == materialTableRangeRecords)
+            return false;
+        displacementBounds.clear();
+        boundsOf.clear();
+        upload_vector(device, uploads, materials, gpuMaterials);
+        materialCount = uint32_t(gpuMaterials.size());
         materialRecords = gpuMaterials;
         materialSlotRecords = slots;
         materialTableRecords = scene.materialTables_;
+        materialTableRangeRecords = scene.materialTableRanges_;
         // Tables: entries clamped to the materials there are; each header holds the table's largest displacement.
         std::vector<uint32_t> tables = scene.materialTables_;
         tableDisplacement.clear();
@@ -1286,6 +1288,7 @@ struct Renderer::Impl {
         if (slots.empty()) textureSlots = Buffer{};
         else upload_vector(device, uploads, textureSlots, slots);
         materialImages = std::move(images);  // the pool follows at the next frame, with the dome lights' images
+        return true;
     }
 
     // The texture pool: a GpuTexture record per image, then every image's words. Rebuilt when the set of images changes.
@@ -1538,8 +1541,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     UploadBatch uploads(s.device);  // everything this frame changes, sent in one submission (submitted below)
     bool instancesMoved = s.uploadedScene != scene.id_ || s.instancesVersion != scene.instancesVersion_, materialsChanged = false;
     if (s.uploadedScene != scene.id_ || s.materialsVersion != scene.materialsVersion_) {
-        s.upload_materials(scene, uploads);
-        materialsChanged = true;  // instance flags say which materials mask pixels, displace and have slots
+        materialsChanged = s.upload_materials(scene, uploads);  // instance flags say which materials mask pixels, displace and have slots
     }
     // Meshes drawn displaced carry displacement normals: which they are follows the instances and their materials.
     const bool displacedMeshesChanged = (instancesMoved || materialsChanged) && s.update_displaced_meshes(scene);
