@@ -16,7 +16,7 @@ def rows(*measured):
 
 
 def test_crossover_lies_between_the_last_software_win_and_the_first_hardware_win():
-    # The AMD host's shape: compute wins up to 32 px, hardware from 64: the default 45 px between them.
+    # An earlier host's shape: compute wins up to 32 px, hardware from 64: 45 px between them.
     assert raster_split.crossover(rows((1, 1.0, 10, 30), (16, 0.99, 10, 12), (32, 0.97, 10, 11), (64, 0.95, 12, 11))) == 45.3
     # Compute wins everywhere it really drew (256 px: mostly hardware even when compute is asked): its largest win.
     assert raster_split.crossover(rows((1, 1.0, 1, 3), (64, 0.95, 5, 6), (128, 0.81, 5, 6), (256, 0.15, 7, 6))) == 128.0

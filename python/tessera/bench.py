@@ -10,6 +10,7 @@ tetrahedron that pays the process's one-time costs (reported as "first build MiB
 from __future__ import annotations
 
 import json
+import math
 import multiprocessing
 import resource
 import time
@@ -250,6 +251,7 @@ def build(args) -> int:
 # tessera bench render: density scaling, against brute force, speed against error (on the device Tessera picks).
 
 FIELD_SIDE = 32  # fields are FIELD_SIDE^2 instances of one displaced sphere on a grid 3 units apart
+BRUTE_TRIANGLES = 1e7  # the single mesh drawn against brute force has at least this many triangles (at --max-density 3)
 
 
 def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False):
@@ -663,7 +665,10 @@ def render(args) -> int:
     if "density" in args.cases:
         cases += [("density", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
     if "brute" in args.cases or "error" in args.cases:
-        single = _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)  # the densest prototype alone, filling the frame
+        # One sphere filling the frame: the densest prototype's shape, at full density with at least BRUTE_TRIANGLES
+        # triangles (the brute-force case's mesh size; the 1e10 field's prototype has 9.76 M).
+        n = sides[min(args.max_density, 3) - 1]
+        single = _stage(args.stages_dir, max(n, math.ceil(math.sqrt(BRUTE_TRIANGLES / 4))) if args.max_density >= 3 else n, False)
         cases += [(case, single) for case in ("brute", "error") if case in args.cases]
     if "first-frame" in args.cases:  # each density field, then the densest prototype alone
         cases += [("first-frame", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
@@ -801,7 +806,7 @@ def _raster_case(queue, stages, resolution, frames, device):
 
 def raster(args) -> int:
     """The triangle size below which the compute rasterizer beats hardware raster on this device (RenderSettings::
-    softwareRasterArea, 45 px by default, was measured this way on lavapipe); `--record` keeps it for the device's
+    softwareRasterArea, 90 px by default, was measured this way on lavapipe); `--record` keeps it for the device's
     sessions (tessera.raster_split)."""
     from pathlib import Path
 

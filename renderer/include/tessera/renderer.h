@@ -219,8 +219,8 @@ struct RenderSettings {
     RasterMode raster = RasterMode::Auto;
     RasterVertices rasterVertices = RasterVertices::Auto;
     // Auto mode: clusters whose triangles are estimated to cover less than this many pixels each go to the compute
-    // rasterizer. Measured per device (docs/benchmarks.md: about 45 on lavapipe).
-    float softwareRasterArea = 45.0f;
+    // rasterizer. Measured per device (docs/benchmarks.md: about 90 on lavapipe on a 2-core AMD EPYC host).
+    float softwareRasterArea = 90.0f;
     // Occlusion culling, which changes counts and time, never the image. Clusters whose triangles all face away from
     // the camera are culled (normal cones; single-sided instances whose transform keeps angles). Two-pass HZB
     // culling: instances and clusters hidden behind what the previous frame drew are deferred, then tested against a
