@@ -22,6 +22,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <functional>
+#include <future>
 #include <vector>
 #include <span>
 #include <stdexcept>
@@ -141,28 +142,33 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     layoutInfo.pPushConstantRanges = &range;
     check_vk(vkCreatePipelineLayout(device.handle(), &layoutInfo, nullptr, &layout), "vkCreatePipelineLayout");
 
-    // What (nearly) every frame needs, made now, on as many threads as the host has: a driver compiles a pipeline on
-    // the calling thread (lavapipe: 1.0 s in all on one thread). Each task writes a slot of its own.
+    // What (nearly) every frame needs, made on as many threads as the host has (a driver compiles a pipeline on the
+    // calling thread), in the background: the session reads its stage and loads its meshes meanwhile, and the first
+    // frame waits for them (wait_for_startup). lavapipe compiles these in about 0.7 CPU s, with no cache between
+    // processes. Resolve is not among them: its variant depends on the scene's lights and materials (the first frame
+    // makes the ones it needs), and a guessed one cost a lit batch render 0.6-0.8 s for nothing.
     const bool ownCorners = default_own_corners();
-    // The map's one insertion, before the threads. (The every-pixel variants are made when a frame first needs one: a
-    // batch render's single frame never does.)
-    VkPipeline& unlit = resolveVariants[resolve_key({}).first];
-    const std::vector<std::function<void()>> tasks = {
-        [&] { cull_step(TS_CULL_MAIN_INSTANCES, 0); },
-        [&] { cull_step(TS_CULL_MAIN, 0); },
-        [&] { cull_step(TS_CULL_POST_INSTANCES, 0); },
-        [&] { cull_step(TS_CULL_POST, 0); },
-        [&] { unlit = compute_pipeline(resolve_comp, sizeof(resolve_comp), resolve_key({}).second); },
-        [&] { hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp)); },
-        [&] { bins = compute_pipeline(bins_comp, sizeof(bins_comp)); },
-        [&] { classify_step(TS_CLASSIFY_ONE_BIN, 0); },
-        [&] { classify_step(TS_CLASSIFY_COUNT, 0); },
-        [&] { classify_step(TS_CLASSIFY_SCATTER, 0); },
-        [&] { software_raster(false, ownCorners, false, false); },
-        [&] { software_raster(false, ownCorners, true, false); },
-        [&] { hardware_raster(false, false, false); },
-        [&] { hardware_raster(false, true, false); }};
-    run_on_threads(tasks);
+    startup = std::async(std::launch::async, [this, ownCorners] {
+        run_on_threads({[&] { cull_step(TS_CULL_MAIN_INSTANCES, 0); },
+                        [&] { cull_step(TS_CULL_MAIN, 0); },
+                        [&] { cull_step(TS_CULL_POST_INSTANCES, 0); },
+                        [&] { cull_step(TS_CULL_POST, 0); },
+                        [&] { hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp)); },
+                        [&] { bins = compute_pipeline(bins_comp, sizeof(bins_comp)); },
+                        [&] { classify_step(TS_CLASSIFY_ONE_BIN, 0); },
+                        [&] { classify_step(TS_CLASSIFY_COUNT, 0); },
+                        [&] { classify_step(TS_CLASSIFY_SCATTER, 0); },
+                        [&] { software_raster(false, ownCorners, false, false); },
+                        [&] { software_raster(false, ownCorners, true, false); },
+                        [&] { hardware_raster(false, false, false); },
+                        [&] { hardware_raster(false, true, false); }});
+    });
+}
+
+void Pipelines::wait_for_startup() {
+    if (!startup.valid()) return;
+    std::future<void> made = std::move(startup);
+    made.get();  // rethrows the first failure; what it left unmade is made on first use (or fails again there)
 }
 
 void Pipelines::run_on_threads(const std::vector<std::function<void()>>& tasks) {
@@ -170,6 +176,7 @@ void Pipelines::run_on_threads(const std::vector<std::function<void()>>& tasks) 
 }
 
 Pipelines::~Pipelines() {
+    if (startup.valid()) startup.wait();  // no pipeline destroyed while the background still makes it
     device.wait_idle();
     VkDevice vk = device.handle();
     for (VkPipeline step : std::span(&cull[0][0], sizeof(cull) / sizeof(VkPipeline))) vkDestroyPipeline(vk, step, nullptr);
@@ -284,8 +291,20 @@ VkPipeline Pipelines::resolve_variant(const ResolveVariant& v) {
 }
 
 void Pipelines::make_for_frame(const FrameNeeds& needs) {
-    // A task per pipeline not made yet, each writing its own slot: the resolve variants' map entries inserted first.
+    // A task per pipeline not made yet, each writing its own slot. The resolve variants first (their map entries
+    // inserted here): the background set never touches them, so while it runs they are made meanwhile.
     std::vector<std::function<void()>> tasks;
+    for (const ResolveVariant& v : needs.resolves) {
+        const auto [key, specialization] = resolve_key(v);
+        const auto [entry, inserted] = resolveVariants.try_emplace(key, VK_NULL_HANDLE);
+        if (!inserted) continue;  // made, or already a task
+        tasks.push_back([this, &slot = entry->second, specialization] { slot = compute_pipeline(resolve_comp, sizeof(resolve_comp), specialization); });
+    }
+    if (startup.valid()) {
+        run_on_threads(tasks);
+        tasks.clear();
+        wait_for_startup();
+    }
     auto need = [&](VkPipeline made, std::function<void()> make) {
         if (!made) tasks.push_back(std::move(make));
     };
@@ -303,12 +322,6 @@ void Pipelines::make_for_frame(const FrameNeeds& needs) {
         need(tessellatePatches, [this] { tessellate(); });
         need(diceVariants[masks][counts], [=, this] { dice(masks, counts); });
         need(patchRasterVariants[masks][counts], [=, this] { patch_raster(masks, counts); });
-    }
-    for (const ResolveVariant& v : needs.resolves) {
-        const auto [key, specialization] = resolve_key(v);
-        const auto [entry, inserted] = resolveVariants.try_emplace(key, VK_NULL_HANDLE);
-        if (!inserted) continue;  // made, or already a task
-        tasks.push_back([this, &slot = entry->second, specialization] { slot = compute_pipeline(resolve_comp, sizeof(resolve_comp), specialization); });
     }
     run_on_threads(tasks);  // an entry a failed task left empty is made on its first use (or fails again there)
 }

@@ -1,6 +1,7 @@
 // Internal to the renderer: its compiled pipelines on one device, shared by every Renderer on that device.
-// Compiling is most of what starting a renderer costs (on lavapipe about 1.5 s for the pipelines every frame uses, and
-// more for the variants a scene asks for), so a process that opens many stages, or a test suite, pays it once per
+// Compiling is most of what starting a renderer costs (on lavapipe, which keeps no pipeline cache between processes,
+// about 0.7 CPU s for the pipelines every frame uses, made in the background while the stage loads, and 0.4-0.6 s for
+// each resolve variant a scene asks for), so a process that opens many stages, or a test suite, pays it once per
 // device (Device::shared_state), not once per session. Pipelines are immutable once made; the variants a frame needs
 // are made when it first needs them, under `mutex`, which a render holds throughout.
 #pragma once
@@ -11,6 +12,7 @@
 #include <array>
 #include <cstddef>
 #include <functional>
+#include <future>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -128,7 +130,11 @@ struct Pipelines {
     // Makes those of `needs` not made yet, together on the host's threads, before the frame records: a first frame of
     // many materials, or with masks, made each in turn (on two cores 1.1 s of the textures test stage's 2.0 s first
     // frame). Nothing to make, no thread.
+    // Waits first for the set the constructor makes in the background.
     void make_for_frame(const FrameNeeds& needs);
+    // Waits for the pipelines the constructor makes in the background (what nearly every frame needs) and rethrows the
+    // first failure; make_for_frame waits for them, and nothing reads a pipeline before a frame's make_for_frame.
+    void wait_for_startup();
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
     // The sum of an image's pixel samples (samples.comp.glsl), made on first use.
@@ -153,6 +159,8 @@ private:
     // writes) << 13, TS_SPEC_LIGHT_COUNTS << 16 and TS_SPEC_EVERY_PIXEL << 32: on lavapipe each one's code, present but
     // not run, cost every pixel of the frames that do not need it.
     std::map<uint64_t, VkPipeline> resolveVariants;
+    // The constructor's set, made in the background (wait_for_startup).
+    std::future<void> startup;
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
     // Resolve's variant's key in resolveVariants and its specialization (the arguments that do not matter to it cleared).

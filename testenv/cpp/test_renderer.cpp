@@ -1732,6 +1732,26 @@ TEST_F(RendererTest, RenderersSharingADeviceDrawTheirOwnScenesOnSeparateThreads)
         }
 }
 
+// A renderer's pipelines are made in the background while its scene loads (pipelines.h): a frame drawn at once waits
+// for them and draws what a renderer whose pipelines were made long before draws, and a device given back while they
+// are still being made waits for them first (no pipeline made on a destroyed device, no validation message).
+TEST_F(RendererTest, PipelinesMadeInTheBackgroundServeAFrameDrawnAtOnce) {
+    GpuScene scene;
+    scene.set_instances({identity_instance(scene.add_mesh(bumpy_sphere(24)))});
+    const RenderSettings settings{96, 64, {0, 0, 0, 0}};
+    const std::vector<Aov> aovs = {Aov::Color, Aov::PrimId, Aov::TriangleId, Aov::Depth};
+    const std::vector<Image> expected = Renderer(*device).render(scene, camera_at(0, 0, 3), settings, aovs);
+    for (const bool draw : {false, true}) {
+        auto fresh = std::make_unique<Device>();  // pipelines of its own, made from scratch
+        auto renderer = std::make_unique<Renderer>(*fresh);
+        if (draw) expect_same_images(renderer->render(scene, camera_at(0, 0, 3), settings, aovs), expected, "a frame drawn at once");
+        renderer.reset();
+        EXPECT_EQ(fresh->validation_error_count(), 0u) << (draw ? "drawn at once" : "given back at once");
+        for (auto& m : fresh->take_validation_messages()) ADD_FAILURE() << m;
+        fresh.reset();  // waits for the pipelines still being made
+    }
+}
+
 // The process's devices (Device::shared): one per options, until released; a device that cannot be made is not kept.
 TEST(SharedDevice, OnePerOptionsUntilReleased) {
     const DeviceOptions options = DeviceOptions::from_environment();
