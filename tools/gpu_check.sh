@@ -5,7 +5,8 @@
 #   OUT=/some/dir tools/gpu_check.sh [steps...]     steps: smoke cpp bench pytest (default: all, in that order), and
 #   antialiasing (bench render --cases antialiasing: what a pixel sample costs where the host adds each sample's colour),
 #   build (bench build on two of the machine's cores, the builder issue's setting: its generated meshes),
-#   edit (bench render --cases edit alone: a live edit's upload), live (the live-edit and thread tests, which need no
+#   edit (bench render --cases edit alone: a live edit's upload), raster (bench raster: where this device's compute
+#   rasterizer stops beating hardware raster, not recorded), live (the live-edit and thread tests, which need no
 #   image files: a short look at the upload and threading paths)
 # NVIDIA's Vulkan driver (libGLX_nvidia.so.0) needs the GL dispatch libraries (libglvnd): on a machine without them,
 # vkCreateInstance finds no driver ("Could not get 'vkCreateInstance' via 'vk_icdGetInstanceProcAddr'"). Debian's
@@ -51,6 +52,8 @@ assert not r.errors" || exit 1 ;;
     cpp) TESSERA_VALIDATION=1 step cpp 120 "$B/gpu/tessera_cpp_tests" --gtest_brief=1 ;;
     bench) step bench 260 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
                --cases density,brute,error,first-frame,edit --frames 5 --json "$OUT/bench_render.json" ;;
+    raster) step raster 90 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench raster \
+               --json "$OUT/bench_raster.json" ;;
     edit) step edit 150 "$TESSERA_PY" -c "import sys; from tessera.cli import main; sys.exit(main())" bench render \
                --cases edit --frames 5 --json "$OUT/bench_edit.json" ;;
     live) TESSERA_VALIDATION=1 step live 120 "$TESSERA_PY" -m pytest -q -rf --tb=short -p no:cacheprovider testenv/test_live_edits.py \
