@@ -129,8 +129,8 @@ struct Pipelines {
     };
     // Makes those of `needs` not made yet, together on the host's threads, before the frame records: a first frame of
     // many materials, or with masks, made each in turn (on two cores 1.1 s of the textures test stage's 2.0 s first
-    // frame). Nothing to make, no thread.
-    // Waits first for the set the constructor makes in the background.
+    // frame). Nothing to make, no thread. While the constructor's background set is still being made, the frame's
+    // resolve variants are made meanwhile, then the rest once that set is done.
     void make_for_frame(const FrameNeeds& needs);
     // Waits for the pipelines the constructor makes in the background (what nearly every frame needs) and rethrows the
     // first failure; make_for_frame waits for them, and nothing reads a pipeline before a frame's make_for_frame.
