@@ -132,9 +132,6 @@ struct Pipelines {
     // frame). Nothing to make, no thread. While the constructor's background set is still being made, the frame's
     // resolve variants are made meanwhile, then the rest once that set is done.
     void make_for_frame(const FrameNeeds& needs);
-    // Waits for the pipelines the constructor makes in the background (what nearly every frame needs) and rethrows the
-    // first failure; make_for_frame waits for them, and nothing reads a pipeline before a frame's make_for_frame.
-    void wait_for_startup();
     // The background of a textured dome light, made on first use.
     VkPipeline textured_background();
     // The sum of an image's pixel samples (samples.comp.glsl), made on first use.
@@ -161,6 +158,9 @@ private:
     std::map<uint64_t, VkPipeline> resolveVariants;
     // The constructor's set, made in the background (wait_for_startup).
     std::future<void> startup;
+    // Waits for that set and rethrows its first failure: make_for_frame calls it, and nothing reads a pipeline before a
+    // frame's make_for_frame.
+    void wait_for_startup();
 
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
     // Resolve's variant's key in resolveVariants and its specialization (the arguments that do not matter to it cleared).
