@@ -257,8 +257,12 @@ Instance load_instance(GpuFrame frame, uint index) {
     GpuInstanceBatch batch = load_batch(frame, batchWord & TS_INSTANCE_BATCH_MASK);
     Instance instance;
     instance.rows = g.rows;
-    // The batch origin's high and low parts first (both large), then the instance's offset from it.
-    instance.translation = (batch.originHigh.xyz + batch.originLow.xyz) + vec3(g.rows[0].w, g.rows[1].w, g.rows[2].w);
+    // The batch origin's high part plus the instance's offset first: an instance near the camera has an offset that
+    // nearly cancels the high part (exactly, in float), and only then the low part, which (high + low) would round away
+    // where the origin lies far from the camera (test_world_space_instances_far_from_their_instancer_...).
+    precise vec3 nearCamera = batch.originHigh.xyz + vec3(g.rows[0].w, g.rows[1].w, g.rows[2].w);
+    precise vec3 translation = nearCamera + batch.originLow.xyz;
+    instance.translation = translation;
     instance.meshIndex = batch.meshIndex;
     instance.primId = batch.primId;
     instance.materialIndex = batch.materialIndex;

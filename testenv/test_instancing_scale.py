@@ -119,6 +119,40 @@ def test_instances_far_from_the_origin_render_like_at_the_origin(render):
     assert np.percentile(np.abs(depth_a[both] - depth_b[both]), 99) < 1e-3
 
 
+def _world_space_scatter_stage(shift):
+    """An instancer at the world origin whose positions are authored in world space around `shift` (as a large
+    world's scatter is): every position on a quarter-unit grid, which float holds exactly up to 2^22."""
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    instancer = UsdGeom.PointInstancer.Define(stage, "/Field")
+    _box(stage, "/Field/Protos/Box")
+    instancer.CreatePrototypesRel().SetTargets(["/Field/Protos/Box"])
+    positions, orientations, _ = _scatter(40, False)
+    positions = np.round(positions * 4) / 4 + np.array(shift, np.float32)
+    instancer.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(positions.astype(np.float32)))
+    instancer.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(orientations))
+    instancer.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(40, np.int32)))
+    return stage
+
+
+def test_world_space_instances_far_from_their_instancer_render_like_at_the_origin(render):
+    """The instances lie 3e6 units from their instancer's origin, and so does the camera, off the float grid there
+    (0.1 of a unit): the batch origin's low part must reach the instances near the camera."""
+    shift = (3.0e6, -1.0e6, 2.0e6)
+    eye, target = np.array([0.1, 3.1, 9.1]), np.array([0.1, 0.1, 0.1])
+    near, far = _world_space_scatter_stage((0.0, 0.0, 0.0)), _world_space_scatter_stage(shift)
+    _camera(near, eye, target)
+    _camera(far, eye + shift, target + shift)
+    a = render(near, resolution=(240, 160), aovs=("instanceId", "depth"))
+    b = render(far, resolution=(240, 160), aovs=("instanceId", "depth"))
+    ids_a, ids_b = a["instanceId"].ids(), b["instanceId"].ids()
+    assert (ids_a != NO_HIT).sum() > 2000
+    assert (ids_a != ids_b).sum() <= 0.002 * ids_a.size, "the same instances cover the same pixels"
+    depth_a, depth_b = a["depth"].pixels[..., 0], b["depth"].pixels[..., 0]
+    both = np.isfinite(depth_a) & np.isfinite(depth_b)
+    assert np.percentile(np.abs(depth_a[both] - depth_b[both]), 99) < 1e-3
+
+
 def test_a_hundred_thousand_instances_each_cover_their_pixels(render):
     """250 x 400 unit squares seen from above by an orthographic camera, 2 x 2 pixels each: every instance shows."""
     stage = Usd.Stage.CreateInMemory()
