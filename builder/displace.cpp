@@ -178,8 +178,11 @@ PreparedMesh bake_displacement(const PreparedMesh& mesh, const DisplacementBake&
     for (size_t p = 0; p < points; ++p) {
         const Vec3& n = faceNormalAt[key_of(&out.positions[3 * p])];
         const double len = std::sqrt(n.x * n.x + n.y * n.y + n.z * n.z);
-        if (len > 0)
-            for (int c = 0; c < 3; ++c) out.normals[3 * p + c] = float((&n.x)[c] / len);
+        if (len > 0) {
+            out.normals[3 * p + 0] = float(n.x / len);
+            out.normals[3 * p + 1] = float(n.y / len);
+            out.normals[3 * p + 2] = float(n.z / len);
+        }
     }
     return out;
 }

@@ -1123,13 +1123,12 @@ struct Renderer::Impl {
     // from the origin renders like geometry at the origin. Re-uploaded only when the camera moves.
     void upload_relative_translations(const std::array<double, 3>& camera, UploadBatch& uploads) {
         if (camera == relativeTo) return;
-        for (size_t i = 0; i < gpuBatches.size(); ++i)
-            for (int r = 0; r < 3; ++r) {
-                float high, low;
-                split_double(origins[i][r] - camera[r], high, low);
-                (&gpuBatches[i].originHigh.x)[r] = high;
-                (&gpuBatches[i].originLow.x)[r] = low;
-            }
+        for (size_t i = 0; i < gpuBatches.size(); ++i) {
+            float high[3], low[3];
+            for (int r = 0; r < 3; ++r) split_double(origins[i][r] - camera[r], high[r], low[r]);
+            gpuBatches[i].originHigh = {high[0], high[1], high[2], 0.0f};
+            gpuBatches[i].originLow = {low[0], low[1], low[2], 0.0f};
+        }
         upload_vector(device, uploads, batches, gpuBatches);
         relativeTo = camera;
     }

@@ -218,3 +218,34 @@ def test_a_hundred_thousand_hidden_instances_are_deferred_then_culled(render):
     assert second.stats["overflow_redraws"] == 0
     assert np.array_equal(first["primId"].ids(), second["primId"].ids())
     assert [e for e in second.errors if e.startswith("validation")] == []
+
+
+def test_instances_with_nan_or_infinite_transforms_are_named_and_skipped(render):
+    """A NaN or infinite position, orientation or scale leaves that instance out with a warning naming the instancer
+    and the instances; the others draw where they would without it."""
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    instancer = UsdGeom.PointInstancer.Define(stage, "/Field")
+    _box(stage, "/Field/Protos/Box")
+    instancer.CreatePrototypesRel().SetTargets(["/Field/Protos/Box"])
+    nan, inf = float("nan"), float("inf")
+    positions = np.array([(-1.5, 0, 0), (nan, 0, 0), (0, 0, 0), (1.5, 0, 0), (3, inf, 0)], np.float32)
+    orientations = np.array([(0, 0, 0, 1), (0, 0, 0, 1), (nan, 0, 0, 1), (0, 0, 0, 1), (0, 0, 0, 1)], np.float32)
+    scales = np.array([(1, 1, 1), (1, 1, 1), (1, 1, 1), (2, 2, -inf), (1, 1, 1)], np.float32)
+    instancer.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(positions))
+    instancer.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(orientations))
+    instancer.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(scales))
+    instancer.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(5, np.int32)))
+    _camera(stage, (0, 1, 6), (0, 0, 0))
+    result = render(stage, resolution=(160, 80), aovs=("primId", "depth"))
+    assert result.warnings == ["/Field: 4 instances have a NaN or infinite position, orientation or scale "
+                               "(instance 1, 2, 3, 4); they are skipped"]
+    # Only instance 0 is left: the same pixels as a stage holding it alone.
+    alone = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(alone, UsdGeom.Tokens.y)
+    _box(alone, "/Box").AddTranslateOp().Set(Gf.Vec3d(-1.5, 0, 0))
+    _camera(alone, (0, 1, 6), (0, 0, 0))
+    reference = render(alone, resolution=(160, 80), aovs=("primId", "depth"))
+    covered = np.isfinite(reference["depth"].pixels[..., 0])
+    assert covered.sum() > 200
+    assert np.array_equal(np.isfinite(result["depth"].pixels[..., 0]), covered)

@@ -114,6 +114,20 @@ def read(instancer: UsdGeom.PointInstancer, prototype_count: int, time: Usd.Time
     bad = (proto_indices < 0) | (proto_indices >= prototype_count)
     if bad.any():
         warnings.append(f"{path}: {int(bad.sum())} protoIndices out of range (0..{prototype_count - 1}); those instances are skipped")
+    # Instances whose position, orientation or scale is NaN or infinite have no place to be drawn (a GPU may draw them
+    # anywhere): they are left out and named, the rest drawn. A zero scale or quaternion is no error (USD's matrix
+    # for it is degenerate, or the identity rotation, and so is the instance drawn).
+    broken = ~np.isfinite(positions).all(axis=1)
+    for array in (orientations, scales):
+        if array is not None:
+            broken |= ~np.isfinite(array).all(axis=1)
+    if broken.any():
+        which = np.flatnonzero(broken)
+        listed = ", ".join(str(i) for i in which[:5]) + (", ..." if len(which) > 5 else "")
+        count_text = "1 instance has" if len(which) == 1 else f"{len(which)} instances have"
+        warnings.append(f"{path}: {count_text} a NaN or infinite position, orientation or scale (instance {listed}); "
+                        f"{'it is' if len(which) == 1 else 'they are'} skipped")
+        bad = bad | broken
     # The mask: only read element by element when invisibleIds or inactiveIds are authored.
     masked = bad
     prim = instancer.GetPrim()
