@@ -70,4 +70,18 @@ NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster) {
     return cone;
 }
 
+float cluster_mean_triangle_area(const BuiltMesh& mesh, const Cluster& cluster) {
+    double sum = 0;
+    for (uint32_t t = 0; t < cluster.triangleCount; ++t) {
+        const uint32_t packed = mesh.triangles[cluster.triangleOffset + t];
+        const float* p[3];
+        for (int k = 0; k < 3; ++k) p[k] = &mesh.positions[3 * size_t(cluster.vertexOffset + ((packed >> (8 * k)) & 0xffu))];
+        const double e1[3] = {p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]};
+        const double e2[3] = {p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]};
+        const double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
+        sum += 0.5 * std::sqrt(cx * cx + cy * cy + cz * cz);
+    }
+    return float(sum / std::max(cluster.triangleCount, 1u));
+}
+
 }  // namespace tessera

@@ -64,6 +64,9 @@ struct UnitDecoder::State {
             c.triangleCount = uint32_t(records.get<uint8_t>()) + 1;
             if (c.triangleCount > kClusterMaxTriangles)
                 throw PageFileError(where + ": a cluster has more than " + std::to_string(kClusterMaxTriangles) + " triangles");
+            for (int8_t& k : c.cone.axis8) k = records.get<int8_t>();
+            c.cone.cutoff8 = records.get<int8_t>();
+            c.meanTriangleArea = records.get<float>();
         }
         return indexBytes;
     }

@@ -102,6 +102,9 @@ void encode_records(const BuiltMesh& mesh, std::span<const uint32_t> clusters, s
         records.put(uint8_t(c.level));
         records.put(uint8_t(c.vertexCount - 1));  // 1..256 in a byte
         records.put(uint8_t(c.triangleCount - 1));
+        for (int8_t k : c.cone.axis8) records.put(k);
+        records.put(c.cone.cutoff8);
+        records.put(c.meanTriangleArea);
     }
 }
 

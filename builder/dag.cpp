@@ -1098,6 +1098,14 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
         clusterVertices[i] = {};
     });
 
+    // Each cluster's normal cone and mean triangle area, from its placed triangles (the page file keeps them).
+    parallel_blocks(out.clusters.size(), 256, [&](size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) {
+            Cluster& c = out.clusters[i];
+            c.cone = cluster_normal_cone(out, c);
+            c.meanTriangleArea = cluster_mean_triangle_area(out, c);
+        }
+    });
     out.sphere = to_float(all_vertices_sphere(local, kBlock));
     out.fallbackThreshold = fallbackCut.source ? -1.0f : fallbackCut.threshold;  // extracted on demand (fallback_mesh)
     out.fallbackError = measure(nodes, fallbackCut).error;

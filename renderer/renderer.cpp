@@ -157,20 +157,6 @@ void split_double(double value, float& high, float& low) {
     low = float(value - double(high));
 }
 
-float mean_triangle_area(const BuiltMesh& mesh, const Cluster& c) {
-    double sum = 0;
-    for (uint32_t t = 0; t < c.triangleCount; ++t) {
-        const uint32_t packed = mesh.triangles[c.triangleOffset + t];
-        const float* p[3];
-        for (int k = 0; k < 3; ++k) p[k] = &mesh.positions[3 * (c.vertexOffset + ((packed >> (8 * k)) & 0xffu))];
-        const double e1[3] = {p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]};
-        const double e2[3] = {p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]};
-        const double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
-        sum += 0.5 * std::sqrt(cx * cx + cy * cy + cz * cz);
-    }
-    return float(sum / std::max(c.triangleCount, 1u));
-}
-
 uint32_t pack_cone(const NormalCone& cone) {
     return uint32_t(uint8_t(cone.axis8[0])) | uint32_t(uint8_t(cone.axis8[1])) << 8 | uint32_t(uint8_t(cone.axis8[2])) << 16 |
            uint32_t(uint8_t(cone.cutoff8)) << 24;
@@ -681,7 +667,7 @@ struct Renderer::Impl {
                                         {c.parentSphere[0], c.parentSphere[1], c.parentSphere[2], c.parentSphere[3]},
                                         c.lodError, root ? float(TS_ROOT_ERROR) : c.parentError,
                                         c.vertexOffset, c.triangleOffset, c.triangleCount, 0,
-                                        c.level << 16 | c.vertexCount, c.parentGroup, mean_triangle_area(mesh, c), pack_cone(cluster_normal_cone(mesh, c)), 0, 0};
+                                        c.level << 16 | c.vertexCount, c.parentGroup, c.meanTriangleArea, pack_cone(c.cone), 0, 0};
             }
         });
         // Levels (clusters come level by level, level 0 first), how far the LOD spheres reach from the mesh's centre,

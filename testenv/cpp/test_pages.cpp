@@ -193,8 +193,20 @@ TEST(Pages, RoundTripIsExact) {
             ASSERT_EQ(built.uvs.empty(), !uvs);
             ASSERT_FALSE(fallback_mesh(built).indices.empty());
             const std::vector<uint8_t> file = encode_pages(built);
-            expect_same(built, decode_pages(file, "grid.tsra"));
+            const BuiltMesh decoded = decode_pages(file, "grid.tsra");
+            expect_same(built, decoded);
             EXPECT_EQ(file, encode_pages(built)) << "same mesh, same bytes";
+            // The stored cones and mean areas are those of the decoded triangles: the renderer derives none.
+            size_t culling = 0;
+            for (const Cluster& c : decoded.clusters) {
+                const NormalCone cone = cluster_normal_cone(decoded, c);
+                EXPECT_EQ(c.cone.axis8, cone.axis8);
+                EXPECT_EQ(c.cone.cutoff8, cone.cutoff8);
+                EXPECT_EQ(c.meanTriangleArea, cluster_mean_triangle_area(decoded, c));
+                EXPECT_GT(c.meanTriangleArea, 0.0f);
+                culling += c.cone.cutoff8 < 127;
+            }
+            EXPECT_GT(culling, decoded.clusters.size() / 2) << "a bumpy grid's clusters mostly have cones that cull";
         }
 }
 

@@ -136,6 +136,14 @@ PreparedMesh bake_displacement(const PreparedMesh& mesh, const DisplacementBake&
 // is within the threshold while its parent's is not. Siblings share their LOD bounds, children share their
 // parent bounds, and both grow monotonically up the DAG (parent error >= child error, parent sphere contains
 // child sphere), so the test is local and every cut is crack-free.
+// A cone holding the normal of every triangle of a cluster, for backface culling: the cluster faces away from a
+// viewer at direction v (unit, from the viewer) when dot(v, axis) >= cutoff, with axis and cutoff in 8-bit snorm
+// (x / 127). A cutoff of 127 (1.0) culls nothing: the normals spread too wide.
+struct NormalCone {
+    std::array<int8_t, 3> axis8{0, 0, 0};
+    int8_t cutoff8 = 127;
+};
+
 struct Cluster {
     std::array<float, 4> sphere;        // culling bounds of its own triangles (mesh space, relative to origin)
     std::array<float, 4> lodSphere;     // bounds of the group simplification that made it
@@ -148,6 +156,10 @@ struct Cluster {
     uint32_t vertexCount;               // <= 255
     uint32_t triangleOffset;            // into BuiltMesh::triangles
     uint32_t triangleCount;             // <= 128
+    // Derived from its triangles once the build has placed them (cluster_normal_cone, cluster_mean_triangle_area) and
+    // kept in the page file, so that loading a mesh derives nothing per cluster.
+    NormalCone cone;                    // its triangles' normals, for backface culling
+    float meanTriangleArea;             // mesh units squared: the raster split's estimate of its triangles' size
 };
 
 constexpr uint32_t kNoGroup = 0xffffffffu;
@@ -276,7 +288,7 @@ BuiltMesh build_mesh(PreparedMesh&& mesh, const BuildSettings& settings = {});
 // Clusters are stored in pages of at most kPageBytes (before compression too); the children of one group never
 // straddle pages (a parent refines by loading one page), and root clusters (no parent) fill pages of their own that
 // stay resident.
-constexpr uint32_t kPageFormatVersion = 4;  // 4: the constant vertex channel has 4 components
+constexpr uint32_t kPageFormatVersion = 5;  // 4: the constant vertex channel has 4 components; 5: clusters keep their cone and mean triangle area
 // Bumped whenever the builder makes a different DAG from the same input and settings (simplifier weights, grouping,
 // error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
 constexpr uint32_t kBuilderRevision = 8;  // 3: triangles within a cluster in strip order (encoding.cpp); 4: the seam retry (dag.cpp);
@@ -304,14 +316,9 @@ uint32_t crc32(std::span<const uint8_t> bytes);
 // (clusters must come level 0 first).
 void append_cluster(BuiltMesh& mesh, const Cluster& cluster);
 
-// A cone holding the normal of every triangle of a cluster, for backface culling: the cluster faces away from a
-// viewer at direction v (unit, from the viewer) when dot(v, axis) >= cutoff, with axis and cutoff in 8-bit snorm
-// (x / 127). A cutoff of 127 (1.0) culls nothing: the normals spread too wide.
-struct NormalCone {
-    std::array<int8_t, 3> axis8{0, 0, 0};
-    int8_t cutoff8 = 127;
-};
 NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster);
+// The mean area of a cluster's triangles, in mesh units squared (summed in double).
+float cluster_mean_triangle_area(const BuiltMesh& mesh, const Cluster& cluster);
 
 // The fallback mesh of the cut at `threshold` (FallbackMesh::threshold) of a built or decoded DAG: a decoded DAG gives the
 // same mesh as the built one, bit for bit, so a page file needs to keep only the threshold and the error. `error` is
