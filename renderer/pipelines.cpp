@@ -6,15 +6,21 @@
 #include "spirv/background_comp.h"
 #include "spirv/bins_comp.h"
 #include "spirv/classify_comp.h"
-#include "spirv/cull_comp.h"
+#include "spirv/cull_main_comp.h"
+#include "spirv/cull_main_instances_comp.h"
+#include "spirv/cull_post_comp.h"
+#include "spirv/cull_post_instances_comp.h"
 #include "spirv/dice_comp.h"
 #include "spirv/hzb_comp.h"
 #include "spirv/patch_frag.h"
 #include "spirv/patch_vert.h"
 #include "spirv/raster_frag.h"
 #include "spirv/raster_sw_comp.h"
+#include "spirv/raster_sw_masked_comp.h"
 #include "spirv/raster_vert.h"
-#include "spirv/resolve_comp.h"
+#include "spirv/resolve_micro_triangles_comp.h"
+#include "spirv/resolve_textured_triangles_comp.h"
+#include "spirv/resolve_triangles_comp.h"
 #include "spirv/samples_comp.h"
 #include "spirv/tessellate_comp.h"
 
@@ -235,8 +241,10 @@ uint32_t Pipelines::software_raster_group_size(bool ownCorners) const {
 
 VkPipeline Pipelines::software_raster(bool masks, bool ownCorners, bool largeTriangles, bool countFragments) {
     VkPipeline& variant = rasterSoftware[masks][countFragments][ownCorners][largeTriangles];
+    // The masked variants from their own module (shaders/CMakeLists.txt).
+    const std::span<const uint32_t> module = masks ? std::span<const uint32_t>(raster_sw_masked_comp) : std::span<const uint32_t>(raster_sw_comp);
     if (!variant)
-        variant = compute_pipeline(raster_sw_comp, sizeof(raster_sw_comp),
+        variant = compute_pipeline(module.data(), module.size_bytes(),
                                    {.textures = masks,
                                     .ownCorners = ownCorners,
                                     .rasterGroupSize = software_raster_group_size(ownCorners),
@@ -283,10 +291,20 @@ std::pair<uint64_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
              .textureKinds = v.textureKinds, .lightCounts = v.lightCounts, .everyPixel = v.everyPixel}};
 }
 
+// Resolve's module for a variant's specialization: clusters' triangles untextured or textured, or micro-triangles
+// (shaders/CMakeLists.txt).
+std::span<const uint32_t> Pipelines::resolve_module(const Specialization& specialization) {
+    if (specialization.pixels != TS_BIN_TRIANGLES) return resolve_micro_triangles_comp;
+    return specialization.textures ? std::span<const uint32_t>(resolve_textured_triangles_comp) : std::span<const uint32_t>(resolve_triangles_comp);
+}
+
 VkPipeline Pipelines::resolve_variant(const ResolveVariant& v) {
     const auto [key, specialization] = resolve_key(v);
     VkPipeline& variant = resolveVariants[key];
-    if (!variant) variant = compute_pipeline(resolve_comp, sizeof(resolve_comp), specialization);
+    if (!variant) {
+        const std::span<const uint32_t> module = resolve_module(specialization);
+        variant = compute_pipeline(module.data(), module.size_bytes(), specialization);
+    }
     return variant;
 }
 
@@ -298,7 +316,10 @@ void Pipelines::make_for_frame(const FrameNeeds& needs) {
         const auto [key, specialization] = resolve_key(v);
         const auto [entry, inserted] = resolveVariants.try_emplace(key, VK_NULL_HANDLE);
         if (!inserted) continue;  // made, or already a task
-        tasks.push_back([this, &slot = entry->second, specialization] { slot = compute_pipeline(resolve_comp, sizeof(resolve_comp), specialization); });
+        tasks.push_back([this, &slot = entry->second, specialization] {
+            const std::span<const uint32_t> module = resolve_module(specialization);
+            slot = compute_pipeline(module.data(), module.size_bytes(), specialization);
+        });
     }
     if (startup.valid()) {
         run_on_threads(tasks);
@@ -328,8 +349,11 @@ void Pipelines::make_for_frame(const FrameNeeds& needs) {
 
 VkPipeline Pipelines::cull_step(uint32_t step, uint32_t instanceFlags) {
     VkPipeline& pipeline = cull[step][instance_flags_variant(instanceFlags)];
+    // A module per step (shaders/CMakeLists.txt).
+    static constexpr std::span<const uint32_t> kModules[4] = {cull_main_comp, cull_post_comp, cull_main_instances_comp, cull_post_instances_comp};
+    static_assert(TS_CULL_MAIN == 0 && TS_CULL_POST == 1 && TS_CULL_MAIN_INSTANCES == 2 && TS_CULL_POST_INSTANCES == 3);
     if (!pipeline)
-        pipeline = compute_pipeline(cull_comp, sizeof(cull_comp),
+        pipeline = compute_pipeline(kModules[step].data(), kModules[step].size_bytes(),
                                     {.cullGroupSize = cullGroupSize, .step = step, .instanceFlags = instanceFlags & TS_SPECIALIZED_INSTANCE_FLAGS});
     return pipeline;
 }

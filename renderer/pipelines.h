@@ -16,6 +16,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <span>
 #include <vector>
 
 namespace tessera {
@@ -165,6 +166,7 @@ private:
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
     // Resolve's variant's key in resolveVariants and its specialization (the arguments that do not matter to it cleared).
     static std::pair<uint64_t, Specialization> resolve_key(ResolveVariant variant);
+    static std::span<const uint32_t> resolve_module(const Specialization& specialization);
     // Runs the tasks on every core (tessera/parallel.h: a driver compiles a pipeline on the calling thread); each task
     // writes a slot of its own. Rethrows the exception of the first task that threw.
     static void run_on_threads(const std::vector<std::function<void()>>& tasks);

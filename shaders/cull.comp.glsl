@@ -12,8 +12,10 @@
 #include "occlusion.h"
 
 layout(local_size_x = TS_CULL_GROUP_SIZE, local_size_x_id = TS_SPEC_CULL_GROUP_SIZE) in;  // the device's size
-// This pipeline's step (TS_CULL_*): only its code is compiled in.
-layout(constant_id = TS_SPEC_STEP) const uint STEP = TS_CULL_MAIN;
+// This pipeline's step (TS_CULL_*): only its code is compiled in. Fixed per module (shaders/CMakeLists.txt builds one
+// per step, TS_MODULE_STEP): lavapipe translates all of a module's code before specialization drops the other steps',
+// which cost each step's pipeline 110-300 ms to compile.
+const uint STEP = TS_MODULE_STEP;
 
 const float NEVER_FINE_ENOUGH = 3.4e38;
 

@@ -11,8 +11,10 @@
 
 layout(local_size_x = TS_SW_RASTER_GROUP_SIZE, local_size_x_id = TS_SPEC_RASTER_GROUP_SIZE) in;
 
-// The pipeline variant for frames with textured opacity masks (the others carry no mask code).
-layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
+// The pipeline variant for frames with textured opacity masks (the others carry no mask code). Fixed per module
+// (shaders/CMakeLists.txt: raster_sw and raster_sw_masked, TS_MODULE_MASKS): the mask's texture sampling is most of the
+// module (162 KB of SPIR-V with it, 36-38 KB without), and lavapipe translates all of a module before specialization.
+const bool MASKS = TS_MODULE_MASKS;
 
 // Two variants (RasterVertices), the same pixels bit for bit. Shared (the default): the workgroup transforms each vertex
 // once into shared memory, a barrier, then a thread per triangle; 128 threads on a GPU, one subgroup on a CPU device
