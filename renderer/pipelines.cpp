@@ -11,14 +11,19 @@
 #include "spirv/cull_post_comp.h"
 #include "spirv/cull_post_instances_comp.h"
 #include "spirv/dice_comp.h"
+#include "spirv/dice_masked_comp.h"
 #include "spirv/hzb_comp.h"
 #include "spirv/patch_frag.h"
+#include "spirv/patch_masked_frag.h"
 #include "spirv/patch_vert.h"
 #include "spirv/raster_frag.h"
+#include "spirv/raster_masked_frag.h"
 #include "spirv/raster_sw_comp.h"
 #include "spirv/raster_sw_masked_comp.h"
 #include "spirv/raster_vert.h"
-#include "spirv/resolve_micro_triangles_comp.h"
+#include "spirv/resolve_diced_micro_comp.h"
+#include "spirv/resolve_kept_micro_comp.h"
+#include "spirv/resolve_textured_kept_micro_comp.h"
 #include "spirv/resolve_textured_triangles_comp.h"
 #include "spirv/resolve_triangles_comp.h"
 #include "spirv/samples_comp.h"
@@ -266,8 +271,9 @@ VkPipeline Pipelines::tessellate() {
 
 VkPipeline Pipelines::dice(bool masks, bool countFragments) {
     VkPipeline& variant = diceVariants[masks][countFragments];
+    const std::span<const uint32_t> module = masks ? std::span<const uint32_t>(dice_masked_comp) : std::span<const uint32_t>(dice_comp);
     if (!variant)
-        variant = compute_pipeline(dice_comp, sizeof(dice_comp), {.textures = masks, .rasterGroupSize = diceGroupSize, .countFragments = countFragments});
+        variant = compute_pipeline(module.data(), module.size_bytes(), {.textures = masks, .rasterGroupSize = diceGroupSize, .countFragments = countFragments});
     return variant;
 }
 
@@ -291,11 +297,15 @@ std::pair<uint64_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
              .textureKinds = v.textureKinds, .lightCounts = v.lightCounts, .everyPixel = v.everyPixel}};
 }
 
-// Resolve's module for a variant's specialization: clusters' triangles untextured or textured, or micro-triangles
-// (shaders/CMakeLists.txt).
+// Resolve's module for a variant's specialization: one per kind of pixels, and per texturing but for micro-triangles
+// diced again (shaders/CMakeLists.txt).
 std::span<const uint32_t> Pipelines::resolve_module(const Specialization& specialization) {
-    if (specialization.pixels != TS_BIN_TRIANGLES) return resolve_micro_triangles_comp;
-    return specialization.textures ? std::span<const uint32_t>(resolve_textured_triangles_comp) : std::span<const uint32_t>(resolve_triangles_comp);
+    const bool textured = specialization.textures;
+    switch (specialization.pixels) {
+    case TS_BIN_TRIANGLES: return textured ? std::span<const uint32_t>(resolve_textured_triangles_comp) : std::span<const uint32_t>(resolve_triangles_comp);
+    case TS_BIN_KEPT_MICRO: return textured ? std::span<const uint32_t>(resolve_textured_kept_micro_comp) : std::span<const uint32_t>(resolve_kept_micro_comp);
+    default: return resolve_diced_micro_comp;
+    }
 }
 
 VkPipeline Pipelines::resolve_variant(const ResolveVariant& v) {
@@ -371,7 +381,11 @@ VkPipeline Pipelines::classify_step(uint32_t step, uint32_t instanceFlags) {
 // shader tells apart.
 VkPipeline Pipelines::graphics_pipeline(bool patches, const Specialization& specialization) {
     VkShaderModule vert = patches ? create_module(device.handle(), patch_vert, sizeof(patch_vert)) : create_module(device.handle(), raster_vert, sizeof(raster_vert));
-    VkShaderModule frag = patches ? create_module(device.handle(), patch_frag, sizeof(patch_frag)) : create_module(device.handle(), raster_frag, sizeof(raster_frag));
+    // The fragment stage with or without the masks' code (shaders/CMakeLists.txt).
+    const bool masks = specialization.textures;
+    const std::span<const uint32_t> fragment = patches ? (masks ? std::span<const uint32_t>(patch_masked_frag) : std::span<const uint32_t>(patch_frag))
+                                                       : (masks ? std::span<const uint32_t>(raster_masked_frag) : std::span<const uint32_t>(raster_frag));
+    VkShaderModule frag = create_module(device.handle(), fragment.data(), fragment.size_bytes());
     VkPipelineShaderStageCreateInfo stages[2] = {
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};

@@ -15,8 +15,9 @@
 // coroutines of one subgroup each and switches between them at the barrier; one subgroup cut its dicing time by a third.
 layout(local_size_x = TS_DICE_GROUP_SIZE, local_size_x_id = TS_SPEC_RASTER_GROUP_SIZE) in;
 
-// The pipeline variant for frames with textured opacity masks (the others carry no mask code).
-layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
+// The pipeline variant for frames with textured opacity masks (the others carry no mask code): fixed per module
+// (TS_MODULE_MASKS, shaders/CMakeLists.txt), since the mask's texture sampling is most of the code.
+const bool MASKS = TS_MODULE_MASKS;
 
 shared ivec4 corner[TS_DICE_MAX_POINTS];  // sub-pixel position, reversed-Z depth bits: one load per corner
 

@@ -7,8 +7,9 @@
 layout(location = 0) flat in uint inPayload;
 layout(location = 1) flat in uint inFlags;
 
-// The pipeline variant for frames with textured opacity masks (the others carry no mask code).
-layout(constant_id = TS_SPEC_TEXTURES) const bool MASKS = false;
+// The pipeline variant for frames with textured opacity masks (the others carry no mask code): fixed per module
+// (TS_MODULE_MASKS, shaders/CMakeLists.txt), since the mask's texture sampling is most of the code.
+const bool MASKS = TS_MODULE_MASKS;
 
 void main() {
     if (!gl_FrontFacing && (inFlags & TS_INSTANCE_DOUBLE_SIDED) == 0u) return;  // single-sided: back faces are culled

@@ -18,19 +18,15 @@ layout(constant_id = TS_SPEC_SHADE_PIXELS_PER_THREAD) const uint PIXELS_PER_THRE
 
 // The pipeline variants for materials with textures and for each kind of pixels (TS_BIN_*: clusters' triangles,
 // micro-triangles read from their kept points, micro-triangles diced again); the renderer picks them per bin. This source
-// becomes three modules (shaders/CMakeLists.txt): clusters' triangles untextured and textured, with both fixed at
-// compile time (TS_MODULE_PIXELS, TS_MODULE_TEXTURED), and micro-triangles, where both stay specialization constants.
-// lavapipe translates and optimizes all of a module's code before specialization drops what a variant does not run: one
-// module for every kind took 0.45-0.6 s per variant, an untextured triangles' variant of its own module about 20 ms.
+// becomes a module per kind of pixels (TS_MODULE_PIXELS) and, but for micro-triangles diced again (whose displacement
+// texture is read either way), per texturing (TS_MODULE_TEXTURED): shaders/CMakeLists.txt. lavapipe translates and
+// optimizes all of a module's code before specialization drops what a variant does not run: one module for every kind
+// took 0.45-0.6 s per variant, an untextured triangles' variant of its own module 24-35 ms.
+const uint PIXELS = TS_MODULE_PIXELS;
 #ifdef TS_MODULE_TEXTURED
 const bool TEXTURED = TS_MODULE_TEXTURED;
 #else
 layout(constant_id = TS_SPEC_TEXTURES) const bool TEXTURED = false;
-#endif
-#ifdef TS_MODULE_PIXELS
-const uint PIXELS = TS_MODULE_PIXELS;
-#else
-layout(constant_id = TS_SPEC_DISPLACEMENT) const uint PIXELS = TS_BIN_KEPT_MICRO;
 #endif
 // The variant for frames with area lights or a textured dome (lights.h).
 layout(constant_id = TS_SPEC_AREA_LIGHTS) const bool AREA_LIGHTS = false;

@@ -205,10 +205,13 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Specialization constant (constant_id) that compiles texture work into a pipeline variant: resolve's variant for
 // materials with textures, the rasterizers' for frames with opacity masks. On lavapipe the texture code merely present
 // in a shader, its branch never taken, made every pixel of every material 5x slower to resolve (docs/benchmarks.md).
+// Most shaders now take it fixed per module instead (TS_MODULE_TEXTURED, TS_MODULE_MASKS: shaders/CMakeLists.txt), which
+// also spares lavapipe compiling the code; resolve's module for micro-triangles diced again still reads it.
 #define TS_SPEC_TEXTURES 0
 // The same for micro-triangles: which kind of pixels (TS_BIN_*) a resolve variant takes. Each kind is a bin of its own
 // with a variant of its own, since on lavapipe the code to dice a micro-triangle again, present beside the cheap read of
-// its kept points, ran masked for every pixel and made displaced bins 2.5x as dear to resolve.
+// its kept points, ran masked for every pixel and made displaced bins 2.5x as dear to resolve. Now a module per kind
+// (TS_MODULE_PIXELS): no shader reads this id; Specialization::pixels picks the module.
 #define TS_SPEC_DISPLACEMENT 1
 #define TS_BIN_TRIANGLES 0u      // clusters' own triangles (every material)
 #define TS_BIN_KEPT_MICRO 1u     // micro-triangles whose displaced points the compute patch rasterizer kept
