@@ -2,9 +2,22 @@
 #include "tessera/builder.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 namespace tessera {
+
+namespace {
+
+// The positions of a cluster's triangle's three corners.
+std::array<const float*, 3> triangle_corners(const BuiltMesh& mesh, const Cluster& cluster, uint32_t triangle) {
+    const uint32_t packed = mesh.triangles[cluster.triangleOffset + triangle];
+    std::array<const float*, 3> corners;
+    for (int k = 0; k < 3; ++k) corners[k] = &mesh.positions[3 * size_t(cluster.vertexOffset + ((packed >> (8 * k)) & 0xffu))];
+    return corners;
+}
+
+}  // namespace
 
 // The cone's axis is the centre of a sphere around the triangles' unit normals (Ritter's: the widest of the three
 // axis-extreme pairs as a first diameter, grown over every point), its cutoff the sine of the widest angle from it
@@ -16,9 +29,7 @@ NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster) {
     float normals[kClusterMaxTriangles][3];
     size_t count = 0;
     for (uint32_t t = 0; t < cluster.triangleCount; ++t) {
-        const uint32_t packed = mesh.triangles[cluster.triangleOffset + t];
-        const float* p[3];
-        for (int k = 0; k < 3; ++k) p[k] = &mesh.positions[3 * size_t(cluster.vertexOffset + ((packed >> (8 * k)) & 0xffu))];
+        const std::array<const float*, 3> p = triangle_corners(mesh, cluster, t);
         const float e1[3] = {p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]};
         const float e2[3] = {p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]};
         const float n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
@@ -73,9 +84,7 @@ NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster) {
 float cluster_mean_triangle_area(const BuiltMesh& mesh, const Cluster& cluster) {
     double sum = 0;
     for (uint32_t t = 0; t < cluster.triangleCount; ++t) {
-        const uint32_t packed = mesh.triangles[cluster.triangleOffset + t];
-        const float* p[3];
-        for (int k = 0; k < 3; ++k) p[k] = &mesh.positions[3 * size_t(cluster.vertexOffset + ((packed >> (8 * k)) & 0xffu))];
+        const std::array<const float*, 3> p = triangle_corners(mesh, cluster, t);
         const double e1[3] = {p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]};
         const double e2[3] = {p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]};
         const double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
