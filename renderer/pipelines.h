@@ -166,6 +166,7 @@ private:
     VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
     // Resolve's variant's key in resolveVariants and its specialization (the arguments that do not matter to it cleared).
     static std::pair<uint64_t, Specialization> resolve_key(ResolveVariant variant);
+    // Resolve's SPIR-V module for that specialization: one per kind of pixels and texturing (shaders/CMakeLists.txt).
     static std::span<const uint32_t> resolve_module(const Specialization& specialization);
     // Runs the tasks on every core (tessera/parallel.h: a driver compiles a pipeline on the calling thread); each task
     // writes a slot of its own. Rethrows the exception of the first task that threw.
