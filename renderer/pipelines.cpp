@@ -84,10 +84,13 @@ uint32_t default_shade_pixels_per_thread(const Device& device) {
     return device.is_software() ? TS_CPU_SHADE_PIXELS_PER_THREAD : 1u;
 }
 
-VkShaderModule create_module(VkDevice device, const uint32_t* code, size_t bytes) {
+// A pass's module with or without the textured opacity masks' code (shaders/CMakeLists.txt builds both).
+std::span<const uint32_t> with_masks(bool masks, std::span<const uint32_t> plain, std::span<const uint32_t> masked) { return masks ? masked : plain; }
+
+VkShaderModule create_module(VkDevice device, std::span<const uint32_t> code) {
     VkShaderModuleCreateInfo info{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
-    info.codeSize = bytes;
-    info.pCode = code;
+    info.codeSize = code.size_bytes();
+    info.pCode = code.data();
     VkShaderModule module;
     check_vk(vkCreateShaderModule(device, &info, nullptr, &module), "vkCreateShaderModule");
     return module;
@@ -155,8 +158,8 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
 
     // What (nearly) every frame needs, made on as many threads as the host has (a driver compiles a pipeline on the
     // calling thread), in the background: the session reads its stage and loads its meshes meanwhile, and the first
-    // frame waits for them (wait_for_startup). lavapipe compiles these in about 0.7 CPU s, with no cache between
-    // processes. Resolve is not among them: its variant depends on the scene's lights and materials (the first frame
+    // frame waits for them (wait_for_startup). lavapipe compiles these in about 0.2 CPU s, with no pipeline cache
+    // between processes. Resolve is not among them: its variant depends on the scene's lights and materials (the first frame
     // makes the ones it needs), and a guessed one cost a lit batch render 0.6-0.8 s for nothing.
     const bool ownCorners = default_own_corners();
     startup = std::async(std::launch::async, [this, ownCorners] {
@@ -164,8 +167,8 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
                         [&] { cull_step(TS_CULL_MAIN, 0); },
                         [&] { cull_step(TS_CULL_POST_INSTANCES, 0); },
                         [&] { cull_step(TS_CULL_POST, 0); },
-                        [&] { hzb = compute_pipeline(hzb_comp, sizeof(hzb_comp)); },
-                        [&] { bins = compute_pipeline(bins_comp, sizeof(bins_comp)); },
+                        [&] { hzb = compute_pipeline(hzb_comp); },
+                        [&] { bins = compute_pipeline(bins_comp); },
                         [&] { classify_step(TS_CLASSIFY_ONE_BIN, 0); },
                         [&] { classify_step(TS_CLASSIFY_COUNT, 0); },
                         [&] { classify_step(TS_CLASSIFY_SCATTER, 0); },
@@ -206,8 +209,8 @@ Pipelines::~Pipelines() {
     vkDestroyDescriptorSetLayout(vk, frameSetLayout, nullptr);
 }
 
-VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization) {
-    VkShaderModule module = create_module(device.handle(), code, bytes);
+VkPipeline Pipelines::compute_pipeline(std::span<const uint32_t> code, const Specialization& specialization) {
+    VkShaderModule module = create_module(device.handle(), code);
     const SpecializationInfo variant(specialization, shadePixelsPerThread, texelViews, outputBinding);
     const bool specialized = !(specialization == Specialization{}) || shadePixelsPerThread != 1 || texelViews || outputBinding;
     VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
@@ -222,12 +225,12 @@ VkPipeline Pipelines::compute_pipeline(const uint32_t* code, size_t bytes, const
 }
 
 VkPipeline Pipelines::textured_background() {
-    if (!backgroundTextured) backgroundTextured = compute_pipeline(background_comp, sizeof(background_comp));
+    if (!backgroundTextured) backgroundTextured = compute_pipeline(background_comp);
     return backgroundTextured;
 }
 
 VkPipeline Pipelines::pixel_samples() {
-    if (!pixelSamples) pixelSamples = compute_pipeline(samples_comp, sizeof(samples_comp));
+    if (!pixelSamples) pixelSamples = compute_pipeline(samples_comp);
     return pixelSamples;
 }
 
@@ -246,10 +249,9 @@ uint32_t Pipelines::software_raster_group_size(bool ownCorners) const {
 
 VkPipeline Pipelines::software_raster(bool masks, bool ownCorners, bool largeTriangles, bool countFragments) {
     VkPipeline& variant = rasterSoftware[masks][countFragments][ownCorners][largeTriangles];
-    // The masked variants from their own module (shaders/CMakeLists.txt).
-    const std::span<const uint32_t> module = masks ? std::span<const uint32_t>(raster_sw_masked_comp) : std::span<const uint32_t>(raster_sw_comp);
+    const std::span<const uint32_t> module = with_masks(masks, raster_sw_comp, raster_sw_masked_comp);
     if (!variant)
-        variant = compute_pipeline(module.data(), module.size_bytes(),
+        variant = compute_pipeline(module,
                                    {.textures = masks,
                                     .ownCorners = ownCorners,
                                     .rasterGroupSize = software_raster_group_size(ownCorners),
@@ -265,15 +267,15 @@ VkPipeline Pipelines::hardware_raster(bool masks, bool doubleSided, bool countFr
 }
 
 VkPipeline Pipelines::tessellate() {
-    if (!tessellatePatches) tessellatePatches = compute_pipeline(tessellate_comp, sizeof(tessellate_comp));
+    if (!tessellatePatches) tessellatePatches = compute_pipeline(tessellate_comp);
     return tessellatePatches;
 }
 
 VkPipeline Pipelines::dice(bool masks, bool countFragments) {
     VkPipeline& variant = diceVariants[masks][countFragments];
-    const std::span<const uint32_t> module = masks ? std::span<const uint32_t>(dice_masked_comp) : std::span<const uint32_t>(dice_comp);
+    const std::span<const uint32_t> module = with_masks(masks, dice_comp, dice_masked_comp);
     if (!variant)
-        variant = compute_pipeline(module.data(), module.size_bytes(), {.textures = masks, .rasterGroupSize = diceGroupSize, .countFragments = countFragments});
+        variant = compute_pipeline(module, {.textures = masks, .rasterGroupSize = diceGroupSize, .countFragments = countFragments});
     return variant;
 }
 
@@ -311,10 +313,7 @@ std::span<const uint32_t> Pipelines::resolve_module(const Specialization& specia
 VkPipeline Pipelines::resolve_variant(const ResolveVariant& v) {
     const auto [key, specialization] = resolve_key(v);
     VkPipeline& variant = resolveVariants[key];
-    if (!variant) {
-        const std::span<const uint32_t> module = resolve_module(specialization);
-        variant = compute_pipeline(module.data(), module.size_bytes(), specialization);
-    }
+    if (!variant) variant = compute_pipeline(resolve_module(specialization), specialization);
     return variant;
 }
 
@@ -326,10 +325,7 @@ void Pipelines::make_for_frame(const FrameNeeds& needs) {
         const auto [key, specialization] = resolve_key(v);
         const auto [entry, inserted] = resolveVariants.try_emplace(key, VK_NULL_HANDLE);
         if (!inserted) continue;  // made, or already a task
-        tasks.push_back([this, &slot = entry->second, specialization] {
-            const std::span<const uint32_t> module = resolve_module(specialization);
-            slot = compute_pipeline(module.data(), module.size_bytes(), specialization);
-        });
+        tasks.push_back([this, &slot = entry->second, specialization] { slot = compute_pipeline(resolve_module(specialization), specialization); });
     }
     if (startup.valid()) {
         run_on_threads(tasks);
@@ -363,7 +359,7 @@ VkPipeline Pipelines::cull_step(uint32_t step, uint32_t instanceFlags) {
     static constexpr std::span<const uint32_t> kModules[4] = {cull_main_comp, cull_post_comp, cull_main_instances_comp, cull_post_instances_comp};
     static_assert(TS_CULL_MAIN == 0 && TS_CULL_POST == 1 && TS_CULL_MAIN_INSTANCES == 2 && TS_CULL_POST_INSTANCES == 3);
     if (!pipeline)
-        pipeline = compute_pipeline(kModules[step].data(), kModules[step].size_bytes(),
+        pipeline = compute_pipeline(kModules[step],
                                     {.cullGroupSize = cullGroupSize, .step = step, .instanceFlags = instanceFlags & TS_SPECIALIZED_INSTANCE_FLAGS});
     return pipeline;
 }
@@ -371,7 +367,7 @@ VkPipeline Pipelines::cull_step(uint32_t step, uint32_t instanceFlags) {
 VkPipeline Pipelines::classify_step(uint32_t step, uint32_t instanceFlags) {
     VkPipeline& pipeline = classify[step][instance_flags_variant(instanceFlags)];
     if (!pipeline)
-        pipeline = compute_pipeline(classify_comp, sizeof(classify_comp), {.step = step, .instanceFlags = instanceFlags & TS_SPECIALIZED_INSTANCE_FLAGS});
+        pipeline = compute_pipeline(classify_comp, {.step = step, .instanceFlags = instanceFlags & TS_SPECIALIZED_INSTANCE_FLAGS});
     return pipeline;
 }
 
@@ -380,12 +376,9 @@ VkPipeline Pipelines::classify_step(uint32_t step, uint32_t instanceFlags) {
 // single-sided instances culls back faces; patches come in one draw from instances of both kinds, which the fragment
 // shader tells apart.
 VkPipeline Pipelines::graphics_pipeline(bool patches, const Specialization& specialization) {
-    VkShaderModule vert = patches ? create_module(device.handle(), patch_vert, sizeof(patch_vert)) : create_module(device.handle(), raster_vert, sizeof(raster_vert));
-    // The fragment stage with or without the masks' code (shaders/CMakeLists.txt).
+    VkShaderModule vert = create_module(device.handle(), patches ? std::span<const uint32_t>(patch_vert) : std::span<const uint32_t>(raster_vert));
     const bool masks = specialization.textures;
-    const std::span<const uint32_t> fragment = patches ? (masks ? std::span<const uint32_t>(patch_masked_frag) : std::span<const uint32_t>(patch_frag))
-                                                       : (masks ? std::span<const uint32_t>(raster_masked_frag) : std::span<const uint32_t>(raster_frag));
-    VkShaderModule frag = create_module(device.handle(), fragment.data(), fragment.size_bytes());
+    VkShaderModule frag = create_module(device.handle(), patches ? with_masks(masks, patch_frag, patch_masked_frag) : with_masks(masks, raster_frag, raster_masked_frag));
     VkPipelineShaderStageCreateInfo stages[2] = {
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_VERTEX_BIT, vert, "main"},
         {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO, nullptr, 0, VK_SHADER_STAGE_FRAGMENT_BIT, frag, "main"}};

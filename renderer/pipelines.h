@@ -1,7 +1,7 @@
 // Internal to the renderer: its compiled pipelines on one device, shared by every Renderer on that device.
 // Compiling is most of what starting a renderer costs (on lavapipe, which keeps no pipeline cache between processes,
-// about 0.7 CPU s for the pipelines every frame uses, made in the background while the stage loads, and 0.4-0.6 s for
-// each resolve variant a scene asks for), so a process that opens many stages, or a test suite, pays it once per
+// about 0.2 CPU s for the pipelines every frame uses, made in the background while the stage loads, and 25-35 ms for
+// each resolve variant of clusters' untextured triangles a scene asks for, more for displaced ones), so a process that opens many stages, or a test suite, pays it once per
 // device (Device::shared_state), not once per session. Pipelines are immutable once made; the variants a frame needs
 // are made when it first needs them, under `mutex`, which a render holds throughout.
 #pragma once
@@ -163,7 +163,7 @@ private:
     // frame's make_for_frame.
     void wait_for_startup();
 
-    VkPipeline compute_pipeline(const uint32_t* code, size_t bytes, const Specialization& specialization = {});
+    VkPipeline compute_pipeline(std::span<const uint32_t> code, const Specialization& specialization = {});
     // Resolve's variant's key in resolveVariants and its specialization (the arguments that do not matter to it cleared).
     static std::pair<uint64_t, Specialization> resolve_key(ResolveVariant variant);
     // Resolve's SPIR-V module for that specialization: one per kind of pixels and texturing (shaders/CMakeLists.txt).
