@@ -229,11 +229,11 @@ LevelScales level_scales(GpuFrame frame, Instance instance, GpuMesh mesh, vec3 t
 // 0's).
 uint clusters_in_cut(GpuFrame frame, GpuMesh mesh, float scale, LevelScales s, bool lod) {
     if (!lod) return load_level(frame, mesh.levelOffset).clusterCount;
-    uint inCut = 0u;
-    for (uint l = 0u; l < mesh.levelCount; ++l) {
+    uint inCut = 0u, l = 0u;
+    if (mesh.levelCount != 0u) do {  // the test at the end (frame.h); a mesh left out (an error) has no level
         GpuLevel level = load_level(frame, mesh.levelOffset + l);
         if (level_in_cut(frame, level, scale, s)) inCut += level.clusterCount;
-    }
+    } while (++l < mesh.levelCount);
     return inCut;
 }
 
@@ -245,14 +245,16 @@ struct CutPart { uint index, firstThread, threads; };
 void cut_by_clusters(GpuFrame frame, uint step, uint instanceIndex, CutPart part, Instance instance, GpuMesh mesh, vec3 translation,
                      float scale, bool lod, LevelScales s) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
-    uint levelCount = lod ? mesh.levelCount : 1u;
-    for (uint l = 0u; l < levelCount; ++l) {
+    uint levelCount = lod ? mesh.levelCount : min(mesh.levelCount, 1u), l = 0u;
+    if (levelCount != 0u) do {  // the tests at the end (frame.h); a mesh left out (an error) has no level
         GpuLevel level = load_level(frame, mesh.levelOffset + l);
         if (lod && !level_in_cut(frame, level, scale, s)) continue;
         if (gl_LocalInvocationIndex == 0 && part.index == 0u) atomicAdd(draw.state.candidateClusters, level.clusterCount);
-        for (uint c = part.firstThread; c < level.clusterCount; c += part.threads)
+        uint c = part.firstThread;
+        if (c < level.clusterCount) do {
             test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, lod, level.clusterOffset + c);
-    }
+        } while ((c += part.threads) < level.clusterCount);
+    } while (++l < levelCount);
 }
 
 // The cut by blocks: each block of each level in the cut, spread over the threads; a thread tests the clusters of
@@ -261,17 +263,21 @@ void cut_by_blocks(GpuFrame frame, uint step, uint instanceIndex, CutPart part, 
                    float scale, LevelScales s) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     float extra = instance_displacement(frame, instance);  // bounds every cluster's own (cluster_displacement)
-    for (uint l = 0u; l < mesh.levelCount; ++l) {
+    uint l = 0u;
+    if (mesh.levelCount != 0u) do {  // the tests at the end (frame.h); a mesh left out (an error) has no level
         GpuLevel level = load_level(frame, mesh.levelOffset + l);
         if (!level_in_cut(frame, level, scale, s)) continue;
-        for (uint b = part.firstThread; b < level.blockCount; b += part.threads) {
+        uint b = part.firstThread;
+        if (b < level.blockCount) do {
             GpuCutBlock block = load_cut_block(frame, level.blockOffset + b);
             if (!block_may_draw(frame, instance, translation, scale, block, extra)) continue;
             atomicAdd(draw.state.candidateClusters, block.clusterCount);
-            for (uint k = 0u; k < block.clusterCount; ++k)
+            uint k = 0u;
+            do {  // a block holds at least one cluster
                 test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, true, block_cluster(frame, block.firstCluster + k));
-        }
-    }
+            } while (++k < block.clusterCount);
+        } while ((b += part.threads) < level.blockCount);
+    } while (++l < mesh.levelCount);
 }
 
 // The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup (alone, or with the
@@ -391,7 +397,8 @@ void test_instance(GpuFrame frame, uint step, uint thread) {
 // lavapipe a workgroup of this shader costs about 30 us before it does anything, so each must do much.
 void test_instances(GpuFrame frame, uint step) {
     uint first = (gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x) * TS_CULL_INSTANCES_PER_GROUP;
-    for (uint i = gl_LocalInvocationIndex; i < TS_CULL_INSTANCES_PER_GROUP; i += gl_WorkGroupSize.x) test_instance(frame, step, first + i);
+    uint i = gl_LocalInvocationIndex;
+    do test_instance(frame, step, first + i); while ((i += gl_WorkGroupSize.x) < TS_CULL_INSTANCES_PER_GROUP);
 }
 
 // Main pass: one workgroup per cut list entry (a part of an instance's cut).

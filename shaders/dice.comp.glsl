@@ -21,6 +21,43 @@ const bool MASKS = TS_MODULE_MASKS;
 
 shared ivec4 corner[TS_DICE_MAX_POINTS];  // sub-pixel position, reversed-Z depth bits: one load per corner
 
+// Lattice point v of the patch (row by row: the first row's n + 1 points, then n, ...): diced, displaced and snapped into
+// shared memory, and kept for resolve where the patch has room for its points (`points`).
+void place_point(GpuFrame frame, DicedPatch d, uint points, uint v) {
+    uint n = d.n, b = 0u, first = 0u;
+    if (first + n + 1u - b <= v) do {  // the test at the end (frame.h)
+        first += n + 1u - b;
+        ++b;
+    } while (first + n + 1u - b <= v);
+    vec2 st;
+    vec3 p = displaced_point(frame, d, micro_point(d, uvec2(v - first, b)), st);
+    ivec2 screen;
+    float depth;
+    snap_vertex(frame, frame.viewProjection * vec4(p, 1.0), screen, depth);
+    corner[v] = ivec4(screen, floatBitsToInt(depth), 0);
+    if (points != TS_NO_STREAM) {  // kept for resolve, which then need not dice again
+        PatchPointRef pool = PatchPointRef(frame.patchPoints);
+        uint at = (points + v) * TS_PATCH_POINT_FLOATS;
+        pool.data[at] = p.x;
+        pool.data[at + 1u] = p.y;
+        pool.data[at + 2u] = p.z;
+        pool.data[at + 3u] = st.x;
+        pool.data[at + 4u] = st.y;
+    }
+}
+
+// Micro-triangle `micro` of the patch, from its corners in shared memory.
+void draw_micro_triangle(GpuFrame frame, DicedPatch d, uint index, uint micro) {
+    uvec2 a, b, c;
+    lattice_cell(micro, d.n, a, b, c);
+    uint ia = lattice_index(a, d.n), ib = lattice_index(b, d.n), ic = lattice_index(c, d.n);
+    uint64_t payload = uint64_t(TS_VIS_TESSELLATED | index << TS_VIS_MICRO_BITS | micro);
+    ivec4 ca = corner[ia], cb = corner[ib], cc = corner[ic];
+    rasterize_triangle(frame, ca.xy, cb.xy, cc.xy, intBitsToFloat(ca.z), intBitsToFloat(cb.z), intBitsToFloat(cc.z), payload,
+                       (d.instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, MASKS && (d.instance.flags & TS_INSTANCE_MASKED) != 0u,
+                       true);  // patches up to TS_DICE_MAX_RADIUS_PIXELS: micro-triangles may be large
+}
+
 void main() {
     GpuFrame frame = frameConstants;
     DrawStateRef draw = DrawStateRef(frame.drawState);
@@ -33,40 +70,15 @@ void main() {
 
     // Each thread takes every workgroup-size-th point and then micro-triangle: a workgroup of 256 (one thread per
     // micro-triangle of the largest patch) cost lavapipe, which runs a workgroup 8 lanes at a time, masked or not, 4x as
-    // much for the typical patch of far fewer.
-    uint points = load_gpu_patch(frame, index).points;
-    for (uint v = gl_LocalInvocationIndex; v < (n + 1u) * (n + 2u) / 2u; v += gl_WorkGroupSize.x) {
-        uint b = 0u, first = 0u;
-        while (first + n + 1u - b <= v) {
-            first += n + 1u - b;
-            ++b;
-        }
-        vec2 st;
-        vec3 p = displaced_point(frame, d, micro_point(d, uvec2(v - first, b)), st);
-        ivec2 screen;
-        float depth;
-        snap_vertex(frame, frame.viewProjection * vec4(p, 1.0), screen, depth);
-        corner[v] = ivec4(screen, floatBitsToInt(depth), 0);
-        if (points != TS_NO_STREAM) {  // kept for resolve, which then need not dice again
-            PatchPointRef pool = PatchPointRef(frame.patchPoints);
-            uint at = (points + v) * TS_PATCH_POINT_FLOATS;
-            pool.data[at] = p.x;
-            pool.data[at + 1u] = p.y;
-            pool.data[at + 2u] = p.z;
-            pool.data[at + 3u] = st.x;
-            pool.data[at + 4u] = st.y;
-        }
-    }
+    // much for the typical patch of far fewer. Both loops test at their end (frame.h).
+    uint points = load_gpu_patch(frame, index).points, pointCount = (n + 1u) * (n + 2u) / 2u, v = gl_LocalInvocationIndex;
+    do {
+        if (v < pointCount) place_point(frame, d, points, v);
+    } while ((v += gl_WorkGroupSize.x) < pointCount);
     barrier();
 
-    for (uint micro = gl_LocalInvocationIndex; micro < n * n; micro += gl_WorkGroupSize.x) {
-        uvec2 a, b, c;
-        lattice_cell(micro, n, a, b, c);
-        uint ia = lattice_index(a, n), ib = lattice_index(b, n), ic = lattice_index(c, n);
-        uint64_t payload = uint64_t(TS_VIS_TESSELLATED | index << TS_VIS_MICRO_BITS | micro);
-        ivec4 ca = corner[ia], cb = corner[ib], cc = corner[ic];
-        rasterize_triangle(frame, ca.xy, cb.xy, cc.xy, intBitsToFloat(ca.z), intBitsToFloat(cb.z), intBitsToFloat(cc.z), payload,
-                           (d.instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, MASKS && (d.instance.flags & TS_INSTANCE_MASKED) != 0u,
-                           true);  // patches up to TS_DICE_MAX_RADIUS_PIXELS: micro-triangles may be large
-    }
+    uint micro = gl_LocalInvocationIndex;
+    do {
+        if (micro < n * n) draw_micro_triangle(frame, d, index, micro);
+    } while ((micro += gl_WorkGroupSize.x) < n * n);
 }

@@ -54,12 +54,12 @@ void scan_block(GpuFrame frame, ivec2 corner, ivec3 w, ivec3 stepX, ivec3 stepY,
     }
     // Samples past the box are masked off here (their edge functions may exceed the bound that holds inside the box).
     uint covered = ~outside & (0x1111u * ((1u << inBox.x) - 1u)) & ((1u << (4u * inBox.y)) - 1u);
-    while (covered != 0u) {
+    if (covered != 0u) do {  // the test at the end (frame.h)
         int bit = findLSB(covered);
         covered &= covered - 1u;
         int dx = bit & 3, dy = bit >> 2;
         write_pixel(frame, corner.x + dx, corner.y + dy, depth_at(vec3(w + stepX * dx + stepY * dy), z), payload, masked);
-    }
+    } while (covered != 0u);
 }
 
 // A triangle's box in blocks of 4 x 4 pixel centres (nearly every triangle of a dense cut fits one).
@@ -72,17 +72,19 @@ void scan_small(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, i
     ivec3 stepY = ivec3(b.x - c.x, c.x - a.x, a.x - b.x) * step;
     ivec3 bias = ivec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
     ivec2 size = hi - lo + 1;
-    // One loop over the blocks, row by row (a nested loop runs its inner loop's mask logic once more per row).
+    // One loop over the blocks, row by row (a nested loop runs its inner loop's mask logic once more per row), testing at
+    // its end (frame.h): a box holding no pixel centre scans one block of none.
     int blocks = ((max(size.x, 0) + 3) >> 2) * ((max(size.y, 0) + 3) >> 2);
     ivec2 block = ivec2(0);
     ivec3 w = row;
-    for (int k = 0; k < blocks; ++k) {
-        scan_block(frame, lo + block, w, stepX, stepY, bias, uvec2(min(size - block, 4)), z, payload, masked);
+    int k = 0;
+    do {
+        scan_block(frame, lo + block, w, stepX, stepY, bias, uvec2(clamp(size - block, 0, 4)), z, payload, masked);
         bool wrap = block.x + 4 >= size.x;
         row += wrap ? stepY * 4 : ivec3(0);
         w = wrap ? row : w + stepX * 4;
         block = wrap ? ivec2(0, block.y + 4) : ivec2(block.x + 4, block.y);
-    }
+    } while (++k < blocks);
 }
 
 void scan_large(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, int step, int center, vec4 z, uint64_t payload, bool masked) {
@@ -93,11 +95,17 @@ void scan_large(GpuFrame frame, ivec2 a, ivec2 b, ivec2 c, ivec2 lo, ivec2 hi, i
     i64vec3 stepX = -i64vec3(b.y - c.y, c.y - a.y, a.y - b.y) * int64_t(step);
     i64vec3 stepY = i64vec3(b.x - c.x, c.x - a.x, a.x - b.x) * int64_t(step);
     i64vec3 bias = i64vec3(edge_bias(b, c), edge_bias(c, a), edge_bias(a, b));
-    for (int y = lo.y; y <= hi.y; ++y, row += stepY) {
+    if (lo.x > hi.x || lo.y > hi.y) return;  // no pixel centre in the box
+    int y = lo.y;
+    do {  // the tests at the end (frame.h)
         i64vec3 w = row;
-        for (int x = lo.x; x <= hi.x; ++x, w += stepX)
+        int x = lo.x;
+        do {
             if (all(greaterThanEqual(w + bias, i64vec3(0)))) write_pixel(frame, x, y, depth_at(vec3(w), z), payload, masked);
-    }
+            w += stepX;
+        } while (++x <= hi.x);
+        row += stepY;
+    } while (++y <= hi.y);
 }
 
 // One triangle: sub-pixel corners a, b, c with reversed-Z depths; culled when it faces away (unless double-sided) or

@@ -58,6 +58,37 @@ void transform_vertex(GpuFrame frame, Instance instance, vec3 translation, uint 
                 screen, depth);
 }
 
+// One triangle of the cluster, its corners from shared memory (or transformed here: OWN_CORNERS).
+void draw_triangle(GpuFrame frame, Instance instance, GpuCluster cluster, vec3 translation, ivec2 origin, uint slot, uint triangle, bool flip) {
+    uvec3 corners = triangle_vertices(frame, cluster, triangle, flip);
+    uint i0 = corners.x, i1 = corners.y, i2 = corners.z;
+    ivec2 a, b, c;
+    float za, zb, zc;
+    if (OWN_CORNERS) {
+        transform_vertex(frame, instance, translation, i0, a, za);
+        transform_vertex(frame, instance, translation, i1, b, zb);
+        transform_vertex(frame, instance, translation, i2, c, zc);
+    } else if (LARGE_TRIANGLES) {
+        i0 -= cluster.vertexOffset;
+        i1 -= cluster.vertexOffset;
+        i2 -= cluster.vertexOffset;
+        ivec4 ca = corner[i0], cb = corner[i1], cc = corner[i2];
+        a = ca.xy;
+        b = cb.xy;
+        c = cc.xy;
+        za = intBitsToFloat(ca.z);
+        zb = intBitsToFloat(cb.z);
+        zc = intBitsToFloat(cc.z);
+    } else {
+        unpack_corner(packedCorner[i0 - cluster.vertexOffset], origin, a, za);
+        unpack_corner(packedCorner[i1 - cluster.vertexOffset], origin, b, zb);
+        unpack_corner(packedCorner[i2 - cluster.vertexOffset], origin, c, zc);
+    }
+    uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
+    bool masked = MASKS && (instance.flags & TS_INSTANCE_MASKED) != 0u;
+    rasterize_triangle(frame, a, b, c, za, zb, zc, payload, (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, masked, LARGE_TRIANGLES);
+}
+
 void main() {
     GpuFrame frame = frameConstants;
     DrawStateRef draw = DrawStateRef(frame.drawState);
@@ -80,44 +111,22 @@ void main() {
     if (!OWN_CORNERS) {
         // Each vertex once, into shared memory, for every triangle that uses it.
         uint vertexCount = cluster.levelVertices & 0xffffu;
-        for (uint v = gl_LocalInvocationIndex; v < vertexCount; v += gl_WorkGroupSize.x) {
+        uint v = gl_LocalInvocationIndex;
+        do {  // the test at the end (frame.h); a lane past the last vertex transforms the last one again, unstored
             ivec2 sv;
             float dv;
-            transform_vertex(frame, instance, translation, cluster.vertexOffset + v, sv, dv);
-            if (LARGE_TRIANGLES) corner[v] = ivec4(sv, floatBitsToInt(dv), 0);
-            else packedCorner[v] = pack_corner(sv, dv, origin);
-        }
+            transform_vertex(frame, instance, translation, cluster.vertexOffset + min(v, vertexCount - 1u), sv, dv);
+            if (v < vertexCount) {
+                if (LARGE_TRIANGLES) corner[v] = ivec4(sv, floatBitsToInt(dv), 0);
+                else packedCorner[v] = pack_corner(sv, dv, origin);
+            }
+        } while ((v += gl_WorkGroupSize.x) < vertexCount);
         barrier();
     }
 
     bool flip = (instance.flags & TS_INSTANCE_FLIP_WINDING) != 0u;
-    for (uint triangle = gl_LocalInvocationIndex; triangle < cluster.triangleCount; triangle += gl_WorkGroupSize.x) {
-        uvec3 corners = triangle_vertices(frame, cluster, triangle, flip);
-        uint i0 = corners.x, i1 = corners.y, i2 = corners.z;
-        ivec2 a, b, c;
-        float za, zb, zc;
-        if (OWN_CORNERS) {
-            transform_vertex(frame, instance, translation, i0, a, za);
-            transform_vertex(frame, instance, translation, i1, b, zb);
-            transform_vertex(frame, instance, translation, i2, c, zc);
-        } else if (LARGE_TRIANGLES) {
-            i0 -= cluster.vertexOffset;
-            i1 -= cluster.vertexOffset;
-            i2 -= cluster.vertexOffset;
-            ivec4 ca = corner[i0], cb = corner[i1], cc = corner[i2];
-            a = ca.xy;
-            b = cb.xy;
-            c = cc.xy;
-            za = intBitsToFloat(ca.z);
-            zb = intBitsToFloat(cb.z);
-            zc = intBitsToFloat(cc.z);
-        } else {
-            unpack_corner(packedCorner[i0 - cluster.vertexOffset], origin, a, za);
-            unpack_corner(packedCorner[i1 - cluster.vertexOffset], origin, b, zb);
-            unpack_corner(packedCorner[i2 - cluster.vertexOffset], origin, c, zc);
-        }
-        uint64_t payload = uint64_t((slot << TS_VIS_TRIANGLE_BITS) | triangle);
-        bool masked = MASKS && (instance.flags & TS_INSTANCE_MASKED) != 0u;
-        rasterize_triangle(frame, a, b, c, za, zb, zc, payload, (instance.flags & TS_INSTANCE_DOUBLE_SIDED) != 0u, masked, LARGE_TRIANGLES);
-    }
+    uint triangle = gl_LocalInvocationIndex;
+    do {  // the test at the end (frame.h)
+        if (triangle < cluster.triangleCount) draw_triangle(frame, instance, cluster, translation, origin, slot, triangle, flip);
+    } while ((triangle += gl_WorkGroupSize.x) < cluster.triangleCount);
 }

@@ -251,21 +251,24 @@ void main() {
         uvec2 pixel = gl_WorkGroupID.xy * uvec2(TS_PIXEL_TILE * PIXELS_PER_THREAD, TS_PIXEL_TILE) +
                       uvec2(gl_LocalInvocationIndex % TS_PIXEL_TILE, gl_LocalInvocationIndex / TS_PIXEL_TILE);
         uint covered = 0u;  // the same in every lane: no lane leaves the loop before the others
-        [[dont_unroll]] for (uint k = 0u; k < PIXELS_PER_THREAD; ++k, pixel.x += TS_PIXEL_TILE) {
+        uint k = 0u;
+        [[dont_unroll]] do {
             uint64_t value = all(lessThan(pixel, frame.viewport.xy)) ? visibility_value(frame, pixel.y * frame.viewport.x + pixel.x) : 0ul;
             covered += subgroupBallotBitCount(subgroupBallot(value != 0ul));
             if (value != 0ul) shade(frame, pixel, value, aov);
-        }
+            pixel.x += TS_PIXEL_TILE;
+        } while (++k < PIXELS_PER_THREAD);
         if (subgroupElect() && covered != 0u) atomicAdd(DrawStateRef(frame.drawState).state.coveredPixels, covered);
         return;
     }
     // The bin's pixels TS_SHADE_GROUP_SIZE apart, PIXELS_PER_THREAD of them (the same trip count for every thread).
     GpuBin bin = BinRef(frame.bins).data[push.step];
     uint first = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * TS_SHADE_GROUP_SIZE * PIXELS_PER_THREAD + gl_LocalInvocationIndex;
-    [[dont_unroll]] for (uint k = 0u; k < PIXELS_PER_THREAD; ++k) {
+    uint k = 0u;
+    [[dont_unroll]] do {
         uint i = first + k * TS_SHADE_GROUP_SIZE;
         if (i >= bin.count) return;
         uvec2 pixel = unpack_bin_pixel(bin_pixel_entry(frame, bin.offset + i));
         shade(frame, pixel, visibility_value(frame, pixel.y * frame.viewport.x + pixel.x), aov);
-    }
+    } while (++k < PIXELS_PER_THREAD);
 }
