@@ -187,7 +187,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["backface_clusters"] = s.backfaceClusters;
     d["shading_bins"] = s.shadingBins;
     d["covered_pixels"] = s.coveredPixels;
-    d["resolved_every_pixel"] = s.resolvedEveryPixel;
+    d["resolve_pixels"] = s.resolvePixels;
     d["textures"] = s.textures;
     d["geometry_bytes"] = s.geometryBytes;
     d["geometry_upload_bytes"] = s.geometryUploadBytes;

@@ -111,14 +111,14 @@ struct SpecializationInfo {
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
                                            {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4},
                                            {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}, {TS_SPEC_LIGHT_COUNTS, 60, 4}, {TS_SPEC_OUTPUT_BINDING, 64, 4},
-                                           {TS_SPEC_INSTANCE_FLAGS, 68, 4}, {TS_SPEC_EVERY_PIXEL, 72, 4}};
+                                           {TS_SPEC_INSTANCE_FLAGS, 68, 4}, {TS_SPEC_PIXEL_SOURCE, 72, 4}};
     VkSpecializationInfo info{19, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews, bool outputBinding)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
                  s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
                  VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts, VkBool32(outputBinding),
-                 s.instanceFlags, VkBool32(s.everyPixel)} {}
+                 s.instanceFlags, s.pixelSource} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
@@ -294,9 +294,9 @@ std::pair<uint64_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
     if (v.output == TS_OUTPUT_ID) v.pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
     if (!v.textured && v.pixels != TS_BIN_DICED_MICRO) v.textureKinds = 0;  // it reads no texture
     return {v.textureKinds | uint64_t(v.textured) << 8 | uint64_t(v.pixels) << 9 | uint64_t(v.areaLights) << 11 | uint64_t(v.vertexInputs) << 12 |
-                uint64_t(v.output) << 13 | uint64_t(v.lightCounts) << 16 | uint64_t(v.everyPixel) << 32,
+                uint64_t(v.output) << 13 | uint64_t(v.lightCounts) << 16 | uint64_t(v.pixelSource) << 32,
             {.textures = v.textured, .pixels = v.pixels, .areaLights = v.areaLights, .vertexInputs = v.vertexInputs, .output = v.output,
-             .textureKinds = v.textureKinds, .lightCounts = v.lightCounts, .everyPixel = v.everyPixel}};
+             .textureKinds = v.textureKinds, .lightCounts = v.lightCounts, .pixelSource = v.pixelSource}};
 }
 
 // Resolve's module for a variant's specialization: one per kind of pixels, and per texturing but for micro-triangles

@@ -53,7 +53,7 @@ struct Specialization {
     uint32_t textureKinds = TS_TEXTURE_KINDS_ALL;  // TS_SPEC_TEXTURE_KINDS: what a textured resolve's textures need
     uint32_t lightCounts = 0;              // TS_SPEC_LIGHT_COUNTS: resolve's shading, the frame's lights
     uint32_t instanceFlags = TS_SPECIALIZED_INSTANCE_FLAGS;  // TS_SPEC_INSTANCE_FLAGS: the cull's and classify's, the frame's
-    bool everyPixel = false;               // TS_SPEC_EVERY_PIXEL: resolve over every pixel (one bin, mostly covered)
+    uint32_t pixelSource = TS_PIXELS_LISTED;  // TS_SPEC_PIXEL_SOURCE: where resolve finds its pixels (TS_PIXELS_*)
     bool operator==(const Specialization&) const = default;
 };
 
@@ -116,7 +116,7 @@ struct Pipelines {
         uint32_t textureKinds = 0, pixels = TS_BIN_TRIANGLES;
         bool areaLights = false, vertexInputs = false;
         uint32_t output = TS_OUTPUT_SHADE, lightCounts = 0;
-        bool everyPixel = false;  // every pixel, no list: a one-bin frame after a mostly covered one (TS_SPEC_EVERY_PIXEL)
+        uint32_t pixelSource = TS_PIXELS_LISTED;  // its bin's list, or every pixel of a one-bin frame (TS_SPEC_PIXEL_SOURCE)
     };
     // Resolve's variant for a bin, made on first use.
     VkPipeline resolve_variant(const ResolveVariant& variant);
@@ -154,7 +154,7 @@ private:
     // Resolve's variants by TS_SPEC_TEXTURE_KINDS | TS_SPEC_TEXTURES << 8 | TS_SPEC_DISPLACEMENT << 9 |
     // TS_SPEC_AREA_LIGHTS << 11 | TS_SPEC_VERTEX_INPUTS << 12 (what its textures need, textured materials, displaced
     // materials, frames with area lights or a textured dome, materials with vertex inputs), TS_SPEC_OUTPUT (what it
-    // writes) << 13, TS_SPEC_LIGHT_COUNTS << 16 and TS_SPEC_EVERY_PIXEL << 32: on lavapipe each one's code, present but
+    // writes) << 13, TS_SPEC_LIGHT_COUNTS << 16 and TS_SPEC_PIXEL_SOURCE << 32: on lavapipe each one's code, present but
     // not run, cost every pixel of the frames that do not need it.
     std::map<uint64_t, VkPipeline> resolveVariants;
     // The constructor's set, made in the background (wait_for_startup).

@@ -398,10 +398,12 @@ struct Renderer::Impl {
     uint32_t deferredCapacity = 1u << 12;  // the deferred-instance list's (instances the previous HZB hid); grows on overflow
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
-    // The share of the pixels the previous frame covered (-1: none yet). A one-bin frame after one that covered at
-    // least kEveryPixelCoverage is resolved over every pixel, unlisted (TS_SPEC_EVERY_PIXEL). On lavapipe, at 1080p:
-    // listing costs 15-16 ms on one core; reading every pixel instead cost the 1 px sphere (88 % covered) 5 ms more
-    // in resolve, the density fields (47 % covered, many silhouettes) 28 ms more (docs/benchmarks.md).
+    // The share of the pixels the previous frame covered (-1: none yet). A one-bin frame is not classified: resolve reads
+    // every pixel (TS_SPEC_PIXEL_SOURCE), shading the covered ones in place after a frame that covered at least
+    // kEveryPixelCoverage, else, on a CPU device, packing each subgroup's covered pixels first; a GPU lists them. On
+    // lavapipe, one core, 1080p: listing costs 15 ms; shading in place cost the density fields (47 % covered, many
+    // silhouettes) 28 ms more in resolve than the list, packing 3-4 ms more; packing cost the 1 px sphere (88 % covered)
+    // 5 ms more than shading in place (docs/benchmarks.md).
     static constexpr double kEveryPixelCoverage = 0.75;
     double coverage = -1;
     uint32_t materialCount = 1;
@@ -1768,15 +1770,20 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.clusterDisplacement = s.clusterDisplacement.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
-        // A frame whose pixels can only fall in one bin (one material, no displacement) lists its covered pixels at once,
-        // or, after a frame that covered most pixels, is not classified: its resolve reads every pixel.
+        // A frame whose pixels can only fall in one bin (one material, no displacement) lists its covered pixels at once
+        // (a GPU's frame after one that covered few pixels), or is not classified: its resolve reads every pixel.
         const bool oneBin = s.materialCount * s.bin_kinds() == 1;
-        const bool everyPixel = oneBin && s.coverage >= Impl::kEveryPixelCoverage;
+        const uint32_t pixelSource = !oneBin                                    ? TS_PIXELS_LISTED
+                                   : s.coverage >= Impl::kEveryPixelCoverage   ? TS_PIXELS_IN_PLACE
+                                   : pipelines.shadePixelsPerThread > 1 && pipelines.shadePixelsPerThread <= TS_PACKED_MOST_PIXELS_PER_THREAD
+                                                                               ? TS_PIXELS_PACKED
+                                                                               : TS_PIXELS_LISTED;
+        const bool everyPixel = pixelSource != TS_PIXELS_LISTED;
         // Resolve's variant for a bin of an AOV: materials with textures through the variant that samples them; only the
         // colour AOV shades.
         auto resolve_variant_of = [&](Aov aov, uint32_t pixels, uint32_t m) {
             Pipelines::ResolveVariant v;
-            v.everyPixel = everyPixel;
+            v.pixelSource = pixelSource;
             v.textured = aov == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
             v.textureKinds = m < s.materialTextureKinds.size() ? s.materialTextureKinds[m] : 0u;
             v.pixels = pixels;
@@ -2128,7 +2135,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         frameStats.hzbBuilds = state.hzbBuilds;
         frameStats.backfaceClusters = state.backfaceClusters;
         // An every-pixel frame runs no bins pass: each AOV's resolve counted the covered pixels, and they are its one bin.
-        frameStats.resolvedEveryPixel = everyPixel;
+        frameStats.resolvePixels = pixelSource == TS_PIXELS_IN_PLACE ? "in place" : pixelSource == TS_PIXELS_PACKED ? "packed" : "listed";
         frameStats.coveredPixels = everyPixel ? state.coveredPixels / uint32_t(aovs.size()) : state.coveredPixels;
         frameStats.shadingBins = everyPixel ? uint32_t(frameStats.coveredPixels > 0) : state.shadingBins;
         s.coverage = double(frameStats.coveredPixels) / double(pixels);

@@ -2,7 +2,7 @@
 // thread per pixel on a GPU, several per thread on a CPU device): read the visibility buffer, refetch its triangle, find
 // the barycentrics where the pixel's ray meets it, and write the requested AOV. Every visible pixel is shaded exactly
 // once, whatever the overdraw. The pixels nothing covers keep the background the frame wrote first. A frame of one bin
-// after a mostly covered one runs the variant that reads every pixel instead of a list (TS_SPEC_EVERY_PIXEL).
+// reads every pixel instead of a list (TS_SPEC_PIXEL_SOURCE).
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #extension GL_KHR_shader_subgroup_ballot : require
@@ -37,8 +37,8 @@ const uint DISTANT_LIGHTS = LIGHT_COUNTS & 0xffu, ALL_LIGHTS = LIGHT_COUNTS >> 8
 layout(constant_id = TS_SPEC_OUTPUT) const uint OUTPUT = TS_OUTPUT_SHADE;
 // The variant for materials with inputs from the vertex channel (GpuMaterial.vertexInputs != 0).
 layout(constant_id = TS_SPEC_VERTEX_INPUTS) const bool VERTEX_INPUTS = false;
-// The variant that reads every pixel of the frame, tile by tile, and shades those a surface covers (one bin).
-layout(constant_id = TS_SPEC_EVERY_PIXEL) const bool EVERY_PIXEL = false;
+// Where this variant finds its pixels (TS_PIXELS_*): its bin's list, or every pixel of the frame, tile by tile (one bin).
+layout(constant_id = TS_SPEC_PIXEL_SOURCE) const uint PIXEL_SOURCE = TS_PIXELS_LISTED;
 
 // A well-spread colour for an id (integer hash, then three 8-bit channels lifted away from black).
 vec3 id_color(uint id) {
@@ -74,8 +74,8 @@ vec3 visualize(GpuFrame frame, uint mode, Instance instance, uvec2 visible, GpuC
     return id_color(material);  // TS_VIS_SHADING_BINS
 }
 
-// One covered pixel (visibility buffer value `value`, non-zero).
-void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
+// One covered pixel (`payloadBits`: the low word of its visibility value, which is not zero).
+void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, uint aov) {
     uint index = pixel.y * frame.viewport.x + pixel.x;
     if (OUTPUT == TS_OUTPUT_VISUALIZE && frame.counts.w == TS_VIS_OVERDRAW) {
         uint fragments = CounterRef(frame.overdraw).data[index];
@@ -85,8 +85,8 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
 
     // A bin of clusters' own triangles holds no micro-triangle: no patch to look up (a branch is not free on a CPU device).
     // The id variant serves every kind of bin (renderer.cpp: resolve_variant), so it decodes micro-triangles too.
-    Payload payload = PIXELS == TS_BIN_TRIANGLES && OUTPUT != TS_OUTPUT_ID ? Payload(uint(value) >> TS_VIS_TRIANGLE_BITS, uint(value) & ((1u << TS_VIS_TRIANGLE_BITS) - 1u), 0xffffffffu, 0u)
-                                                 : decode_payload(frame, uint(value));
+    Payload payload = PIXELS == TS_BIN_TRIANGLES && OUTPUT != TS_OUTPUT_ID ? Payload(payloadBits >> TS_VIS_TRIANGLE_BITS, payloadBits & ((1u << TS_VIS_TRIANGLE_BITS) - 1u), 0xffffffffu, 0u)
+                                                 : decode_payload(frame, payloadBits);
     uint triangle = payload.triangle;
     uvec2 visible = visible_cluster(frame, payload.slot);
     bool software = (visible.x & TS_VISIBLE_SOFTWARE) != 0u;
@@ -240,24 +240,49 @@ void shade(GpuFrame frame, uvec2 pixel, uint64_t value, uint aov) {
     write_output(frame, index, vec4(color, 1.0));
 }
 
+// TS_PIXELS_PACKED: each subgroup's covered pixels (the payload, the position), in its own part.
+const uint PACKED_PIXELS = TS_SHADE_GROUP_SIZE * (PIXELS_PER_THREAD < TS_PACKED_MOST_PIXELS_PER_THREAD ? PIXELS_PER_THREAD : TS_PACKED_MOST_PIXELS_PER_THREAD);
+shared uint packedPayload[PACKED_PIXELS];
+shared uint packedPixel[PACKED_PIXELS];
+
 void main() {
     GpuFrame frame = frameConstants;
     uint aov = push.aov;
-    if (EVERY_PIXEL) {
+    if (PIXEL_SOURCE != TS_PIXELS_LISTED) {
         // A row of PIXELS_PER_THREAD tiles of TS_PIXEL_TILE x TS_PIXEL_TILE pixels per workgroup, each thread a pixel of
         // each tile (TS_SHADE_GROUP_SIZE is a tile's pixels). Shifts, no division: lavapipe divides lane by lane (a
         // division per pixel cost a screen-filling frame as much as classify saved). Each subgroup counts its covered
-        // pixels: the frame's coverage, by which the renderer picks this variant or the list for the next frame.
+        // pixels: the frame's coverage, by which the renderer picks the next frame's pixel source.
         uvec2 pixel = gl_WorkGroupID.xy * uvec2(TS_PIXEL_TILE * PIXELS_PER_THREAD, TS_PIXEL_TILE) +
                       uvec2(gl_LocalInvocationIndex % TS_PIXEL_TILE, gl_LocalInvocationIndex / TS_PIXEL_TILE);
         uint covered = 0u;  // the same in every lane: no lane leaves the loop before the others
+        uint part = gl_SubgroupID * gl_SubgroupSize * PIXELS_PER_THREAD;
         uint k = 0u;
-        [[dont_unroll]] do {
+        [[dont_unroll]] do {  // the test at the end (frame.h)
             uint64_t value = all(lessThan(pixel, frame.viewport.xy)) ? visibility_value(frame, pixel.y * frame.viewport.x + pixel.x) : 0ul;
-            covered += subgroupBallotBitCount(subgroupBallot(value != 0ul));
-            if (value != 0ul) shade(frame, pixel, value, aov);
+            uvec4 lanes = subgroupBallot(value != 0ul);
+            if (PIXEL_SOURCE == TS_PIXELS_PACKED) {
+                if (value != 0ul) {
+                    uint at = part + covered + subgroupBallotExclusiveBitCount(lanes);
+                    packedPayload[at] = uint(value);
+                    packedPixel[at] = pixel.x | (pixel.y << 16u);
+                }
+            } else if (value != 0ul) {
+                shade(frame, pixel, uint(value), aov);
+            }
+            covered += subgroupBallotBitCount(lanes);
             pixel.x += TS_PIXEL_TILE;
         } while (++k < PIXELS_PER_THREAD);
+        if (PIXEL_SOURCE == TS_PIXELS_PACKED) {
+            subgroupBarrier();  // the subgroup's stores to its part, seen by all its lanes
+            uint i = gl_SubgroupInvocationID;
+            [[dont_unroll]] do {
+                if (i < covered) {
+                    uint xy = packedPixel[part + i];
+                    shade(frame, uvec2(xy & 0xffffu, xy >> 16u), packedPayload[part + i], aov);
+                }
+            } while ((i += gl_SubgroupSize) < covered);
+        }
         if (subgroupElect() && covered != 0u) atomicAdd(DrawStateRef(frame.drawState).state.coveredPixels, covered);
         return;
     }
@@ -265,10 +290,10 @@ void main() {
     GpuBin bin = BinRef(frame.bins).data[push.step];
     uint first = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * TS_SHADE_GROUP_SIZE * PIXELS_PER_THREAD + gl_LocalInvocationIndex;
     uint k = 0u;
-    [[dont_unroll]] do {
+    [[dont_unroll]] do {  // the test at the end (frame.h)
         uint i = first + k * TS_SHADE_GROUP_SIZE;
         if (i >= bin.count) return;
         uvec2 pixel = unpack_bin_pixel(bin_pixel_entry(frame, bin.offset + i));
-        shade(frame, pixel, visibility_value(frame, pixel.y * frame.viewport.x + pixel.x), aov);
+        shade(frame, pixel, uint(visibility_value(frame, pixel.y * frame.viewport.x + pixel.x)), aov);
     } while (++k < PIXELS_PER_THREAD);
 }

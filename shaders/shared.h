@@ -165,7 +165,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Material bins: covered pixels are counted per material, given each material a range, and scattered into it, so
 // that each material's pixels are shaded by one indirect dispatch of their own (push constant `step`: the material);
 // a pass of its own writes the background. A frame whose pixels can only fall in one bin lists its covered pixels at
-// once (TS_CLASSIFY_ONE_BIN), or, where they cover most of the frame, is not classified at all (TS_SPEC_EVERY_PIXEL).
+// once (TS_CLASSIFY_ONE_BIN), or is not classified at all (TS_SPEC_PIXEL_SOURCE).
 #define TS_CLASSIFY_COUNT 0u
 #define TS_CLASSIFY_SCATTER 1u
 #define TS_CLASSIFY_ONE_BIN 2u  // a frame whose pixels can only fall in one bin: listed at once, no count or scatter
@@ -294,11 +294,18 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // cull, 18 % of a frame's classify with 8 materials (docs/benchmarks.md).
 #define TS_SPEC_INSTANCE_FLAGS 17
 #define TS_SPECIALIZED_INSTANCE_FLAGS (TS_INSTANCE_DISPLACED | TS_INSTANCE_MATERIAL_SLOTS)
-// Specialization constant of resolve: it reads every pixel of the frame, tile by tile, and shades the covered ones,
-// instead of its bin's listed pixels. For one-bin frames (one material, no displacement) whose previous frame covered
-// most pixels, which then run no classify and no bins pass: listing the covered pixels cost lavapipe 13-16 ms of a
-// 1080p frame, while each batch of pixels it reads and finds uncovered costs about half a shaded one (docs/benchmarks.md).
-#define TS_SPEC_EVERY_PIXEL 18
+// Specialization constant of resolve: where it finds its pixels (TS_PIXELS_*). Its bin's list (classify's), or, in a
+// one-bin frame (one material, no displacement), which then runs no classify and no bins pass, every pixel of the frame,
+// tile by tile: shaded in place where the previous frame covered most pixels, else (on a CPU device) each subgroup's
+// covered pixels packed first, so that its lanes shade full. On lavapipe, one core, 1080p: listing the covered pixels
+// cost 15 ms; reading every pixel in place, each batch of 8 found partly uncovered is shaded masked (the density fields'
+// resolve 28 ms dearer than the list); packing them costs the fields 3-4 ms over the list's resolve, the 1 px sphere
+// (88 % covered) 5 ms over shading in place (docs/benchmarks.md).
+#define TS_SPEC_PIXEL_SOURCE 18
+#define TS_PIXELS_LISTED 0u        // the bin's pixels, listed by classify
+#define TS_PIXELS_IN_PLACE 1u      // every pixel, each thread shading its own covered ones
+#define TS_PIXELS_PACKED 2u        // every pixel, each subgroup's covered ones packed first (shared memory)
+#define TS_PACKED_MOST_PIXELS_PER_THREAD 16u  // packing's shared memory: 8 bytes a pixel, 8 KiB a workgroup at most
 
 // Frame set bindings: the frame's constants (a uniform block), then the texel buffer views (usamplerBuffer) of the
 // streams read per pixel, per triangle or per vertex. The format of each: TS_VIEW_FORMAT_* (renderer.cpp).
@@ -603,7 +610,7 @@ struct GpuDrawState {
     uint doubleSidedFirstVertex;
     uint doubleSidedFirstInstance;
     uint coveredPixels;    // pixels a surface covers: bins.comp.glsl's total; in a frame resolved over every pixel
-                           // (TS_SPEC_EVERY_PIXEL), the sum of its resolve dispatches' counts, one dispatch per AOV
+                           // (TS_SPEC_PIXEL_SOURCE), the sum of its resolve dispatches' counts, one dispatch per AOV
 };
 TS_CHECK_SIZE(GpuDrawState, 260);
 

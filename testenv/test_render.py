@@ -424,10 +424,13 @@ def _wall_and_box_stage():
     return stage
 
 
-def test_a_mostly_covered_one_bin_frame_is_resolved_over_every_pixel_as_the_listed_one():
-    """A one-material frame after one that covered most pixels skips classify: resolve reads every pixel and shades the
-    covered ones. Every AOV must match the listed frame's bit for bit, and the covered pixels counted either way must be
-    those a surface covers; a frame after a sparsely covered one is listed again."""
+@pytest.mark.parametrize("pixels_per_thread, sparse", [("1", "listed"), ("16", "packed")])
+def test_a_one_bin_frame_is_resolved_over_every_pixel_as_the_listed_one(monkeypatch, pixels_per_thread, sparse):
+    """A one-material frame skips classify where resolve reads every pixel: in place after a frame that covered most
+    pixels, else, with several pixels per thread (a CPU device), each subgroup's covered pixels packed first; with one
+    (a GPU) a sparsely covered frame is listed. Every AOV must match bit for bit whichever way, and the covered pixels
+    counted must be those a surface covers."""
+    monkeypatch.setenv("TESSERA_SHADE_PIXELS_PER_THREAD", pixels_per_thread)
     session = tessera.Session(_wall_and_box_stage(), validation=True)
     aovs = ("color", "depth", "normal", "primId", "instanceId", "clusterId")
     frames = [session.render(camera=camera, resolution=(97, 67), aovs=aovs) for camera in ("/Near", "/Near", "/Far", "/Far")]
@@ -435,11 +438,12 @@ def test_a_mostly_covered_one_bin_frame_is_resolved_over_every_pixel_as_the_list
         assert not frame.errors, frame.errors
         assert frame.stats["covered_pixels"] == int((frame["primId"].ids() != NO_HIT).sum())
         assert frame.stats["shading_bins"] == 1
-    assert [f.stats["resolved_every_pixel"] for f in frames] == [False, True, True, False]
+        assert frame.stats["shade_pixels_per_thread"] == int(pixels_per_thread)
+    assert [f.stats["resolve_pixels"] for f in frames] == [sparse, "in place", "in place", sparse]
     assert frames[1].stats["covered_pixels"] == 97 * 67 and frames[2].stats["covered_pixels"] < 0.5 * 97 * 67
-    for listed, unlisted in ((frames[0], frames[1]), (frames[3], frames[2])):
+    for one, other in ((frames[0], frames[1]), (frames[3], frames[2])):
         for aov in aovs:
-            assert np.array_equal(np.asarray(listed[aov].pixels).view(np.uint32), np.asarray(unlisted[aov].pixels).view(np.uint32)), aov
+            assert np.array_equal(np.asarray(one[aov].pixels).view(np.uint32), np.asarray(other[aov].pixels).view(np.uint32)), aov
 
 
 def _cubes_stage(wall: bool):

@@ -309,7 +309,9 @@ struct FrameStats {
     uint32_t shadingBins = 0;           // bins with visible pixels, each shaded by a dispatch of its own: one a material, or
                                         // up to three for a displaced one (its triangles, kept and diced micro-triangles)
     uint32_t coveredPixels = 0;         // pixels a surface covers (each shaded once per AOV)
-    bool resolvedEveryPixel = false;    // resolve read every pixel, unlisted: one bin, most pixels covered the frame before
+    // Where resolve found its pixels: "listed" (classify's bins), or, in a one-bin frame, every pixel of the frame read,
+    // "in place" (the frame before covered most pixels) or "packed" (each subgroup's covered pixels first, a CPU device).
+    const char* resolvePixels = "listed";
     uint32_t textures = 0;              // images in the texture pool
     uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, cut blocks, vertex streams, triangles
     uint64_t geometryUploadBytes = 0;   // of those, written by this frame's geometry upload: the meshes added since the last (0 without one)
