@@ -713,7 +713,7 @@ NB_MODULE(_tessera, m) {
             [](RenderIndex& index, const std::string& cameraId, const CameraDesc& camera, uint32_t width, uint32_t height,
                const std::vector<std::string>& aovs, std::array<float, 4> background, float pixelError, bool lod,
                const std::string& visualize, const std::string& raster, bool occlusion, float dicingRate, const std::string& rasterVertices,
-               float softwareRasterArea, uint32_t pixelSamples, const std::string& pixelFilter, float occlusionMinimumCulled) {
+               float softwareRasterArea, uint32_t pixelSamples, const std::string& pixelFilter, float occlusionMinimumCulled, bool lastFrame) {
                 RenderPassSettings settings;
                 settings.render.pixelSamples = pixelSamples;
                 settings.render.pixelFilter = pixel_filter_from(pixelFilter);
@@ -726,6 +726,7 @@ NB_MODULE(_tessera, m) {
                 settings.render.lod = lod;
                 settings.render.occlusion = occlusion;
                 settings.render.occlusionMinimumCulled = occlusionMinimumCulled;
+                settings.render.lastFrame = lastFrame;
                 settings.render.visualize = visualize_from(visualize);
                 if (raster == "auto") settings.render.raster = RasterMode::Auto;
                 else if (raster == "hardware") settings.render.raster = RasterMode::Hardware;
@@ -750,7 +751,7 @@ NB_MODULE(_tessera, m) {
             "camera_id"_a, "camera"_a, "width"_a, "height"_a, "aovs"_a, "background"_a, "pixel_error"_a = 1.0f, "lod"_a = true,
             "visualize"_a = "none", "raster"_a = "auto", "occlusion"_a = true, "dicing_rate"_a = 1.0f, "raster_vertices"_a = "auto",
             "software_raster_area"_a = RenderSettings{}.softwareRasterArea, "pixel_samples"_a = 1u, "pixel_filter"_a = "box",
-            "occlusion_minimum_culled"_a = RenderSettings{}.occlusionMinimumCulled)
+            "occlusion_minimum_culled"_a = RenderSettings{}.occlusionMinimumCulled, "last_frame"_a = false)
         .def("prim_path", [](RenderIndex& index, uint32_t primId) { return in_turn(index.delegate(), [&] { return index.prim_path(primId); }); }, "prim_id"_a)
         .def_prop_ro("sync_counts", [](RenderIndex& index) { return in_turn(index.delegate(), [&] { return index.sync_counts(); }); })
         .def_prop_ro(

@@ -1647,6 +1647,8 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     // The last frame of a rest builds its HZB all the same, so that the frame that tries occlusion again tests against
     // the frame before it, as occlusion does every frame (a first frame only finds what the instances large on screen hide).
     const bool hzbForNext = occlusion || (frameStats.occlusionRested && s.occlusionRest == 0);
+    // ... unless no frame follows (the last sample of a renderer's last frame): then the post pass's HZB is the last.
+    const bool finalHzb = hzbForNext && !(settings.lastFrame && (!sample || sample->index + 1 == sample->count));
     for (;;) {
         s.ensure_frame_buffers(settings.width, settings.height, aovs.size(), importAovs, importedOutput.imported);
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
@@ -1966,7 +1968,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             }
             // The whole frame's HZB, for the next frame's main pass: unless the HZB of the main pass already is that (the
             // post pass drew nothing).
-            if (hzbForNext) s.build_hzb(cmd, pipelines, TS_HZB_FINAL);
+            if (finalHzb) s.build_hzb(cmd, pipelines, TS_HZB_FINAL);
             mark();
 
             // Material bins: count covered pixels per material, give each bin its range and dispatch arguments, scatter
@@ -2080,7 +2082,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         frameStats.cpuRecordMs += std::chrono::duration<double, std::milli>(recorded - submitted).count();
         frameStats.cpuWaitMs += std::chrono::duration<double, std::milli>(finished - recorded).count();
         // The HZB just built is of this camera (an overflowing frame's HZB lacks some geometry: farther, still safe).
-        s.previousValid = hzbForNext;
+        s.previousValid = finalHzb;
         s.previousViewProjection = cam.viewProjection;
         s.previousCamera = cam.position;
 

@@ -385,6 +385,7 @@ def test_occlusion_every_frame_keeps_the_hzb_passes_that_rest_by_default_on_a_cp
         rested[flag] = [(f["occlusion_rested"], f["hzb_builds"]) for f in frames]
     if tessera.Session(CUBE).delegate.software_device:
         assert rested[""] == [(False, 1), (True, 0), (True, 0)]
-    assert rested["--occlusion-every-frame"] == [(False, 1)] * 3
+    # The last frame builds no HZB for a frame after it (its post pass drew nothing: the one HZB would be that one).
+    assert rested["--occlusion-every-frame"] == [(False, 1)] * 2 + [(False, 0)]
     done = run("render", CUBE, "-o", tmp_path / "x.png", "--no-occlusion", "--occlusion-every-frame")
     assert done.returncode == 2 and "not allowed with argument --no-occlusion" in done.stderr

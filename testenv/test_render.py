@@ -463,6 +463,22 @@ def _cubes_stage(wall: bool):
     return stage
 
 
+def test_a_last_render_builds_no_depth_pyramid_for_a_next_one():
+    """`last=True` (a batch render's last frame): the frame's own two-pass occlusion as ever, the same image, but no HZB
+    of the whole frame for a next render; a render after it tests nothing, as a first one does."""
+    aovs = ("color", "primId")
+    frames = {}
+    for last in (False, True):
+        session = tessera.Session(_cubes_stage(wall=False), validation=True)
+        frames[last] = session.render(camera="/Camera", resolution=(96, 64), aovs=aovs, occlusion="always", last=last)
+        after = session.render(camera="/Camera", resolution=(96, 64), aovs=aovs, occlusion="always")
+        assert after.stats["occlusion_tested"] != last
+    assert frames[False].stats["post_pass_clusters"] > 0, "the small cubes wait for the post pass"
+    assert frames[False].stats["hzb_builds"] == 2 and frames[True].stats["hzb_builds"] == 1, "after the main pass, and the frame's"
+    for aov in aovs:
+        assert np.array_equal(np.asarray(frames[False][aov].pixels).view(np.uint32), np.asarray(frames[True][aov].pixels).view(np.uint32))
+
+
 def test_occlusion_rests_where_it_culls_little_and_tries_again_against_the_frame_before():
     """On a CPU device, a frame whose occlusion culled under a quarter of its instances and clusters lets the next 15
     frames skip its HZB passes (no HZB, no post pass; normal cones still cull); the last of them builds its HZB all the

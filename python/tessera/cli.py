@@ -274,6 +274,7 @@ def _render(args) -> int:
     for number, frame in enumerate(frames if frames is not None else [None]):
         if frame is not None:
             session.set_time(frame)
+        last_frame = frames is None or number == len(frames) - 1
         for job in jobs:
             render_started = time.perf_counter()
             camera = job["camera"] or first_camera
@@ -281,7 +282,8 @@ def _render(args) -> int:
             occlusion = False if args.no_occlusion else "always" if args.occlusion_every_frame else True
             result = session.render(camera=camera, resolution=job["resolution"], aovs=aovs, pixel_error=args.pixel_error,
                                     lod=not args.no_lod, vis=args.vis, raster=args.raster, occlusion=occlusion,
-                                    dicing_rate=args.dicing_rate, pixel_samples=pixel_samples, pixel_filter=pixel_filter)
+                                    dicing_rate=args.dicing_rate, pixel_samples=pixel_samples, pixel_filter=pixel_filter,
+                                    last=last_frame and job is jobs[-1])
             rendered = time.perf_counter()
             where = f"frame {frame:g}: " if frame is not None else ""
             for message in result.warnings:

@@ -164,7 +164,7 @@ class Session:
                aovs=("color",), background=(0.0, 0.0, 0.0, 0.0), pixel_error: float = 1.0, lod: bool = True,
                vis: str | None = None, raster: str = "auto", occlusion: bool | str = True, dicing_rate: float = 1.0,
                complexity: float | None = None, raster_vertices: str = "auto", software_raster_area: float | None = None,
-               pixel_samples: int = 1, pixel_filter: str = "box") -> RenderResult:
+               pixel_samples: int = 1, pixel_filter: str = "box", last: bool = False) -> RenderResult:
         """Renders the stage at the session's time. `pixel_error` is the DAG cut's screen-space error bound in
         pixels; `lod=False` draws every source triangle (the full-detail reference); `vis` replaces shading in
         the color AOV by a debug view (VISUALIZATIONS); `raster` forces one rasterizer (RASTER_MODES); `occlusion`
@@ -183,7 +183,9 @@ class Session:
         another offset (tessera.pixel_sample_offset), while depth, normal and ids are the pixel centres' (the first
         sample). Each sample costs a frame; stats add the frames' times. `pixel_filter` (PIXEL_FILTERS): "box", the
         mean over the pixel's square (alpha the exact coverage), or "gaussian", samples over two pixels' width, denser
-        towards the centre as a Gaussian weighs (softer edges, less moire)."""
+        towards the centre as a Gaussian weighs (softer edges, less moire). `last`: no render of this session follows
+        (a batch render's last frame): it builds no depth pyramid for the next render's occlusion to test against (the
+        same image; stats `hzb_builds`), and a render after it tests nothing, as a first render."""
         from .usd import framing_camera
 
         width, height = resolution
@@ -229,7 +231,7 @@ class Session:
             raise StageError(f"software raster area must be a number of pixels > 0, not {software_raster_area}")
         images, stats = self.index.execute(camera_id, fallback, width, height, aovs, tuple(background), float(pixel_error), lod,
                                            vis or "none", raster, bool(occlusion), float(dicing_rate), raster_vertices, area,
-                                           pixel_samples, pixel_filter, 0.0 if occlusion == "always" else -1.0)
+                                           pixel_samples, pixel_filter, 0.0 if occlusion == "always" else -1.0, bool(last))
         diagnostics = self.index.take_diagnostics()
         warnings, errors = diagnostics["warnings"], diagnostics["errors"]
         warnings = list(self.scene.warnings) + list(warnings)
