@@ -412,9 +412,13 @@ void main_pass(GpuFrame frame) {
 void post_pass(GpuFrame frame) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint instances = min(draw.state.cutInstances, frame.hzb.y);
-    for (uint i = gl_WorkGroupID.x; i < instances; i += gl_NumWorkGroups.x) cut_instance(frame, TS_CULL_POST, i, instances);
+    uint i = gl_WorkGroupID.x;
+    if (i < instances) do {  // the tests at the end (frame.h)
+        cut_instance(frame, TS_CULL_POST, i, instances);
+    } while ((i += gl_NumWorkGroups.x) < instances);
     uint clusters = min(draw.state.deferredClusters, frame.counts.y);
-    for (uint i = gl_GlobalInvocationID.x; i < clusters; i += gl_NumWorkGroups.x * gl_WorkGroupSize.x) {
+    i = gl_GlobalInvocationID.x;
+    if (i < clusters) do {
         uvec2 entry = VisibleClusterRef(frame.deferredClusters).data[i];
         Instance instance = load_instance(frame, entry.x);
         GpuCluster cluster = load_cluster(frame, entry.y);
@@ -425,7 +429,7 @@ void post_pass(GpuFrame frame) {
         float radius = (cluster.sphere.w + displacement) * scale;
         if (hidden(frame, TS_CULL_POST, center, radius)) atomicAdd(draw.state.occludedClusters, 1u);
         else draw_cluster(frame, TS_CULL_POST, entry.x, entry.y, cluster, center, radius, scale);
-    }
+    } while ((i += gl_NumWorkGroups.x * gl_WorkGroupSize.x) < clusters);
 }
 
 void main() {

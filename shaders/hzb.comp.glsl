@@ -43,7 +43,8 @@ void main() {
     uint x = gl_GlobalInvocationID.x;
     uint firstRow = gl_WorkGroupID.y * TS_HZB_TILE * TS_HZB_ROWS_PER_THREAD + gl_LocalInvocationID.y;
     if (x >= size.x) return;
-    for (uint r = 0u; r < TS_HZB_ROWS_PER_THREAD; ++r) {
+    uint r = 0u;
+    do {  // the test at the end (frame.h)
         uvec2 texel = uvec2(x, firstRow + r * TS_HZB_TILE);
         if (texel.y >= size.y) return;
         // The 2x2 below, clamped at the last row and column (repeating a texel changes no minimum): no per-texel branch.
@@ -58,5 +59,5 @@ void main() {
             farthest = min(min(hzb_texel(row0 + p0.x), hzb_texel(row0 + p1.x)), min(hzb_texel(row1 + p0.x), hzb_texel(row1 + p1.x)));
         }
         push.hzb.data[offset + texel.y * size.x + texel.x] = farthest;
-    }
+    } while (++r < TS_HZB_ROWS_PER_THREAD);
 }

@@ -30,8 +30,11 @@ bool sphere_occluded(GpuFrame frame, mat4 viewProjection, vec3 center, float rad
     uvec2 t0 = min(uvec2(pixelLo) >> (level + 1u), levelSize - 1u);
     uvec2 t1 = min(uvec2(pixelHi) >> (level + 1u), levelSize - 1u);
     float farthest = 3.4e38;
-    for (uint y = t0.y; y <= t1.y; ++y)
-        for (uint x = t0.x; x <= t1.x; ++x) farthest = min(farthest, hzb_texel(offset + y * levelSize.x + x));
+    uint y = t0.y;
+    do {  // the tests at the end (frame.h): the box holds at least one texel (t0 <= t1)
+        uint x = t0.x;
+        do farthest = min(farthest, hzb_texel(offset + y * levelSize.x + x)); while (++x <= t1.x);
+    } while (++y <= t1.y);
     // The margin covers rounding between this bound and the rasterizers' interpolated depths.
     return nearestDepth * 1.00001 < farthest;
 }

@@ -140,7 +140,8 @@ void tessellate_triangle(GpuFrame frame) {
     uint capacity = uint(frame.tessellation.y);
     uint packedFactors = factors.x | factors.y << TS_TESS_FACTOR_BITS | factors.z << (2u * TS_TESS_FACTOR_BITS);
     uint microTriangles = 0u;
-    for (uint cell = 0u; cell < cells && first + cell < capacity; ++cell) {
+    uint cell = 0u;
+    if (first < capacity) do {  // the test at the end (frame.h); a triangle has at least one cell
         uvec2 q[3];
         lattice_cell(cell, split, q[0], q[1], q[2]);
         vec3 w[3];
@@ -188,7 +189,7 @@ void tessellate_triangle(GpuFrame frame) {
             continue;
         }
         microTriangles += route_patch(frame, index, p, reach, n, instance, material);
-    }
+    } while (++cell < cells && first + cell < capacity);
     atomicAdd(draw.state.microTriangles, microTriangles);
 }
 

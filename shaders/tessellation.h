@@ -143,10 +143,10 @@ uint lattice_index(uvec2 ab, uint n) { return ab.y * (n + 1u) - (ab.y * (ab.y - 
 // like the triangle's corners.
 void lattice_cell(uint cell, uint n, out uvec2 a, out uvec2 b, out uvec2 c) {
     uint j = 0u, first = 0u;
-    while (first + 2u * (n - j) - 1u <= cell) {
+    if (first + 2u * (n - j) - 1u <= cell) do {  // the test at the end (frame.h)
         first += 2u * (n - j) - 1u;
         ++j;
-    }
+    } while (first + 2u * (n - j) - 1u <= cell);
     uint k = cell - first, i = k >> 1;
     if ((k & 1u) == 0u) {
         a = uvec2(i, j);
