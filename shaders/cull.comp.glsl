@@ -225,16 +225,27 @@ LevelScales level_scales(GpuFrame frame, Instance instance, GpuMesh mesh, vec3 t
                        frame.lod.z != 0.0 ? frame.lod.x : (depths.y > 0.0 ? frame.lod.x / depths.y : NEVER_FINE_ENOUGH));
 }
 
-// The clusters of the levels the instance's distance leaves in the cut: what its cut walks at most (without LOD, level
-// 0's).
-uint clusters_in_cut(GpuFrame frame, GpuMesh mesh, float scale, LevelScales s, bool lod) {
-    if (!lod) return load_level(frame, mesh.levelOffset).clusterCount;
-    uint inCut = 0u, l = 0u;
-    if (mesh.levelCount != 0u) do {  // the test at the end (frame.h); a mesh left out (an error) has no level
+// The levels the instance's distance leaves in the cut (level_in_cut), first to last, and the clusters they hold: what
+// its cut walks at most. Without LOD, level 0. The cut's loops then walk those levels only: on lavapipe a level a loop
+// skips (continue) still runs the loop's whole body, masked, and a 1e10 field's prototype has 18 levels, its far
+// instances two or three in the cut (docs/benchmarks.md, session 30).
+struct LevelsInCut { uint first, last, clusters; };
+
+LevelsInCut levels_in_cut(GpuFrame frame, GpuMesh mesh, float scale, LevelScales s, bool lod) {
+    LevelsInCut range = LevelsInCut(1u, 0u, 0u);  // none: a mesh left out (an error) has no level
+    if (mesh.levelCount == 0u) return range;
+    if (!lod) return LevelsInCut(0u, 0u, load_level(frame, mesh.levelOffset).clusterCount);
+    range.first = mesh.levelCount;
+    uint l = 0u;
+    do {  // the test at the end (frame.h)
         GpuLevel level = load_level(frame, mesh.levelOffset + l);
-        if (level_in_cut(frame, level, scale, s)) inCut += level.clusterCount;
+        if (level_in_cut(frame, level, scale, s)) {
+            range.first = min(range.first, l);
+            range.last = l;
+            range.clusters += level.clusterCount;
+        }
     } while (++l < mesh.levelCount);
-    return inCut;
+    return range;
 }
 
 // One of the workgroups that share an instance's cut (cut_parts): part `index`, whose threads take every `threads`-th
@@ -243,10 +254,10 @@ struct CutPart { uint index, firstThread, threads; };
 
 // The cut by clusters: each cluster of each level in the cut, spread over the threads.
 void cut_by_clusters(GpuFrame frame, uint step, uint instanceIndex, CutPart part, Instance instance, GpuMesh mesh, vec3 translation,
-                     float scale, bool lod, LevelScales s) {
+                     float scale, bool lod, LevelScales s, LevelsInCut levels) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
-    uint levelCount = lod ? mesh.levelCount : min(mesh.levelCount, 1u), l = 0u;
-    if (levelCount != 0u) do {  // the tests at the end (frame.h); a mesh left out (an error) has no level
+    uint l = levels.first;
+    if (l <= levels.last) do {  // the tests at the end (frame.h)
         GpuLevel level = load_level(frame, mesh.levelOffset + l);
         if (lod && !level_in_cut(frame, level, scale, s)) continue;
         if (gl_LocalInvocationIndex == 0 && part.index == 0u) atomicAdd(draw.state.candidateClusters, level.clusterCount);
@@ -254,17 +265,17 @@ void cut_by_clusters(GpuFrame frame, uint step, uint instanceIndex, CutPart part
         if (c < level.clusterCount) do {
             test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, lod, level.clusterOffset + c);
         } while ((c += part.threads) < level.clusterCount);
-    } while (++l < levelCount);
+    } while (++l <= levels.last);
 }
 
 // The cut by blocks: each block of each level in the cut, spread over the threads; a thread tests the clusters of
 // each of its blocks that may draw.
 void cut_by_blocks(GpuFrame frame, uint step, uint instanceIndex, CutPart part, Instance instance, GpuMesh mesh, vec3 translation,
-                   float scale, LevelScales s) {
+                   float scale, LevelScales s, LevelsInCut levels) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     float extra = instance_displacement(frame, instance);  // bounds every cluster's own (cluster_displacement)
-    uint l = 0u;
-    if (mesh.levelCount != 0u) do {  // the tests at the end (frame.h); a mesh left out (an error) has no level
+    uint l = levels.first;
+    if (l <= levels.last) do {  // the tests at the end (frame.h)
         GpuLevel level = load_level(frame, mesh.levelOffset + l);
         if (!level_in_cut(frame, level, scale, s)) continue;
         uint b = part.firstThread;
@@ -277,7 +288,7 @@ void cut_by_blocks(GpuFrame frame, uint step, uint instanceIndex, CutPart part, 
                 test_cluster(frame, step, instanceIndex, instance, mesh, translation, scale, true, block_cluster(frame, block.firstCluster + k));
             } while (++k < block.clusterCount);
         } while ((b += part.threads) < level.blockCount);
-    } while (++l < mesh.levelCount);
+    } while (++l <= levels.last);
 }
 
 // The DAG cut of one instance whose sphere touches the frustum and is not hidden, by this workgroup (alone, or with the
@@ -303,10 +314,10 @@ void cut_instance(GpuFrame frame, uint step, uint entry, uint entries) {
     if (gl_LocalInvocationIndex == 0 && part.index == 0u) atomicAdd(draw.state.visibleInstances, 1u);
     bool lod = (frame.counts.z & TS_FRAME_NO_LOD) == 0u;
     LevelScales s = level_scales(frame, instance, mesh, translation, scale);
-    bool blocks = lod && (frame.counts.z & TS_FRAME_NO_CUT_BLOCKS) == 0u &&
-                  clusters_in_cut(frame, mesh, scale, s, true) > TS_CUT_BLOCKS_FROM * gl_WorkGroupSize.x;
-    if (blocks) cut_by_blocks(frame, step, instanceIndex, part, instance, mesh, translation, scale, s);
-    else cut_by_clusters(frame, step, instanceIndex, part, instance, mesh, translation, scale, lod, s);
+    LevelsInCut levels = levels_in_cut(frame, mesh, scale, s, lod);
+    bool blocks = lod && (frame.counts.z & TS_FRAME_NO_CUT_BLOCKS) == 0u && levels.clusters > TS_CUT_BLOCKS_FROM * gl_WorkGroupSize.x;
+    if (blocks) cut_by_blocks(frame, step, instanceIndex, part, instance, mesh, translation, scale, s, levels);
+    else cut_by_clusters(frame, step, instanceIndex, part, instance, mesh, translation, scale, lod, s, levels);
 }
 
 // How many workgroups share an instance's cut (its cut list entries): one per frame.hzb.w >> 16 clusters its levels in
@@ -319,7 +330,7 @@ uint cut_parts(GpuFrame frame, Instance instance) {
     vec3 translation = camera_relative_translation(instance);
     float scale = instance_scale(instance);
     bool lod = (frame.counts.z & TS_FRAME_NO_LOD) == 0u;
-    uint inCut = clusters_in_cut(frame, mesh, scale, level_scales(frame, instance, mesh, translation, scale), lod);
+    uint inCut = levels_in_cut(frame, mesh, scale, level_scales(frame, instance, mesh, translation, scale), lod).clusters;
     return clamp(inCut / clustersPerPart, 1u, min(most, TS_CUT_MOST_PARTS));
 }
 
