@@ -240,7 +240,8 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, uint aov) {
     write_output(frame, index, vec4(color, 1.0));
 }
 
-// TS_PIXELS_PACKED: each subgroup's covered pixels (the payload, the position), in its own part.
+// TS_PIXELS_PACKED: each subgroup's covered pixels (the payload, the position), in its own part. Sized for at most
+// TS_PACKED_MOST_PIXELS_PER_THREAD pixels per thread: the renderer packs no frame of more (renderer.cpp: pixelSource).
 const uint PACKED_PIXELS = TS_SHADE_GROUP_SIZE * (PIXELS_PER_THREAD < TS_PACKED_MOST_PIXELS_PER_THREAD ? PIXELS_PER_THREAD : TS_PACKED_MOST_PIXELS_PER_THREAD);
 shared uint packedPayload[PACKED_PIXELS];
 shared uint packedPixel[PACKED_PIXELS];
