@@ -205,6 +205,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["diced_micro_pixels"] = s.dicedMicroPixels;
     d["micro_triangles"] = s.microTriangles;
     d["tessellation_bytes"] = s.tessellationBytes;
+    d["pixel_bytes"] = s.pixelBytes;
     nb::dict gpuMs;
     gpuMs["cull"] = s.cullMs;
     gpuMs["sw_raster"] = s.softwareRasterMs;

@@ -397,7 +397,8 @@ struct Renderer::Impl {
     uint32_t cutCapacity = 1u << 12;
     uint32_t deferredCapacity = 1u << 12;  // the deferred-instance list's (instances the previous HZB hid); grows on overflow
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
-    Buffer shadingBins, binPixels;  // material bins: one GpuBin per material, covered pixels grouped by material
+    Buffer shadingBins;  // material bins: one GpuBin per material
+    Buffer binPixels;    // covered pixels grouped by material: made when a frame first lists them (classify)
     // The share of the pixels the previous frame covered (-1: none yet). A one-bin frame is not classified: resolve reads
     // every pixel (TS_SPEC_PIXEL_SOURCE), shading the covered ones in place after a frame that covered at least
     // kEveryPixelCoverage, else, on a CPU device, packing each subgroup's covered pixels first; a GPU lists them. On
@@ -546,7 +547,7 @@ struct Renderer::Impl {
                  {triangles.buffer(), VK_FORMAT_R32_UINT, 4, streamed(triangles, 4)},
                  {visibleClusters, VK_FORMAT_R32G32_UINT, 8, TS_VIS_MAX_VISIBLE_CLUSTERS},  // the most a frame may grow it to
                  {visibility, VK_FORMAT_R32G32_UINT, 8, pixels},
-                 {binPixels, VK_FORMAT_R32_UINT, 4, pixels},
+                 {binPixels, VK_FORMAT_R32_UINT, 4, binPixels.handle ? pixels : 0},
                  {levels.buffer(), VK_FORMAT_R32G32_UINT, 8, streamed(levels, 8)},
                  {cutBlocks.buffer(), VK_FORMAT_R32G32B32A32_UINT, 16, streamed(cutBlocks, 16)},
                  {blockClusters.buffer(), VK_FORMAT_R32_UINT, 4, streamed(blockClusters, 4)},
@@ -1299,6 +1300,11 @@ struct Renderer::Impl {
 
     // `aovsImported`: this frame's AOVs go straight into their images' memory (Renderer::render), the readback buffer
     // then holds the draw state alone; `outputImported`: the output is the last image's memory (a CPU device), already set.
+    // The list of covered pixels by material, for frames that list them (TS_PIXELS_LISTED): a CPU device's one-bin frames
+    // read every pixel instead and never make it (4 bytes a pixel).
+    void ensure_bin_pixels() {
+        if (!binPixels.handle) binPixels = device.create_buffer(uint64_t(width) * height * 4, MemoryUse::Device);
+    }
     void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount, bool aovsImported, bool outputImported) {
         if (!drawState.handle) drawState = device.create_buffer(sizeof(gpu::GpuDrawState), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) {
@@ -1312,7 +1318,7 @@ struct Renderer::Impl {
         if (w != width || h != height || !visibility.handle) {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
             if (!outputImported) aovOutput = Buffer{};
-            binPixels = device.create_buffer(pixels * 4, MemoryUse::Device);
+            binPixels = Buffer{};  // made again when a frame lists its pixels (ensure_bin_pixels)
             hzbLevels = Buffer{};
             previousValid = false;
             width = w;
@@ -1649,6 +1655,15 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     const bool hzbForNext = occlusion || (frameStats.occlusionRested && s.occlusionRest == 0);
     // ... unless no frame follows (the last sample of a renderer's last frame): then the post pass's HZB is the last.
     const bool finalHzb = hzbForNext && !(settings.lastFrame && (!sample || sample->index + 1 == sample->count));
+    // A frame whose pixels can only fall in one bin (one material, no displacement) lists its covered pixels at once
+    // (a GPU's frame after one that covered few pixels), or is not classified: its resolve reads every pixel.
+    const bool oneBin = s.materialCount * s.bin_kinds() == 1;
+    const uint32_t pixelSource = !oneBin                                    ? TS_PIXELS_LISTED
+                               : s.coverage >= Impl::kEveryPixelCoverage   ? TS_PIXELS_IN_PLACE
+                               : pipelines.shadePixelsPerThread > 1 && pipelines.shadePixelsPerThread <= TS_PACKED_MOST_PIXELS_PER_THREAD
+                                                                           ? TS_PIXELS_PACKED
+                                                                           : TS_PIXELS_LISTED;
+    const bool everyPixel = pixelSource != TS_PIXELS_LISTED;
     for (;;) {
         s.ensure_frame_buffers(settings.width, settings.height, aovs.size(), importAovs, importedOutput.imported);
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
@@ -1656,6 +1671,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         if (sample)
             for (Buffer& sum : s.sampleSums)
                 if (sum.size < pixels * 16) sum = device_.create_buffer(pixels * 16, MemoryUse::Device);
+        if (pixelSource == TS_PIXELS_LISTED) s.ensure_bin_pixels();
         s.write_texel_views(pixels);  // after every buffer a view covers is made (the HZB's too)
         s.write_output_binding();
 
@@ -1772,15 +1788,6 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.clusterDisplacement = s.clusterDisplacement.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
-        // A frame whose pixels can only fall in one bin (one material, no displacement) lists its covered pixels at once
-        // (a GPU's frame after one that covered few pixels), or is not classified: its resolve reads every pixel.
-        const bool oneBin = s.materialCount * s.bin_kinds() == 1;
-        const uint32_t pixelSource = !oneBin                                    ? TS_PIXELS_LISTED
-                                   : s.coverage >= Impl::kEveryPixelCoverage   ? TS_PIXELS_IN_PLACE
-                                   : pipelines.shadePixelsPerThread > 1 && pipelines.shadePixelsPerThread <= TS_PACKED_MOST_PIXELS_PER_THREAD
-                                                                               ? TS_PIXELS_PACKED
-                                                                               : TS_PIXELS_LISTED;
-        const bool everyPixel = pixelSource != TS_PIXELS_LISTED;
         // Resolve's variant for a bin of an AOV: materials with textures through the variant that samples them; only the
         // colour AOV shades.
         auto resolve_variant_of = [&](Aov aov, uint32_t pixels, uint32_t m) {
@@ -2181,6 +2188,8 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     }
 
     frameStats.instanceBytes = s.instances.size + s.instanceBatches.size + s.batches.size + s.deferredInstances.size + s.cutList.size;
+    frameStats.pixelBytes = s.visibility.size + s.aovOutput.size + s.binPixels.size + s.hzbLevels.size + s.overdraw.size + s.sampleSums[0].size +
+                            s.sampleSums[1].size;
 
     ++s.framesRendered;
     s.forget_old_imports();

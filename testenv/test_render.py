@@ -446,6 +446,24 @@ def test_a_one_bin_frame_is_resolved_over_every_pixel_as_the_listed_one(monkeypa
             assert np.array_equal(np.asarray(one[aov].pixels).view(np.uint32), np.asarray(other[aov].pixels).view(np.uint32)), aov
 
 
+def test_a_frame_that_lists_no_pixels_makes_no_bin_list(monkeypatch):
+    """The material bins' pixel list (4 bytes a pixel) is made by the first frame that lists its pixels: frames of one
+    material that read every pixel never make it; a second material's frame does."""
+    from pxr import UsdShade
+    from conftest import preview_material
+
+    monkeypatch.setenv("TESSERA_SHADE_PIXELS_PER_THREAD", "16")  # packs rather than lists on any device
+    stage = _wall_and_box_stage()
+    session = tessera.Session(stage, validation=True)
+    one = [session.render(camera="/Far", resolution=(97, 67)) for _ in range(2)]
+    assert [f.stats["resolve_pixels"] for f in one] == ["packed", "packed"]
+    UsdShade.MaterialBindingAPI.Apply(stage.GetPrimAtPath("/Box")).Bind(preview_material(stage, "/Looks/Red", (0.8, 0.1, 0.1)))
+    two = session.render(camera="/Far", resolution=(97, 67))
+    assert not two.errors, two.errors
+    assert two.stats["resolve_pixels"] == "listed" and two.stats["shading_bins"] == 2
+    assert two.stats["pixel_bytes"] - one[1].stats["pixel_bytes"] == 4 * 97 * 67
+
+
 def _cubes_stage(wall: bool):
     """A row of 24 small cubes and a ball seen from the front, with or without a wall before them that hides them all."""
     stage = Usd.Stage.CreateInMemory()

@@ -338,6 +338,9 @@ struct FrameStats {
                                    // colours, or a full point pool)
     uint64_t tessellatedTriangles = 0, microTriangles = 0;
     uint64_t tessellationBytes = 0;
+    // GPU memory of the per-pixel buffers: the visibility buffer, the AOV output, the material bins' pixel list (only once
+    // a frame lists its pixels), the HZB, the overdraw view's counts, pixel sample sums while a render samples.
+    uint64_t pixelBytes = 0;
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids; classifyMs:
     // the material bins (classify and bins); resolveMs: backgrounds and shading; readbackMs: copying the AOVs to host
     // memory (a GPU's; on a CPU device the last AOV is read where resolve wrote it; past the eighth AOV in resolveMs).
