@@ -1298,13 +1298,13 @@ struct Renderer::Impl {
         upload_vector(device, uploads, texturePool, pool);
     }
 
-    // `aovsImported`: this frame's AOVs go straight into their images' memory (Renderer::render), the readback buffer
-    // then holds the draw state alone; `outputImported`: the output is the last image's memory (a CPU device), already set.
     // The list of covered pixels by material, for frames that list them (TS_PIXELS_LISTED): a CPU device's one-bin frames
-    // read every pixel instead and never make it (4 bytes a pixel).
+    // read every pixel instead and never make it (4 bytes a pixel). After ensure_frame_buffers (the frame's size).
     void ensure_bin_pixels() {
         if (!binPixels.handle) binPixels = device.create_buffer(uint64_t(width) * height * 4, MemoryUse::Device);
     }
+    // `aovsImported`: this frame's AOVs go straight into their images' memory (Renderer::render), the readback buffer
+    // then holds the draw state alone; `outputImported`: the output is the last image's memory (a CPU device), already set.
     void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount, bool aovsImported, bool outputImported) {
         if (!drawState.handle) drawState = device.create_buffer(sizeof(gpu::GpuDrawState), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) {
