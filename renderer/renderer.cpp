@@ -399,12 +399,9 @@ struct Renderer::Impl {
     Buffer overdraw;  // fragments per pixel, made only for the overdraw view
     Buffer shadingBins;  // material bins: one GpuBin per material
     Buffer binPixels;    // covered pixels grouped by material: made when a frame first lists them (classify)
-    // The share of the pixels the previous frame covered (-1: none yet). A one-bin frame is not classified: resolve reads
-    // every pixel (TS_SPEC_PIXEL_SOURCE), shading the covered ones in place after a frame that covered at least
-    // kEveryPixelCoverage, else, on a CPU device, packing each subgroup's covered pixels first; a GPU lists them. On
-    // lavapipe, one core, 1080p: listing costs 15 ms; shading in place cost the density fields (47 % covered, many
-    // silhouettes) 28 ms more in resolve than the list, packing 3-4 ms more; packing cost the 1 px sphere (88 % covered)
-    // 5 ms more than shading in place (docs/benchmarks.md).
+    // The share of the pixels the previous frame covered (-1: none yet): a one-bin frame after one that covered at least
+    // kEveryPixelCoverage shades every pixel in place, else packs them (a CPU device) or lists them (a GPU); why, with
+    // lavapipe's figures: TS_SPEC_PIXEL_SOURCE in shared.h.
     static constexpr double kEveryPixelCoverage = 0.75;
     double coverage = -1;
     uint32_t materialCount = 1;

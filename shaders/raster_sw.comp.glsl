@@ -112,11 +112,11 @@ void main() {
         // Each vertex once, into shared memory, for every triangle that uses it.
         uint vertexCount = cluster.levelVertices & 0xffffu;
         uint v = gl_LocalInvocationIndex;
-        do {  // the test at the end (frame.h); a lane past the last vertex transforms the last one again, unstored
-            ivec2 sv;
-            float dv;
-            transform_vertex(frame, instance, translation, cluster.vertexOffset + min(v, vertexCount - 1u), sv, dv);
+        do {  // the test at the end (frame.h)
             if (v < vertexCount) {
+                ivec2 sv;
+                float dv;
+                transform_vertex(frame, instance, translation, cluster.vertexOffset + v, sv, dv);
                 if (LARGE_TRIANGLES) corner[v] = ivec4(sv, floatBitsToInt(dv), 0);
                 else packedCorner[v] = pack_corner(sv, dv, origin);
             }

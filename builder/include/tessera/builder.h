@@ -131,11 +131,6 @@ struct DisplacementBake {
 // the displaced surface; texture coordinates, colours, slots and source faces carry over.
 PreparedMesh bake_displacement(const PreparedMesh& mesh, const DisplacementBake& bake);
 
-// One cluster of the DAG. Level 0 holds the source triangles; each higher level was made by simplifying a
-// group of clusters below it. The runtime draws a cluster iff its LOD error, projected from its LOD sphere,
-// is within the threshold while its parent's is not. Siblings share their LOD bounds, children share their
-// parent bounds, and both grow monotonically up the DAG (parent error >= child error, parent sphere contains
-// child sphere), so the test is local and every cut is crack-free.
 // A cone holding the normal of every triangle of a cluster, for backface culling: the cluster faces away from a
 // viewer at direction v (unit, from the viewer) when dot(v, axis) >= cutoff, with axis and cutoff in 8-bit snorm
 // (x / 127). A cutoff of 127 (1.0) culls nothing: the normals spread too wide.
@@ -144,6 +139,11 @@ struct NormalCone {
     int8_t cutoff8 = 127;
 };
 
+// One cluster of the DAG. Level 0 holds the source triangles; each higher level was made by simplifying a
+// group of clusters below it. The runtime draws a cluster iff its LOD error, projected from its LOD sphere,
+// is within the threshold while its parent's is not. Siblings share their LOD bounds, children share their
+// parent bounds, and both grow monotonically up the DAG (parent error >= child error, parent sphere contains
+// child sphere), so the test is local and every cut is crack-free.
 struct Cluster {
     std::array<float, 4> sphere;        // culling bounds of its own triangles (mesh space, relative to origin)
     std::array<float, 4> lodSphere;     // bounds of the group simplification that made it
