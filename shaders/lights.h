@@ -17,20 +17,25 @@
 const float PI = 3.14159265358979;
 
 // The GGX microfacet lobe (alpha = roughness^2, Smith-Schlick shadowing, Schlick Fresnel) times the cosine, for light
-// of unit irradiance arriving from `toLight`; nothing for a material without reflectance (diffuse only).
+// of unit irradiance arriving from `toLight`; nothing for a material without reflectance (diffuse only). Written with
+// the unnormalized half vector s = l + v, whose length is 2 (v.h) and with which n.h = n.s / |s|, and with n.v
+// cancelled between G and 1 / (4 n.v): one square root and one division, where the textbook form takes a normalize
+// and four divisions (on a CPU device each is a slow vector instruction per pixel: resolve 6 % cheaper, session 31).
 vec3 specular_lobe(vec3 n, vec3 toEye, vec3 toLight, vec3 f0, float alpha) {
     float nl = dot(n, toLight);
     if (nl <= 0.0 || max(f0.r, max(f0.g, f0.b)) <= 0.0) return vec3(0.0);
     float nv = max(dot(n, toEye), 1e-4);
-    vec3 h = normalize(toLight + toEye);
-    float nh = max(dot(n, h), 0.0), vh = max(dot(toEye, h), 0.0);
-    float a2 = alpha * alpha;
-    float d = a2 / (PI * (nh * nh * (a2 - 1.0) + 1.0) * (nh * nh * (a2 - 1.0) + 1.0));
-    float k = alpha / 2.0;
-    float g = (nl / (nl * (1.0 - k) + k)) * (nv / (nv * (1.0 - k) + k));
+    vec3 s = toLight + toEye;
+    float ss = dot(s, s);  // 4 (v.h)^2, as |l + v|^2 = 2 + 2 l.v
+    if (!(ss > 0.0)) return vec3(0.0);  // light from exactly behind the eye's ray: no half vector
+    float vh = 0.5 * sqrt(ss);
+    float ns = max(dot(n, s), 0.0);
+    float a2 = alpha * alpha, k = alpha / 2.0;
+    // D = a2 / (pi q^2) with q = (n.h)^2 (a2 - 1) + 1 = (ns^2 (a2 - 1) + ss) / ss; G / (4 n.v) = nl / (4 (nl (1 - k) + k) (nv (1 - k) + k)).
+    float q = ns * ns * (a2 - 1.0) + ss;
+    float lobe = a2 * nl * ss * ss / (4.0 * PI * q * q * (nl * (1.0 - k) + k) * (nv * (1.0 - k) + k));
     float m = 1.0 - vh, m2 = m * m;
-    vec3 f = f0 + (1.0 - f0) * (m2 * m2 * m);
-    return d * g * f / (4.0 * nv);
+    return lobe * (f0 + (1.0 - f0) * (m2 * m2 * m));
 }
 
 float lobe_alpha(float roughness) { return max(roughness * roughness, 1e-3); }
