@@ -254,6 +254,33 @@ CameraMatrices camera_matrices(const CameraDesc& camera, uint32_t width, uint32_
     return out;
 }
 
+// The frame's pixel rays (GpuFrame.rayOrigin, rayDirection): the points of the near plane (NDC depth 1) and of NDC depth
+// 0.5 through each point of the image, as an affine function of its pixel coordinates, in double. Exact where the
+// inverse projection's w does not depend on the image position, as for every camera camera_matrices makes.
+void set_pixel_rays(gpu::GpuFrame& f, const Matrix4d& inverseViewProjection, uint32_t width, uint32_t height) {
+    auto unproject = [&](double px, double py, double depth) {
+        const double ndc[4] = {px / width * 2 - 1, py / height * 2 - 1, depth, 1};
+        std::array<double, 4> p{};
+        for (int r = 0; r < 4; ++r)
+            for (int k = 0; k < 4; ++k) p[r] += inverseViewProjection[r * 4 + k] * ndc[k];
+        return std::array<double, 3>{p[0] / p[3], p[1] / p[3], p[2] / p[3]};
+    };
+    const std::array<double, 3> nearAt[3] = {unproject(0, 0, 1), unproject(1, 0, 1), unproject(0, 1, 1)};
+    const std::array<double, 3> midAt[3] = {unproject(0, 0, 0.5), unproject(1, 0, 0.5), unproject(0, 1, 0.5)};
+    for (int i = 0; i < 3; ++i) {
+        std::array<double, 3> origin = nearAt[i], direction;
+        for (int k = 0; k < 3; ++k) {
+            direction[k] = midAt[i][k] - nearAt[i][k];
+            if (i > 0) {  // the change per pixel
+                origin[k] -= nearAt[0][k];
+                direction[k] -= midAt[0][k] - nearAt[0][k];
+            }
+        }
+        f.rayOrigin[i] = {float(origin[0]), float(origin[1]), float(origin[2]), 0};
+        f.rayDirection[i] = {float(direction[0]), float(direction[1]), float(direction[2]), 0};
+    }
+}
+
 // The frustum planes from the rows of the view-projection (Vulkan clip: -w <= x, y <= w, 0 <= z <= w), normalized.
 ViewFrustum frustum_of(const CameraMatrices& cam) {
     const Matrix4d& vp = cam.viewProjection;
@@ -1674,7 +1701,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
 
         gpu::GpuFrame f{};
         f.viewProjection = to_gpu(cam.viewProjection);
-        f.inverseViewProjection = to_gpu(cam.inverseViewProjection);
+        set_pixel_rays(f, cam.inverseViewProjection, settings.width, settings.height);
         f.cameraForward = {float(cam.forward[0]), float(cam.forward[1]), float(cam.forward[2]), 0};
         const ViewFrustum frustum = frustum_of(cam);
         for (int i = 0; i < 6; ++i) {

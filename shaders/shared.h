@@ -644,7 +644,12 @@ TS_CHECK_SIZE(GpuBin, 32);
 // Per-frame constants, reached through the single pointer in the push constants.
 struct GpuFrame {
     mat4 viewProjection;     // camera-relative world -> clip (reversed Z)
-    mat4 inverseViewProjection;
+    // The ray through a point of the image (pixel units p, x right, y down), camera-relative: origin rayOrigin[0] + p.x
+    // rayOrigin[1] + p.y rayOrigin[2], direction (unnormalized) rayDirection[0] + p.x rayDirection[1] + p.y
+    // rayDirection[2]. Both are affine in p for perspective and orthographic cameras alike (w of the inverse projection
+    // depends on depth only): the CPU takes them from the inverse view-projection in double (surface.h pixel_ray).
+    vec4 rayOrigin[3];
+    vec4 rayDirection[3];
     vec4 cameraForward;      // xyz: view direction (world)
     vec4 frustumPlanes[6];   // camera-relative world; dot(plane.xyz, p) + plane.w >= 0 inside
     vec4 background;         // linear RGBA of pixels no geometry covers
@@ -710,7 +715,7 @@ struct GpuFrame {
     address samplesBefore;   // u64vec2[width * height]: a sum's float bits, rgba
     address samplesAfter;
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 3 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 39);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 6 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 39);
 
 #ifdef __cplusplus
 static_assert(TS_SHADE_GROUP_SIZE == TS_PIXEL_TILE * TS_PIXEL_TILE, "resolve's every-pixel workgroup is a thread per pixel of a tile");

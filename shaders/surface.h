@@ -13,13 +13,11 @@ vec2 vertex_uv(GpuFrame frame, GpuMesh mesh, uint vertex) {
     return vec2(uvs.data[2u * i], uvs.data[2u * i + 1u]);
 }
 
-// The ray through a point of the image (pixel units), from the inverse view-projection (perspective and orthographic).
+// The ray through a point of the image (pixel units), from the frame's affine ray (perspective and orthographic):
+// six multiply-adds where the inverse view-projection took two matrix products and two divisions per pixel.
 void pixel_ray(GpuFrame frame, vec2 pixel, out vec3 origin, out vec3 direction) {
-    vec2 ndc = pixel / vec2(frame.viewport.xy) * 2.0 - 1.0;
-    vec4 nearPoint = frame.inverseViewProjection * vec4(ndc, 1.0, 1.0);
-    vec4 midPoint = frame.inverseViewProjection * vec4(ndc, 0.5, 1.0);
-    origin = nearPoint.xyz / nearPoint.w;
-    direction = normalize(midPoint.xyz / midPoint.w - origin);
+    origin = frame.rayOrigin[0].xyz + pixel.x * frame.rayOrigin[1].xyz + pixel.y * frame.rayOrigin[2].xyz;
+    direction = normalize(frame.rayDirection[0].xyz + pixel.x * frame.rayDirection[1].xyz + pixel.y * frame.rayDirection[2].xyz);
 }
 
 // Barycentrics where a ray meets the plane of the triangle (p0, p0 + e1, p0 + e2), unclamped (Moller-Trumbore);
