@@ -114,7 +114,7 @@ struct SpecializationInfo {
                                            {TS_SPEC_INSTANCE_FLAGS, 68, 4}, {TS_SPEC_PIXEL_SOURCE, 72, 4}};
     VkSpecializationInfo info{19, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews, bool outputBinding)
-        : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.output, VkBool32(s.ownCorners),
+        : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.outputs, VkBool32(s.ownCorners),
                  s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
                  VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts, VkBool32(outputBinding),
@@ -287,15 +287,16 @@ VkPipeline Pipelines::patch_raster(bool masks, bool countFragments) {
 }
 
 std::pair<uint64_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
-    if (v.output != TS_OUTPUT_SHADE) {
+    const bool shades = (v.outputs & 7u) != 0 && (v.outputs & TS_OUTPUT_VISUALIZE) == 0;  // the colour, shaded
+    if (!shades) {
         v.textured = v.areaLights = v.vertexInputs = false;
         v.lightCounts = 0;
     }
-    if (v.output == TS_OUTPUT_ID) v.pixels = TS_BIN_TRIANGLES;  // ids need no micro-triangle
+    if ((v.outputs & ((1u << 3 * TS_OUTPUT_BITS) - 1)) == 0) v.pixels = TS_BIN_TRIANGLES;  // ids alone need no micro-triangle
     if (!v.textured && v.pixels != TS_BIN_DICED_MICRO) v.textureKinds = 0;  // it reads no texture
     return {v.textureKinds | uint64_t(v.textured) << 8 | uint64_t(v.pixels) << 9 | uint64_t(v.areaLights) << 11 | uint64_t(v.vertexInputs) << 12 |
-                uint64_t(v.output) << 13 | uint64_t(v.lightCounts) << 16 | uint64_t(v.pixelSource) << 32,
-            {.textures = v.textured, .pixels = v.pixels, .areaLights = v.areaLights, .vertexInputs = v.vertexInputs, .output = v.output,
+                uint64_t(v.lightCounts) << 16 | uint64_t(v.pixelSource) << 32 | uint64_t(v.outputs) << 34,
+            {.textures = v.textured, .pixels = v.pixels, .areaLights = v.areaLights, .vertexInputs = v.vertexInputs, .outputs = v.outputs,
              .textureKinds = v.textureKinds, .lightCounts = v.lightCounts, .pixelSource = v.pixelSource}};
 }
 

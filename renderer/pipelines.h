@@ -42,7 +42,7 @@ struct Specialization {
     uint32_t pixels = TS_BIN_TRIANGLES;    // TS_SPEC_DISPLACEMENT: resolve's kind of pixels (TS_BIN_*)
     bool areaLights = false;               // TS_SPEC_AREA_LIGHTS: resolve, frames with area lights or a textured dome
     bool vertexInputs = false;             // TS_SPEC_VERTEX_INPUTS: resolve, materials with inputs from the vertex channel
-    uint32_t output = TS_OUTPUT_SHADE;     // TS_SPEC_OUTPUT: what resolve writes (TS_OUTPUT_*)
+    uint32_t outputs = 1;                  // TS_SPEC_OUTPUT: the AOVs resolve writes, each into its slice (shared.h)
     bool ownCorners = false;               // TS_SPEC_OWN_CORNERS: the compute rasterizer's variant (RasterVertices)
     uint32_t rasterGroupSize = TS_SW_RASTER_GROUP_SIZE;  // TS_SPEC_RASTER_GROUP_SIZE: its workgroup, or the patch rasterizer's
     bool largeTriangles = false;           // TS_SPEC_LARGE_TRIANGLES: the compute rasterizer's back of the software list
@@ -115,7 +115,7 @@ struct Pipelines {
         bool textured = false;
         uint32_t textureKinds = 0, pixels = TS_BIN_TRIANGLES;
         bool areaLights = false, vertexInputs = false;
-        uint32_t output = TS_OUTPUT_SHADE, lightCounts = 0;
+        uint32_t outputs = 1, lightCounts = 0;  // TS_SPEC_OUTPUT: the frame's AOVs (default: the colour alone, shaded)
         uint32_t pixelSource = TS_PIXELS_LISTED;  // its bin's list, or every pixel of a one-bin frame (TS_SPEC_PIXEL_SOURCE)
     };
     // Resolve's variant for a bin, made on first use.
@@ -153,8 +153,8 @@ private:
     VkPipeline backgroundTextured = VK_NULL_HANDLE, pixelSamples = VK_NULL_HANDLE, tessellatePatches = VK_NULL_HANDLE, diceVariants[2][2] = {}, patchRasterVariants[2][2] = {};
     // Resolve's variants by TS_SPEC_TEXTURE_KINDS | TS_SPEC_TEXTURES << 8 | TS_SPEC_DISPLACEMENT << 9 |
     // TS_SPEC_AREA_LIGHTS << 11 | TS_SPEC_VERTEX_INPUTS << 12 (what its textures need, textured materials, displaced
-    // materials, frames with area lights or a textured dome, materials with vertex inputs), TS_SPEC_OUTPUT (what it
-    // writes) << 13, TS_SPEC_LIGHT_COUNTS << 16 and TS_SPEC_PIXEL_SOURCE << 32: on lavapipe each one's code, present but
+    // materials, frames with area lights or a textured dome, materials with vertex inputs), TS_SPEC_LIGHT_COUNTS << 16,
+    // TS_SPEC_PIXEL_SOURCE << 32 and TS_SPEC_OUTPUT (the AOVs it writes) << 34: on lavapipe each one's code, present but
     // not run, cost every pixel of the frames that do not need it.
     std::map<uint64_t, VkPipeline> resolveVariants;
     // The constructor's set, made in the background (wait_for_startup).

@@ -14,12 +14,14 @@
 #include "stream_arena.h"
 
 #include <algorithm>
+#include <numeric>
 #include <array>
 #include <cmath>
 #include <cstddef>
 #include <chrono>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <string>
 #include <unordered_map>
@@ -474,6 +476,13 @@ struct Renderer::Impl {
     // $TESSERA_TEXTURE_KINDS=all: every textured bin through the variant that reads every texture kind (for tests and
     // measurements; the default, `material`, compiles in only what the bin's textures need).
     const bool allTextureKinds = environment_choice("TESSERA_TEXTURE_KINDS", "all", "material", false);
+    // $TESSERA_AOVS_PER_PASS=n: resolve writes at most n AOVs a pass (for tests: the passes a frame whose AOVs outgrow the
+    // output's binding takes); unset, as many as the binding holds.
+    const size_t aovsPerPass = [] {
+        const char* forced = std::getenv("TESSERA_AOVS_PER_PASS");
+        const long n = forced ? std::strtol(forced, nullptr, 10) : 0;
+        return n > 0 ? size_t(n) : std::numeric_limits<size_t>::max();
+    }();
     // Frames write AOVs straight into their images where the device can (imports_aovs), unless $TESSERA_IMPORT_AOVS=0 or
     // the driver refused an import.
     bool importAovs = environment_choice("TESSERA_IMPORT_AOVS", "1", "0", true);
@@ -1328,8 +1337,11 @@ struct Renderer::Impl {
         if (!binPixels.handle) binPixels = device.create_buffer(uint64_t(width) * height * 4, MemoryUse::Device);
     }
     // `aovsImported`: this frame's AOVs go straight into their images' memory (Renderer::render), the readback buffer
-    // then holds the draw state alone; `outputImported`: the output is the last image's memory (a CPU device), already set.
-    void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount, bool aovsImported, bool outputImported) {
+    // then holds the draw state alone; `outputImported`: the output is the one AOV's image memory (a CPU device), already
+    // set. The output holds a slice of the frame's size per AOV: resolve writes them all in one pass.
+    // `slices`: the AOVs a resolve pass writes, `aovCount` the frame's, `lastPassStart` where the last pass starts in
+    // the order the passes write them (Renderer::render_sample).
+    void ensure_frame_buffers(uint32_t w, uint32_t h, size_t slices, size_t aovCount, size_t lastPassStart, bool aovsImported, bool outputImported) {
         if (!drawState.handle) drawState = device.create_buffer(sizeof(gpu::GpuDrawState), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) {
             visibleClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
@@ -1348,11 +1360,12 @@ struct Renderer::Impl {
             width = w;
             height = h;
         }
-        // On a CPU device the output is host memory that the last AOV is read from directly: no copy of it into the
-        // readback buffer (33 MB at 1080p; Renderer::render). A GPU writes device memory and copies.
-        if (!aovOutput.handle || aovOutput.size < pixels * 16)
-            aovOutput = device.create_buffer(pixels * 16, device.is_software() ? MemoryUse::Readback : MemoryUse::Device);
-        const uint64_t copiedAovs = aovsImported ? 0 : aovCount - (aovOutput.mapped && aovCount > 0 ? 1 : 0);  // the last one read in place
+        // On a CPU device the output is host memory that the AOVs are read from directly: no copy of them into the
+        // readback buffer (33 MB each at 1080p; Renderer::render). A GPU writes device memory and copies.
+        const uint64_t outputBytes = slices * pixels * 16;
+        if (!outputImported && (!aovOutput.handle || aovOutput.size < outputBytes))
+            aovOutput = device.create_buffer(outputBytes, device.is_software() ? MemoryUse::Readback : MemoryUse::Device);
+        const uint64_t copiedAovs = aovsImported ? 0 : aovOutput.mapped ? lastPassStart : aovCount;  // the last pass's read in place
         const uint64_t readbackBytes = sizeof(gpu::GpuDrawState) + copiedAovs * pixels * 16;
         if (readback.size < readbackBytes) readback = device.create_buffer(readbackBytes, MemoryUse::Readback);
     }
@@ -1594,6 +1607,15 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     const uint64_t pixels = uint64_t(settings.width) * settings.height;
     const bool texelViews = settings.texelViews && s.streams_fit_views(pixels);
     const bool outputBinding = texelViews && settings.outputBinding && s.output_fits_binding(pixels);
+    // Resolve writes the frame's AOVs in passes of as many as the output's binding holds slices of (all of them where it
+    // holds them all, or where they go through the output's address), each pass's AOVs into slices 0, 1, ... of the
+    // output; the colour first, in slice 0 (which the background and samples passes write).
+    const uint64_t sliceBytes = pixels * 16;
+    const size_t slicesPerPass = std::max<size_t>(1, std::min({aovs.size(), s.aovsPerPass, size_t(outputBinding ? device_.max_storage_buffer_range() / sliceBytes : aovs.size())}));
+    std::vector<size_t> passOrder(aovs.size());  // the AOVs' indices in the order the passes write them
+    std::iota(passOrder.begin(), passOrder.end(), size_t(0));
+    std::stable_partition(passOrder.begin(), passOrder.end(), [&](size_t i) { return aovs[i] == Aov::Color; });
+    const size_t lastPassStart = aovs.empty() ? 0 : (aovs.size() - 1) / slicesPerPass * slicesPerPass;
     Pipelines& pipelines = !texelViews ? s.address_pipelines() : outputBinding ? s.pipelines : s.wide_output_pipelines();
     std::unique_lock<std::mutex> otherSetLock;
     if (&pipelines != &s.pipelines) otherSetLock = std::unique_lock<std::mutex>(pipelines.mutex);
@@ -1627,17 +1649,17 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     for (size_t k = 0; k < Impl::kDisplacementNormals; ++k) frameStats.geometryBytes += s.mesh_streams()[k]->buffer().size;
 
     // The AOVs' images are made first, and where the device can import their memory (VK_EXT_external_memory_host) it
-    // writes them in place: a GPU copies each AOV from its output into its image; on a CPU device resolve writes the
-    // last AOV into its image (the frame's output is that image's memory) and the others are copied into theirs. Without
+    // writes them in place: each AOV is copied from its slice of the output into its image, but on a CPU device a frame
+    // of one AOV resolves into its image itself (the frame's output is that image's memory). Without
     // an import (no such driver, images under a megabyte, $TESSERA_IMPORT_AOVS=0), AOVs go through the readback buffer and
     // the CPU copies them out of it: at 1080p 33 MB, 9-10 ms of lavapipe's host and 4-5 ms beside an H100, a frame. The
     // imports go when the frame is done; the images keep their memory.
     std::vector<Image> images(aovs.size());
     for (size_t i = 0; i < aovs.size(); ++i) images[i].width = settings.width, images[i].height = settings.height, images[i].aov = aovs[i];
     bool importAovs = s.imports_aovs(pixels) && !aovs.empty();
-    const bool outputImported = importAovs && device_.is_software();
-    std::vector<VkBuffer> aovTargets;  // per AOV, its image's memory (on a CPU device, the last one is the output instead)
-    struct ImportedOutput {  // let go of however the frame ends: the last image's memory may go back to the allocator
+    const bool outputImported = importAovs && device_.is_software() && aovs.size() == 1;
+    std::vector<VkBuffer> aovTargets;  // per AOV, its image's memory (unless that is the output itself: outputImported)
+    struct ImportedOutput {  // let go of however the frame ends: the image's memory may go back to the allocator
         Impl& s;
         bool imported;
         ~ImportedOutput() { if (imported) s.aovOutput = Buffer{}; }
@@ -1647,7 +1669,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             for (size_t i = 0; i < aovs.size(); ++i) {
                 images[i].pixels.resize(pixels * 4);  // left as it is: written whole by the device
                 void* memory = images[i].pixels.data();
-                if (i + 1 == aovs.size() && outputImported) {
+                if (outputImported) {
                     s.aovOutput = device_.import_host_memory(memory, pixel_block_bytes(pixels * 16));
                     ++frameStats.aovImportsMade;
                 } else {
@@ -1689,7 +1711,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                                                                            : TS_PIXELS_LISTED;
     const bool everyPixel = pixelSource != TS_PIXELS_LISTED;
     for (;;) {
-        s.ensure_frame_buffers(settings.width, settings.height, aovs.size(), importAovs, importedOutput.imported);
+        s.ensure_frame_buffers(settings.width, settings.height, slicesPerPass, aovs.size(), lastPassStart, importAovs, importedOutput.imported);
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
         if (hzbForNext) s.ensure_occlusion_buffers();
         if (sample)
@@ -1760,6 +1782,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                         (occlusion ? TS_FRAME_OCCLUSION : 0u) | (occlusionWanted ? TS_FRAME_BACKFACES : 0u) | (s.anyDisplaced ? TS_FRAME_MICRO_BINS : 0u) |
                         (settings.cutBlocks ? 0u : TS_FRAME_NO_CUT_BLOCKS),
                     uint32_t(settings.visualize)};
+        f.outputs = {uint32_t(pixels), 0, 0, 0};  // a slice of the output per AOV of a pass, the colour's the first
         if (previous) {
             // The previous camera saw positions relative to itself: shift this frame's camera-relative positions back.
             const Matrix4d shift = translation_matrix(cam.position[0] - s.previousCamera[0], cam.position[1] - s.previousCamera[1],
@@ -1812,29 +1835,35 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.clusterDisplacement = s.clusterDisplacement.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
-        // Resolve's variant for a bin of an AOV: materials with textures through the variant that samples them; only the
-        // colour AOV shades.
-        auto resolve_variant_of = [&](Aov aov, uint32_t pixels, uint32_t m) {
+        // Resolve's variant for a bin in the pass of AOVs passOrder[first, first + slicesPerPass): each into its slice of
+        // the output (TS_SPEC_OUTPUT); materials with textures through the variant that samples them, which only the
+        // colour's shading reads.
+        auto pass_outputs = [&](size_t first) {
+            uint32_t outputs = 0;
+            for (size_t k = first; k < std::min(aovs.size(), first + slicesPerPass); ++k) {
+                outputs |= uint32_t(k - first + 1) << (TS_OUTPUT_BITS * uint32_t(aovs[passOrder[k]]));
+                if (aovs[passOrder[k]] == Aov::Color && settings.visualize != Visualize::None) outputs |= TS_OUTPUT_VISUALIZE;
+            }
+            return outputs;
+        };
+        auto resolve_variant_of = [&](uint32_t outputs, uint32_t pixels, uint32_t m) {
             Pipelines::ResolveVariant v;
             v.pixelSource = pixelSource;
-            v.textured = aov == Aov::Color && m < s.texturedMaterials.size() && s.texturedMaterials[m];
+            v.outputs = outputs;
+            v.textured = (outputs & 7u) != 0 && m < s.texturedMaterials.size() && s.texturedMaterials[m];
             v.textureKinds = m < s.materialTextureKinds.size() ? s.materialTextureKinds[m] : 0u;
             v.pixels = pixels;
             v.areaLights = areaLights;
             v.vertexInputs = s.materialRecords[m].vertexInputs != 0;
-            v.output = aov == Aov::Color ? (settings.visualize == Visualize::None ? TS_OUTPUT_SHADE : TS_OUTPUT_VISUALIZE)
-                     : aov == Aov::Depth  ? TS_OUTPUT_DEPTH
-                     : aov == Aov::Normal ? TS_OUTPUT_NORMAL
-                                          : TS_OUTPUT_ID;
             v.lightCounts = lightCounts;
             return v;
         };
         // What the frame draws with, made before it records, together on the host's threads (Pipelines::make_for_frame).
         Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, oneBin, {}};
-        for (const Aov aov : aovs)
+        for (size_t first = 0; first < aovs.size(); first += slicesPerPass)
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
-                    if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) needs.resolves.push_back(resolve_variant_of(aov, pixels, m));
+                    if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) needs.resolves.push_back(resolve_variant_of(pass_outputs(first), pixels, m));
         pipelines.make_for_frame(needs);
         const VkPipeline softwareRaster = pipelines.software_raster(s.anyMasked, ownCorners, false, countFragments);
         const VkPipeline softwareRasterLarge = pipelines.software_raster(s.anyMasked, ownCorners, true, countFragments);
@@ -2032,55 +2061,65 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             // (rows [0, k) onto [k, 2k)): 11 copies at 1080p. One copy of 1080 one-row regions cost an H100 2 ms (a copy
             // per region), and a shader storing the uncovered pixels cost lavapipe a loop over the lanes per word (about
             // 20 ms of a 1080p frame on one core).
-            auto fill_background = [&](Aov aov) {
+            auto fill_background = [&](Aov aov, VkDeviceSize slice) {
+                const VkDeviceSize base = slice * sliceBytes;
                 const std::array<uint32_t, 4> words = background_words(aov, settings.background);
                 if (words[0] == words[1] && words[0] == words[2] && words[0] == words[3]) {
-                    vkCmdFillBuffer(cmd, s.aovOutput.handle, 0, pixels * 16, words[0]);
+                    vkCmdFillBuffer(cmd, s.aovOutput.handle, base, pixels * 16, words[0]);
                     return;
                 }
                 std::vector<std::array<uint32_t, 4>> row(settings.width, words);
                 constexpr size_t kMostPerUpdate = 65536;  // vkCmdUpdateBuffer's limit
                 const size_t rowBytes = size_t(settings.width) * 16;
                 for (size_t at = 0; at < rowBytes; at += kMostPerUpdate)
-                    vkCmdUpdateBuffer(cmd, s.aovOutput.handle, at, std::min(kMostPerUpdate, rowBytes - at), reinterpret_cast<const char*>(row.data()) + at);
+                    vkCmdUpdateBuffer(cmd, s.aovOutput.handle, base + at, std::min(kMostPerUpdate, rowBytes - at), reinterpret_cast<const char*>(row.data()) + at);
                 for (uint32_t done = 1; done < settings.height; done *= 2) {
                     barrier(cmd, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT,
                             VK_ACCESS_2_TRANSFER_READ_BIT | VK_ACCESS_2_TRANSFER_WRITE_BIT);
-                    const VkBufferCopy block{0, done * rowBytes, std::min(done, settings.height - done) * rowBytes};
+                    const VkBufferCopy block{base, base + done * rowBytes, std::min(done, settings.height - done) * rowBytes};
                     vkCmdCopyBuffer(cmd, s.aovOutput.handle, s.aovOutput.handle, 1, &block);
                 }
             };
 
-            // Each AOV: the background, then one indirect dispatch per material over its bin's pixels.
-            for (size_t i = 0; i < aovs.size(); ++i) {
-                // Classify (its count step keeps places in the output) and the previous AOV's copy are done with the output.
+            // Each pass: its AOVs' backgrounds into their slices of the output, then one indirect dispatch per material
+            // over its bin's pixels, writing every AOV of the pass (each pixel's triangle fetched once for all of them),
+            // then each AOV into its image.
+            for (size_t first = 0; first < aovs.size(); first += slicesPerPass) {
+                const size_t end = std::min(aovs.size(), first + slicesPerPass);
+                // Classify (its count step keeps places in the output) and the previous pass's copies are done with the output.
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_COPY_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_TRANSFER_READ_BIT,
                         VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_TRANSFER_WRITE_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                if (texturedDome && aovs[i] == Aov::Color) {  // the dome's image where nothing covers a pixel
-                    PushConstants background{uint32_t(aovs[i]), 0, 0};
+                const bool colour = aovs[passOrder[first]] == Aov::Color;  // the colour comes first, in slice 0
+                for (size_t k = first; k < end; ++k)
+                    if (!(texturedDome && aovs[passOrder[k]] == Aov::Color)) fill_background(aovs[passOrder[k]], k - first);
+                barrier(cmd, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                        VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
+                if (texturedDome && colour) {  // the dome's image where nothing covers a pixel: a pass that may write the
+                                               // whole output, as far as synchronization knows, so before resolve's
+                    PushConstants background{uint32_t(Aov::Color), 0, 0};
                     vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
                     vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.textured_background());
                     vkCmdDispatch(cmd, tilesX, tilesY, 1);
-                } else {
-                    fill_background(aovs[i]);
-                    barrier(cmd, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
+                    barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 }
+                const uint32_t outputs = pass_outputs(first);
                 VkPipeline bound = VK_NULL_HANDLE;
                 for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                     for (uint32_t m = 0; m < s.materialCount; ++m) {
                         if (pixels != TS_BIN_TRIANGLES && !s.material_displaced(m)) continue;  // micro-triangles: displaced only
-                        const VkPipeline pipeline = pipelines.resolve_variant(resolve_variant_of(aovs[i], pixels, m));
+                        const VkPipeline pipeline = pipelines.resolve_variant(resolve_variant_of(outputs, pixels, m));
                         if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                         const uint32_t bin = pixels * s.materialCount + m;
-                        ResolvePushConstants shade{{uint32_t(aovs[i]), bin, 0}, s.materialRecords[m]};
+                        ResolvePushConstants shade{{0, bin, 0}, s.materialRecords[m]};
                         vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
                         if (everyPixel) vkCmdDispatch(cmd, everyPixelGroupsX, tilesY, 1);
                         else vkCmdDispatchIndirect(cmd, s.shadingBins.handle, bin * sizeof(gpu::GpuBin));
                     }
-                if (sample && aovs[i] == Aov::Color) {  // the colour into the samples' sum; the last sample's, their mean
+                bool colourSummed = false;  // this sample's colour went into the samples' sum: nothing to hand back
+                if (sample && colour) {  // the colour into the samples' sum; the last sample's, their mean
                     barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                     const uint32_t step = sample->index == 0 ? TS_SAMPLES_FIRST : sample->index + 1 == sample->count ? TS_SAMPLES_MEAN : TS_SAMPLES_ADD;
@@ -2088,17 +2127,22 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                     vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(samples), &samples);
                     vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.pixel_samples());
                     vkCmdDispatch(cmd, tilesX, tilesY, 1);
-                    if (step != TS_SAMPLES_MEAN) continue;  // this sample's colour is in the sum: nothing to hand back
+                    colourSummed = step != TS_SAMPLES_MEAN;
                 }
-                // Read where resolve wrote it: the last image itself where imported, else host-visible output memory.
-                if (i + 1 == aovs.size() && (importAovs ? importedOutput.imported : s.aovOutput.mapped != nullptr)) break;
+                // Each AOV into its image (or the readback buffer, its place in passOrder), unless read where resolve
+                // wrote it: the image itself (imported as the output), or the host-visible output after the last pass.
+                const bool inPlace = importAovs ? importedOutput.imported : s.aovOutput.mapped != nullptr && first == lastPassStart;
+                if (inPlace) continue;
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
                         VK_ACCESS_2_TRANSFER_READ_BIT);
-                const VkBufferCopy region{0, importAovs ? 0 : sizeof(gpu::GpuDrawState) + i * pixels * 16, pixels * 16};
-                const bool timed = timedCopies < Impl::kTimedCopies;
-                if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies);
-                vkCmdCopyBuffer(cmd, s.aovOutput.handle, importAovs ? aovTargets[i] : s.readback.handle, 1, &region);
-                if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies++ + 1);
+                for (size_t k = first; k < end; ++k) {
+                    if (colourSummed && aovs[passOrder[k]] == Aov::Color) continue;
+                    const VkBufferCopy region{(k - first) * sliceBytes, importAovs ? 0 : sizeof(gpu::GpuDrawState) + k * sliceBytes, sliceBytes};
+                    const bool timed = timedCopies < Impl::kTimedCopies;
+                    if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies);
+                    vkCmdCopyBuffer(cmd, s.aovOutput.handle, importAovs ? aovTargets[passOrder[k]] : s.readback.handle, 1, &region);
+                    if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies++ + 1);
+                }
             }
             mark();
             barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
@@ -2167,9 +2211,9 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         frameStats.postPassClusters = state.postClusters;
         frameStats.hzbBuilds = state.hzbBuilds;
         frameStats.backfaceClusters = state.backfaceClusters;
-        // An every-pixel frame runs no bins pass: each AOV's resolve counted the covered pixels, and they are its one bin.
+        // An every-pixel frame runs no bins pass: its resolve counted the covered pixels, and they are its one bin.
         frameStats.resolvePixels = pixelSource == TS_PIXELS_IN_PLACE ? "in place" : pixelSource == TS_PIXELS_PACKED ? "packed" : "listed";
-        frameStats.coveredPixels = everyPixel ? state.coveredPixels / uint32_t(aovs.size()) : state.coveredPixels;
+        frameStats.coveredPixels = state.coveredPixels;
         frameStats.shadingBins = everyPixel ? uint32_t(frameStats.coveredPixels > 0) : state.shadingBins;
         s.coverage = double(frameStats.coveredPixels) / double(pixels);
         frameStats.tessellatedClusters = state.tessClustersDrawn;
@@ -2218,12 +2262,14 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     ++s.framesRendered;
     s.forget_old_imports();
     if (!importAovs) {
-        for (size_t i = 0; i < aovs.size(); ++i) {
-            // Copied straight from the mapped readback, or, for a CPU device's last AOV, from the output itself.
-            const bool direct = i + 1 == aovs.size() && s.aovOutput.mapped;
-            const float* rgba = direct ? static_cast<const float*>(s.aovOutput.mapped)
-                                       : reinterpret_cast<const float*>(static_cast<const char*>(s.readback.mapped) + sizeof(gpu::GpuDrawState) + i * pixels * 16);
-            images[i].pixels.assign(rgba, rgba + pixels * 4);
+        for (size_t k = 0; k < aovs.size(); ++k) {
+            // Copied straight from the mapped readback (at its place in passOrder), or, on a CPU device, from its slice of
+            // the output itself after the last pass.
+            const bool direct = s.aovOutput.mapped && k >= lastPassStart;
+            const char* bytes = direct ? static_cast<const char*>(s.aovOutput.mapped) + (k - lastPassStart) * sliceBytes
+                                       : static_cast<const char*>(s.readback.mapped) + sizeof(gpu::GpuDrawState) + k * sliceBytes;
+            const float* rgba = reinterpret_cast<const float*>(bytes);
+            images[passOrder[k]].pixels.assign(rgba, rgba + pixels * 4);
         }
     }
     frameStats.cpuFrameMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();

@@ -364,12 +364,15 @@ uvec2 unpack_bin_pixel(uint packed) { return uvec2(packed & 0xffffu, packed >> 1
 layout(set = 0, binding = TS_BINDING_OUTPUT, std430) buffer AovOutput { uvec4 aovPixels[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer OutputRef { uvec4 data[]; };
 layout(constant_id = TS_SPEC_OUTPUT_BINDING) const bool OUTPUT_BINDING = false;
-void write_output(GpuFrame frame, uint index, uvec4 bits) {
+// The output holds a slice of frame.outputs.x pixels per AOV of the frame (resolve writes them all in one pass).
+void write_output(GpuFrame frame, uint slice, uint index, uvec4 bits) {
+    index += slice * frame.outputs.x;
     if (OUTPUT_BINDING) aovPixels[index] = bits;
     else OutputRef(frame.aovOutput).data[index] = bits;
 }
-void write_output(GpuFrame frame, uint index, vec4 value) { write_output(frame, index, floatBitsToUint(value)); }
-uvec4 read_output(GpuFrame frame, uint index) {
+void write_output(GpuFrame frame, uint slice, uint index, vec4 value) { write_output(frame, slice, index, floatBitsToUint(value)); }
+uvec4 read_output(GpuFrame frame, uint slice, uint index) {
+    index += slice * frame.outputs.x;
     return OUTPUT_BINDING ? aovPixels[index] : OutputRef(frame.aovOutput).data[index];
 }
 // classify.comp.glsl keeps each pixel's (bin, place in the bin) in its output's first two words between its count and

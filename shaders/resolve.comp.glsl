@@ -33,8 +33,16 @@ layout(constant_id = TS_SPEC_AREA_LIGHTS) const bool AREA_LIGHTS = false;
 // The frame's lights (TS_SPEC_LIGHT_COUNTS): the distant ones first, then the others, in the frame's `lights`.
 layout(constant_id = TS_SPEC_LIGHT_COUNTS) const uint LIGHT_COUNTS = 0u;
 const uint DISTANT_LIGHTS = LIGHT_COUNTS & 0xffu, ALL_LIGHTS = LIGHT_COUNTS >> 8u;
-// What this variant writes (TS_OUTPUT_*): only that AOV's code is compiled in.
-layout(constant_id = TS_SPEC_OUTPUT) const uint OUTPUT = TS_OUTPUT_SHADE;
+// What this variant writes (TS_SPEC_OUTPUT): each AOV's slice of the output plus one, 0 where the frame has no such AOV;
+// only the code of those it writes is compiled in.
+layout(constant_id = TS_SPEC_OUTPUT) const uint OUTPUTS = 1u;  // the colour alone, shaded
+const uint COLOR_OUT = OUTPUTS & 7u, DEPTH_OUT = (OUTPUTS >> 3u) & 7u, NORMAL_OUT = (OUTPUTS >> 6u) & 7u,
+           PRIM_ID_OUT = (OUTPUTS >> 9u) & 7u, INSTANCE_ID_OUT = (OUTPUTS >> 12u) & 7u, CLUSTER_ID_OUT = (OUTPUTS >> 15u) & 7u,
+           TRIANGLE_ID_OUT = (OUTPUTS >> 18u) & 7u;
+const bool VISUALIZE = (OUTPUTS & TS_OUTPUT_VISUALIZE) != 0u;
+// What the variant needs past the ids, the depth and the normal: the pixel's code stops at the last AOV it writes.
+const bool PAST_IDS = COLOR_OUT != 0u || DEPTH_OUT != 0u || NORMAL_OUT != 0u;
+const bool PAST_DEPTH = COLOR_OUT != 0u || NORMAL_OUT != 0u;
 // The variant for materials with inputs from the vertex channel (GpuMaterial.vertexInputs != 0).
 layout(constant_id = TS_SPEC_VERTEX_INPUTS) const bool VERTEX_INPUTS = false;
 // Where this variant finds its pixels (TS_PIXELS_*): its bin's list, or every pixel of the frame, tile by tile (one bin).
@@ -74,18 +82,20 @@ vec3 visualize(GpuFrame frame, uint mode, Instance instance, uvec2 visible, GpuC
     return id_color(material);  // TS_VIS_SHADING_BINS
 }
 
-// One covered pixel (`payloadBits`: the low word of its visibility value, which is not zero).
-void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, uint aov) {
+// One covered pixel (`payloadBits`: the low word of its visibility value, which is not zero): every AOV the variant
+// writes, each into its slice of the output (`slice + 1` its OUTPUTS field).
+void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
     uint index = pixel.y * frame.viewport.x + pixel.x;
-    if (OUTPUT == TS_OUTPUT_VISUALIZE && frame.counts.w == TS_VIS_OVERDRAW) {
+    bool overdraw = COLOR_OUT != 0u && VISUALIZE && frame.counts.w == TS_VIS_OVERDRAW;
+    if (overdraw) {
         uint fragments = CounterRef(frame.overdraw).data[index];
-        write_output(frame, index, vec4(level_color(max(fragments, 1u) - 1u), 1.0));
-        return;
+        write_output(frame, COLOR_OUT - 1u, index, vec4(level_color(max(fragments, 1u) - 1u), 1.0));
+        if ((OUTPUTS & ~(7u | TS_OUTPUT_VISUALIZE)) == 0u) return;  // no AOV but the colour
     }
 
     // A bin of clusters' own triangles holds no micro-triangle: no patch to look up (a branch is not free on a CPU device).
-    // The id variant serves every kind of bin (renderer.cpp: resolve_variant), so it decodes micro-triangles too.
-    Payload payload = PIXELS == TS_BIN_TRIANGLES && OUTPUT != TS_OUTPUT_ID ? Payload(payloadBits >> TS_VIS_TRIANGLE_BITS, payloadBits & ((1u << TS_VIS_TRIANGLE_BITS) - 1u), 0xffffffffu, 0u)
+    // The ids' variant serves every kind of bin (renderer.cpp: resolve_variant), so it decodes micro-triangles too.
+    Payload payload = PIXELS == TS_BIN_TRIANGLES && PAST_IDS ? Payload(payloadBits >> TS_VIS_TRIANGLE_BITS, payloadBits & ((1u << TS_VIS_TRIANGLE_BITS) - 1u), 0xffffffffu, 0u)
                                                  : decode_payload(frame, payloadBits);
     uint triangle = payload.triangle;
     uvec2 visible = visible_cluster(frame, payload.slot);
@@ -93,14 +103,11 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, uint aov) {
     visible.x &= ~TS_VISIBLE_SOFTWARE;
     Instance instance = load_instance(frame, visible.x);
     GpuCluster cluster = load_cluster(frame, visible.y);
-    if (OUTPUT == TS_OUTPUT_ID) {
-        uint id = aov == TS_AOV_PRIM_ID ? instance.primId
-                : aov == TS_AOV_INSTANCE_ID ? visible.x
-                : aov == TS_AOV_CLUSTER_ID ? visible.y
-                : cluster.triangleOffset + triangle;
-        write_output(frame, index, uvec4(id, 0u, 0u, 0u));
-        return;
-    }
+    if (PRIM_ID_OUT != 0u) write_output(frame, PRIM_ID_OUT - 1u, index, uvec4(instance.primId, 0u, 0u, 0u));
+    if (INSTANCE_ID_OUT != 0u) write_output(frame, INSTANCE_ID_OUT - 1u, index, uvec4(visible.x, 0u, 0u, 0u));
+    if (CLUSTER_ID_OUT != 0u) write_output(frame, CLUSTER_ID_OUT - 1u, index, uvec4(visible.y, 0u, 0u, 0u));
+    if (TRIANGLE_ID_OUT != 0u) write_output(frame, TRIANGLE_ID_OUT - 1u, index, uvec4(cluster.triangleOffset + triangle, 0u, 0u, 0u));
+    if (!PAST_IDS) return;
 
     GpuMesh mesh = load_mesh(frame, instance.meshIndex);
     // The pixel's ray and where it meets the triangle's plane (the rasterizers' masks use the same code); for a
@@ -137,10 +144,8 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, uint aov) {
     if (!(t > 0.0) || isinf(t)) t = 0.0;  // edge-on triangle: the plane test is meaningless
     vec3 hit = origin + t * direction;
 
-    if (OUTPUT == TS_OUTPUT_DEPTH) {
-        write_output(frame, index, vec4(dot(hit, frame.cameraForward.xyz)));
-        return;
-    }
+    if (DEPTH_OUT != 0u) write_output(frame, DEPTH_OUT - 1u, index, vec4(dot(hit, frame.cameraForward.xyz)));
+    if (!PAST_DEPTH) return;
 
     vec3 geometric = normalize(cross(e1, e2));
     vec3 n = geometric;  // a micro-triangle's own normal is the displaced surface's
@@ -159,24 +164,22 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, uint aov) {
         n = -n;
     }
     if (dot(n, geometric) < 0.0) n = geometric;  // an interpolated normal facing away would shade black
-    if (OUTPUT == TS_OUTPUT_NORMAL) {
-        write_output(frame, index, vec4(n, 1.0));
-        return;
-    }
+    if (NORMAL_OUT != 0u) write_output(frame, NORMAL_OUT - 1u, index, vec4(n, 1.0));
+    if (COLOR_OUT == 0u || overdraw) return;
 
-    if (OUTPUT == TS_OUTPUT_VISUALIZE) {  // flat id colours, lit from the eye so that shapes stay readable
+    if (VISUALIZE) {  // flat id colours, lit from the eye so that shapes stay readable
         if (frame.counts.w == TS_VIS_UV) {  // data, not a picture: unlit
             vec3 uvColor = vec3(1.0, 0.0, 1.0);
             if (mesh.uvOffset != TS_NO_STREAM) {
                 PixelUv uv = pixel_uv(frame, vec2(pixel), bary, p0, e1, e2, cornerUv[0], cornerUv[1], cornerUv[2]);
                 uvColor = vec3(fract(uv.uv), 0.0);
             }
-            write_output(frame, index, vec4(uvColor, 1.0));
+            write_output(frame, COLOR_OUT - 1u, index, vec4(uvColor, 1.0));
             return;
         }
         vec3 tint = visualize(frame, frame.counts.w, instance, visible, cluster, triangle, software, push.step, payload.patchIndex, payload.micro,
                               largestFactor);
-        write_output(frame, index, vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0));
+        write_output(frame, COLOR_OUT - 1u, index, vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0));
         return;
     }
 
@@ -237,7 +240,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, uint aov) {
         color += distant_light_contribution(frameConstants.lights[i], n, toEye, albedo, f0, roughness);
     for (uint i = DISTANT_LIGHTS; i < ALL_LIGHTS; ++i)
         color += other_light_contribution(frame, frameConstants.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
-    write_output(frame, index, vec4(color, 1.0));
+    write_output(frame, COLOR_OUT - 1u, index, vec4(color, 1.0));
 }
 
 // TS_PIXELS_PACKED: each subgroup's covered pixels (the payload, the position), in its own part. Sized for at most
@@ -248,7 +251,6 @@ shared uint packedPixel[PACKED_PIXELS];
 
 void main() {
     GpuFrame frame = frameConstants;
-    uint aov = push.aov;
     if (PIXEL_SOURCE != TS_PIXELS_LISTED) {
         // A row of PIXELS_PER_THREAD tiles of TS_PIXEL_TILE x TS_PIXEL_TILE pixels per workgroup, each thread a pixel of
         // each tile (TS_SHADE_GROUP_SIZE is a tile's pixels). Shifts, no division: lavapipe divides lane by lane (a
@@ -269,7 +271,7 @@ void main() {
                     packedPixel[at] = pixel.x | (pixel.y << 16u);
                 }
             } else if (value != 0ul) {
-                shade(frame, pixel, uint(value), aov);
+                shade(frame, pixel, uint(value));
             }
             covered += subgroupBallotBitCount(lanes);
             pixel.x += TS_PIXEL_TILE;
@@ -280,7 +282,7 @@ void main() {
             [[dont_unroll]] do {
                 if (i < covered) {
                     uint xy = packedPixel[part + i];
-                    shade(frame, uvec2(xy & 0xffffu, xy >> 16u), packedPayload[part + i], aov);
+                    shade(frame, uvec2(xy & 0xffffu, xy >> 16u), packedPayload[part + i]);
                 }
             } while ((i += gl_SubgroupSize) < covered);
         }
@@ -295,6 +297,6 @@ void main() {
         uint i = first + k * TS_SHADE_GROUP_SIZE;
         if (i >= bin.count) return;
         uvec2 pixel = unpack_bin_pixel(bin_pixel_entry(frame, bin.offset + i));
-        shade(frame, pixel, uint(visibility_value(frame, pixel.y * frame.viewport.x + pixel.x)), aov);
+        shade(frame, pixel, uint(visibility_value(frame, pixel.y * frame.viewport.x + pixel.x)));
     } while (++k < PIXELS_PER_THREAD);
 }

@@ -114,7 +114,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Mesh vertex streams.
 #define TS_NO_STREAM 0xffffffffu
 
-// What the resolve pass writes (push constant `aov`).
+// The AOVs, as renderer.h numbers them (resolve writes those of its TS_SPEC_OUTPUT).
 #define TS_AOV_COLOR 0u
 #define TS_AOV_DEPTH 1u
 #define TS_AOV_NORMAL 2u
@@ -221,16 +221,15 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // Specialization constant of resolve's variant for frames with area lights (rect, sphere) or a textured dome: their
 // shading code, present but not run, made the frames without them 3x slower to resolve on lavapipe.
 #define TS_SPEC_AREA_LIGHTS 2
-// Specialization constant of resolve: what its variant writes (TS_OUTPUT_*). On lavapipe every branch of a shader runs,
-// masked, for every pixel: the colour of shaded frames cost 25 % more with the other AOVs' and the debug views' code
-// beside it.
+// Specialization constant of resolve: what its variant writes, all in one pass over the pixels (each pixel's triangle
+// fetched once for every AOV of the frame): for each AOV (TS_AOV_*), bits TS_OUTPUT_BITS * aov hold its slice of the
+// output plus one (0: not written); TS_OUTPUT_VISUALIZE: the colour is a debug view (--vis), not shaded. On lavapipe
+// every branch of a shader runs, masked, for every pixel: only the code of the AOVs a variant writes is compiled in (the
+// colour of shaded frames cost 25 % more with the other AOVs' and the debug views' code beside it).
 #define TS_SPEC_OUTPUT 3
-#define TS_OUTPUT_SHADE 0u      // the colour AOV, shaded
-#define TS_OUTPUT_VISUALIZE 1u  // the colour AOV under --vis
-#define TS_OUTPUT_DEPTH 2u
-#define TS_OUTPUT_NORMAL 3u
-#define TS_OUTPUT_ID 4u         // primId, instanceId, clusterId, triangleId (push.aov says which)
-#define TS_OUTPUT_KINDS 5u
+#define TS_OUTPUT_BITS 3u
+#define TS_OUTPUT_VISUALIZE (1u << 24)
+#define TS_MOST_AOVS 7u          // one of each TS_AOV_*: slices 0-6
 // Specialization constants of the compute rasterizer (raster_sw.comp.glsl): its variant where each thread transforms its
 // own triangles' corners, with no shared memory and no barrier, in workgroups of TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE
 // (RasterVertices::PerTriangle), and the workgroup size (local_size_x_id), which follows the variant and the device;
@@ -664,6 +663,7 @@ struct GpuFrame {
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count (distant lights first, then the
                              // others in the scene's order; resolve's counts: TS_SPEC_LIGHT_COUNTS)
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
+    uvec4 outputs;           // x: pixels per slice of the AOV output (one slice per AOV of the frame), y: the colour's slice
     vec4 tessellation;       // x: dicing rate (pixels per micro-edge); y: patch capacity (exact: at most 2^23); z: point pool
                              // capacity (points)
     GpuLight lights[TS_MAX_LIGHTS];
@@ -715,7 +715,7 @@ struct GpuFrame {
     address samplesBefore;   // u64vec2[width * height]: a sum's float bits, rgba
     address samplesAfter;
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 6 + 16 * 1 + 16 * 6 + 16 * 8 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 39);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 6 + 16 * 1 + 16 * 6 + 16 * 9 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 39);
 
 #ifdef __cplusplus
 static_assert(TS_SHADE_GROUP_SIZE == TS_PIXEL_TILE * TS_PIXEL_TILE, "resolve's every-pixel workgroup is a thread per pixel of a tile");

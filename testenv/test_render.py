@@ -405,6 +405,41 @@ def test_pixel_samples_antialias_the_colour_and_keep_the_centres_ids():
         session.render(camera="/Camera", resolution=(8, 8), pixel_filter="tent")
 
 
+ALL_AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triangleId")
+
+
+@pytest.mark.parametrize("stage_file, settings, environment", [
+    ("testTextures/textures.usda", {}, {}),                                  # textured materials: listed bins
+    ("testTextures/textures.usda", {}, {"TESSERA_AOVS_PER_PASS": "3"}),      # passes of 3, 3 and 1 AOVs
+    ("testTextures/textures.usda", {}, {"TESSERA_AOVS_PER_PASS": "2", "TESSERA_IMPORT_AOVS": "0"}),  # through the readback
+    ("testGeomSubsets/geom_subsets.usda", {"vis": "clusters"}, {}),          # a debug view
+    ("testGeomSubsets/geom_subsets.usda", {"vis": "overdraw"}, {}),          # the view that reads no triangle
+    ("testLights/dome_texture.usda", {"pixel_samples": 4}, {}),              # a dome's background, samples summed
+    ("testLights/dome_texture.usda", {"pixel_samples": 4}, {"TESSERA_AOVS_PER_PASS": "2"}),
+    ("testPointInstancer/point_instancer.usda", {}, {}),
+])
+def test_aovs_written_together_are_each_as_written_alone(monkeypatch, stage_file, settings, environment):
+    """Resolve writes the AOVs of a frame in one pass, each into its slice of the output (in passes of as many as the
+    output's binding holds, the colour first): each must be the same bit for bit as the AOV rendered alone (its own
+    variant, the output its image where imported), in any order and subset. 256 x 256: images of a megabyte, imported."""
+    for name, value in environment.items():
+        monkeypatch.setenv(name, value)
+    session = tessera.Session(TESTENV / stage_file, validation=True)
+    camera = session.camera_paths()[0]
+    alone = {}
+    for aov in ALL_AOVS:
+        frame = session.render(camera=camera, resolution=(256, 256), aovs=(aov,), **settings)
+        assert not frame.errors, frame.errors
+        alone[aov] = np.asarray(frame[aov].pixels).view(np.uint32)
+    for aovs in (ALL_AOVS, ALL_AOVS[::-1], ("primId", "color"), ("normal", "depth", "triangleId")):
+        frame = session.render(camera=camera, resolution=(256, 256), aovs=aovs, **settings)
+        assert not frame.errors, frame.errors
+        if environment.get("TESSERA_IMPORT_AOVS") == "0":
+            assert not frame.stats["aovs_imported"]
+        for aov in aovs:
+            assert np.array_equal(np.asarray(frame[aov].pixels).view(np.uint32), alone[aov]), f"{aov} among {aovs}"
+
+
 def _wall_and_box_stage():
     """A bumpy wall of one material filling a camera's view, a box before it, and a second camera far away."""
     stage = Usd.Stage.CreateInMemory()
