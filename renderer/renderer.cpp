@@ -2214,6 +2214,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         // An every-pixel frame runs no bins pass: its resolve counted the covered pixels, and they are its one bin.
         frameStats.resolvePixels = pixelSource == TS_PIXELS_IN_PLACE ? "in place" : pixelSource == TS_PIXELS_PACKED ? "packed" : "listed";
         frameStats.coveredPixels = state.coveredPixels;
+        frameStats.resolvePasses = uint32_t((aovs.size() + slicesPerPass - 1) / slicesPerPass);
         frameStats.shadingBins = everyPixel ? uint32_t(frameStats.coveredPixels > 0) : state.shadingBins;
         s.coverage = double(frameStats.coveredPixels) / double(pixels);
         frameStats.tessellatedClusters = state.tessClustersDrawn;

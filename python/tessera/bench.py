@@ -437,6 +437,10 @@ def _speedups(ref_wall, ref_gpu, wall, gpu):
 DENSITY_REFERENCE_PIXEL_ERROR = 1 / 16
 
 
+# The AOV table's sets: the colour alone, what compositing usually takes, every AOV.
+AOV_SETS = (("color",), ("color", "depth", "normal", "primId"), ("color", "depth", "normal", "primId", "instanceId", "clusterId", "triangleId"))
+
+
 # The anti-aliasing table's pixel samples and filters; the most box samples also give the reference every row is measured
 # against besides its own.
 ANTIALIASING_RUNS = ((1, "box"), (4, "box"), (16, "box"), (16, "gaussian"))
@@ -524,6 +528,23 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
                              micro_triangles=edited.stats["micro_triangles"],
                              host_mesh_mib=round(edited.stats["host_mesh_bytes"] / 2**20, 1), host_mesh_bytes=edited.stats["host_mesh_bytes"],
                              geometry_mib=round(edited.stats["geometry_bytes"] / 2**20, 1)))
+        elif case == "aovs":  # the AOVs a compositing pipeline asks for together: resolve writes them in one pass
+            for aovs in AOV_SETS:
+                walls, passes, cpus = [], [], []
+                session.render(camera="/World/Camera", **{**settings, "aovs": aovs})
+                for _ in range(frames):
+                    start, cpu = time.perf_counter(), _process_seconds()
+                    result = session.render(camera="/World/Camera", **{**settings, "aovs": aovs})
+                    walls.append((time.perf_counter() - start) * 1000)
+                    cpus.append((_process_seconds() - cpu) * 1000)
+                    passes.append(result.stats["gpu_ms"])
+                if result.errors:
+                    raise RuntimeError("; ".join(result.errors))
+                gpu = {name: float(np.median([p[name] for p in passes])) for name in passes[0]}
+                gpu.update(total=float(np.median([sum(p.values()) for p in passes])), process_cpu=float(np.median(cpus)))
+                rows.append(_row("AOVs", ", ".join(aovs) if len(aovs) < len(AOV_SETS[-1]) else "all seven", result, float(np.median(walls)), gpu,
+                                 aovs=len(aovs), resolve_passes=result.stats["resolve_passes"],
+                                 pixel_mib=round(result.stats["pixel_bytes"] / 2**20), pixel_bytes=result.stats["pixel_bytes"]))
         elif case == "first-frame":  # a batch render's first frame: its meshes from the mesh cache, uploaded, then drawn
             start = time.perf_counter()
             first = _reference(session, settings)  # timed: the first frame is the one measured
@@ -629,7 +650,7 @@ RENDER_COLUMNS = [("table", "table"), ("case", "case"), ("source_triangles", "so
                   ("first_frame_ms", "first frame ms"), ("upload_ms", "upload ms"), ("meshes_cached", "meshes cached"),
                   ("resident_mib", "resident MiB"), ("geometry_upload_bytes", "upload bytes"), ("geometry_mib", "GPU geometry MiB"),
                   ("host_mesh_mib", "host mesh MiB"), ("displaced_meshes_prepared", "displaced prepared"),
-                  ("upload_submissions", "upload submits")]
+                  ("upload_submissions", "upload submits"), ("aovs", "AOVs"), ("resolve_passes", "resolve passes"), ("pixel_mib", "pixel MiB")]
 
 
 def _write_plot(rows, path):
@@ -664,12 +685,12 @@ def render(args) -> int:
     cases = []
     if "density" in args.cases:
         cases += [("density", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
-    if "brute" in args.cases or "error" in args.cases:
+    if "brute" in args.cases or "error" in args.cases or "aovs" in args.cases:
         # One sphere filling the frame: the densest prototype's shape, at full density with at least BRUTE_TRIANGLES
         # triangles (the brute-force case's mesh size; the 1e10 field's prototype has 9.76 M).
         n = sides[min(args.max_density, 3) - 1]
         single = _stage(args.stages_dir, max(n, math.ceil(math.sqrt(BRUTE_TRIANGLES / 4))) if args.max_density >= 3 else n, False)
-        cases += [(case, single) for case in ("brute", "error") if case in args.cases]
+        cases += [(case, single) for case in ("brute", "error", "aovs") if case in args.cases]
     if "first-frame" in args.cases:  # each density field, then the densest prototype alone
         cases += [("first-frame", _stage(args.stages_dir, n, True)) for n in sides[:args.max_density]]
         cases.append(("first-frame", _stage(args.stages_dir, sides[min(args.max_density, 3) - 1], False)))
