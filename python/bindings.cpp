@@ -206,7 +206,6 @@ nb::dict stats_dict(const FrameStats& s) {
     d["micro_triangles"] = s.microTriangles;
     d["tessellation_bytes"] = s.tessellationBytes;
     d["pixel_bytes"] = s.pixelBytes;
-    d["resolve_passes"] = s.resolvePasses;
     nb::dict gpuMs;
     gpuMs["cull"] = s.cullMs;
     gpuMs["sw_raster"] = s.softwareRasterMs;

@@ -234,6 +234,7 @@ Device::Device(const DeviceOptions& options) : stagedUploads_(options.stagedUplo
     subPixelBits_ = std::min<uint32_t>(chosen->properties.limits.subPixelPrecisionBits, 8);
     maxTexelBufferElements_ = chosen->properties.limits.maxTexelBufferElements;
     maxStorageBufferRange_ = chosen->properties.limits.maxStorageBufferRange;
+    minStorageBufferOffsetAlignment_ = chosen->properties.limits.minStorageBufferOffsetAlignment;
     VkPhysicalDeviceSubgroupProperties subgroup{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES};
     VkPhysicalDeviceProperties2 properties{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2, &subgroup};
     vkGetPhysicalDeviceProperties2(physical_, &properties);

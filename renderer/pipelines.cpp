@@ -139,13 +139,14 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     : device(d), cullGroupSize(sizes.cull), swRasterGroupSize(sizes.swRaster), diceGroupSize(sizes.dice), shadePixelsPerThread(shadePixels),
       texelViews(views), outputBinding(outputBinding) {
     // The same layout in every set, so a renderer's frame set serves either (identically defined layouts are compatible).
-    VkDescriptorSetLayoutBinding bindings[2 + TS_VIEW_COUNT];
+    VkDescriptorSetLayoutBinding bindings[TS_BINDING_COUNT];
     bindings[0] = {TS_BINDING_FRAME, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
     for (uint32_t view = 1; view <= TS_VIEW_COUNT; ++view) bindings[view] = {view, VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
-    bindings[1 + TS_VIEW_COUNT] = {TS_BINDING_OUTPUT, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
+    for (uint32_t slice = 0; slice < TS_MOST_AOVS; ++slice)
+        bindings[TS_BINDING_OUTPUT + slice] = {TS_BINDING_OUTPUT + slice, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
     static_assert(TS_BINDING_OUTPUT == 1 + TS_VIEW_COUNT, "the frame set's bindings are numbered without gaps");
     VkDescriptorSetLayoutCreateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
-    setInfo.bindingCount = 2 + TS_VIEW_COUNT;
+    setInfo.bindingCount = TS_BINDING_COUNT;
     setInfo.pBindings = bindings;
     check_vk(vkCreateDescriptorSetLayout(device.handle(), &setInfo, nullptr, &frameSetLayout), "vkCreateDescriptorSetLayout");
     VkPushConstantRange range{VK_SHADER_STAGE_ALL, 0, sizeof(ResolvePushConstants)};

@@ -476,13 +476,6 @@ struct Renderer::Impl {
     // $TESSERA_TEXTURE_KINDS=all: every textured bin through the variant that reads every texture kind (for tests and
     // measurements; the default, `material`, compiles in only what the bin's textures need).
     const bool allTextureKinds = environment_choice("TESSERA_TEXTURE_KINDS", "all", "material", false);
-    // $TESSERA_AOVS_PER_PASS=n: resolve writes at most n AOVs a pass (for tests: the passes a frame whose AOVs outgrow the
-    // output's binding takes); unset, as many as the binding holds.
-    const size_t aovsPerPass = [] {
-        const char* forced = std::getenv("TESSERA_AOVS_PER_PASS");
-        const long n = forced ? std::strtol(forced, nullptr, 10) : 0;
-        return n > 0 ? size_t(n) : std::numeric_limits<size_t>::max();
-    }();
     // Frames write AOVs straight into their images where the device can (imports_aovs), unless $TESSERA_IMPORT_AOVS=0 or
     // the driver refused an import.
     bool importAovs = environment_choice("TESSERA_IMPORT_AOVS", "1", "0", true);
@@ -539,7 +532,7 @@ struct Renderer::Impl {
     // This renderer's own: the frame's uniform buffer and its descriptor set, and the timestamp queries.
     void create_frame_resources() {
         const VkDescriptorPoolSize poolSizes[] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1}, {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, TS_VIEW_COUNT},
-                                                  {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1}};
+                                                  {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, TS_MOST_AOVS}};
         VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
         poolInfo.maxSets = 1;
         poolInfo.poolSizeCount = 3;
@@ -551,7 +544,7 @@ struct Renderer::Impl {
         allocateInfo.pSetLayouts = &pipelines.frameSetLayout;
         check_vk(vkAllocateDescriptorSets(device.handle(), &allocateInfo, &frameSet), "vkAllocateDescriptorSets");
         frame = device.create_buffer(sizeof(gpu::GpuFrame), MemoryUse::Upload, VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT);
-        write_buffer_binding(TS_BINDING_FRAME, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, frame, sizeof(gpu::GpuFrame));
+        write_buffer_binding(TS_BINDING_FRAME, VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, frame.handle, 0, sizeof(gpu::GpuFrame));
 
         VkQueryPoolCreateInfo queryInfo{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
         queryInfo.queryType = VK_QUERY_TYPE_TIMESTAMP;
@@ -631,15 +624,29 @@ struct Renderer::Impl {
         }
     }
 
-    // The AOV output's storage buffer binding (TS_BINDING_OUTPUT), after the output is made for the frame's size; at most
-    // what the device allows (a frame whose output is larger stores it through its address: output_fits_binding).
-    void write_output_binding() {
-        write_buffer_binding(TS_BINDING_OUTPUT, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, aovOutput, std::min<VkDeviceSize>(aovOutput.size, device.max_storage_buffer_range()));
+    // The AOV slices' storage buffer bindings (TS_BINDING_OUTPUT + slice), after the output is made for the frame: slice
+    // k of `slices` is `direct[k]` (an AOV's imported image) where given, else its range of the output; the bindings past
+    // the frame's slices repeat slice 0. Each at most what the device allows (a frame whose slice is larger stores
+    // through the output's address: output_fits_binding).
+    void write_output_bindings(uint64_t pixels, size_t slices, const std::vector<VkBuffer>& direct) {
+        const VkDeviceSize range = std::min<VkDeviceSize>(pixels * 16, device.max_storage_buffer_range());
+        for (uint32_t k = 0; k < TS_MOST_AOVS; ++k) {
+            const size_t slice = k < slices ? k : 0;
+            if (slice < direct.size()) write_buffer_binding(TS_BINDING_OUTPUT + k, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, direct[slice], 0, range);
+            else write_buffer_binding(TS_BINDING_OUTPUT + k, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, aovOutput.handle, slice * output_slice_stride(pixels), range);
+        }
     }
 
-    // One buffer binding of the frame set: the first `range` bytes of `buffer`.
-    void write_buffer_binding(uint32_t binding, VkDescriptorType type, const Buffer& buffer, VkDeviceSize range) {
-        VkDescriptorBufferInfo info{buffer.handle, 0, range};
+    // From one AOV slice of the output buffer to the next: a slice rounded up to the device's storage buffer offset
+    // alignment, so that each can be bound alone.
+    uint64_t output_slice_stride(uint64_t pixels) const {
+        const uint64_t align = std::max<uint64_t>(device.min_storage_buffer_offset_alignment(), 16);
+        return (pixels * 16 + align - 1) / align * align;
+    }
+
+    // One buffer binding of the frame set: `range` bytes of `buffer` from `offset`.
+    void write_buffer_binding(uint32_t binding, VkDescriptorType type, VkBuffer buffer, VkDeviceSize offset, VkDeviceSize range) {
+        VkDescriptorBufferInfo info{buffer, offset, range};
         VkWriteDescriptorSet write{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
         write.dstSet = frameSet;
         write.dstBinding = binding;
@@ -1337,11 +1344,10 @@ struct Renderer::Impl {
         if (!binPixels.handle) binPixels = device.create_buffer(uint64_t(width) * height * 4, MemoryUse::Device);
     }
     // `aovsImported`: this frame's AOVs go straight into their images' memory (Renderer::render), the readback buffer
-    // then holds the draw state alone; `outputImported`: the output is the one AOV's image memory (a CPU device), already
-    // set. The output holds a slice of the frame's size per AOV: resolve writes them all in one pass.
-    // `slices`: the AOVs a resolve pass writes, `aovCount` the frame's, `lastPassStart` where the last pass starts in
-    // the order the passes write them (Renderer::render_sample).
-    void ensure_frame_buffers(uint32_t w, uint32_t h, size_t slices, size_t aovCount, size_t lastPassStart, bool aovsImported, bool outputImported) {
+    // then holds the draw state alone; `directSlices`: each AOV's slice is its imported image itself (a CPU device), with
+    // no output buffer. Otherwise the output holds a slice per AOV (output_slice_stride apart), resolve writing them all
+    // in one pass.
+    void ensure_frame_buffers(uint32_t w, uint32_t h, size_t aovCount, bool aovsImported, bool directSlices) {
         if (!drawState.handle) drawState = device.create_buffer(sizeof(gpu::GpuDrawState), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) {
             visibleClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
@@ -1353,7 +1359,7 @@ struct Renderer::Impl {
         const uint64_t pixels = uint64_t(w) * h;
         if (w != width || h != height || !visibility.handle) {
             visibility = device.create_buffer(pixels * 8, MemoryUse::Device);
-            if (!outputImported) aovOutput = Buffer{};
+            aovOutput = Buffer{};
             binPixels = Buffer{};  // made again when a frame lists its pixels (ensure_bin_pixels)
             hzbLevels = Buffer{};
             previousValid = false;
@@ -1361,11 +1367,13 @@ struct Renderer::Impl {
             height = h;
         }
         // On a CPU device the output is host memory that the AOVs are read from directly: no copy of them into the
-        // readback buffer (33 MB each at 1080p; Renderer::render). A GPU writes device memory and copies.
-        const uint64_t outputBytes = slices * pixels * 16;
-        if (!outputImported && (!aovOutput.handle || aovOutput.size < outputBytes))
+        // readback buffer (33 MB each at 1080p; Renderer::render). A GPU writes device memory and copies. A frame of no
+        // AOV keeps one slice: classify's places.
+        const uint64_t outputBytes = directSlices && aovCount > 0 ? 0 : (std::max<uint64_t>(aovCount, 1) - 1) * output_slice_stride(pixels) + pixels * 16;
+        if (outputBytes == 0) aovOutput = Buffer{};
+        else if (!aovOutput.handle || aovOutput.size < outputBytes)
             aovOutput = device.create_buffer(outputBytes, device.is_software() ? MemoryUse::Readback : MemoryUse::Device);
-        const uint64_t copiedAovs = aovsImported ? 0 : aovOutput.mapped ? lastPassStart : aovCount;  // the last pass's read in place
+        const uint64_t copiedAovs = aovsImported || aovOutput.mapped ? 0 : aovCount;  // else each read where resolve wrote it
         const uint64_t readbackBytes = sizeof(gpu::GpuDrawState) + copiedAovs * pixels * 16;
         if (readback.size < readbackBytes) readback = device.create_buffer(readbackBytes, MemoryUse::Readback);
     }
@@ -1607,15 +1615,12 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     const uint64_t pixels = uint64_t(settings.width) * settings.height;
     const bool texelViews = settings.texelViews && s.streams_fit_views(pixels);
     const bool outputBinding = texelViews && settings.outputBinding && s.output_fits_binding(pixels);
-    // Resolve writes the frame's AOVs in passes of as many as the output's binding holds slices of (all of them where it
-    // holds them all, or where they go through the output's address), each pass's AOVs into slices 0, 1, ... of the
-    // output; the colour first, in slice 0 (which the background and samples passes write).
-    const uint64_t sliceBytes = pixels * 16;
-    const size_t slicesPerPass = std::max<size_t>(1, std::min({aovs.size(), s.aovsPerPass, size_t(outputBinding ? device_.max_storage_buffer_range() / sliceBytes : aovs.size())}));
-    std::vector<size_t> passOrder(aovs.size());  // the AOVs' indices in the order the passes write them
-    std::iota(passOrder.begin(), passOrder.end(), size_t(0));
-    std::stable_partition(passOrder.begin(), passOrder.end(), [&](size_t i) { return aovs[i] == Aov::Color; });
-    const size_t lastPassStart = aovs.empty() ? 0 : (aovs.size() - 1) / slicesPerPass * slicesPerPass;
+    // Resolve writes every AOV of the frame in one pass, each into its slice (TS_BINDING_OUTPUT + slice): the AOVs in
+    // their order but the colour first, in slice 0 (which the background and samples passes write).
+    const uint64_t sliceBytes = pixels * 16, sliceStride = s.output_slice_stride(pixels);
+    std::vector<size_t> sliceAov(aovs.size());  // slice -> the AOV's index
+    std::iota(sliceAov.begin(), sliceAov.end(), size_t(0));
+    std::stable_partition(sliceAov.begin(), sliceAov.end(), [&](size_t i) { return aovs[i] == Aov::Color; });
     Pipelines& pipelines = !texelViews ? s.address_pipelines() : outputBinding ? s.pipelines : s.wide_output_pipelines();
     std::unique_lock<std::mutex> otherSetLock;
     if (&pipelines != &s.pipelines) otherSetLock = std::unique_lock<std::mutex>(pipelines.mutex);
@@ -1649,42 +1654,33 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     for (size_t k = 0; k < Impl::kDisplacementNormals; ++k) frameStats.geometryBytes += s.mesh_streams()[k]->buffer().size;
 
     // The AOVs' images are made first, and where the device can import their memory (VK_EXT_external_memory_host) it
-    // writes them in place: each AOV is copied from its slice of the output into its image, but on a CPU device a frame
-    // of one AOV resolves into its image itself (the frame's output is that image's memory). Without
-    // an import (no such driver, images under a megabyte, $TESSERA_IMPORT_AOVS=0), AOVs go through the readback buffer and
-    // the CPU copies them out of it: at 1080p 33 MB, 9-10 ms of lavapipe's host and 4-5 ms beside an H100, a frame. The
-    // imports go when the frame is done; the images keep their memory.
+    // writes them in place: on a CPU device each AOV's slice binding is its image (resolve writes there), a GPU copies
+    // each AOV from its slice of the output into its image. Without an import (no such driver, images under a megabyte,
+    // $TESSERA_IMPORT_AOVS=0), AOVs go through the readback buffer and the CPU copies them out of it: at 1080p 33 MB,
+    // 9-10 ms of lavapipe's host and 4-5 ms beside an H100, a frame. The imports go when the frame is done; the images
+    // keep their memory.
     std::vector<Image> images(aovs.size());
     for (size_t i = 0; i < aovs.size(); ++i) images[i].width = settings.width, images[i].height = settings.height, images[i].aov = aovs[i];
     bool importAovs = s.imports_aovs(pixels) && !aovs.empty();
-    const bool outputImported = importAovs && device_.is_software() && aovs.size() == 1;
-    std::vector<VkBuffer> aovTargets;  // per AOV, its image's memory (unless that is the output itself: outputImported)
-    struct ImportedOutput {  // let go of however the frame ends: the image's memory may go back to the allocator
-        Impl& s;
-        bool imported;
-        ~ImportedOutput() { if (imported) s.aovOutput = Buffer{}; }
-    } importedOutput{s, outputImported};
+    std::vector<VkBuffer> aovTargets;  // per AOV, its image's memory
     if (importAovs) {
         try {
             for (size_t i = 0; i < aovs.size(); ++i) {
                 images[i].pixels.resize(pixels * 4);  // left as it is: written whole by the device
-                void* memory = images[i].pixels.data();
-                if (outputImported) {
-                    s.aovOutput = device_.import_host_memory(memory, pixel_block_bytes(pixels * 16));
-                    ++frameStats.aovImportsMade;
-                } else {
-                    aovTargets.push_back(s.kept_import(memory, pixel_block_bytes(pixels * 16), frameStats.aovImportsMade));
-                }
+                aovTargets.push_back(s.kept_import(images[i].pixels.data(), pixel_block_bytes(pixels * 16), frameStats.aovImportsMade));
             }
         } catch (const DeviceError&) {  // the driver refused this memory: this renderer's frames take the readback path
             s.importAovs = false;
             importAovs = false;
             aovTargets.clear();
             s.keptImports.clear();
-            if (outputImported) s.aovOutput = Buffer{};
-            importedOutput.imported = false;
         }
     }
+    // Resolve's stores go straight into the images (the slices' bindings) on a CPU device, through those bindings.
+    const bool directSlices = importAovs && device_.is_software() && outputBinding;
+    std::vector<VkBuffer> directTargets;  // slice -> its image's memory, where direct
+    if (directSlices)
+        for (size_t i : sliceAov) directTargets.push_back(aovTargets[i]);
     frameStats.aovsImported = importAovs;
 
     uint32_t lightCounts = 0;  // the frame's distant lights | all its lights << 8 (TS_SPEC_LIGHT_COUNTS)
@@ -1711,7 +1707,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                                                                            : TS_PIXELS_LISTED;
     const bool everyPixel = pixelSource != TS_PIXELS_LISTED;
     for (;;) {
-        s.ensure_frame_buffers(settings.width, settings.height, slicesPerPass, aovs.size(), lastPassStart, importAovs, importedOutput.imported);
+        s.ensure_frame_buffers(settings.width, settings.height, aovs.size(), importAovs, directSlices);
         if (s.anyDisplaced) s.ensure_tessellation_buffers();
         if (hzbForNext) s.ensure_occlusion_buffers();
         if (sample)
@@ -1719,7 +1715,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                 if (sum.size < pixels * 16) sum = device_.create_buffer(pixels * 16, MemoryUse::Device);
         if (pixelSource == TS_PIXELS_LISTED) s.ensure_bin_pixels();
         s.write_texel_views(pixels);  // after every buffer a view covers is made (the HZB's too)
-        s.write_output_binding();
+        s.write_output_bindings(pixels, aovs.size(), directTargets);
 
         gpu::GpuFrame f{};
         f.viewProjection = to_gpu(cam.viewProjection);
@@ -1782,7 +1778,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                         (occlusion ? TS_FRAME_OCCLUSION : 0u) | (occlusionWanted ? TS_FRAME_BACKFACES : 0u) | (s.anyDisplaced ? TS_FRAME_MICRO_BINS : 0u) |
                         (settings.cutBlocks ? 0u : TS_FRAME_NO_CUT_BLOCKS),
                     uint32_t(settings.visualize)};
-        f.outputs = {uint32_t(pixels), 0, 0, 0};  // a slice of the output per AOV of a pass, the colour's the first
+        f.outputs = {uint32_t(sliceStride / 16), 0, 0, 0};  // slices of the output through its address
         if (previous) {
             // The previous camera saw positions relative to itself: shift this frame's camera-relative positions back.
             const Matrix4d shift = translation_matrix(cam.position[0] - s.previousCamera[0], cam.position[1] - s.previousCamera[1],
@@ -1835,17 +1831,13 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.clusterDisplacement = s.clusterDisplacement.address;
         std::memcpy(s.frame.mapped, &f, sizeof(f));
 
-        // Resolve's variant for a bin in the pass of AOVs passOrder[first, first + slicesPerPass): each into its slice of
-        // the output (TS_SPEC_OUTPUT); materials with textures through the variant that samples them, which only the
-        // colour's shading reads.
-        auto pass_outputs = [&](size_t first) {
-            uint32_t outputs = 0;
-            for (size_t k = first; k < std::min(aovs.size(), first + slicesPerPass); ++k) {
-                outputs |= uint32_t(k - first + 1) << (TS_OUTPUT_BITS * uint32_t(aovs[passOrder[k]]));
-                if (aovs[passOrder[k]] == Aov::Color && settings.visualize != Visualize::None) outputs |= TS_OUTPUT_VISUALIZE;
-            }
-            return outputs;
-        };
+        // Resolve's variant for a bin: every AOV of the frame, each into its slice (TS_SPEC_OUTPUT); materials with
+        // textures through the variant that samples them, which only the colour's shading reads.
+        uint32_t outputs = 0;
+        for (size_t k = 0; k < aovs.size(); ++k) {
+            outputs |= uint32_t(k + 1) << (TS_OUTPUT_BITS * uint32_t(aovs[sliceAov[k]]));
+            if (aovs[sliceAov[k]] == Aov::Color && settings.visualize != Visualize::None) outputs |= TS_OUTPUT_VISUALIZE;
+        }
         auto resolve_variant_of = [&](uint32_t outputs, uint32_t pixels, uint32_t m) {
             Pipelines::ResolveVariant v;
             v.pixelSource = pixelSource;
@@ -1860,10 +1852,10 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         };
         // What the frame draws with, made before it records, together on the host's threads (Pipelines::make_for_frame).
         Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, oneBin, {}};
-        for (size_t first = 0; first < aovs.size(); first += slicesPerPass)
+        if (!aovs.empty())
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
-                    if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) needs.resolves.push_back(resolve_variant_of(pass_outputs(first), pixels, m));
+                    if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) needs.resolves.push_back(resolve_variant_of(outputs, pixels, m));
         pipelines.make_for_frame(needs);
         const VkPipeline softwareRaster = pipelines.software_raster(s.anyMasked, ownCorners, false, countFragments);
         const VkPipeline softwareRasterLarge = pipelines.software_raster(s.anyMasked, ownCorners, true, countFragments);
@@ -2061,43 +2053,40 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             // (rows [0, k) onto [k, 2k)): 11 copies at 1080p. One copy of 1080 one-row regions cost an H100 2 ms (a copy
             // per region), and a shader storing the uncovered pixels cost lavapipe a loop over the lanes per word (about
             // 20 ms of a 1080p frame on one core).
-            auto fill_background = [&](Aov aov, VkDeviceSize slice) {
-                const VkDeviceSize base = slice * sliceBytes;
+            auto fill_background = [&](Aov aov, size_t slice) {
+                const VkBuffer target = directSlices ? directTargets[slice] : s.aovOutput.handle;
+                const VkDeviceSize base = directSlices ? 0 : slice * sliceStride;
                 const std::array<uint32_t, 4> words = background_words(aov, settings.background);
                 if (words[0] == words[1] && words[0] == words[2] && words[0] == words[3]) {
-                    vkCmdFillBuffer(cmd, s.aovOutput.handle, base, pixels * 16, words[0]);
+                    vkCmdFillBuffer(cmd, target, base, sliceBytes, words[0]);
                     return;
                 }
                 std::vector<std::array<uint32_t, 4>> row(settings.width, words);
                 constexpr size_t kMostPerUpdate = 65536;  // vkCmdUpdateBuffer's limit
                 const size_t rowBytes = size_t(settings.width) * 16;
                 for (size_t at = 0; at < rowBytes; at += kMostPerUpdate)
-                    vkCmdUpdateBuffer(cmd, s.aovOutput.handle, base + at, std::min(kMostPerUpdate, rowBytes - at), reinterpret_cast<const char*>(row.data()) + at);
+                    vkCmdUpdateBuffer(cmd, target, base + at, std::min(kMostPerUpdate, rowBytes - at), reinterpret_cast<const char*>(row.data()) + at);
                 for (uint32_t done = 1; done < settings.height; done *= 2) {
                     barrier(cmd, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT,
                             VK_ACCESS_2_TRANSFER_READ_BIT | VK_ACCESS_2_TRANSFER_WRITE_BIT);
                     const VkBufferCopy block{base, base + done * rowBytes, std::min(done, settings.height - done) * rowBytes};
-                    vkCmdCopyBuffer(cmd, s.aovOutput.handle, s.aovOutput.handle, 1, &block);
+                    vkCmdCopyBuffer(cmd, target, target, 1, &block);
                 }
             };
 
-            // Each pass: its AOVs' backgrounds into their slices of the output, then one indirect dispatch per material
-            // over its bin's pixels, writing every AOV of the pass (each pixel's triangle fetched once for all of them),
-            // then each AOV into its image.
-            for (size_t first = 0; first < aovs.size(); first += slicesPerPass) {
-                const size_t end = std::min(aovs.size(), first + slicesPerPass);
-                // Classify (its count step keeps places in the output) and the previous pass's copies are done with the output.
-                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_2_COPY_BIT,
-                        VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT | VK_ACCESS_2_TRANSFER_READ_BIT,
+            // Each AOV's background into its slice, then one indirect dispatch per material over its bin's pixels, writing
+            // every AOV (each pixel's triangle fetched once for all of them), then each AOV into its image.
+            if (!aovs.empty()) {
+                // Classify (its count step keeps places in slice 0) is done with the output.
+                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                         VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_TRANSFER_WRITE_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                const bool colour = aovs[passOrder[first]] == Aov::Color;  // the colour comes first, in slice 0
-                for (size_t k = first; k < end; ++k)
-                    if (!(texturedDome && aovs[passOrder[k]] == Aov::Color)) fill_background(aovs[passOrder[k]], k - first);
+                const bool colour = aovs[sliceAov[0]] == Aov::Color;  // the colour comes first, in slice 0
+                for (size_t k = 0; k < aovs.size(); ++k)
+                    if (!(texturedDome && aovs[sliceAov[k]] == Aov::Color)) fill_background(aovs[sliceAov[k]], k);
                 barrier(cmd, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
-                if (texturedDome && colour) {  // the dome's image where nothing covers a pixel: a pass that may write the
-                                               // whole output, as far as synchronization knows, so before resolve's
+                if (texturedDome && colour) {  // the dome's image where nothing covers a pixel, before resolve's stores
                     PushConstants background{uint32_t(Aov::Color), 0, 0};
                     vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(background), &background);
                     vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.textured_background());
@@ -2105,7 +2094,6 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                     barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 }
-                const uint32_t outputs = pass_outputs(first);
                 VkPipeline bound = VK_NULL_HANDLE;
                 for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                     for (uint32_t m = 0; m < s.materialCount; ++m) {
@@ -2129,19 +2117,19 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                     vkCmdDispatch(cmd, tilesX, tilesY, 1);
                     colourSummed = step != TS_SAMPLES_MEAN;
                 }
-                // Each AOV into its image (or the readback buffer, its place in passOrder), unless read where resolve
-                // wrote it: the image itself (imported as the output), or the host-visible output after the last pass.
-                const bool inPlace = importAovs ? importedOutput.imported : s.aovOutput.mapped != nullptr && first == lastPassStart;
-                if (inPlace) continue;
-                barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
-                        VK_ACCESS_2_TRANSFER_READ_BIT);
-                for (size_t k = first; k < end; ++k) {
-                    if (colourSummed && aovs[passOrder[k]] == Aov::Color) continue;
-                    const VkBufferCopy region{(k - first) * sliceBytes, importAovs ? 0 : sizeof(gpu::GpuDrawState) + k * sliceBytes, sliceBytes};
-                    const bool timed = timedCopies < Impl::kTimedCopies;
-                    if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies);
-                    vkCmdCopyBuffer(cmd, s.aovOutput.handle, importAovs ? aovTargets[passOrder[k]] : s.readback.handle, 1, &region);
-                    if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies++ + 1);
+                // Each AOV into its image (or the readback buffer, at its slice's place), unless read where resolve wrote
+                // it: the image itself (direct slices) or host-visible output memory.
+                if (!directSlices && (importAovs || !s.aovOutput.mapped)) {
+                    barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT, VK_PIPELINE_STAGE_2_COPY_BIT,
+                            VK_ACCESS_2_TRANSFER_READ_BIT);
+                    for (size_t k = 0; k < aovs.size(); ++k) {
+                        if (colourSummed && aovs[sliceAov[k]] == Aov::Color) continue;
+                        const VkBufferCopy region{k * sliceStride, importAovs ? 0 : sizeof(gpu::GpuDrawState) + k * sliceBytes, sliceBytes};
+                        const bool timed = timedCopies < Impl::kTimedCopies;
+                        if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies);
+                        vkCmdCopyBuffer(cmd, s.aovOutput.handle, importAovs ? aovTargets[sliceAov[k]] : s.readback.handle, 1, &region);
+                        if (timed) stamp(Impl::kFrameMarks + 2 * timedCopies++ + 1);
+                    }
                 }
             }
             mark();
@@ -2214,7 +2202,6 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         // An every-pixel frame runs no bins pass: its resolve counted the covered pixels, and they are its one bin.
         frameStats.resolvePixels = pixelSource == TS_PIXELS_IN_PLACE ? "in place" : pixelSource == TS_PIXELS_PACKED ? "packed" : "listed";
         frameStats.coveredPixels = state.coveredPixels;
-        frameStats.resolvePasses = uint32_t((aovs.size() + slicesPerPass - 1) / slicesPerPass);
         frameStats.shadingBins = everyPixel ? uint32_t(frameStats.coveredPixels > 0) : state.shadingBins;
         s.coverage = double(frameStats.coveredPixels) / double(pixels);
         frameStats.tessellatedClusters = state.tessClustersDrawn;
@@ -2264,13 +2251,11 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     s.forget_old_imports();
     if (!importAovs) {
         for (size_t k = 0; k < aovs.size(); ++k) {
-            // Copied straight from the mapped readback (at its place in passOrder), or, on a CPU device, from its slice of
-            // the output itself after the last pass.
-            const bool direct = s.aovOutput.mapped && k >= lastPassStart;
-            const char* bytes = direct ? static_cast<const char*>(s.aovOutput.mapped) + (k - lastPassStart) * sliceBytes
-                                       : static_cast<const char*>(s.readback.mapped) + sizeof(gpu::GpuDrawState) + k * sliceBytes;
+            // Copied straight from the mapped readback, or, on a CPU device, from its slice of the output itself.
+            const char* bytes = s.aovOutput.mapped ? static_cast<const char*>(s.aovOutput.mapped) + k * sliceStride
+                                                   : static_cast<const char*>(s.readback.mapped) + sizeof(gpu::GpuDrawState) + k * sliceBytes;
             const float* rgba = reinterpret_cast<const float*>(bytes);
-            images[passOrder[k]].pixels.assign(rgba, rgba + pixels * 4);
+            images[sliceAov[k]].pixels.assign(rgba, rgba + pixels * 4);
         }
     }
     frameStats.cpuFrameMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - uploadStarted).count();

@@ -39,8 +39,8 @@ void main() {
     for (uint i = 0u; i < frame.viewport.w; ++i)
         if (uint(frameConstants.lights[i].directionType.w) == TS_LIGHT_DOME && frameConstants.lights[i].texture != TS_NO_TEXTURE) {
             // frameConstants.lights[i], not frame.lights[i]: resolve.comp.glsl
-            write_output(frame, frame.outputs.y, index, vec4(dome_background(frame, frameConstants.lights[i], vec2(pixel)), 1.0));
+            write_output(frame, 0u, index, vec4(dome_background(frame, frameConstants.lights[i], vec2(pixel)), 1.0));
             return;
         }
-    write_output(frame, frame.outputs.y, index, frame.background);  // no textured dome after all: the plain colour
+    write_output(frame, 0u, index, frame.background);  // no textured dome after all: the plain colour
 }

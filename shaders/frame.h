@@ -356,33 +356,44 @@ uint hzb_level_offset(GpuFrame frame, uint level) {
 uint pack_bin_pixel(uvec2 pixel) { return pixel.x | (pixel.y << 16u); }
 uvec2 unpack_bin_pixel(uint packed) { return uvec2(packed & 0xffffu, packed >> 16u); }
 
-// Pixel `index` of the AOV output, through its storage buffer binding (TS_BINDING_OUTPUT) in the variants with it
+// Pixel `index` of an AOV slice of the output, through its storage buffer binding (TS_BINDING_OUTPUT + slice) in the variants with it
 // (TS_SPEC_OUTPUT_BINDING), else through its address: lavapipe stores through an address in a loop over the lanes for
 // each component, a vec4 four loops, to a storage buffer in one loop for all four. On one core, 2 M pixels of a
 // constant (with the 5 ms background fill): 55 ms through the address as a vec4, 20 ms as two 64-bit words, 15 ms
 // through the binding. A GPU writes the same bytes either way.
-layout(set = 0, binding = TS_BINDING_OUTPUT, std430) buffer AovOutput { uvec4 aovPixels[]; };
+layout(set = 0, binding = TS_BINDING_OUTPUT + 0, std430) buffer AovOutput0 { uvec4 aovPixels0[]; };
+layout(set = 0, binding = TS_BINDING_OUTPUT + 1, std430) buffer AovOutput1 { uvec4 aovPixels1[]; };
+layout(set = 0, binding = TS_BINDING_OUTPUT + 2, std430) buffer AovOutput2 { uvec4 aovPixels2[]; };
+layout(set = 0, binding = TS_BINDING_OUTPUT + 3, std430) buffer AovOutput3 { uvec4 aovPixels3[]; };
+layout(set = 0, binding = TS_BINDING_OUTPUT + 4, std430) buffer AovOutput4 { uvec4 aovPixels4[]; };
+layout(set = 0, binding = TS_BINDING_OUTPUT + 5, std430) buffer AovOutput5 { uvec4 aovPixels5[]; };
+layout(set = 0, binding = TS_BINDING_OUTPUT + 6, std430) buffer AovOutput6 { uvec4 aovPixels6[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer OutputRef { uvec4 data[]; };
 layout(constant_id = TS_SPEC_OUTPUT_BINDING) const bool OUTPUT_BINDING = false;
-// The output holds a slice of frame.outputs.x pixels per AOV of the frame (resolve writes them all in one pass).
+// Pixel `index` of AOV slice `slice` (a constant wherever it is called, so that one binding's code remains).
 void write_output(GpuFrame frame, uint slice, uint index, uvec4 bits) {
-    index += slice * frame.outputs.x;
-    if (OUTPUT_BINDING) aovPixels[index] = bits;
-    else OutputRef(frame.aovOutput).data[index] = bits;
+    if (!OUTPUT_BINDING) OutputRef(frame.aovOutput).data[index + slice * frame.outputs.x] = bits;
+    else if (slice == 0u) aovPixels0[index] = bits;
+    else if (slice == 1u) aovPixels1[index] = bits;
+    else if (slice == 2u) aovPixels2[index] = bits;
+    else if (slice == 3u) aovPixels3[index] = bits;
+    else if (slice == 4u) aovPixels4[index] = bits;
+    else if (slice == 5u) aovPixels5[index] = bits;
+    else aovPixels6[index] = bits;
 }
 void write_output(GpuFrame frame, uint slice, uint index, vec4 value) { write_output(frame, slice, index, floatBitsToUint(value)); }
-uvec4 read_output(GpuFrame frame, uint slice, uint index) {
-    index += slice * frame.outputs.x;
-    return OUTPUT_BINDING ? aovPixels[index] : OutputRef(frame.aovOutput).data[index];
+// Pixel `index` of the colour's slice (0), the one read back by a pass.
+uvec4 read_colour_output(GpuFrame frame, uint index) {
+    return OUTPUT_BINDING ? aovPixels0[index] : OutputRef(frame.aovOutput).data[index];
 }
 // classify.comp.glsl keeps each pixel's (bin, place in the bin) in its output's first two words between its count and
 // scatter steps (resolve writes the AOVs only after): no memory of its own.
 void write_bin_place(GpuFrame frame, uint index, uvec2 binPlace) {
-    if (OUTPUT_BINDING) aovPixels[index].xy = binPlace;
+    if (OUTPUT_BINDING) aovPixels0[index].xy = binPlace;
     else OutputRef(frame.aovOutput).data[index].xy = binPlace;
 }
 uvec2 bin_place_of(GpuFrame frame, uint index) {
-    return OUTPUT_BINDING ? aovPixels[index].xy : OutputRef(frame.aovOutput).data[index].xy;
+    return OUTPUT_BINDING ? aovPixels0[index].xy : OutputRef(frame.aovOutput).data[index].xy;
 }
 
 // Both rasterizers record each fragment they write (the overdraw view), in their variants for it only.

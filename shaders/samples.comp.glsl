@@ -21,14 +21,14 @@ void main() {
     uvec2 pixel = gl_GlobalInvocationID.xy;
     if (pixel.x >= frame.viewport.x || pixel.y >= frame.viewport.y) return;
     uint index = pixel.y * frame.viewport.x + pixel.x;
-    precise vec4 sum = uintBitsToFloat(read_output(frame, frame.outputs.y, index));
+    precise vec4 sum = uintBitsToFloat(read_colour_output(frame, index));
     if (push.step != TS_SAMPLES_FIRST) {
         u64vec2 before = SumRef(frame.samplesBefore).data[index];
         sum += uintBitsToFloat(uvec4(unpack32(before.x), unpack32(before.y)));
     }
     if (push.step == TS_SAMPLES_MEAN) {
         precise vec4 mean = sum * (1.0 / float(push.aov));
-        write_output(frame, frame.outputs.y, index, mean);
+        write_output(frame, 0u, index, mean);
     } else {
         uvec4 bits = floatBitsToUint(sum);
         SumRef(frame.samplesAfter).data[index] = u64vec2(pack64(bits.xy), pack64(bits.zw));

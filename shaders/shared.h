@@ -223,13 +223,13 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_SPEC_AREA_LIGHTS 2
 // Specialization constant of resolve: what its variant writes, all in one pass over the pixels (each pixel's triangle
 // fetched once for every AOV of the frame): for each AOV (TS_AOV_*), bits TS_OUTPUT_BITS * aov hold its slice of the
-// output plus one (0: not written); TS_OUTPUT_VISUALIZE: the colour is a debug view (--vis), not shaded. On lavapipe
+// output plus one (0: not written; the colour's is slice 0); TS_OUTPUT_VISUALIZE: the colour is a debug view (--vis), not shaded. On lavapipe
 // every branch of a shader runs, masked, for every pixel: only the code of the AOVs a variant writes is compiled in (the
 // colour of shaded frames cost 25 % more with the other AOVs' and the debug views' code beside it).
 #define TS_SPEC_OUTPUT 3
 #define TS_OUTPUT_BITS 3u
 #define TS_OUTPUT_VISUALIZE (1u << 24)
-#define TS_MOST_AOVS 7u          // one of each TS_AOV_*: slices 0-6
+#define TS_MOST_AOVS 7           // one of each TS_AOV_*: slices 0-6
 // Specialization constants of the compute rasterizer (raster_sw.comp.glsl): its variant where each thread transforms its
 // own triangles' corners, with no shared memory and no barrier, in workgroups of TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE
 // (RasterVertices::PerTriangle), and the workgroup size (local_size_x_id), which follows the variant and the device;
@@ -332,12 +332,15 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_MATERIALS 21         // GpuMaterial: 7 RGBA32UI texels each
 #define TS_VIEW_MATERIAL_TABLES 22   // uint per entry (slot -> material, and each table's displacement bound): R32UI
 #define TS_VIEW_COUNT 22
-// The AOV output as a storage buffer (std430, four words per pixel): resolve and the background store pixels through
-// it, and classify keeps its (bin, place) pairs there. lavapipe loads and stores a vector of a storage buffer in one
-// loop over the lanes, but through an address in one loop per component (a screen-filling resolve's stores 4x dearer).
-// The variants with TS_SPEC_OUTPUT_BINDING use it; the others, for frames whose output outgrows the device's
-// maxStorageBufferRange, go through GpuFrame.aovOutput.
+// The AOV output as storage buffers (std430, four words per pixel), one binding per slice (AOV of the frame): slice k
+// at TS_BINDING_OUTPUT + k. Resolve stores each AOV's pixels into its own, the background and pixel samples the
+// colour's (slice 0), and classify keeps its (bin, place) pairs in slice 0's. On a CPU device importing its images each
+// binding is its AOV's image memory itself; otherwise a range of one output buffer. lavapipe loads and stores a vector
+// of a storage buffer in one loop over the lanes, but through an address in one loop per component (a screen-filling
+// resolve's stores 4x dearer). The variants with TS_SPEC_OUTPUT_BINDING use them; the others, for frames whose slice
+// outgrows the device's maxStorageBufferRange, go through GpuFrame.aovOutput.
 #define TS_BINDING_OUTPUT 23
+#define TS_BINDING_COUNT (TS_BINDING_OUTPUT + TS_MOST_AOVS)
 
 // Workgroup sizes.
 // On a CPU device the cull's workgroup is one subgroup: lavapipe runs a workgroup 8 invocations at a time, each batch
@@ -663,7 +666,7 @@ struct GpuFrame {
     uvec4 viewport;          // x: width, y: height, z: material count, w: light count (distant lights first, then the
                              // others in the scene's order; resolve's counts: TS_SPEC_LIGHT_COUNTS)
     uvec4 counts;            // x: instances, y: visible-cluster capacity, z: TS_FRAME_* flags, w: TS_VIS_* mode
-    uvec4 outputs;           // x: pixels per slice of the AOV output (one slice per AOV of the frame), y: the colour's slice
+    uvec4 outputs;           // x: texels from a slice of the AOV output to the next (through GpuFrame.aovOutput)
     vec4 tessellation;       // x: dicing rate (pixels per micro-edge); y: patch capacity (exact: at most 2^23); z: point pool
                              // capacity (points)
     GpuLight lights[TS_MAX_LIGHTS];

