@@ -1,4 +1,5 @@
 #include "tessera/device.h"
+#include "shared.h"
 
 #include <algorithm>
 #include <bit>
@@ -123,6 +124,10 @@ std::vector<std::string> missing_features(VkPhysicalDevice device) {
     need((subgroup.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) != 0 &&
              (subgroup.supportedOperations & kSubgroupOperations) == kSubgroupOperations,
          "subgroup basic, vote and ballot operations in compute shaders");
+    // Resolve stores each AOV of a frame through a storage buffer binding of its own (shared.h TS_BINDING_OUTPUT).
+    const VkPhysicalDeviceLimits& limits = properties.properties.limits;
+    need(limits.maxPerStageDescriptorStorageBuffers >= TS_MOST_AOVS && limits.maxDescriptorSetStorageBuffers >= TS_MOST_AOVS,
+         "7 storage buffers per shader stage");
     return missing;
 }
 

@@ -14,15 +14,15 @@
 #include "stream_arena.h"
 
 #include <algorithm>
-#include <numeric>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <cstddef>
-#include <chrono>
 #include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <map>
+#include <numeric>
 #include <string>
 #include <unordered_map>
 
