@@ -19,6 +19,14 @@ def run(*args):
     return subprocess.run([sys.executable, "-m", "tessera.cli", *map(str, args)], capture_output=True, text=True, timeout=300)
 
 
+def bench_render(tmp_path, *args):
+    """`tessera bench render` at 96 x 54 with its stages in tmp_path: the finished run and the rows of its --json."""
+    rows_file = tmp_path / "rows.json"
+    done = run("bench", "render", "--resolution", "96x54", *args, "--stages-dir", tmp_path, "--json", rows_file)
+    assert done.returncode == 0, done.stderr + done.stdout
+    return done, json.loads(rows_file.read_text())
+
+
 @pytest.mark.parametrize("extension", ["png", "exr", "tif", "jpg"])
 def test_render_writes_each_format(tmp_path, extension):
     out = tmp_path / f"cube.{extension}"
@@ -172,11 +180,8 @@ def test_bench_render_prints_tables_and_writes_json(tmp_path):
 
 
 def test_bench_render_seams_gives_a_field_with_a_colour_per_face_its_lod(tmp_path):
-    rows_file = tmp_path / "rows.json"
-    done = run("bench", "render", "--cases", "seams", "--seams-n", "16", "--resolution", "96x54", "--frames", "1",
-               "--stages-dir", tmp_path, "--json", rows_file)
-    assert done.returncode == 0, done.stderr + done.stdout
-    rows = {r["case"]: r for r in json.loads(rows_file.read_text())}
+    _, rows = bench_render(tmp_path, "--cases", "seams", "--seams-n", "16", "--frames", "1")
+    rows = {r["case"]: r for r in rows}
     assert set(rows) == {"colour per face, 1 px", "colour per face, --no-lod", "one colour, 1 px", "one colour, --no-lod"}
     assert all(r["table"] == "seams" and r["source_triangles"] == 32 * 32 * 4 * 16 * 16 for r in rows.values())
     # A seam at every edge no longer keeps the mesh at its source triangles (the DAG stalled at level 0 before).
@@ -186,11 +191,7 @@ def test_bench_render_seams_gives_a_field_with_a_colour_per_face_its_lod(tmp_pat
 
 
 def test_bench_render_antialiasing_measures_each_sample_count_against_its_reference(tmp_path):
-    rows_file = tmp_path / "rows.json"
-    done = run("bench", "render", "--cases", "antialiasing", "--resolution", "96x54", "--frames", "1", "--stages-dir", tmp_path,
-               "--json", rows_file)
-    assert done.returncode == 0, done.stderr + done.stdout
-    rows = json.loads(rows_file.read_text())
+    done, rows = bench_render(tmp_path, "--cases", "antialiasing", "--frames", "1")
     assert [(r["table"], r["case"], r["pixel_samples"], r["pixel_filter"]) for r in rows] == [
         ("anti-aliasing", "1 sample", 1, "box"), ("anti-aliasing", "4 samples", 4, "box"), ("anti-aliasing", "16 samples", 16, "box"),
         ("anti-aliasing", "16 samples, gaussian", 16, "gaussian")]
@@ -202,11 +203,7 @@ def test_bench_render_antialiasing_measures_each_sample_count_against_its_refere
 
 
 def test_bench_render_first_frame_loads_cached_meshes_and_draws_the_warm_frames_image(tmp_path):
-    rows_file = tmp_path / "rows.json"
-    done = run("bench", "render", "--cases", "first-frame", "--max-density", "1", "--resolution", "96x54", "--frames", "1",
-               "--stages-dir", tmp_path, "--json", rows_file)
-    assert done.returncode == 0, done.stderr + done.stdout
-    rows = json.loads(rows_file.read_text())
+    done, rows = bench_render(tmp_path, "--cases", "first-frame", "--max-density", "1", "--frames", "1")
     assert [(r["table"], r["case"]) for r in rows] == [("first frame", "1 M source triangles, a field"), ("first frame", "1 k source triangles, one mesh")]
     for row in rows:
         # The parent filled the mesh cache: the first frame loads the mesh from it and builds nothing.
@@ -219,11 +216,7 @@ def test_bench_render_first_frame_loads_cached_meshes_and_draws_the_warm_frames_
 
 
 def test_bench_render_aovs_resolves_every_aov_in_one_pass(tmp_path):
-    rows_file = tmp_path / "rows.json"
-    done = run("bench", "render", "--cases", "aovs", "--max-density", "1", "--resolution", "96x54", "--frames", "1",
-               "--stages-dir", tmp_path, "--json", rows_file)
-    assert done.returncode == 0, done.stderr + done.stdout
-    rows = json.loads(rows_file.read_text())
+    done, rows = bench_render(tmp_path, "--cases", "aovs", "--max-density", "1", "--frames", "1")
     assert [(r["table"], r["case"], r["aovs"]) for r in rows] == [("AOVs", "color", 1), ("AOVs", "color, depth, normal, primId", 4),
                                                                    ("AOVs", "all seven", 7)]
     # A slice of the output, 16 bytes a pixel, per AOV beside the frame's other per-pixel buffers.
@@ -233,11 +226,7 @@ def test_bench_render_aovs_resolves_every_aov_in_one_pass(tmp_path):
 
 
 def test_bench_render_edit_uploads_the_edited_quad_alone_and_the_host_keeps_no_mesh(tmp_path):
-    rows_file = tmp_path / "rows.json"
-    done = run("bench", "render", "--cases", "edit", "--max-density", "1", "--resolution", "96x54", "--frames", "2",
-               "--stages-dir", tmp_path, "--json", rows_file)
-    assert done.returncode == 0, done.stderr + done.stdout
-    [row, displaced] = json.loads(rows_file.read_text())
+    done, [row, displaced] = bench_render(tmp_path, "--cases", "edit", "--max-density", "1", "--frames", "2")
     assert (row["table"], row["case"]) == ("live edit", "a quad's points beside the mesh")
     assert (displaced["table"], displaced["case"]) == ("live edit", "a quad's points beside a displaced sphere")
     # Beside a sphere drawn displaced, an edit writes the quad's streams alone too, and makes none of the sphere's
