@@ -20,7 +20,6 @@
 #include <cstddef>
 #include <cstdlib>
 #include <cstring>
-#include <limits>
 #include <map>
 #include <numeric>
 #include <string>
@@ -1676,7 +1675,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             s.keptImports.clear();
         }
     }
-    // Resolve's stores go straight into the images (the slices' bindings) on a CPU device, through those bindings.
+    // On a CPU device resolve stores each AOV straight into its image: the image is its slice's binding.
     const bool directSlices = importAovs && device_.is_software() && outputBinding;
     std::vector<VkBuffer> directTargets;  // slice -> its image's memory, where direct
     if (directSlices)
@@ -1838,7 +1837,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             outputs |= uint32_t(k + 1) << (TS_OUTPUT_BITS * uint32_t(aovs[sliceAov[k]]));
             if (aovs[sliceAov[k]] == Aov::Color && settings.visualize != Visualize::None) outputs |= TS_OUTPUT_VISUALIZE;
         }
-        auto resolve_variant_of = [&](uint32_t outputs, uint32_t pixels, uint32_t m) {
+        auto resolve_variant_of = [&](uint32_t pixels, uint32_t m) {
             Pipelines::ResolveVariant v;
             v.pixelSource = pixelSource;
             v.outputs = outputs;
@@ -1855,7 +1854,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         if (!aovs.empty())
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
-                    if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) needs.resolves.push_back(resolve_variant_of(outputs, pixels, m));
+                    if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) needs.resolves.push_back(resolve_variant_of(pixels, m));
         pipelines.make_for_frame(needs);
         const VkPipeline softwareRaster = pipelines.software_raster(s.anyMasked, ownCorners, false, countFragments);
         const VkPipeline softwareRasterLarge = pipelines.software_raster(s.anyMasked, ownCorners, true, countFragments);
@@ -2098,7 +2097,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                 for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                     for (uint32_t m = 0; m < s.materialCount; ++m) {
                         if (pixels != TS_BIN_TRIANGLES && !s.material_displaced(m)) continue;  // micro-triangles: displaced only
-                        const VkPipeline pipeline = pipelines.resolve_variant(resolve_variant_of(outputs, pixels, m));
+                        const VkPipeline pipeline = pipelines.resolve_variant(resolve_variant_of(pixels, m));
                         if (pipeline != bound) vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, bound = pipeline);
                         const uint32_t bin = pixels * s.materialCount + m;
                         ResolvePushConstants shade{{0, bin, 0}, s.materialRecords[m]};

@@ -356,9 +356,9 @@ uint hzb_level_offset(GpuFrame frame, uint level) {
 uint pack_bin_pixel(uvec2 pixel) { return pixel.x | (pixel.y << 16u); }
 uvec2 unpack_bin_pixel(uint packed) { return uvec2(packed & 0xffffu, packed >> 16u); }
 
-// Pixel `index` of an AOV slice of the output, through its storage buffer binding (TS_BINDING_OUTPUT + slice) in the variants with it
-// (TS_SPEC_OUTPUT_BINDING), else through its address: lavapipe stores through an address in a loop over the lanes for
-// each component, a vec4 four loops, to a storage buffer in one loop for all four. On one core, 2 M pixels of a
+// Pixel `index` of an AOV slice of the output, through its storage buffer binding (TS_BINDING_OUTPUT + slice) in the
+// variants with it (TS_SPEC_OUTPUT_BINDING), else through its address: lavapipe stores through an address in a loop over
+// the lanes for each component, a vec4 four loops, to a storage buffer in one loop for all four. On one core, 2 M pixels of a
 // constant (with the 5 ms background fill): 55 ms through the address as a vec4, 20 ms as two 64-bit words, 15 ms
 // through the binding. A GPU writes the same bytes either way.
 layout(set = 0, binding = TS_BINDING_OUTPUT + 0, std430) buffer AovOutput0 { uvec4 aovPixels0[]; };

@@ -20,7 +20,7 @@ const float PI = 3.14159265358979;
 // of unit irradiance arriving from `toLight`; nothing for a material without reflectance (diffuse only). Written with
 // the unnormalized half vector s = l + v, whose length is 2 (v.h) and with which n.h = n.s / |s|, and with n.v
 // cancelled between G and 1 / (4 n.v): one square root and one division, where the textbook form takes a normalize
-// and four divisions (on a CPU device each is a slow vector instruction per pixel: resolve 6 % cheaper, session 31).
+// and four divisions (on a CPU device each is a slow vector instruction per pixel: resolve 2-4 % cheaper, session 31).
 vec3 specular_lobe(vec3 n, vec3 toEye, vec3 toLight, vec3 f0, float alpha) {
     float nl = dot(n, toLight);
     if (nl <= 0.0 || max(f0.r, max(f0.g, f0.b)) <= 0.0) return vec3(0.0);

@@ -94,7 +94,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
     }
 
     // A bin of clusters' own triangles holds no micro-triangle: no patch to look up (a branch is not free on a CPU device).
-    // The ids' variant serves every kind of bin (renderer.cpp: resolve_variant), so it decodes micro-triangles too.
+    // A variant writing ids alone serves every kind of bin (pipelines.cpp: resolve_key), so it decodes micro-triangles too.
     Payload payload = PIXELS == TS_BIN_TRIANGLES && PAST_IDS ? Payload(payloadBits >> TS_VIS_TRIANGLE_BITS, payloadBits & ((1u << TS_VIS_TRIANGLE_BITS) - 1u), 0xffffffffu, 0u)
                                                  : decode_payload(frame, payloadBits);
     uint triangle = payload.triangle;

@@ -223,9 +223,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_SPEC_AREA_LIGHTS 2
 // Specialization constant of resolve: what its variant writes, all in one pass over the pixels (each pixel's triangle
 // fetched once for every AOV of the frame): for each AOV (TS_AOV_*), bits TS_OUTPUT_BITS * aov hold its slice of the
-// output plus one (0: not written; the colour's is slice 0); TS_OUTPUT_VISUALIZE: the colour is a debug view (--vis), not shaded. On lavapipe
-// every branch of a shader runs, masked, for every pixel: only the code of the AOVs a variant writes is compiled in (the
-// colour of shaded frames cost 25 % more with the other AOVs' and the debug views' code beside it).
+// output plus one (0: not written; the colour's is slice 0); TS_OUTPUT_VISUALIZE: the colour is a debug view (--vis),
+// not shaded. On lavapipe every branch of a shader runs, masked, for every pixel: only the code of the AOVs a variant
+// writes is compiled in (the colour of shaded frames cost 25 % more with the other AOVs' and the debug views' code
+// beside it).
 #define TS_SPEC_OUTPUT 3
 #define TS_OUTPUT_BITS 3u
 #define TS_OUTPUT_VISUALIZE (1u << 24)

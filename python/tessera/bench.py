@@ -377,10 +377,10 @@ def _process_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _frames(session, frames: int, camera="/World/Camera", **settings):
-    """One warm-up frame, then the median of `frames` color frames (wall ms of the whole render call including the
-    readback, GPU ms of the passes, and the process's CPU ms: on a CPU device, lavapipe's threads too, which other
-    jobs on the machine move less than the wall time); then one frame with color and primId for the error measures."""
+def _timed_frames(session, frames: int, camera="/World/Camera", **settings):
+    """One warm-up frame, then the median of `frames` frames (wall ms of the whole render call including the readback,
+    GPU ms of the passes, and the process's CPU ms: on a CPU device, lavapipe's threads too, which other jobs on the
+    machine move less than the wall time), with the last frame."""
     session.render(camera=camera, **settings)
     walls, passes, cpus = [], [], []
     for _ in range(frames):
@@ -389,13 +389,21 @@ def _frames(session, frames: int, camera="/World/Camera", **settings):
         walls.append((time.perf_counter() - start) * 1000)
         cpus.append((_process_seconds() - cpu) * 1000)
         passes.append(result.stats["gpu_ms"])
-    result = session.render(camera=camera, **{**settings, "aovs": ("color", "primId")})
     if result.errors:
         raise RuntimeError("; ".join(result.errors))
     gpu = {name: float(np.median([p[name] for p in passes])) for name in passes[0]}
     gpu["total"] = float(np.median([sum(p.values()) for p in passes]))
     gpu["process_cpu"] = float(np.median(cpus))
     return result, float(np.median(walls)), gpu
+
+
+def _frames(session, frames: int, camera="/World/Camera", **settings):
+    """_timed_frames of the settings' (colour) frames, then one frame with color and primId for the error measures."""
+    _, wall, gpu = _timed_frames(session, frames, camera, **settings)
+    result = session.render(camera=camera, **{**settings, "aovs": ("color", "primId")})
+    if result.errors:
+        raise RuntimeError("; ".join(result.errors))
+    return result, wall, gpu
 
 
 def _row(table, label, result, wall, gpu, reference=None, **extra):
@@ -530,19 +538,8 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
                              geometry_mib=round(edited.stats["geometry_bytes"] / 2**20, 1)))
         elif case == "aovs":  # the AOVs a compositing pipeline asks for together: resolve writes them in one pass
             for aovs in AOV_SETS:
-                walls, passes, cpus = [], [], []
-                session.render(camera="/World/Camera", **{**settings, "aovs": aovs})
-                for _ in range(frames):
-                    start, cpu = time.perf_counter(), _process_seconds()
-                    result = session.render(camera="/World/Camera", **{**settings, "aovs": aovs})
-                    walls.append((time.perf_counter() - start) * 1000)
-                    cpus.append((_process_seconds() - cpu) * 1000)
-                    passes.append(result.stats["gpu_ms"])
-                if result.errors:
-                    raise RuntimeError("; ".join(result.errors))
-                gpu = {name: float(np.median([p[name] for p in passes])) for name in passes[0]}
-                gpu.update(total=float(np.median([sum(p.values()) for p in passes])), process_cpu=float(np.median(cpus)))
-                rows.append(_row("AOVs", ", ".join(aovs) if len(aovs) < len(AOV_SETS[-1]) else "all seven", result, float(np.median(walls)), gpu,
+                result, wall, gpu = _timed_frames(session, frames, **{**settings, "aovs": aovs})
+                rows.append(_row("AOVs", ", ".join(aovs) if len(aovs) < len(AOV_SETS[-1]) else "all seven", result, wall, gpu,
                                  aovs=len(aovs), pixel_mib=round(result.stats["pixel_bytes"] / 2**20), pixel_bytes=result.stats["pixel_bytes"]))
         elif case == "first-frame":  # a batch render's first frame: its meshes from the mesh cache, uploaded, then drawn
             start = time.perf_counter()
