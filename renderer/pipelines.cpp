@@ -288,12 +288,14 @@ VkPipeline Pipelines::patch_raster(bool masks, bool countFragments) {
 }
 
 std::pair<uint64_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
-    const bool shades = (v.outputs & 7u) != 0 && (v.outputs & TS_OUTPUT_VISUALIZE) == 0;  // the colour, shaded
+    const bool shades = TS_OUTPUT_FIELD(v.outputs, TS_AOV_COLOR) != 0 && (v.outputs & TS_OUTPUT_VISUALIZE) == 0;  // the colour, shaded
     if (!shades) {
         v.textured = v.areaLights = v.vertexInputs = false;
         v.lightCounts = 0;
     }
-    if ((v.outputs & ((1u << 3 * TS_OUTPUT_BITS) - 1)) == 0) v.pixels = TS_BIN_TRIANGLES;  // ids alone need no micro-triangle
+    const bool idsAlone = TS_OUTPUT_FIELD(v.outputs, TS_AOV_COLOR) == 0 && TS_OUTPUT_FIELD(v.outputs, TS_AOV_DEPTH) == 0 &&
+                          TS_OUTPUT_FIELD(v.outputs, TS_AOV_NORMAL) == 0;
+    if (idsAlone) v.pixels = TS_BIN_TRIANGLES;  // ids alone need no micro-triangle
     if (!v.textured && v.pixels != TS_BIN_DICED_MICRO) v.textureKinds = 0;  // it reads no texture
     return {v.textureKinds | uint64_t(v.textured) << 8 | uint64_t(v.pixels) << 9 | uint64_t(v.areaLights) << 11 | uint64_t(v.vertexInputs) << 12 |
                 uint64_t(v.lightCounts) << 16 | uint64_t(v.pixelSource) << 32 | uint64_t(v.outputs) << 34,

@@ -1,9 +1,10 @@
 // Internal to the renderer: its compiled pipelines on one device, shared by every Renderer on that device.
 // Compiling is most of what starting a renderer costs (on lavapipe, which keeps no pipeline cache between processes,
 // about 0.2 CPU s for the pipelines every frame uses, made in the background while the stage loads, and 25-35 ms for
-// each resolve variant of clusters' untextured triangles a scene asks for, more for displaced ones), so a process that opens many stages, or a test suite, pays it once per
-// device (Device::shared_state), not once per session. Pipelines are immutable once made; the variants a frame needs
-// are made when it first needs them, under `mutex`, which a render holds throughout.
+// each resolve variant of clusters' untextured triangles a scene asks for, more for displaced ones), so a process that
+// opens many stages, or a test suite, pays it once per device (Device::shared_state), not once per session. Pipelines
+// are immutable once made; the variants a frame needs are made when it first needs them, under `mutex`, which a render
+// holds throughout.
 #pragma once
 
 #include "shared.h"

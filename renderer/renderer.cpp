@@ -1841,7 +1841,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             Pipelines::ResolveVariant v;
             v.pixelSource = pixelSource;
             v.outputs = outputs;
-            v.textured = (outputs & 7u) != 0 && m < s.texturedMaterials.size() && s.texturedMaterials[m];
+            v.textured = TS_OUTPUT_FIELD(outputs, TS_AOV_COLOR) != 0 && m < s.texturedMaterials.size() && s.texturedMaterials[m];
             v.textureKinds = m < s.materialTextureKinds.size() ? s.materialTextureKinds[m] : 0u;
             v.pixels = pixels;
             v.areaLights = areaLights;

@@ -36,13 +36,16 @@ const uint DISTANT_LIGHTS = LIGHT_COUNTS & 0xffu, ALL_LIGHTS = LIGHT_COUNTS >> 8
 // What this variant writes (TS_SPEC_OUTPUT): each AOV's slice of the output plus one, 0 where the frame has no such AOV;
 // only the code of those it writes is compiled in.
 layout(constant_id = TS_SPEC_OUTPUT) const uint OUTPUTS = 1u;  // the colour alone, shaded
-const uint COLOR_OUT = OUTPUTS & 7u, DEPTH_OUT = (OUTPUTS >> 3u) & 7u, NORMAL_OUT = (OUTPUTS >> 6u) & 7u,
-           PRIM_ID_OUT = (OUTPUTS >> 9u) & 7u, INSTANCE_ID_OUT = (OUTPUTS >> 12u) & 7u, CLUSTER_ID_OUT = (OUTPUTS >> 15u) & 7u,
-           TRIANGLE_ID_OUT = (OUTPUTS >> 18u) & 7u;
+const uint COLOR_OUT = TS_OUTPUT_FIELD(OUTPUTS, TS_AOV_COLOR), DEPTH_OUT = TS_OUTPUT_FIELD(OUTPUTS, TS_AOV_DEPTH),
+           NORMAL_OUT = TS_OUTPUT_FIELD(OUTPUTS, TS_AOV_NORMAL), PRIM_ID_OUT = TS_OUTPUT_FIELD(OUTPUTS, TS_AOV_PRIM_ID),
+           INSTANCE_ID_OUT = TS_OUTPUT_FIELD(OUTPUTS, TS_AOV_INSTANCE_ID), CLUSTER_ID_OUT = TS_OUTPUT_FIELD(OUTPUTS, TS_AOV_CLUSTER_ID),
+           TRIANGLE_ID_OUT = TS_OUTPUT_FIELD(OUTPUTS, TS_AOV_TRIANGLE_ID);
 const bool VISUALIZE = (OUTPUTS & TS_OUTPUT_VISUALIZE) != 0u;
 // What the variant needs past the ids, the depth and the normal: the pixel's code stops at the last AOV it writes.
 const bool PAST_IDS = COLOR_OUT != 0u || DEPTH_OUT != 0u || NORMAL_OUT != 0u;
 const bool PAST_DEPTH = COLOR_OUT != 0u || NORMAL_OUT != 0u;
+const bool COLOUR_ALONE = DEPTH_OUT == 0u && NORMAL_OUT == 0u && PRIM_ID_OUT == 0u && INSTANCE_ID_OUT == 0u && CLUSTER_ID_OUT == 0u &&
+                          TRIANGLE_ID_OUT == 0u;
 // The variant for materials with inputs from the vertex channel (GpuMaterial.vertexInputs != 0).
 layout(constant_id = TS_SPEC_VERTEX_INPUTS) const bool VERTEX_INPUTS = false;
 // Where this variant finds its pixels (TS_PIXELS_*): its bin's list, or every pixel of the frame, tile by tile (one bin).
@@ -90,7 +93,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
     if (overdraw) {
         uint fragments = CounterRef(frame.overdraw).data[index];
         write_output(frame, COLOR_OUT - 1u, index, vec4(level_color(max(fragments, 1u) - 1u), 1.0));
-        if ((OUTPUTS & ~(7u | TS_OUTPUT_VISUALIZE)) == 0u) return;  // no AOV but the colour
+        if (COLOUR_ALONE) return;
     }
 
     // A bin of clusters' own triangles holds no micro-triangle: no patch to look up (a branch is not free on a CPU device).

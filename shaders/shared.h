@@ -230,6 +230,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_SPEC_OUTPUT 3
 #define TS_OUTPUT_BITS 3u
 #define TS_OUTPUT_VISUALIZE (1u << 24)
+// An AOV's field of a TS_SPEC_OUTPUT value: its slice plus one, 0 where the variant does not write it.
+#define TS_OUTPUT_FIELD(outputs, aov) (((outputs) >> (TS_OUTPUT_BITS * (aov))) & ((1u << TS_OUTPUT_BITS) - 1u))
 #define TS_MOST_AOVS 7           // one of each TS_AOV_*: slices 0-6
 // Specialization constants of the compute rasterizer (raster_sw.comp.glsl): its variant where each thread transforms its
 // own triangles' corners, with no shared memory and no barrier, in workgroups of TS_SW_RASTER_OWN_CORNERS_GROUP_SIZE
