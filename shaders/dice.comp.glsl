@@ -64,7 +64,7 @@ void main() {
     // One workgroup per patch over a 2D grid, no loop (as the cluster rasterizer: lavapipe runs a loop around it masked).
     uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
     if (k >= draw.state.dicePatches) return;  // the whole workgroup: no barrier is skipped by some threads only
-    uint index = UintRef(frame.dicePatches).data[k];
+    uint index = UintRef(frame.dicePatches).data[spread_index(k, draw.state.dicePatches)];  // spread (shared.h)
     DicedPatch d = load_patch(frame, index);
     uint n = d.n;
 

@@ -96,6 +96,7 @@ void main() {
     // One workgroup per cluster over a 2D grid, no loop: on lavapipe a loop around this code runs it masked.
     uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
     if (k >= count) return;  // the whole workgroup: no barrier is skipped by some threads only
+    k = spread_index(k, count);  // the list's clusters spread over lavapipe's threads (shared.h)
     uint slot = SlotListRef(frame.softwareList).data[LARGE_TRIANGLES ? frame.counts.y - 1u - k : k];
     uvec2 visible = visible_cluster(frame, slot);
     Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);

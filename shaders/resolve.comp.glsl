@@ -256,10 +256,12 @@ void main() {
     GpuFrame frame = frameConstants;
     if (PIXEL_SOURCE != TS_PIXELS_LISTED) {
         // A row of PIXELS_PER_THREAD tiles of TS_PIXEL_TILE x TS_PIXEL_TILE pixels per workgroup, each thread a pixel of
-        // each tile (TS_SHADE_GROUP_SIZE is a tile's pixels). Shifts, no division: lavapipe divides lane by lane (a
-        // division per pixel cost a screen-filling frame as much as classify saved). Each subgroup counts its covered
+        // each tile (TS_SHADE_GROUP_SIZE is a tile's pixels), the rows spread over lavapipe's threads (shared.h). Shifts,
+        // not a division per pixel: lavapipe divides lane by lane (a division per pixel cost a screen-filling frame as much
+        // as classify saved; spread_index's two per thread cost nothing measurable). Each subgroup counts its covered
         // pixels: the frame's coverage, by which the renderer picks the next frame's pixel source.
-        uvec2 pixel = gl_WorkGroupID.xy * uvec2(TS_PIXEL_TILE * PIXELS_PER_THREAD, TS_PIXEL_TILE) +
+        uvec2 group = uvec2(gl_WorkGroupID.x, spread_index(gl_WorkGroupID.y, gl_NumWorkGroups.y));
+        uvec2 pixel = group * uvec2(TS_PIXEL_TILE * PIXELS_PER_THREAD, TS_PIXEL_TILE) +
                       uvec2(gl_LocalInvocationIndex % TS_PIXEL_TILE, gl_LocalInvocationIndex / TS_PIXEL_TILE);
         uint covered = 0u;  // the same in every lane: no lane leaves the loop before the others
         uint part = gl_SubgroupID * gl_SubgroupSize * PIXELS_PER_THREAD;
@@ -294,7 +296,8 @@ void main() {
     }
     // The bin's pixels TS_SHADE_GROUP_SIZE apart, PIXELS_PER_THREAD of them (the same trip count for every thread).
     GpuBin bin = BinRef(frame.bins).data[push.step];
-    uint first = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * TS_SHADE_GROUP_SIZE * PIXELS_PER_THREAD + gl_LocalInvocationIndex;
+    uint group = spread_index(gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x, gl_NumWorkGroups.x * gl_NumWorkGroups.y);
+    uint first = group * TS_SHADE_GROUP_SIZE * PIXELS_PER_THREAD + gl_LocalInvocationIndex;
     uint k = 0u;
     [[dont_unroll]] do {  // the test at the end (frame.h)
         uint i = first + k * TS_SHADE_GROUP_SIZE;

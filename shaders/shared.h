@@ -723,6 +723,29 @@ struct GpuFrame {
 };
 TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 6 + 16 * 1 + 16 * 6 + 16 * 9 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 39);
 
+// The order in which a dispatch's workgroups take its work. lavapipe (Mesa's compute thread pool) hands each of its
+// threads one run of consecutive workgroups, the dispatch's count over its threads: where the work is uneven along that
+// order (a frame's covered pixels from top to bottom, the software list in the cut's order), one thread idles while
+// another finishes (two threads resolved the density fields in 0.8 of one thread's time, docs/benchmarks.md).
+// spread_index(k, n) permutes [0, n) so that every such run takes work from all over it: the first 16 (n / 16) indices
+// form 16 bands of consecutive ones, and band b takes the place of band b with its four bits reversed (the van der
+// Corput order: any 2^j consecutive bands land one in each 2^j-th part of the bands); the indices past the bands stay.
+// Within a band neighbours stay neighbours: finer bands (256) balanced the 1 px sphere's compute raster better but cost
+// one thread 12 % more there (caches). A GPU starts workgroups as others finish: the order costs it nothing. Written in
+// the subset C++ and GLSL share, so that the C++ tests check this very code.
+#define TS_SPREAD_BITS 4u
+#define TS_SPREAD_BANDS (1u << TS_SPREAD_BITS)
+#ifdef __cplusplus
+inline
+#endif
+uint spread_index(uint k, uint n) {
+    uint size = n >> TS_SPREAD_BITS;
+    if (k >= size << TS_SPREAD_BITS) return k;  // past the bands (all of [0, n) where n < 16)
+    uint band = k / size, reversed = 0u;
+    for (uint b = 0u; b < TS_SPREAD_BITS; ++b) reversed |= ((band >> b) & 1u) << (TS_SPREAD_BITS - 1u - b);
+    return reversed * size + (k - band * size);
+}
+
 #ifdef __cplusplus
 static_assert(TS_SHADE_GROUP_SIZE == TS_PIXEL_TILE * TS_PIXEL_TILE, "resolve's every-pixel workgroup is a thread per pixel of a tile");
 }  // namespace tessera::gpu

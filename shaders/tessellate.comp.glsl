@@ -108,7 +108,7 @@ void tessellate_triangle(GpuFrame frame) {
     DrawStateRef draw = DrawStateRef(frame.drawState);
     uint k = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
     if (k >= draw.state.tessClusters) return;
-    uint slot = SlotListRef(frame.tessellationList).data[k];
+    uint slot = SlotListRef(frame.tessellationList).data[spread_index(k, draw.state.tessClusters)];  // spread (shared.h)
     uvec2 visible = visible_cluster(frame, slot);
     GpuCluster cluster = load_cluster(frame, visible.y);
     uint triangle = gl_LocalInvocationIndex;

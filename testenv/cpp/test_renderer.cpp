@@ -1753,6 +1753,41 @@ TEST_F(RendererTest, PipelinesMadeInTheBackgroundServeAFrameDrawnAtOnce) {
     }
 }
 
+// The workgroup order of resolve and the compute rasterizer (shared.h spread_index, the very code the shaders run): a
+// permutation of [0, n) for every n, neighbours kept within a band, and each of the runs that lavapipe's 2, 4 or 8
+// threads take reaching into every eighth, quarter or half of the bands.
+TEST(SpreadIndex, PermutesAndSpreadsEveryRunOfWorkgroups) {
+    const uint32_t bands = TS_SPREAD_BANDS;
+    for (uint32_t n = 0; n < 40 * bands; n += n < 4 * bands ? 1 : 7) {
+        const uint32_t band = n / bands;  // a band's workgroups
+        std::vector<bool> taken(n, false);
+        for (uint32_t k = 0; k < n; ++k) {
+            const uint32_t at = gpu::spread_index(k, n);
+            ASSERT_LT(at, n) << k << " of " << n;
+            ASSERT_FALSE(taken[at]) << k << " of " << n << " lands where another did";
+            taken[at] = true;
+            if (band > 0 && k % band != 0 && k < band * bands)
+                ASSERT_EQ(at, gpu::spread_index(k - 1, n) + 1) << k << " of " << n << ": a band's neighbours stay neighbours";
+        }
+        if (n < 8 * bands) continue;
+        for (const uint32_t runs : {2u, 4u, 8u}) {
+            const uint32_t parts = bands / runs;
+            for (uint32_t run = 0; run < runs; ++run) {
+                const uint32_t first = run * n / runs, end = (run + 1) * n / runs;
+                std::set<uint32_t> reached;
+                for (uint32_t k = first; k < end; ++k)  // parts of the bands
+                    reached.insert(std::min(gpu::spread_index(k, n), band * bands - 1) * parts / (band * bands));
+                // Any `parts` consecutive bands land one in each part. A run whose edges are not the bands' (the indices
+                // past the bands shift them) holds fewer whole bands: as many parts as it holds.
+                const uint32_t firstWhole = (first + band - 1) / band, endWhole = std::min(end / band, bands);
+                const uint32_t whole = endWhole > firstWhole ? endWhole - firstWhole : 0;
+                if (n % bands == 0) ASSERT_EQ(whole, parts);
+                EXPECT_GE(reached.size(), std::min(whole, parts)) << "run " << run << " of " << runs << ", " << n << " workgroups";
+            }
+        }
+    }
+}
+
 // The process's devices (Device::shared): one per options, until released; a device that cannot be made is not kept.
 TEST(SharedDevice, OnePerOptionsUntilReleased) {
     const DeviceOptions options = DeviceOptions::from_environment();
