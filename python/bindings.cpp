@@ -188,6 +188,7 @@ nb::dict stats_dict(const FrameStats& s) {
     d["shading_bins"] = s.shadingBins;
     d["covered_pixels"] = s.coveredPixels;
     d["resolve_pixels"] = s.resolvePixels;
+    d["pixel_materials"] = s.pixelMaterials;
     d["textures"] = s.textures;
     d["geometry_bytes"] = s.geometryBytes;
     d["geometry_upload_bytes"] = s.geometryUploadBytes;

@@ -105,20 +105,20 @@ uint32_t instance_flags_variant(uint32_t flags) {
 // shades, TS_SPEC_SHADE_PIXELS_PER_THREAD, reads through texel views, TS_SPEC_TEXEL_VIEWS, and stores the AOV output
 // through its binding, TS_SPEC_OUTPUT_BINDING).
 struct SpecializationInfo {
-    uint32_t values[19];
-    VkSpecializationMapEntry entries[19] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
+    uint32_t values[20];
+    VkSpecializationMapEntry entries[20] = {{TS_SPEC_TEXTURES, 0, 4}, {TS_SPEC_DISPLACEMENT, 4, 4}, {TS_SPEC_AREA_LIGHTS, 8, 4}, {TS_SPEC_OUTPUT, 12, 4},
                                            {TS_SPEC_OWN_CORNERS, 16, 4}, {TS_SPEC_RASTER_GROUP_SIZE, 20, 4}, {TS_SPEC_CULL_GROUP_SIZE, 24, 4},
                                            {TS_SPEC_LARGE_TRIANGLES, 28, 4}, {TS_SPEC_DOUBLE_SIDED, 32, 4}, {TS_SPEC_SHADE_PIXELS_PER_THREAD, 36, 4},
                                            {TS_SPEC_STEP, 40, 4}, {TS_SPEC_VERTEX_INPUTS, 44, 4}, {TS_SPEC_COUNT_FRAGMENTS, 48, 4},
                                            {TS_SPEC_TEXEL_VIEWS, 52, 4}, {TS_SPEC_TEXTURE_KINDS, 56, 4}, {TS_SPEC_LIGHT_COUNTS, 60, 4}, {TS_SPEC_OUTPUT_BINDING, 64, 4},
-                                           {TS_SPEC_INSTANCE_FLAGS, 68, 4}, {TS_SPEC_PIXEL_SOURCE, 72, 4}};
-    VkSpecializationInfo info{19, entries, sizeof(values), values};
+                                           {TS_SPEC_INSTANCE_FLAGS, 68, 4}, {TS_SPEC_PIXEL_SOURCE, 72, 4}, {TS_SPEC_PIXEL_MATERIALS, 76, 4}};
+    VkSpecializationInfo info{20, entries, sizeof(values), values};
     SpecializationInfo(const Specialization& s, uint32_t shadePixelsPerThread, bool texelViews, bool outputBinding)
         : values{VkBool32(s.textures), s.pixels, VkBool32(s.areaLights), s.outputs, VkBool32(s.ownCorners),
                  s.rasterGroupSize, s.cullGroupSize,
                  VkBool32(s.largeTriangles), VkBool32(s.doubleSided), shadePixelsPerThread, s.step, VkBool32(s.vertexInputs),
                  VkBool32(s.countFragments), VkBool32(texelViews), s.textureKinds, s.lightCounts, VkBool32(outputBinding),
-                 s.instanceFlags, s.pixelSource} {}
+                 s.instanceFlags, s.pixelSource, VkBool32(s.pixelMaterials)} {}
     SpecializationInfo(const SpecializationInfo&) = delete;
 };
 
@@ -297,10 +297,15 @@ std::pair<uint64_t, Specialization> Pipelines::resolve_key(ResolveVariant v) {
                           TS_OUTPUT_FIELD(v.outputs, TS_AOV_NORMAL) == 0;
     if (idsAlone) v.pixels = TS_BIN_TRIANGLES;  // ids alone need no micro-triangle
     if (!v.textured && v.pixels != TS_BIN_DICED_MICRO) v.textureKinds = 0;  // it reads no texture
+    if (!v.pixelMaterials) v.instanceFlags = TS_SPECIALIZED_INSTANCE_FLAGS;  // read only by the per-pixel material lookup
+    v.instanceFlags &= TS_SPECIALIZED_INSTANCE_FLAGS;
+    static_assert(TS_OUTPUT_VISUALIZE < (1u << 25), "the outputs fit bits 34-58 of the key");
     return {v.textureKinds | uint64_t(v.textured) << 8 | uint64_t(v.pixels) << 9 | uint64_t(v.areaLights) << 11 | uint64_t(v.vertexInputs) << 12 |
-                uint64_t(v.lightCounts) << 16 | uint64_t(v.pixelSource) << 32 | uint64_t(v.outputs) << 34,
+                uint64_t(v.lightCounts) << 16 | uint64_t(v.pixelSource) << 32 | uint64_t(v.outputs) << 34 | uint64_t(v.pixelMaterials) << 59 |
+                uint64_t(instance_flags_variant(v.instanceFlags)) << 60,
             {.textures = v.textured, .pixels = v.pixels, .areaLights = v.areaLights, .vertexInputs = v.vertexInputs, .outputs = v.outputs,
-             .textureKinds = v.textureKinds, .lightCounts = v.lightCounts, .pixelSource = v.pixelSource}};
+             .textureKinds = v.textureKinds, .lightCounts = v.lightCounts, .instanceFlags = v.instanceFlags, .pixelSource = v.pixelSource,
+             .pixelMaterials = v.pixelMaterials}};
 }
 
 // Resolve's module for a variant's specialization: one per kind of pixels, and per texturing but for micro-triangles

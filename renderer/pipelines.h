@@ -55,6 +55,7 @@ struct Specialization {
     uint32_t lightCounts = 0;              // TS_SPEC_LIGHT_COUNTS: resolve's shading, the frame's lights
     uint32_t instanceFlags = TS_SPECIALIZED_INSTANCE_FLAGS;  // TS_SPEC_INSTANCE_FLAGS: the cull's and classify's, the frame's
     uint32_t pixelSource = TS_PIXELS_LISTED;  // TS_SPEC_PIXEL_SOURCE: where resolve finds its pixels (TS_PIXELS_*)
+    bool pixelMaterials = false;           // TS_SPEC_PIXEL_MATERIALS: resolve's pixels read their own materials
     bool operator==(const Specialization&) const = default;
 };
 
@@ -118,6 +119,8 @@ struct Pipelines {
         bool areaLights = false, vertexInputs = false;
         uint32_t outputs = 1, lightCounts = 0;  // TS_SPEC_OUTPUT: the frame's AOVs (default: the colour alone, shaded)
         uint32_t pixelSource = TS_PIXELS_LISTED;  // its bin's list, or every pixel of a one-bin frame (TS_SPEC_PIXEL_SOURCE)
+        bool pixelMaterials = false;  // each pixel reads its material (TS_SPEC_PIXEL_MATERIALS), every material's features
+        uint32_t instanceFlags = TS_SPECIALIZED_INSTANCE_FLAGS;  // the frame's (TS_SPEC_INSTANCE_FLAGS): pixel materials only
     };
     // Resolve's variant for a bin, made on first use.
     VkPipeline resolve_variant(const ResolveVariant& variant);

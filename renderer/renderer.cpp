@@ -420,6 +420,10 @@ struct Renderer::Impl {
     // host beside a CPU device; $TESSERA_SAMPLE_SUMS (device, host) chooses, for tests and measurements.
     Buffer sampleSums[2];
     const bool sampleSumsOnDevice = environment_choice("TESSERA_SAMPLE_SUMS", "device", "host", !device.is_software());
+    // A frame of several materials is classified into bins, each shaded by a dispatch of its own, on a GPU; a CPU device's
+    // resolve reads each pixel's material instead (TS_SPEC_PIXEL_MATERIALS; not where a displaced material needs its
+    // micro-triangles' bins). $TESSERA_MATERIAL_BINS (1, 0) chooses, for tests and measurements.
+    const bool materialBins = environment_choice("TESSERA_MATERIAL_BINS", "1", "0", !device.is_software());
     Buffer deferredInstances, deferredClusters;
     Buffer cutList;  // instances the cut step walks (those the instance step did not cull); grows on overflow
     uint32_t cutCapacity = 1u << 12;
@@ -1699,11 +1703,13 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
     // A frame whose pixels can only fall in one bin (one material, no displacement) lists its covered pixels at once
     // (a GPU's frame after one that covered few pixels), or is not classified: its resolve reads every pixel.
     const bool oneBin = s.materialCount * s.bin_kinds() == 1;
-    const uint32_t pixelSource = !oneBin                                    ? TS_PIXELS_LISTED
-                               : s.coverage >= Impl::kEveryPixelCoverage   ? TS_PIXELS_IN_PLACE
-                               : pipelines.shadePixelsPerThread > 1 && pipelines.shadePixelsPerThread <= TS_PACKED_MOST_PIXELS_PER_THREAD
-                                                                           ? TS_PIXELS_PACKED
-                                                                           : TS_PIXELS_LISTED;
+    uint32_t pixelSource = s.coverage >= Impl::kEveryPixelCoverage ? TS_PIXELS_IN_PLACE
+                         : pipelines.shadePixelsPerThread > 1 && pipelines.shadePixelsPerThread <= TS_PACKED_MOST_PIXELS_PER_THREAD
+                             ? TS_PIXELS_PACKED
+                             : TS_PIXELS_LISTED;
+    // ... and so does a CPU device's frame of several materials, each pixel reading its own (Impl::materialBins).
+    const bool pixelMaterials = !oneBin && !s.materialBins && s.bin_kinds() == 1 && pixelSource != TS_PIXELS_LISTED;
+    if (!oneBin && !pixelMaterials) pixelSource = TS_PIXELS_LISTED;
     const bool everyPixel = pixelSource != TS_PIXELS_LISTED;
     for (;;) {
         s.ensure_frame_buffers(settings.width, settings.height, aovs.size(), importAovs, directSlices);
@@ -1849,9 +1855,24 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             v.lightCounts = lightCounts;
             return v;
         };
+        // The one variant of a frame whose pixels read their own materials: every material's features, and the frame's
+        // instance flags (the per-pixel material table lookup only where some instance has one).
+        auto pixel_materials_variant = [&]() {
+            Pipelines::ResolveVariant v = resolve_variant_of(TS_BIN_TRIANGLES, 0);
+            for (uint32_t m = 1; m < s.materialCount; ++m) {
+                const Pipelines::ResolveVariant other = resolve_variant_of(TS_BIN_TRIANGLES, m);
+                v.textured = v.textured || other.textured;
+                v.textureKinds |= other.textureKinds;
+                v.vertexInputs = v.vertexInputs || other.vertexInputs;
+            }
+            v.pixelMaterials = true;
+            v.instanceFlags = s.instanceFlags;
+            return v;
+        };
         // What the frame draws with, made before it records, together on the host's threads (Pipelines::make_for_frame).
-        Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, oneBin, {}};
-        if (!aovs.empty())
+        Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, oneBin || pixelMaterials, {}};
+        if (pixelMaterials && !aovs.empty()) needs.resolves.push_back(pixel_materials_variant());
+        else if (!aovs.empty())
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
                     if (pixels == TS_BIN_TRIANGLES || s.material_displaced(m)) needs.resolves.push_back(resolve_variant_of(pixels, m));
@@ -2094,7 +2115,13 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                             VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 }
                 VkPipeline bound = VK_NULL_HANDLE;
-                for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
+                if (pixelMaterials) {  // one dispatch over every pixel, each reading its material
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.resolve_variant(pixel_materials_variant()));
+                    const ResolvePushConstants shade{{0, 0, 0}, {}};
+                    vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
+                    vkCmdDispatch(cmd, everyPixelGroupsX, tilesY, 1);
+                }
+                for (uint32_t pixels = 0; pixels < s.bin_kinds() && !pixelMaterials; ++pixels)
                     for (uint32_t m = 0; m < s.materialCount; ++m) {
                         if (pixels != TS_BIN_TRIANGLES && !s.material_displaced(m)) continue;  // micro-triangles: displaced only
                         const VkPipeline pipeline = pipelines.resolve_variant(resolve_variant_of(pixels, m));
@@ -2199,6 +2226,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         frameStats.hzbBuilds = state.hzbBuilds;
         frameStats.backfaceClusters = state.backfaceClusters;
         // An every-pixel frame runs no bins pass: its resolve counted the covered pixels, and they are its one bin.
+        frameStats.pixelMaterials = pixelMaterials;
         frameStats.resolvePixels = pixelSource == TS_PIXELS_IN_PLACE ? "in place" : pixelSource == TS_PIXELS_PACKED ? "packed" : "listed";
         frameStats.coveredPixels = state.coveredPixels;
         frameStats.shadingBins = everyPixel ? uint32_t(frameStats.coveredPixels > 0) : state.shadingBins;

@@ -48,8 +48,11 @@ const bool COLOUR_ALONE = DEPTH_OUT == 0u && NORMAL_OUT == 0u && PRIM_ID_OUT == 
                           TRIANGLE_ID_OUT == 0u;
 // The variant for materials with inputs from the vertex channel (GpuMaterial.vertexInputs != 0).
 layout(constant_id = TS_SPEC_VERTEX_INPUTS) const bool VERTEX_INPUTS = false;
-// Where this variant finds its pixels (TS_PIXELS_*): its bin's list, or every pixel of the frame, tile by tile (one bin).
+// Where this variant finds its pixels (TS_PIXELS_*): its bin's list, or every pixel of the frame, tile by tile (one bin,
+// or every material with PIXEL_MATERIALS).
 layout(constant_id = TS_SPEC_PIXEL_SOURCE) const uint PIXEL_SOURCE = TS_PIXELS_LISTED;
+// Each pixel reads its own material (a CPU device's frames of several materials, shared.h), not push.material.
+layout(constant_id = TS_SPEC_PIXEL_MATERIALS) const bool PIXEL_MATERIALS = false;
 
 // A well-spread colour for an id (integer hash, then three 8-bit channels lifted away from black).
 vec3 id_color(uint id) {
@@ -180,13 +183,15 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
             write_output(frame, COLOR_OUT - 1u, index, vec4(uvColor, 1.0));
             return;
         }
-        vec3 tint = visualize(frame, frame.counts.w, instance, visible, cluster, triangle, software, push.step, payload.patchIndex, payload.micro,
-                              largestFactor);
+        uint materialIndex = PIXEL_MATERIALS ? pixel_material(frame, instance, visible.y, triangle) : push.step;  // the bin
+        vec3 tint = visualize(frame, frame.counts.w, instance, visible, cluster, triangle, software, materialIndex, payload.patchIndex,
+                              payload.micro, largestFactor);
         write_output(frame, COLOR_OUT - 1u, index, vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0));
         return;
     }
 
-    GpuMaterial material = push.material;  // this dispatch's bin is one material
+    GpuMaterial material = push.material;  // this dispatch's bin is one material, else the pixel's own
+    if (PIXEL_MATERIALS) material = load_material(frame, pixel_material(frame, instance, visible.y, triangle));
     vec3 albedo = material.diffuseColor.rgb;
     vec3 emission = material.emissiveColor.rgb, f0 = material.specular.rgb;
     float occlusion = material.emissiveColor.a, roughness = material.specular.a, metallic = material.metallic;

@@ -289,12 +289,19 @@ def test_texture_coordinates(tmp_path):
     assert shade.max() > 0.6 and shade.min() < 0.15, "the islands' range of st shows"
 
 
-def test_geom_subsets_bind_materials_per_face(render, tmp_path):
+@pytest.mark.parametrize("material_bins", ["1", "0"])
+def test_geom_subsets_bind_materials_per_face(render, tmp_path, monkeypatch, material_bins):
     """GeomSubsets of family materialBind give one mesh several materials: its triangles carry material slots through
-    every DAG level, and each slot's pixels land in its material's bin."""
+    every DAG level, and each slot's pixels land in its material's bin (a GPU's way, $TESSERA_MATERIAL_BINS=1), or, on
+    a CPU device, each pixel reads its slot's material itself: the same image either way."""
+    monkeypatch.setenv("TESSERA_MATERIAL_BINS", material_bins)
     result = render_and_compare(render, tmp_path, "testGeomSubsets", "geom_subsets.usda", resolution=(480, 320))
     assert any("/Strip/RedFaces: 1 face indices outside 0..3" in w for w in result.warnings)
-    assert result.stats["rprims"] == 1 and result.stats["shading_bins"] == 3
+    assert result.stats["rprims"] == 1
+    if material_bins == "1":
+        assert result.stats["shading_bins"] == 3 and not result.stats["pixel_materials"]
+    elif result.session.delegate.software_device:
+        assert result.stats["shading_bins"] == 1 and result.stats["pixel_materials"]
     color = np.asarray(result["color"].pixels)
     # Quad centres: x = -3, -1, 1, 3 at 10 units (35 mm lens, 36 mm aperture over 480 pixels: 18.9 px per unit).
     per_unit = 35.0 / 18.0 / 10.0 * 240.0
@@ -482,6 +489,41 @@ def test_a_one_bin_frame_is_resolved_over_every_pixel_as_the_listed_one(monkeypa
             assert np.array_equal(np.asarray(one[aov].pixels).view(np.uint32), np.asarray(other[aov].pixels).view(np.uint32)), aov
 
 
+@pytest.mark.parametrize("pixels_per_thread", ["1", "16"])
+def test_several_materials_read_by_each_pixel_draw_what_their_bins_draw(monkeypatch, pixels_per_thread):
+    """A CPU device's frame of several materials skips classify: its resolve reads every pixel (in place or packed, as a
+    one-material frame's) and each pixel its own material, through one variant for all of them. Every AOV and the
+    shading-bins view must match the frame classified into bins bit for bit, and no bin list is made."""
+    from pxr import UsdShade
+    from conftest import preview_material
+
+    monkeypatch.setenv("TESSERA_SHADE_PIXELS_PER_THREAD", pixels_per_thread)
+    stage = _wall_and_box_stage()
+    UsdShade.MaterialBindingAPI.Apply(stage.GetPrimAtPath("/Box")).Bind(preview_material(stage, "/Looks/Red", (0.8, 0.1, 0.1)))
+    UsdShade.MaterialBindingAPI.Apply(stage.GetPrimAtPath("/Wall")).Bind(preview_material(stage, "/Looks/Grey", (0.4, 0.4, 0.45)))
+    aovs = ("color", "depth", "normal", "primId")
+    frames = {}
+    for bins in ("1", "0"):
+        monkeypatch.setenv("TESSERA_MATERIAL_BINS", bins)
+        session = tessera.Session(stage, validation=True)
+        frames[bins] = [session.render(camera=camera, resolution=(97, 67), aovs=aovs, vis=vis)
+                        for camera, vis in (("/Near", None), ("/Near", None), ("/Far", None), ("/Near", "shading-bins"))]
+        for frame in frames[bins]:
+            assert not frame.errors, frame.errors
+    for frame in frames["1"]:
+        assert frame.stats["resolve_pixels"] == "listed" and not frame.stats["pixel_materials"]
+    if tessera.Session(stage).delegate.software_device and pixels_per_thread == "16":
+        pixel = frames["0"]
+        assert all(f.stats["pixel_materials"] and f.stats["shading_bins"] == 1 for f in pixel)
+        assert [f.stats["resolve_pixels"] for f in pixel] == ["packed", "in place", "in place", "packed"]
+        assert pixel[-1].stats["pixel_bytes"] < frames["1"][-1].stats["pixel_bytes"], "no bin list"
+    for binned, read in zip(frames["1"], frames["0"]):
+        for aov in aovs:
+            assert np.array_equal(np.asarray(binned[aov].pixels).view(np.uint32), np.asarray(read[aov].pixels).view(np.uint32)), aov
+    colours = np.asarray(frames["0"][-1]["color"].pixels)[..., :3].reshape(-1, 3)
+    assert len(np.unique(colours, axis=0)) >= 3, "the shading-bins view tells the two materials and the background apart"
+
+
 def test_a_frame_that_lists_no_pixels_makes_no_bin_list(monkeypatch):
     """The material bins' pixel list (4 bytes a pixel) is made by the first frame that lists its pixels: frames of one
     material that read every pixel never make it; a second material's frame does."""
@@ -489,6 +531,7 @@ def test_a_frame_that_lists_no_pixels_makes_no_bin_list(monkeypatch):
     from conftest import preview_material
 
     monkeypatch.setenv("TESSERA_SHADE_PIXELS_PER_THREAD", "16")  # packs rather than lists on any device
+    monkeypatch.setenv("TESSERA_MATERIAL_BINS", "1")  # classifies several materials on any device
     stage = _wall_and_box_stage()
     session = tessera.Session(stage, validation=True)
     one = [session.render(camera="/Far", resolution=(97, 67)) for _ in range(2)]

@@ -945,15 +945,21 @@ TEST_F(RendererTest, TexturedBinsReadOnlyTheirTextureKindsAndDrawTheSameFrame) {
     scene.set_instances(instances);
     scene.set_lights({{LightType::Distant, {0.3, -0.5, -1}, {2, 2, 2}}, {LightType::Dome, {0, 0, -1}, {0.2f, 0.3f, 0.4f}}});
     RenderSettings settings{128, 128, {0.25f, 0.5f, 0.75f, 1}};
-    Renderer own(*device);
     FrameStats stats;
-    const std::vector<Image> specialized = own.render(scene, camera_at(0, 0, 2.6), settings, {Aov::Color}, &stats);
+    const std::vector<Image> specialized =
+        renderer_with(*device, "TESSERA_MATERIAL_BINS", "1")->render(scene, camera_at(0, 0, 2.6), settings, {Aov::Color}, &stats);
     EXPECT_EQ(stats.textures, 4u);
     EXPECT_EQ(stats.shadingBins, 4u);
     const std::vector<Image> everyKind = renderer_with(*device, "TESSERA_TEXTURE_KINDS", "all")->render(scene, camera_at(0, 0, 2.6), settings, {Aov::Color});
+    // Each pixel reading its own material, through one variant for all four materials' textures (on a CPU device).
+    FrameStats pixelStats;
+    const std::vector<Image> pixelMaterials =
+        renderer_with(*device, "TESSERA_MATERIAL_BINS", "0")->render(scene, camera_at(0, 0, 2.6), settings, {Aov::Color}, &pixelStats);
+    if (device->is_software()) EXPECT_TRUE(pixelStats.pixelMaterials);
     // lavapipe compiles both variants' shared arithmetic alike; a GPU's compiler may round one operation differently in
     // the two (an H100: one value of 65 536 one ulp off, 1.9e-9). A wrong wrap mode or format moves values by 1e-3 or more.
     expect_same_images(specialized, everyKind, "textured bins", device->is_software() ? 0.0f : 1e-6f);
+    expect_same_images(specialized, pixelMaterials, "textured pixel materials", device->is_software() ? 0.0f : 1e-6f);
     EXPECT_THROW(renderer_with(*device, "TESSERA_TEXTURE_KINDS", "some"), std::invalid_argument);
 }
 
@@ -1575,21 +1581,31 @@ TEST_F(RendererTest, MaterialBinsShadeEachMaterialsPixels) {
         instances.push_back(instance);
     }
     scene.set_instances(instances);
-    Renderer renderer(*device);
     RenderSettings settings{96, 32, {0.25f, 0.25f, 0.25f, 1}};
-    FrameStats stats;
-    const auto images = renderer.render(scene, camera_at(0, 0, 1.3), settings, {Aov::Color, Aov::PrimId}, &stats);
-    EXPECT_EQ(stats.shadingBins, 3u);
-    size_t checked = 0;
-    for (uint32_t y = 0; y < 32; ++y)
-        for (uint32_t x = 0; x < 96; ++x) {
-            const uint32_t prim = id_at(images[1], x, y);
-            const float* rgba = &images[0].pixels[4 * (y * 96 + x)];
-            const std::array<float, 3> expected = prim == 0xffffffffu ? std::array<float, 3>{0.25f, 0.25f, 0.25f} : colors.at(prim);
-            for (int c = 0; c < 3; ++c) ASSERT_EQ(rgba[c], expected[c]) << "pixel " << x << "," << y << " prim " << prim;
-            checked += prim != 0xffffffffu;
+    // Classified into bins (a GPU's way), and each pixel reading its own material (a CPU device's): the same frame.
+    std::vector<Image> binned;
+    for (const char* bins : {"1", "0"}) {
+        FrameStats stats;
+        const auto images = renderer_with(*device, "TESSERA_MATERIAL_BINS", bins)->render(scene, camera_at(0, 0, 1.3), settings, {Aov::Color, Aov::PrimId}, &stats);
+        if (bins == std::string("1")) {
+            EXPECT_EQ(stats.shadingBins, 3u);
+            EXPECT_FALSE(stats.pixelMaterials);
+            binned = images;
+        } else {
+            if (device->is_software()) EXPECT_TRUE(stats.pixelMaterials) << "a CPU device reads each pixel's material";
+            expect_same_images(images, binned, "pixel materials against bins");
         }
-    EXPECT_GT(checked, 96u * 32u / 3u) << "the grids must fill a good part of the image";
+        size_t checked = 0;
+        for (uint32_t y = 0; y < 32; ++y)
+            for (uint32_t x = 0; x < 96; ++x) {
+                const uint32_t prim = id_at(images[1], x, y);
+                const float* rgba = &images[0].pixels[4 * (y * 96 + x)];
+                const std::array<float, 3> expected = prim == 0xffffffffu ? std::array<float, 3>{0.25f, 0.25f, 0.25f} : colors.at(prim);
+                for (int c = 0; c < 3; ++c) ASSERT_EQ(rgba[c], expected[c]) << "pixel " << x << "," << y << " prim " << prim << " bins " << bins;
+                checked += prim != 0xffffffffu;
+            }
+        EXPECT_GT(checked, 96u * 32u / 3u) << "the grids must fill a good part of the image";
+    }
 }
 
 TEST_F(RendererTest, TexturesCostNothingUntilUsedAreSharedAndUnreadableOnesShowTheirFallback) {

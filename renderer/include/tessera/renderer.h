@@ -311,11 +311,14 @@ struct FrameStats {
                                         // the post pass drew nothing (the HZB after the main pass is then the frame's)
     uint32_t backfaceClusters = 0;      // clusters culled because all their triangles face away
     uint32_t shadingBins = 0;           // bins with visible pixels, each shaded by a dispatch of its own: one a material, or
-                                        // up to three for a displaced one (its triangles, kept and diced micro-triangles)
+                                        // up to three for a displaced one (its triangles, kept and diced micro-triangles);
+                                        // 1 where one dispatch read every pixel (pixelMaterials or a one-bin frame)
     uint32_t coveredPixels = 0;         // pixels a surface covers (each shaded once for all the frame's AOVs)
     // Where resolve found its pixels: "listed" (classify's bins), or, in a one-bin frame, every pixel of the frame read,
     // "in place" (the frame before covered most pixels) or "packed" (each subgroup's covered pixels first, a CPU device).
     const char* resolvePixels = "listed";
+    bool pixelMaterials = false;        // a frame of several materials whose pixels each read their own (a CPU device:
+                                        // no classify, no bins; $TESSERA_MATERIAL_BINS=1 classifies them as a GPU does)
     uint32_t textures = 0;              // images in the texture pool
     uint64_t geometryBytes = 0;         // GPU memory of the meshes: clusters, levels, cut blocks, vertex streams, triangles
     uint64_t geometryUploadBytes = 0;   // of those, written by this frame's geometry upload: the meshes added since the last (0 without one)
