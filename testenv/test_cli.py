@@ -225,6 +225,18 @@ def test_bench_render_aovs_resolves_every_aov_in_one_pass(tmp_path):
     assert "pixel MiB" in done.stdout
 
 
+def test_bench_render_materials_shades_eight_materials_as_their_bins_do(tmp_path):
+    done, rows = bench_render(tmp_path, "--cases", "materials", "--max-density", "1", "--frames", "1")
+    assert [r["table"] for r in rows] == ["materials", "materials"]
+    read, binned = rows
+    assert binned["case"] == "8 materials, 8 bins" and binned["classify_ms"] >= 0
+    if "llvmpipe" in read["device"]:  # a CPU device reads each pixel's material: no classify, no bin list
+        assert read["case"] == "8 materials, each pixel's own material" and read["pixel_mib"] <= binned["pixel_mib"]
+    # The same image as the bins' (the error reference), bit for bit.
+    assert read["psnr_db"] == 99.0 and read["same_prim_percent"] == 100.0 and read["error_reference"] == "bins"
+    assert read["source_triangles"] == binned["source_triangles"] > 1e6 * 0.9
+
+
 def test_bench_render_edit_uploads_the_edited_quad_alone_and_the_host_keeps_no_mesh(tmp_path):
     done, [row, displaced] = bench_render(tmp_path, "--cases", "edit", "--max-density", "1", "--frames", "2")
     assert (row["table"], row["case"]) == ("live edit", "a quad's points beside the mesh")

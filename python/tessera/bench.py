@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import multiprocessing
+import os
 import resource
 import time
 
@@ -254,10 +255,12 @@ FIELD_SIDE = 32  # fields are FIELD_SIDE^2 instances of one displaced sphere on 
 BRUTE_TRIANGLES = 1e7  # the single mesh drawn against brute force has at least this many triangles (at --max-density 3)
 
 
-def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False):
+def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False, materials: int = 1):
     """A stage holding one displaced sphere of 4 n^2 triangles, alone or instanced FIELD_SIDE^2 times; with
-    `face_colours`, a colour per face (uniform displayColor, varying smoothly over the sphere: a seam at every edge)."""
-    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+    `face_colours`, a colour per face (uniform displayColor, varying smoothly over the sphere: a seam at every edge); with
+    `materials` > 1 (a field), as many prototypes of that sphere, each bound to a UsdPreviewSurface of its own colour,
+    taken by the instances in turn (the mesh cache builds the sphere once, the GPU holds it once)."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
     points, counts, indices = displaced_sphere(n)
     stage = Usd.Stage.CreateNew(str(path))
@@ -276,13 +279,26 @@ def _write_sphere_stage(path, n: int, field: bool, face_colours: bool = False):
     else:
         mesh.GetDisplayColorAttr().Set([Gf.Vec3f(0.6, 0.55, 0.5)])
     if field:
+        prototypes = [mesh]
+        for k in range(1, materials):  # the same sphere again (Sdf copies its specs)
+            Sdf.CopySpec(stage.GetRootLayer(), mesh.GetPath(), stage.GetRootLayer(), mesh.GetPath().ReplaceName(f"Sphere{k}"))
+            prototypes.append(UsdGeom.Mesh.Get(stage, mesh.GetPath().ReplaceName(f"Sphere{k}")))
+        for k, prototype in enumerate(prototypes if materials > 1 else []):
+            material = UsdShade.Material.Define(stage, f"/World/Looks/Material{k}")
+            shader = UsdShade.Shader.Define(stage, material.GetPath().AppendChild("Surface"))
+            shader.CreateIdAttr("UsdPreviewSurface")
+            hue = 2 * np.pi * k / materials
+            shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*(0.45 + 0.3 * np.cos(hue + np.array([0.0, 2.1, 4.2])))))
+            shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.3 + 0.4 * k / materials)
+            material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+            UsdShade.MaterialBindingAPI.Apply(prototype.GetPrim()).Bind(material)
         instancer = UsdGeom.PointInstancer.Define(stage, "/World/Field")
-        instancer.GetPrototypesRel().SetTargets([mesh.GetPath()])
+        instancer.GetPrototypesRel().SetTargets([prototype.GetPath() for prototype in prototypes])
         grid = np.arange(FIELD_SIDE, dtype=np.float32) * 3.0
         x, z = np.meshgrid(grid, grid, indexing="ij")
         positions = np.stack([x.ravel(), np.zeros(x.size, np.float32), z.ravel()], 1)
         instancer.GetPositionsAttr().Set(Vt.Vec3fArray.FromNumpy(positions))
-        instancer.GetProtoIndicesAttr().Set(Vt.IntArray.FromNumpy(np.zeros(x.size, np.int32)))
+        instancer.GetProtoIndicesAttr().Set(Vt.IntArray.FromNumpy((np.arange(x.size) % materials).astype(np.int32)))
     _camera_and_lights(stage, field)
     stage.GetRootLayer().Save()
 
@@ -345,14 +361,15 @@ def _displaced_stage(directory, segments: int) -> str:
     return str(path)
 
 
-def _stage(directory, n: int, field: bool, face_colours: bool = False) -> str:
+def _stage(directory, n: int, field: bool, face_colours: bool = False, materials: int = 1) -> str:
     from pathlib import Path
 
-    path = Path(directory) / f"{'field' if field else 'single'}_sphere_{n}{'_face_colours' if face_colours else ''}.usdc"
+    suffix = ("_face_colours" if face_colours else "") + (f"_{materials}_materials" if materials > 1 else "")
+    path = Path(directory) / f"{'field' if field else 'single'}_sphere_{n}{suffix}.usdc"
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         temporary = path.with_suffix(".tmp.usdc")
-        _write_sphere_stage(temporary, n, field, face_colours)
+        _write_sphere_stage(temporary, n, field, face_colours, materials)
         temporary.rename(path)
     return str(path)
 
@@ -536,6 +553,19 @@ def _render_case(queue, case, stage, resolution, frames, device, no_lod_limit):
                              micro_triangles=edited.stats["micro_triangles"],
                              host_mesh_mib=round(edited.stats["host_mesh_bytes"] / 2**20, 1), host_mesh_bytes=edited.stats["host_mesh_bytes"],
                              geometry_mib=round(edited.stats["geometry_bytes"] / 2**20, 1)))
+        elif case == "materials":  # a field of several materials: each pixel reading its own (a CPU device), or bins
+            os.environ["TESSERA_MATERIAL_BINS"] = "1"  # read when the session's renderer is made
+            try:
+                binned_session = Session(stage, device=device)
+            finally:
+                del os.environ["TESSERA_MATERIAL_BINS"]
+            binned, binned_wall, binned_gpu = _frames(binned_session, frames, **settings)
+            result, wall, gpu = _frames(session, frames, **settings)
+            count = len(session.stage.GetPrimAtPath("/World/Field").GetRelationship("prototypes").GetTargets())
+            for row_result, row_wall, row_gpu in ((result, wall, gpu), (binned, binned_wall, binned_gpu)):
+                how = "each pixel's own material" if row_result.stats["pixel_materials"] else f"{row_result.stats['shading_bins']} bins"
+                rows.append(_row("materials", f"{count} materials, {how}", row_result, row_wall, row_gpu, binned,
+                                 error_reference="bins", pixel_mib=round(row_result.stats["pixel_bytes"] / 2**20)))
         elif case == "aovs":  # the AOVs a compositing pipeline asks for together: resolve writes them in one pass
             for aovs in AOV_SETS:
                 result, wall, gpu = _timed_frames(session, frames, **{**settings, "aovs": aovs})
@@ -696,6 +726,8 @@ def render(args) -> int:
         cases.append(("edit", _displaced_stage(args.stages_dir, (32, 256, 1024)[min(args.max_density, 3) - 1])))
     if "antialiasing" in args.cases:  # the lightest density field: its --no-lod frames are cheap
         cases.append(("antialiasing", _stage(args.stages_dir, sides[0], True)))
+    if "materials" in args.cases:  # the middle density field, its instances in eight materials
+        cases.append(("materials", _stage(args.stages_dir, sides[min(args.max_density, 2) - 1], True, materials=8)))
     if "seams" in args.cases:  # the same field, with a colour per face and with one colour
         cases += [("seams", _stage(args.stages_dir, args.seams_n, True, face_colours)) for face_colours in (True, False)]
     if "displacement" in args.cases:

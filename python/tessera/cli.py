@@ -203,7 +203,8 @@ def _parser() -> argparse.ArgumentParser:
                                    "the densest prototype alone with a 4-vertex quad beside it whose points move every frame: "
                                    "the upload's ms and bytes, and the mesh streams the host still holds; aovs: the sphere at 1 px "
                                    "with the colour alone, with depth, normal and primId, and with all seven AOVs: frame ms and the "
-                                   "per-pixel buffers' MiB)")
+                                   "per-pixel buffers' MiB; materials: the 1e8 field's instances in eight materials, each pixel "
+                                   "reading its own material and classified into bins, the error against the bins' image)")
     bench_render.add_argument("--seams-n", type=int, default=100,
                               help="the seams fields' sphere has 4 n^2 triangles (default 100: 40 k, 41 M in the field)")
     bench_render.add_argument("--json", help="also write the rows to this file (keys: the columns in snake_case)")
