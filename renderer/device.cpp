@@ -106,7 +106,7 @@ std::vector<std::string> missing_features(VkPhysicalDevice device) {
     VkPhysicalDeviceFeatures2 f{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2, &f12};
     vkGetPhysicalDeviceFeatures2(device, &f);
     std::vector<std::string> missing;
-    auto need = [&](VkBool32 have, const char* name) { if (!have) missing.push_back(name); };
+    auto need = [&](VkBool32 have, const std::string& name) { if (!have) missing.push_back(name); };
     need(f.features.shaderInt64, "shaderInt64");
     need(f.features.fragmentStoresAndAtomics, "fragmentStoresAndAtomics");
     need(f12.bufferDeviceAddress, "bufferDeviceAddress");
@@ -127,7 +127,7 @@ std::vector<std::string> missing_features(VkPhysicalDevice device) {
     // Resolve stores each AOV of a frame through a storage buffer binding of its own (shared.h TS_BINDING_OUTPUT).
     const VkPhysicalDeviceLimits& limits = properties.properties.limits;
     need(limits.maxPerStageDescriptorStorageBuffers >= TS_MOST_AOVS && limits.maxDescriptorSetStorageBuffers >= TS_MOST_AOVS,
-         "7 storage buffers per shader stage");
+         std::to_string(TS_MOST_AOVS) + " storage buffers per shader stage");
     return missing;
 }
 

@@ -53,7 +53,8 @@ struct Specialization {
     bool countFragments = false;           // TS_SPEC_COUNT_FRAGMENTS: the rasterizers' for the overdraw view
     uint32_t textureKinds = TS_TEXTURE_KINDS_ALL;  // TS_SPEC_TEXTURE_KINDS: what a textured resolve's textures need
     uint32_t lightCounts = 0;              // TS_SPEC_LIGHT_COUNTS: resolve's shading, the frame's lights
-    uint32_t instanceFlags = TS_SPECIALIZED_INSTANCE_FLAGS;  // TS_SPEC_INSTANCE_FLAGS: the cull's and classify's, the frame's
+    uint32_t instanceFlags = TS_SPECIALIZED_INSTANCE_FLAGS;  // TS_SPEC_INSTANCE_FLAGS: the frame's, for the cull, classify and
+                                                             // resolve with pixel materials
     uint32_t pixelSource = TS_PIXELS_LISTED;  // TS_SPEC_PIXEL_SOURCE: where resolve finds its pixels (TS_PIXELS_*)
     bool pixelMaterials = false;           // TS_SPEC_PIXEL_MATERIALS: resolve's pixels read their own materials
     bool operator==(const Specialization&) const = default;
@@ -158,8 +159,9 @@ private:
     // Resolve's variants by TS_SPEC_TEXTURE_KINDS | TS_SPEC_TEXTURES << 8 | TS_SPEC_DISPLACEMENT << 9 |
     // TS_SPEC_AREA_LIGHTS << 11 | TS_SPEC_VERTEX_INPUTS << 12 (what its textures need, textured materials, displaced
     // materials, frames with area lights or a textured dome, materials with vertex inputs), TS_SPEC_LIGHT_COUNTS << 16,
-    // TS_SPEC_PIXEL_SOURCE << 32 and TS_SPEC_OUTPUT (the AOVs it writes) << 34: on lavapipe each one's code, present but
-    // not run, cost every pixel of the frames that do not need it.
+    // TS_SPEC_PIXEL_SOURCE << 32, TS_SPEC_OUTPUT (the AOVs it writes) << 34, TS_SPEC_PIXEL_MATERIALS << 59 and, with pixel
+    // materials, the frame's instance flags (instance_flags_variant) << 60: on lavapipe each one's code, present but not
+    // run, cost every pixel of the frames that do not need it.
     std::map<uint64_t, VkPipeline> resolveVariants;
     // The constructor's set, made in the background (wait_for_startup).
     std::future<void> startup;

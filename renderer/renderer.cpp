@@ -1857,21 +1857,18 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         };
         // The one variant of a frame whose pixels read their own materials: every material's features, and the frame's
         // instance flags (the per-pixel material table lookup only where some instance has one).
-        auto pixel_materials_variant = [&]() {
-            Pipelines::ResolveVariant v = resolve_variant_of(TS_BIN_TRIANGLES, 0);
-            for (uint32_t m = 1; m < s.materialCount; ++m) {
-                const Pipelines::ResolveVariant other = resolve_variant_of(TS_BIN_TRIANGLES, m);
-                v.textured = v.textured || other.textured;
-                v.textureKinds |= other.textureKinds;
-                v.vertexInputs = v.vertexInputs || other.vertexInputs;
-            }
-            v.pixelMaterials = true;
-            v.instanceFlags = s.instanceFlags;
-            return v;
-        };
+        Pipelines::ResolveVariant pixelMaterialsVariant = resolve_variant_of(TS_BIN_TRIANGLES, 0);
+        for (uint32_t m = 1; pixelMaterials && m < s.materialCount; ++m) {
+            const Pipelines::ResolveVariant other = resolve_variant_of(TS_BIN_TRIANGLES, m);
+            pixelMaterialsVariant.textured = pixelMaterialsVariant.textured || other.textured;
+            pixelMaterialsVariant.textureKinds |= other.textureKinds;
+            pixelMaterialsVariant.vertexInputs = pixelMaterialsVariant.vertexInputs || other.vertexInputs;
+        }
+        pixelMaterialsVariant.pixelMaterials = true;
+        pixelMaterialsVariant.instanceFlags = s.instanceFlags;
         // What the frame draws with, made before it records, together on the host's threads (Pipelines::make_for_frame).
         Pipelines::FrameNeeds needs{s.anyMasked, ownCorners, countFragments, s.anyDisplaced, s.instanceFlags, oneBin || pixelMaterials, {}};
-        if (pixelMaterials && !aovs.empty()) needs.resolves.push_back(pixel_materials_variant());
+        if (pixelMaterials && !aovs.empty()) needs.resolves.push_back(pixelMaterialsVariant);
         else if (!aovs.empty())
             for (uint32_t pixels = 0; pixels < s.bin_kinds(); ++pixels)
                 for (uint32_t m = 0; m < s.materialCount; ++m)
@@ -2116,7 +2113,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
                 }
                 VkPipeline bound = VK_NULL_HANDLE;
                 if (pixelMaterials) {  // one dispatch over every pixel, each reading its material
-                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.resolve_variant(pixel_materials_variant()));
+                    vkCmdBindPipeline(cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipelines.resolve_variant(pixelMaterialsVariant));
                     const ResolvePushConstants shade{{0, 0, 0}, {}};
                     vkCmdPushConstants(cmd, pipelines.layout, VK_SHADER_STAGE_ALL, 0, sizeof(shade), &shade);
                     vkCmdDispatch(cmd, everyPixelGroupsX, tilesY, 1);

@@ -172,6 +172,8 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
     if (dot(n, geometric) < 0.0) n = geometric;  // an interpolated normal facing away would shade black
     if (NORMAL_OUT != 0u) write_output(frame, NORMAL_OUT - 1u, index, vec4(n, 1.0));
     if (COLOR_OUT == 0u || overdraw) return;
+    // This dispatch's bin (one material, or a displaced material's kind of pixels), else the pixel's own material.
+    uint bin = PIXEL_MATERIALS ? pixel_material(frame, instance, visible.y, triangle) : push.step;
 
     if (VISUALIZE) {  // flat id colours, lit from the eye so that shapes stay readable
         if (frame.counts.w == TS_VIS_UV) {  // data, not a picture: unlit
@@ -183,15 +185,14 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
             write_output(frame, COLOR_OUT - 1u, index, vec4(uvColor, 1.0));
             return;
         }
-        uint materialIndex = PIXEL_MATERIALS ? pixel_material(frame, instance, visible.y, triangle) : push.step;  // the bin
-        vec3 tint = visualize(frame, frame.counts.w, instance, visible, cluster, triangle, software, materialIndex, payload.patchIndex,
-                              payload.micro, largestFactor);
+        vec3 tint = visualize(frame, frame.counts.w, instance, visible, cluster, triangle, software, bin, payload.patchIndex, payload.micro,
+                              largestFactor);
         write_output(frame, COLOR_OUT - 1u, index, vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0));
         return;
     }
 
-    GpuMaterial material = push.material;  // this dispatch's bin is one material, else the pixel's own
-    if (PIXEL_MATERIALS) material = load_material(frame, pixel_material(frame, instance, visible.y, triangle));
+    GpuMaterial material = push.material;  // the bin's material
+    if (PIXEL_MATERIALS) material = load_material(frame, bin);
     vec3 albedo = material.diffuseColor.rgb;
     vec3 emission = material.emissiveColor.rgb, f0 = material.specular.rgb;
     float occlusion = material.emissiveColor.a, roughness = material.specular.a, metallic = material.metallic;

@@ -512,7 +512,7 @@ def test_several_materials_read_by_each_pixel_draw_what_their_bins_draw(monkeypa
             assert not frame.errors, frame.errors
     for frame in frames["1"]:
         assert frame.stats["resolve_pixels"] == "listed" and not frame.stats["pixel_materials"]
-    if tessera.Session(stage).delegate.software_device and pixels_per_thread == "16":
+    if session.delegate.software_device and pixels_per_thread == "16":
         pixel = frames["0"]
         assert all(f.stats["pixel_materials"] and f.stats["shading_bins"] == 1 for f in pixel)
         assert [f.stats["resolve_pixels"] for f in pixel] == ["packed", "in place", "in place", "packed"]
