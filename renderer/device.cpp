@@ -124,10 +124,12 @@ std::vector<std::string> missing_features(VkPhysicalDevice device) {
     need((subgroup.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) != 0 &&
              (subgroup.supportedOperations & kSubgroupOperations) == kSubgroupOperations,
          "subgroup basic, vote and ballot operations in compute shaders");
-    // Resolve stores each AOV of a frame through a storage buffer binding of its own (shared.h TS_BINDING_OUTPUT).
+    // Resolve stores each AOV of a frame through a storage buffer binding of its own (shared.h TS_BINDING_OUTPUT), and the
+    // rasterizers reach the visibility buffer through one more (TS_BINDING_VISIBILITY).
     const VkPhysicalDeviceLimits& limits = properties.properties.limits;
-    need(limits.maxPerStageDescriptorStorageBuffers >= TS_MOST_AOVS && limits.maxDescriptorSetStorageBuffers >= TS_MOST_AOVS,
-         std::to_string(TS_MOST_AOVS) + " storage buffers per shader stage");
+    constexpr uint32_t storageBuffers = TS_MOST_AOVS + 1;
+    need(limits.maxPerStageDescriptorStorageBuffers >= storageBuffers && limits.maxDescriptorSetStorageBuffers >= storageBuffers,
+         std::to_string(storageBuffers) + " storage buffers per shader stage");
     return missing;
 }
 

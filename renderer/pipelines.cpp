@@ -144,6 +144,8 @@ Pipelines::Pipelines(Device& d, GroupSizes sizes, uint32_t shadePixels, bool vie
     for (uint32_t view = 1; view <= TS_VIEW_COUNT; ++view) bindings[view] = {view, VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 1, VK_SHADER_STAGE_ALL, nullptr};
     for (uint32_t slice = 0; slice < TS_MOST_AOVS; ++slice)
         bindings[TS_BINDING_OUTPUT + slice] = {TS_BINDING_OUTPUT + slice, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
+    bindings[TS_BINDING_VISIBILITY] = {TS_BINDING_VISIBILITY, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1,
+                                       VK_SHADER_STAGE_COMPUTE_BIT | VK_SHADER_STAGE_FRAGMENT_BIT, nullptr};  // both rasterizers
     static_assert(TS_BINDING_OUTPUT == 1 + TS_VIEW_COUNT, "the frame set's bindings are numbered without gaps");
     VkDescriptorSetLayoutCreateInfo setInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
     setInfo.bindingCount = TS_BINDING_COUNT;

@@ -535,7 +535,7 @@ struct Renderer::Impl {
     // This renderer's own: the frame's uniform buffer and its descriptor set, and the timestamp queries.
     void create_frame_resources() {
         const VkDescriptorPoolSize poolSizes[] = {{VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1}, {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, TS_VIEW_COUNT},
-                                                  {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, TS_MOST_AOVS}};
+                                                  {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, TS_MOST_AOVS + 1}};
         VkDescriptorPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
         poolInfo.maxSets = 1;
         poolInfo.poolSizeCount = 3;
@@ -629,9 +629,11 @@ struct Renderer::Impl {
 
     // The AOV slices' storage buffer bindings (TS_BINDING_OUTPUT + slice), after the output is made for the frame: slice
     // k of `slices` is `direct[k]` (an AOV's imported image) where given, else its range of the output; the bindings past
-    // the frame's slices repeat slice 0. Each at most what the device allows (a frame whose slice is larger stores
-    // through the output's address: output_fits_binding).
+    // the frame's slices repeat slice 0. Then the visibility buffer's (TS_BINDING_VISIBILITY). Each at most what the device
+    // allows (a frame whose slice is larger goes through the addresses: output_fits_binding).
     void write_output_bindings(uint64_t pixels, size_t slices, const std::vector<VkBuffer>& direct) {
+        write_buffer_binding(TS_BINDING_VISIBILITY, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, visibility.handle, 0,
+                             std::min<VkDeviceSize>(pixels * 8, device.max_storage_buffer_range()));
         const VkDeviceSize range = std::min<VkDeviceSize>(pixels * 16, device.max_storage_buffer_range());
         for (uint32_t k = 0; k < TS_MOST_AOVS; ++k) {
             const size_t slice = k < slices ? k : 0;

@@ -382,6 +382,8 @@ void write_output(GpuFrame frame, uint slice, uint index, uvec4 bits) {
     else aovPixels6[index] = bits;
 }
 void write_output(GpuFrame frame, uint slice, uint index, vec4 value) { write_output(frame, slice, index, floatBitsToUint(value)); }
+// The visibility buffer through its binding (TS_BINDING_VISIBILITY), for the rasterizers' atomics (raster.h visibility_max).
+layout(set = 0, binding = TS_BINDING_VISIBILITY, std430) buffer VisibilityWords { uint64_t visibilityWords[]; };
 // Pixel `index` of the colour's slice (0), the one read back by a pass.
 uvec4 read_colour_output(GpuFrame frame, uint index) {
     return OUTPUT_BINDING ? aovPixels0[index] : OutputRef(frame.aovOutput).data[index];

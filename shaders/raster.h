@@ -28,12 +28,19 @@ int edge_bias(ivec2 from, ivec2 to) {
 // edge functions (z: the vertex depths, w: one over twice the area).
 float depth_at(vec3 edges, vec4 z) { return (edges.x * z.x + edges.y * z.y + edges.z * z.z) * z.w; }
 
+// The 64-bit atomic max of a fragment's (depth | payload) into its pixel's visibility word: through the buffer's binding
+// where the variant has it (TS_SPEC_OUTPUT_BINDING), else through its address. The same word either way.
+void visibility_max(GpuFrame frame, uint pixel, uint64_t value) {
+    if (OUTPUT_BINDING) atomicMax(visibilityWords[pixel], value);
+    else atomicMax(VisibilityRef(frame.visibility).data[pixel], value);
+}
+
 // `masked`: the instance's material cuts pixels by a textured opacity (TS_INSTANCE_MASKED; the same for a workgroup).
 void write_pixel(GpuFrame frame, int x, int y, float depth, uint64_t payload, bool masked) {
     if (depth < 0.0 || depth > 1.0) return;  // beyond the far plane
     if (masked && PIXEL_MASKED_OUT(frame, uint(payload), uvec2(x, y))) return;
     uint pixel = uint(y) * frame.viewport.x + uint(x);
-    atomicMax(VisibilityRef(frame.visibility).data[pixel], (uint64_t(floatBitsToUint(depth)) << 32) | payload);
+    visibility_max(frame, pixel, (uint64_t(floatBitsToUint(depth)) << 32) | payload);
     count_fragment(frame, pixel);
 }
 

@@ -18,7 +18,7 @@ void main() {
     if (MASKS && (inFlags & TS_INSTANCE_MASKED) != 0u && PIXEL_MASKED_OUT(frame, inPayload, uvec2(gl_FragCoord.xy))) return;
     uint pixel = uint(gl_FragCoord.y) * frame.viewport.x + uint(gl_FragCoord.x);
     uint64_t value = (uint64_t(floatBitsToUint(gl_FragCoord.z)) << 32) | uint64_t(inPayload);
-    atomicMax(VisibilityRef(frame.visibility).data[pixel], value);
+    visibility_max(frame, pixel, value);
     count_fragment(frame, pixel);
 }
 
