@@ -1783,7 +1783,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         const bool postPass = occlusion, previous = occlusion && s.previousValid;
         f.counts = {s.instanceCount, s.capacity, (settings.lod ? 0u : TS_FRAME_NO_LOD) | rasterFlags | (previous ? TS_FRAME_PREVIOUS_HZB : 0u) |
                         (occlusion ? TS_FRAME_OCCLUSION : 0u) | (occlusionWanted ? TS_FRAME_BACKFACES : 0u) | (s.anyDisplaced ? TS_FRAME_MICRO_BINS : 0u) |
-                        (settings.cutBlocks ? 0u : TS_FRAME_NO_CUT_BLOCKS),
+                        (settings.cutBlocks ? 0u : TS_FRAME_NO_CUT_BLOCKS) | (texturedDome ? TS_FRAME_DOME_BACKGROUND : 0u),
                     uint32_t(settings.visualize)};
         f.outputs = {uint32_t(sliceStride / 16), 0, 0, 0};  // slices of the output through its address
         if (previous) {
@@ -2094,14 +2094,15 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
             };
 
             // Each AOV's background into its slice, then one indirect dispatch per material over its bin's pixels, writing
-            // every AOV (each pixel's triangle fetched once for all of them), then each AOV into its image.
+            // every AOV (each pixel's triangle fetched once for all of them), then each AOV into its image. A resolve in
+            // place stores every pixel, the background where nothing covers it (but a textured dome's): no fill before.
             if (!aovs.empty()) {
                 // Classify (its count step keeps places in slice 0) is done with the output.
                 barrier(cmd, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT, VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT,
                         VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT | VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_TRANSFER_WRITE_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);
                 const bool colour = aovs[sliceAov[0]] == Aov::Color;  // the colour comes first, in slice 0
-                for (size_t k = 0; k < aovs.size(); ++k)
+                for (size_t k = 0; k < aovs.size() && pixelSource != TS_PIXELS_IN_PLACE; ++k)
                     if (!(texturedDome && aovs[sliceAov[k]] == Aov::Color)) fill_background(aovs[sliceAov[k]], k);
                 barrier(cmd, VK_PIPELINE_STAGE_2_ALL_TRANSFER_BIT, VK_ACCESS_2_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_2_COMPUTE_SHADER_BIT,
                         VK_ACCESS_2_SHADER_STORAGE_READ_BIT | VK_ACCESS_2_SHADER_STORAGE_WRITE_BIT);

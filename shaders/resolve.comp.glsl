@@ -2,7 +2,7 @@
 // thread per pixel on a GPU, several per thread on a CPU device): read the visibility buffer, refetch its triangle, find
 // the barycentrics where the pixel's ray meets it, and write the requested AOV. Every visible pixel is shaded exactly
 // once, whatever the overdraw. The pixels nothing covers keep the background the frame wrote first. A frame of one bin
-// reads every pixel instead of a list (TS_SPEC_PIXEL_SOURCE).
+// reads every pixel instead of a list (TS_SPEC_PIXEL_SOURCE); in place, it stores the background of those itself.
 #version 460
 #extension GL_GOOGLE_include_directive : require
 #extension GL_KHR_shader_subgroup_ballot : require
@@ -88,14 +88,38 @@ vec3 visualize(GpuFrame frame, uint mode, Instance instance, uvec2 visible, GpuC
     return id_color(material);  // TS_VIS_SHADING_BINS
 }
 
+// A pixel's texel of each AOV (those the variant does not write are left out by the compiler).
+struct PixelOutputs {
+    uvec4 color, depth, normal, primId, instanceId, clusterId, triangleId;
+};
+
+// What a pixel nothing covers holds (renderer.cpp background_words): the background colour, infinite depth, a zero
+// normal, no id.
+PixelOutputs background_outputs(GpuFrame frame) {
+    const uvec4 noId = uvec4(0xffffffffu), infinite = uvec4(0x7f800000u);
+    return PixelOutputs(floatBitsToUint(frame.background), infinite, uvec4(0u), noId, noId, noId, noId);
+}
+
+// Each AOV the variant writes into its slice of the output (`slice + 1` its OUTPUTS field), but the colour where `colour`
+// is false.
+void store_outputs(GpuFrame frame, uint index, PixelOutputs o, bool colour) {
+    if (COLOR_OUT != 0u && colour) write_output(frame, COLOR_OUT - 1u, index, o.color);
+    if (DEPTH_OUT != 0u) write_output(frame, DEPTH_OUT - 1u, index, o.depth);
+    if (NORMAL_OUT != 0u) write_output(frame, NORMAL_OUT - 1u, index, o.normal);
+    if (PRIM_ID_OUT != 0u) write_output(frame, PRIM_ID_OUT - 1u, index, o.primId);
+    if (INSTANCE_ID_OUT != 0u) write_output(frame, INSTANCE_ID_OUT - 1u, index, o.instanceId);
+    if (CLUSTER_ID_OUT != 0u) write_output(frame, CLUSTER_ID_OUT - 1u, index, o.clusterId);
+    if (TRIANGLE_ID_OUT != 0u) write_output(frame, TRIANGLE_ID_OUT - 1u, index, o.triangleId);
+}
+
 // One covered pixel (`payloadBits`: the low word of its visibility value, which is not zero): every AOV the variant
-// writes, each into its slice of the output (`slice + 1` its OUTPUTS field).
-void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
+// writes, into `o` (the caller stores them).
+void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, inout PixelOutputs o) {
     uint index = pixel.y * frame.viewport.x + pixel.x;
     bool overdraw = COLOR_OUT != 0u && VISUALIZE && frame.counts.w == TS_VIS_OVERDRAW;
     if (overdraw) {
         uint fragments = CounterRef(frame.overdraw).data[index];
-        write_output(frame, COLOR_OUT - 1u, index, vec4(level_color(max(fragments, 1u) - 1u), 1.0));
+        o.color = floatBitsToUint(vec4(level_color(max(fragments, 1u) - 1u), 1.0));
         if (COLOUR_ALONE) return;
     }
 
@@ -109,10 +133,10 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
     visible.x &= ~TS_VISIBLE_SOFTWARE;
     Instance instance = load_instance(frame, visible.x);
     GpuCluster cluster = load_cluster(frame, visible.y);
-    if (PRIM_ID_OUT != 0u) write_output(frame, PRIM_ID_OUT - 1u, index, uvec4(instance.primId, 0u, 0u, 0u));
-    if (INSTANCE_ID_OUT != 0u) write_output(frame, INSTANCE_ID_OUT - 1u, index, uvec4(visible.x, 0u, 0u, 0u));
-    if (CLUSTER_ID_OUT != 0u) write_output(frame, CLUSTER_ID_OUT - 1u, index, uvec4(visible.y, 0u, 0u, 0u));
-    if (TRIANGLE_ID_OUT != 0u) write_output(frame, TRIANGLE_ID_OUT - 1u, index, uvec4(cluster.triangleOffset + triangle, 0u, 0u, 0u));
+    o.primId = uvec4(instance.primId, 0u, 0u, 0u);
+    o.instanceId = uvec4(visible.x, 0u, 0u, 0u);
+    o.clusterId = uvec4(visible.y, 0u, 0u, 0u);
+    o.triangleId = uvec4(cluster.triangleOffset + triangle, 0u, 0u, 0u);
     if (!PAST_IDS) return;
 
     GpuMesh mesh = load_mesh(frame, instance.meshIndex);
@@ -150,7 +174,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
     if (!(t > 0.0) || isinf(t)) t = 0.0;  // edge-on triangle: the plane test is meaningless
     vec3 hit = origin + t * direction;
 
-    if (DEPTH_OUT != 0u) write_output(frame, DEPTH_OUT - 1u, index, vec4(dot(hit, frame.cameraForward.xyz)));
+    o.depth = floatBitsToUint(vec4(dot(hit, frame.cameraForward.xyz)));
     if (!PAST_DEPTH) return;
 
     vec3 geometric = normalize(cross(e1, e2));
@@ -170,7 +194,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
         n = -n;
     }
     if (dot(n, geometric) < 0.0) n = geometric;  // an interpolated normal facing away would shade black
-    if (NORMAL_OUT != 0u) write_output(frame, NORMAL_OUT - 1u, index, vec4(n, 1.0));
+    o.normal = floatBitsToUint(vec4(n, 1.0));
     if (COLOR_OUT == 0u || overdraw) return;
     // This dispatch's bin (one material, or a displaced material's kind of pixels), else the pixel's own material.
     uint bin = PIXEL_MATERIALS ? pixel_material(frame, instance, visible.y, triangle) : push.step;
@@ -182,12 +206,12 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
                 PixelUv uv = pixel_uv(frame, vec2(pixel), bary, p0, e1, e2, cornerUv[0], cornerUv[1], cornerUv[2]);
                 uvColor = vec3(fract(uv.uv), 0.0);
             }
-            write_output(frame, COLOR_OUT - 1u, index, vec4(uvColor, 1.0));
+            o.color = floatBitsToUint(vec4(uvColor, 1.0));
             return;
         }
         vec3 tint = visualize(frame, frame.counts.w, instance, visible, cluster, triangle, software, bin, payload.patchIndex, payload.micro,
                               largestFactor);
-        write_output(frame, COLOR_OUT - 1u, index, vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0));
+        o.color = floatBitsToUint(vec4(tint * (0.3 + 0.7 * abs(dot(geometric, direction))), 1.0));
         return;
     }
 
@@ -249,7 +273,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits) {
         color += distant_light_contribution(frameConstants.lights[i], n, toEye, albedo, f0, roughness);
     for (uint i = DISTANT_LIGHTS; i < ALL_LIGHTS; ++i)
         color += other_light_contribution(frame, frameConstants.lights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
-    write_output(frame, COLOR_OUT - 1u, index, vec4(color, 1.0));
+    o.color = floatBitsToUint(vec4(color, 1.0));
 }
 
 // TS_PIXELS_PACKED: each subgroup's covered pixels (the payload, the position), in its own part. Sized for at most
@@ -273,7 +297,9 @@ void main() {
         uint part = gl_SubgroupID * gl_SubgroupSize * PIXELS_PER_THREAD;
         uint k = 0u;
         [[dont_unroll]] do {  // the test at the end (frame.h)
-            uint64_t value = all(lessThan(pixel, frame.viewport.xy)) ? visibility_value(frame, pixel.y * frame.viewport.x + pixel.x) : 0ul;
+            bool inside = all(lessThan(pixel, frame.viewport.xy));
+            uint index = pixel.y * frame.viewport.x + pixel.x;
+            uint64_t value = inside ? visibility_value(frame, index) : 0ul;
             uvec4 lanes = subgroupBallot(value != 0ul);
             if (PIXEL_SOURCE == TS_PIXELS_PACKED) {
                 if (value != 0ul) {
@@ -281,8 +307,12 @@ void main() {
                     packedPayload[at] = uint(value);
                     packedPixel[at] = pixel.x | (pixel.y << 16u);
                 }
-            } else if (value != 0ul) {
-                shade(frame, pixel, uint(value));
+            } else if (inside) {
+                // Every pixel stored, the covered ones shaded and the others given the background: one store for both
+                // (lavapipe runs a store as a loop over the lanes whichever of them store), in place of a fill before.
+                PixelOutputs o = background_outputs(frame);
+                if (value != 0ul) shade(frame, pixel, uint(value), o);
+                store_outputs(frame, index, o, value != 0ul || (frame.counts.z & TS_FRAME_DOME_BACKGROUND) == 0u);
             }
             covered += subgroupBallotBitCount(lanes);
             pixel.x += TS_PIXEL_TILE;
@@ -293,7 +323,10 @@ void main() {
             [[dont_unroll]] do {
                 if (i < covered) {
                     uint xy = packedPixel[part + i];
-                    shade(frame, uvec2(xy & 0xffffu, xy >> 16u), packedPayload[part + i]);
+                    uvec2 at = uvec2(xy & 0xffffu, xy >> 16u);
+                    PixelOutputs o = background_outputs(frame);
+                    shade(frame, at, packedPayload[part + i], o);
+                    store_outputs(frame, at.y * frame.viewport.x + at.x, o, true);
                 }
             } while ((i += gl_SubgroupSize) < covered);
         }
@@ -309,6 +342,9 @@ void main() {
         uint i = first + k * TS_SHADE_GROUP_SIZE;
         if (i >= bin.count) return;
         uvec2 pixel = unpack_bin_pixel(bin_pixel_entry(frame, bin.offset + i));
-        shade(frame, pixel, uint(visibility_value(frame, pixel.y * frame.viewport.x + pixel.x)));
+        uint index = pixel.y * frame.viewport.x + pixel.x;
+        PixelOutputs o = background_outputs(frame);
+        shade(frame, pixel, uint(visibility_value(frame, index)), o);
+        store_outputs(frame, index, o, true);
     } while (++k < PIXELS_PER_THREAD);
 }

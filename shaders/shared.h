@@ -148,6 +148,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_FRAME_NO_CUT_BLOCKS 64u // every cut block is tested cluster by cluster (RenderSettings::cutBlocks)
 #define TS_FRAME_BACKFACES 128u    // clusters facing away (normal cones) culled: RenderSettings::occlusion, even in the
                                    // frames whose HZB passes rest (they cost next to nothing)
+#define TS_FRAME_DOME_BACKGROUND 256u  // a textured dome drew the colour's background (background.comp.glsl): resolve in place
+                                       // leaves the colour of the pixels nothing covers as it is
 
 // Cull steps (push constant `step`). Two-pass occlusion culling: the main pass draws what the previous frame's HZB
 // does not hide and defers the rest; the post pass tests the deferred instances and clusters against an HZB of

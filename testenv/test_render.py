@@ -467,14 +467,28 @@ def _wall_and_box_stage():
     return stage
 
 
+@pytest.mark.parametrize("dome", [False, True], ids=["plain background", "textured dome"])
 @pytest.mark.parametrize("pixels_per_thread, sparse", [("1", "listed"), ("16", "packed")])
-def test_a_one_bin_frame_is_resolved_over_every_pixel_as_the_listed_one(monkeypatch, pixels_per_thread, sparse):
+def test_a_one_bin_frame_is_resolved_over_every_pixel_as_the_listed_one(monkeypatch, tmp_path, pixels_per_thread, sparse, dome):
     """A one-material frame skips classify where resolve reads every pixel: in place after a frame that covered most
     pixels, else, with several pixels per thread (a CPU device), each subgroup's covered pixels packed first; with one
-    (a GPU) a sparsely covered frame is listed. Every AOV must match bit for bit whichever way, and the covered pixels
-    counted must be those a surface covers."""
+    (a GPU) a sparsely covered frame is listed. Every AOV must match bit for bit whichever way, the background of the
+    pixels nothing covers too (resolve in place stores it itself, but where a textured dome drew it), and the covered
+    pixels counted must be those a surface covers."""
     monkeypatch.setenv("TESSERA_SHADE_PIXELS_PER_THREAD", pixels_per_thread)
-    session = tessera.Session(_wall_and_box_stage(), validation=True)
+    stage = _wall_and_box_stage()
+    if dome:
+        import sys
+
+        sys.path.insert(0, str(TESTENV / "testTextures"))
+        from make_textures import write_png
+
+        sky = np.zeros((16, 32, 3), np.uint8)
+        sky[..., 0] = np.arange(32, dtype=np.uint8)[None, :] * 8  # red rises around the horizon, green towards the top
+        sky[..., 1] = np.arange(16, dtype=np.uint8)[:, None] * 16
+        write_png(tmp_path / "sky.png", sky)
+        UsdLux.DomeLight.Define(stage, "/Sky").GetTextureFileAttr().Set(Sdf.AssetPath(str(tmp_path / "sky.png")))
+    session = tessera.Session(stage, validation=True)
     aovs = ("color", "depth", "normal", "primId", "instanceId", "clusterId")
     frames = [session.render(camera=camera, resolution=(97, 67), aovs=aovs) for camera in ("/Near", "/Near", "/Far", "/Far")]
     for frame in frames:
@@ -487,6 +501,8 @@ def test_a_one_bin_frame_is_resolved_over_every_pixel_as_the_listed_one(monkeypa
     for one, other in ((frames[0], frames[1]), (frames[3], frames[2])):
         for aov in aovs:
             assert np.array_equal(np.asarray(one[aov].pixels).view(np.uint32), np.asarray(other[aov].pixels).view(np.uint32)), aov
+    uncovered = np.asarray(frames[2]["color"].pixels)[frames[2]["primId"].ids() == NO_HIT]
+    assert len(np.unique(uncovered, axis=0)) > (10 if dome else 0) and (dome or np.all(uncovered == uncovered[0]))
 
 
 @pytest.mark.parametrize("pixels_per_thread", ["1", "16"])
