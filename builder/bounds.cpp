@@ -93,4 +93,18 @@ float cluster_mean_triangle_area(const BuiltMesh& mesh, const Cluster& cluster) 
     return float(sum / std::max(cluster.triangleCount, 1u));
 }
 
+float cluster_longest_edge(const BuiltMesh& mesh, const Cluster& cluster) {
+    double longest = 0;  // squared
+    for (uint32_t t = 0; t < cluster.triangleCount; ++t) {
+        const std::array<const float*, 3> p = triangle_corners(mesh, cluster, t);
+        for (int k = 0; k < 3; ++k) {
+            const float* a = p[k];
+            const float* b = p[(k + 1) % 3];
+            const double dx = double(b[0]) - a[0], dy = double(b[1]) - a[1], dz = double(b[2]) - a[2];
+            longest = std::max(longest, dx * dx + dy * dy + dz * dz);
+        }
+    }
+    return std::nextafter(float(std::sqrt(longest)), INFINITY);  // never below the edge it bounds
+}
+
 }  // namespace tessera

@@ -67,6 +67,7 @@ struct UnitDecoder::State {
             for (int8_t& k : c.cone.axis8) k = records.get<int8_t>();
             c.cone.cutoff8 = records.get<int8_t>();
             c.meanTriangleArea = records.get<float>();
+            c.longestEdge = records.get<float>();
         }
         return indexBytes;
     }

@@ -105,6 +105,7 @@ void encode_records(const BuiltMesh& mesh, std::span<const uint32_t> clusters, s
         for (int8_t k : c.cone.axis8) records.put(k);
         records.put(c.cone.cutoff8);
         records.put(c.meanTriangleArea);
+        records.put(c.longestEdge);
     }
 }
 

@@ -1098,12 +1098,13 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
         clusterVertices[i] = {};
     });
 
-    // Each cluster's normal cone and mean triangle area, from its placed triangles (the page file keeps them).
+    // Each cluster's normal cone, mean triangle area and longest edge, from its placed triangles (the page file keeps them).
     parallel_blocks(out.clusters.size(), 256, [&](size_t begin, size_t end) {
         for (size_t i = begin; i < end; ++i) {
             Cluster& c = out.clusters[i];
             c.cone = cluster_normal_cone(out, c);
             c.meanTriangleArea = cluster_mean_triangle_area(out, c);
+            c.longestEdge = cluster_longest_edge(out, c);
         }
     });
     out.sphere = to_float(all_vertices_sphere(local, kBlock));

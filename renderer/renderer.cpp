@@ -715,7 +715,7 @@ struct Renderer::Impl {
                                         {c.parentSphere[0], c.parentSphere[1], c.parentSphere[2], c.parentSphere[3]},
                                         c.lodError, root ? float(TS_ROOT_ERROR) : c.parentError,
                                         c.vertexOffset, c.triangleOffset, c.triangleCount, 0,
-                                        c.level << 16 | c.vertexCount, c.parentGroup, c.meanTriangleArea, pack_cone(c.cone), 0, 0};
+                                        c.level << 16 | c.vertexCount, c.parentGroup, c.meanTriangleArea, pack_cone(c.cone), c.longestEdge, 0};
             }
         });
         // Levels (clusters come level by level, level 0 first), how far the LOD spheres reach from the mesh's centre,

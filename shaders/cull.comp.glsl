@@ -32,18 +32,17 @@ float projected_error(GpuFrame frame, Instance instance, vec3 translation, float
     return depth > 0.0 ? size / depth : NEVER_FINE_ENOUGH;
 }
 
-// Small triangles go to the compute rasterizer: the cluster must lie beyond the near plane (no clipping there),
-// project to a bounded radius, and its triangles' mean area, projected at the cluster's nearest depth, must be
-// below the measured crossover.
-bool software_raster(GpuFrame frame, vec3 center, float radius, float scale, float meanTriangleArea) {
+// Small triangles go to the compute rasterizer: the cluster must lie beyond the near plane (no clipping there), its
+// longest edge must project to a bounded length, and its triangles' mean area, both projected at the cluster's nearest
+// depth, must be below the measured crossover.
+bool software_raster(GpuFrame frame, vec3 center, float radius, float scale, GpuCluster cluster) {
     if ((frame.counts.z & TS_FRAME_HARDWARE_ONLY) != 0u) return false;
     float nearest = depth_range(frame, center, radius).x;
     if (nearest <= frame.lod.w * 1.001) return false;  // touches the near plane: hardware clips
-    float radiusPixels = radius * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest);
-    if (radiusPixels > TS_SW_MAX_RADIUS_PIXELS) return false;
-    if ((frame.counts.z & TS_FRAME_SOFTWARE_FIRST) != 0u) return true;
     float pixelsPerUnit = scale * frame.lod.x / (frame.lod.z != 0.0 ? 1.0 : nearest);
-    return meanTriangleArea * pixelsPerUnit * pixelsPerUnit < frame.raster.x;
+    if (cluster.longestEdge * pixelsPerUnit > TS_SW_MAX_EDGE_PIXELS) return false;
+    if ((frame.counts.z & TS_FRAME_SOFTWARE_FIRST) != 0u) return true;
+    return cluster.meanTriangleArea * pixelsPerUnit * pixelsPerUnit < frame.raster.x;
 }
 
 // The exact range over the ball |p - center| <= radius (camera-relative world) of the projective coordinate
@@ -119,7 +118,7 @@ void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterInd
         atomicMax(draw.state.tessGroupsY, k / 65535u + 1u);
         return;
     }
-    bool software = software_raster(frame, center, radius, scale, cluster.meanTriangleArea);
+    bool software = software_raster(frame, center, radius, scale, cluster);
     if (software) atomicAdd(draw.state.swTriangles, cluster.triangleCount);
     else atomicAdd(draw.state.hwTriangles, cluster.triangleCount);
     if (slot >= frame.counts.y) return;

@@ -105,7 +105,7 @@ GpuCluster load_cluster(GpuFrame frame, uint index) {
     c.group = t4.w;
     c.meanTriangleArea = uintBitsToFloat(t5.x);
     c.normalCone = t5.y;
-    c.pad0 = t5.z;
+    c.longestEdge = uintBitsToFloat(t5.z);
     c.pad1 = t5.w;
     return c;
 }

@@ -181,11 +181,13 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 
 // Visible-cluster entries: (instance | raster bit, cluster). The bit records which rasterizer drew it.
 #define TS_VISIBLE_SOFTWARE 0x80000000u
-// The compute rasterizer takes clusters whose bounding sphere projects to at most this radius in pixels (estimated at
-// the sphere's nearest depth) and that lie beyond the near plane. Their triangles' size decides the rest (frame.raster.x);
-// at 64 px, clusters of small but spread-out triangles went to hardware raster (the 9.76 M sphere at 1 px: 77 k
-// triangles there instead of 35 k, its frame 5 % dearer on lavapipe; docs/benchmarks.md).
-#define TS_SW_MAX_RADIUS_PIXELS 128.0
+// The compute rasterizer takes clusters whose longest triangle edge projects to at most this many pixels (estimated at
+// the cluster's nearest depth, GpuCluster.longestEdge) and that lie beyond the near plane. Their triangles' mean size
+// decides the rest (frame.raster.x). The bound keeps one lane from scanning a box that spreads over much of the screen
+// while the others wait. It bounded the clusters' radius before (128 px): clusters of small but spread-out triangles,
+// along a silhouette, went to hardware raster (the 9.76 M sphere at 1 px: 214 clusters, 20 k triangles), which drew them
+// dearer (docs/benchmarks.md, session 33).
+#define TS_SW_MAX_EDGE_PIXELS 128.0
 // A triangle less than this many sub-pixels across (E) is scanned with 32-bit edge functions (raster.h), far cheaper
 // where 64-bit multiplies are emulated (lavapipe); a larger one needs 64-bit ones. Exact: the scan's edge functions
 // stay within 2 E (E + step) (points at most one step past the triangle's box), below 2^31 for E < 2^15 - 2 * 256 and
@@ -411,7 +413,8 @@ struct GpuCluster {
     uint group;          // the group it was simplified with (its parent group), for visualization
     float meanTriangleArea;  // mesh units squared: picks the rasterizer (small triangles go to the compute one)
     uint normalCone;     // snorm8x4: xyz the axis of a cone holding every triangle normal, w its cutoff (builder.h NormalCone)
-    uint pad0, pad1;
+    float longestEdge;   // mesh units: the longest edge of its triangles (bounds the compute rasterizer's worst case)
+    uint pad1;
 };
 TS_CHECK_SIZE(GpuCluster, 96);
 

@@ -67,3 +67,56 @@ def test_a_session_uses_its_devices_record_and_the_split_never_changes_the_image
         assert np.array_equal(hardware[aov].pixels.view(np.uint32), recorded[aov].pixels.view(np.uint32)), aov
     with pytest.raises(tessera.StageError, match="software raster area"):
         frame(software_raster_area=0)
+
+
+def _strip(stage, path, y, length, triangles, sliver=None):
+    """A row of `triangles` thin triangles along x (`length` units long, 0.02 high) at height y; with `sliver`, the last
+    is replaced by one of that length instead. Few enough triangles for one cluster."""
+    from pxr import UsdGeom
+
+    xs = np.linspace(-length / 2, length / 2, triangles // 2 + 1)
+    points = [(x, y + dy, 0.0) for x in xs for dy in (0.0, 0.02)]
+    quads = [(2 * i, 2 * i + 2, 2 * i + 3, 2 * i + 1) for i in range(triangles // 2)]
+    faces = [(a, b, c) for a, b, c, d in quads for a, b, c in ((a, b, c), (a, c, d))]
+    if sliver:
+        base = len(points)
+        points += [(-sliver / 2, y - 0.3, 0.0), (sliver / 2, y - 0.3, 0.0), (sliver / 2, y - 0.29, 0.0)]
+        faces[-1] = (base, base + 1, base + 2)
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr(points)
+    mesh.CreateFaceVertexCountsAttr([3] * len(faces))
+    mesh.CreateFaceVertexIndicesAttr([i for face in faces for i in face])
+    mesh.CreateDoubleSidedAttr(True)
+
+
+def test_the_longest_edge_not_the_spread_keeps_a_cluster_out_of_the_compute_rasterizer():
+    """A cluster goes to the compute rasterizer when its triangles are small, however far it spreads on screen (a
+    silhouette's slivers), unless one of its edges is longer than TS_SW_MAX_EDGE_PIXELS (128 px): that triangle's box
+    would hold one lane while the others wait. Either way the image is the one hardware raster draws."""
+    from pxr import Gf, Usd, UsdGeom
+
+    stage = Usd.Stage.CreateInMemory()
+    # At 10 units the default camera shows about 4.2 units across 400 pixels: about 95 pixels a unit.
+    UsdGeom.Camera.Define(stage, "/Camera").AddTranslateOp().Set(Gf.Vec3d(0, 0, 10))
+    _strip(stage, "/Spread", 0.5, 4.0, 128)  # 380 px wide (radius beyond 128 px), edges of 3-6 px
+    _strip(stage, "/Long", -0.5, 0.5, 128, sliver=2.0)  # 48 px wide but one edge of 190 px
+    session = tessera.Session(stage, validation=True)
+
+    def frame(**kwargs):
+        result = session.render(camera="/Camera", resolution=(400, 300), aovs=("primId", "triangleId", "depth"), occlusion=False, **kwargs)
+        assert not result.errors, result.errors
+        return result
+
+    split, hardware = frame(), frame(software_raster_area=1e-6)
+    assert split.stats["visible_clusters"] == 2 and split.stats["sw_triangles"] == split.stats["hw_triangles"] == 128
+    assert hardware.stats["hw_triangles"] == 256
+    for aov in ("primId", "triangleId", "depth"):
+        assert np.array_equal(split[aov].pixels.view(np.uint32), hardware[aov].pixels.view(np.uint32)), aov
+    # Which rasterizer drew each strip (the raster-bins view: compute blue, hardware orange): /Spread lies in the upper
+    # half of the image, /Long in the lower.
+    bins = session.render(camera="/Camera", resolution=(400, 300), aovs=("color", "primId"), vis="raster-bins", occlusion=False)
+    colour, covered = np.asarray(bins["color"].pixels)[..., :3], bins["primId"].ids() != 0xFFFFFFFF
+    upper, lower = colour[:150][covered[:150]], colour[150:][covered[150:]]
+    assert len(upper) > 300 and len(lower) > 50
+    assert np.all(upper[:, 2] > upper[:, 0]), "the spread-out strip of small triangles: compute raster"
+    assert np.all(lower[:, 0] > lower[:, 2]), "the strip with a long edge: hardware raster"

@@ -204,6 +204,8 @@ TEST(Pages, RoundTripIsExact) {
                 EXPECT_EQ(c.cone.cutoff8, cone.cutoff8);
                 EXPECT_EQ(c.meanTriangleArea, cluster_mean_triangle_area(decoded, c));
                 EXPECT_GT(c.meanTriangleArea, 0.0f);
+                EXPECT_EQ(c.longestEdge, cluster_longest_edge(decoded, c));
+                EXPECT_GE(c.longestEdge * c.longestEdge, 4.0f / std::sqrt(3.0f) * c.meanTriangleArea);  // an equilateral's at least
                 culling += c.cone.cutoff8 < 127;
             }
             EXPECT_GT(culling, decoded.clusters.size() / 2) << "a bumpy grid's clusters mostly have cones that cull";

@@ -156,10 +156,11 @@ struct Cluster {
     uint32_t vertexCount;               // <= 255
     uint32_t triangleOffset;            // into BuiltMesh::triangles
     uint32_t triangleCount;             // <= 128
-    // Derived from its triangles once the build has placed them (cluster_normal_cone, cluster_mean_triangle_area) and
-    // kept in the page file, so that loading a mesh derives nothing per cluster.
+    // Derived from its triangles once the build has placed them (cluster_normal_cone, cluster_mean_triangle_area,
+    // cluster_longest_edge) and kept in the page file, so that loading a mesh derives nothing per cluster.
     NormalCone cone;                    // its triangles' normals, for backface culling
     float meanTriangleArea;             // mesh units squared: the raster split's estimate of its triangles' size
+    float longestEdge;                  // mesh units: bounds each triangle's extent, for the raster split's worst case
 };
 
 constexpr uint32_t kNoGroup = 0xffffffffu;
@@ -288,7 +289,8 @@ BuiltMesh build_mesh(PreparedMesh&& mesh, const BuildSettings& settings = {});
 // Clusters are stored in pages of at most kPageBytes (before compression too); the children of one group never
 // straddle pages (a parent refines by loading one page), and root clusters (no parent) fill pages of their own that
 // stay resident.
-constexpr uint32_t kPageFormatVersion = 5;  // 4: the constant vertex channel has 4 components; 5: clusters keep their cone and mean triangle area
+constexpr uint32_t kPageFormatVersion = 6;  // 4: the constant vertex channel has 4 components; 5: clusters keep their cone and mean
+                                            // triangle area; 6: and their longest edge
 // Bumped whenever the builder makes a different DAG from the same input and settings (simplifier weights, grouping,
 // error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
 constexpr uint32_t kBuilderRevision = 8;  // 3: triangles within a cluster in strip order (encoding.cpp); 4: the seam retry (dag.cpp);
@@ -319,6 +321,8 @@ void append_cluster(BuiltMesh& mesh, const Cluster& cluster);
 NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster);
 // The mean area of a cluster's triangles, in mesh units squared (summed in double).
 float cluster_mean_triangle_area(const BuiltMesh& mesh, const Cluster& cluster);
+// The longest edge of a cluster's triangles, in mesh units (rounded up to a float).
+float cluster_longest_edge(const BuiltMesh& mesh, const Cluster& cluster);
 
 // The fallback mesh of the cut at `threshold` (FallbackMesh::threshold) of a built or decoded DAG: a decoded DAG gives the
 // same mesh as the built one, bit for bit, so a page file needs to keep only the threshold and the error. `error` is
