@@ -81,30 +81,23 @@ NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster) {
     return cone;
 }
 
-float cluster_mean_triangle_area(const BuiltMesh& mesh, const Cluster& cluster) {
-    double sum = 0;
+ClusterTriangleSizes cluster_triangle_sizes(const BuiltMesh& mesh, const Cluster& cluster) {
+    double areaSum = 0, longest = 0;  // longest: squared
+    // An edge's squared length, its difference taken in double (exact), so that the bound holds.
+    auto squared = [](const float* a, const float* b) {
+        const double dx = double(b[0]) - a[0], dy = double(b[1]) - a[1], dz = double(b[2]) - a[2];
+        return dx * dx + dy * dy + dz * dz;
+    };
     for (uint32_t t = 0; t < cluster.triangleCount; ++t) {
         const std::array<const float*, 3> p = triangle_corners(mesh, cluster, t);
         const double e1[3] = {p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]};
         const double e2[3] = {p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]};
         const double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
-        sum += 0.5 * std::sqrt(cx * cx + cy * cy + cz * cz);
+        areaSum += 0.5 * std::sqrt(cx * cx + cy * cy + cz * cz);
+        longest = std::max({longest, squared(p[0], p[1]), squared(p[1], p[2]), squared(p[2], p[0])});
     }
-    return float(sum / std::max(cluster.triangleCount, 1u));
-}
-
-float cluster_longest_edge(const BuiltMesh& mesh, const Cluster& cluster) {
-    double longest = 0;  // squared
-    for (uint32_t t = 0; t < cluster.triangleCount; ++t) {
-        const std::array<const float*, 3> p = triangle_corners(mesh, cluster, t);
-        for (int k = 0; k < 3; ++k) {
-            const float* a = p[k];
-            const float* b = p[(k + 1) % 3];
-            const double dx = double(b[0]) - a[0], dy = double(b[1]) - a[1], dz = double(b[2]) - a[2];
-            longest = std::max(longest, dx * dx + dy * dy + dz * dz);
-        }
-    }
-    return std::nextafter(float(std::sqrt(longest)), INFINITY);  // never below the edge it bounds
+    return {float(areaSum / std::max(cluster.triangleCount, 1u)),
+            std::nextafter(float(std::sqrt(longest)), INFINITY)};  // the edge never longer than its bound
 }
 
 }  // namespace tessera

@@ -1103,8 +1103,9 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
         for (size_t i = begin; i < end; ++i) {
             Cluster& c = out.clusters[i];
             c.cone = cluster_normal_cone(out, c);
-            c.meanTriangleArea = cluster_mean_triangle_area(out, c);
-            c.longestEdge = cluster_longest_edge(out, c);
+            const ClusterTriangleSizes sizes = cluster_triangle_sizes(out, c);
+            c.meanTriangleArea = sizes.meanArea;
+            c.longestEdge = sizes.longestEdge;
         }
     });
     out.sphere = to_float(all_vertices_sphere(local, kBlock));

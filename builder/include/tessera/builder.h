@@ -156,8 +156,8 @@ struct Cluster {
     uint32_t vertexCount;               // <= 255
     uint32_t triangleOffset;            // into BuiltMesh::triangles
     uint32_t triangleCount;             // <= 128
-    // Derived from its triangles once the build has placed them (cluster_normal_cone, cluster_mean_triangle_area,
-    // cluster_longest_edge) and kept in the page file, so that loading a mesh derives nothing per cluster.
+    // Derived from its triangles once the build has placed them (cluster_normal_cone, cluster_triangle_sizes) and kept
+    // in the page file, so that loading a mesh derives nothing per cluster.
     NormalCone cone;                    // its triangles' normals, for backface culling
     float meanTriangleArea;             // mesh units squared: the raster split's estimate of its triangles' size
     float longestEdge;                  // mesh units: bounds each triangle's extent, for the raster split's worst case
@@ -319,10 +319,13 @@ uint32_t crc32(std::span<const uint8_t> bytes);
 void append_cluster(BuiltMesh& mesh, const Cluster& cluster);
 
 NormalCone cluster_normal_cone(const BuiltMesh& mesh, const Cluster& cluster);
-// The mean area of a cluster's triangles, in mesh units squared (summed in double).
-float cluster_mean_triangle_area(const BuiltMesh& mesh, const Cluster& cluster);
-// The longest edge of a cluster's triangles, in mesh units (rounded up to a float).
-float cluster_longest_edge(const BuiltMesh& mesh, const Cluster& cluster);
+// The mean area of a cluster's triangles, in mesh units squared (summed in double), and their longest edge, in mesh
+// units (rounded up to a float), in one walk over them.
+struct ClusterTriangleSizes {
+    float meanArea;
+    float longestEdge;
+};
+ClusterTriangleSizes cluster_triangle_sizes(const BuiltMesh& mesh, const Cluster& cluster);
 
 // The fallback mesh of the cut at `threshold` (FallbackMesh::threshold) of a built or decoded DAG: a decoded DAG gives the
 // same mesh as the built one, bit for bit, so a page file needs to keep only the threshold and the error. `error` is
