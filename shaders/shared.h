@@ -357,7 +357,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // The visibility buffer as a storage buffer (one 64-bit word per pixel), for the rasterizers' atomic max in the same
 // variants (TS_SPEC_OUTPUT_BINDING: a pixel's visibility word is half its output texel, so it fits wherever a slice
 // does). lavapipe runs an atomic through an address with every operand taken apart lane by lane (the address of each
-// lane among them), through a binding with the index alone: the 1 px sphere's compute raster 7 % cheaper on one core.
+// lane among them), through a binding with the index alone: the 1 px sphere's compute raster 14 % cheaper on one core,
+// its hardware raster 20 % (docs/benchmarks.md, session 33).
 #define TS_BINDING_VISIBILITY (TS_BINDING_OUTPUT + TS_MOST_AOVS)
 #define TS_BINDING_COUNT (TS_BINDING_VISIBILITY + 1)
 
