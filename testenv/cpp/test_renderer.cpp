@@ -963,7 +963,7 @@ TEST_F(RendererTest, TexturedBinsReadOnlyTheirTextureKindsAndDrawTheSameFrame) {
     EXPECT_THROW(renderer_with(*device, "TESSERA_TEXTURE_KINDS", "some"), std::invalid_argument);
 }
 
-TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {  // and the AOV output's binding against its address
+TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {  // and the output's and visibility's bindings against addresses
     GpuScene spheres;
     const uint32_t wall = spheres.add_mesh(grid_mesh(16)), sphere = spheres.add_mesh(bumpy_sphere(48));
     std::vector<InstanceDesc> instances = wall_and_spheres(wall, sphere);
@@ -1041,8 +1041,8 @@ TEST_F(RendererTest, TexelViewsAndAddressesDrawTheSameFrames) {  // and the AOV 
         settings.visualize = c.visualize;
         settings.pixelError = c.pixelError;
         settings.occlusionMinimumCulled = 0;  // occlusion in both frames, however little it culls: compared too
-        // Three ways: addresses only, texel views with the AOVs stored through the output's address, and views with the
-        // output's binding (the default).
+        // Three ways: addresses only, texel views with the AOVs stored (and the rasterizers' atomics made) through the
+        // addresses, and views with the output's and the visibility buffer's bindings (the default).
         std::vector<Image> frames[3][2];
         FrameStats stats[3][2];
         for (int way = 0; way < 3; ++way) {
