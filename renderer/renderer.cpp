@@ -307,8 +307,8 @@ ViewFrustum frustum_of(const CameraMatrices& cam) {
 // What an AOV holds where nothing covers a pixel, as the four words of its output texel: the background colour, infinite
 // depth, a zero normal, no id (a textured dome's colour is drawn per pixel instead: background.comp.glsl).
 std::array<uint32_t, 4> background_words(Aov aov, const std::array<float, 4>& color) {
-    if (aov_is_id(aov)) return {~0u, ~0u, ~0u, ~0u};
-    if (aov == Aov::Depth) return {0x7f800000u, 0x7f800000u, 0x7f800000u, 0x7f800000u};
+    if (aov_is_id(aov)) return {TS_BACKGROUND_ID, TS_BACKGROUND_ID, TS_BACKGROUND_ID, TS_BACKGROUND_ID};
+    if (aov == Aov::Depth) return {TS_BACKGROUND_DEPTH_BITS, TS_BACKGROUND_DEPTH_BITS, TS_BACKGROUND_DEPTH_BITS, TS_BACKGROUND_DEPTH_BITS};
     if (aov == Aov::Normal) return {0u, 0u, 0u, 0u};
     std::array<uint32_t, 4> words;
     std::memcpy(words.data(), color.data(), 16);

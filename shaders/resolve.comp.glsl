@@ -93,10 +93,10 @@ struct PixelOutputs {
     uvec4 color, depth, normal, primId, instanceId, clusterId, triangleId;
 };
 
-// What a pixel nothing covers holds (renderer.cpp background_words): the background colour, infinite depth, a zero
+// What a pixel nothing covers holds (as renderer.cpp background_words): the background colour, infinite depth, a zero
 // normal, no id.
 PixelOutputs background_outputs(GpuFrame frame) {
-    const uvec4 noId = uvec4(0xffffffffu), infinite = uvec4(0x7f800000u);
+    const uvec4 noId = uvec4(TS_BACKGROUND_ID), infinite = uvec4(TS_BACKGROUND_DEPTH_BITS);
     return PixelOutputs(floatBitsToUint(frame.background), infinite, uvec4(0u), noId, noId, noId, noId);
 }
 

@@ -172,6 +172,10 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_CLASSIFY_SCATTER 1u
 #define TS_CLASSIFY_ONE_BIN 2u  // a frame whose pixels can only fall in one bin: listed at once, no count or scatter
 #define TS_NO_BIN 0xffffffffu   // classify's mark for a pixel nothing covers
+// What the AOVs hold where nothing covers a pixel, besides the frame's background colour and a zero normal: no id, and
+// infinite depth (float bits). Written by the background fill (renderer.cpp background_words) or by resolve in place.
+#define TS_BACKGROUND_ID 0xffffffffu
+#define TS_BACKGROUND_DEPTH_BITS 0x7f800000u
 
 // samples.comp.glsl's steps (push.step) in an image of several pixel samples: the first sample's colour starts the sum,
 // each later one adds to it, and the last writes the mean into the frame's output.
