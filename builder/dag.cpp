@@ -1,7 +1,8 @@
 // The cluster DAG: clusters of the source triangles, then rounds of grouping and simplifying until a round
 // makes no progress. Invariants (shared/DESIGN.md): group borders are locked while a group simplifies, so a
-// parent shares its border vertices with its neighbours exactly (crack-free cuts); a group's error is its own
-// simplification error plus the largest of its children's, and its sphere encloses its children's (monotone).
+// parent shares its border vertices with its neighbours exactly (crack-free cuts); a group's error is its measured
+// distance from the source (deviation.h), at least the largest of its children's, and its sphere encloses its
+// children's (monotone).
 #include "tessera/builder.h"
 #include "tessera/morton.h"
 
@@ -9,6 +10,7 @@
 #include "attribute_fit.h"
 #include "clusters.h"
 #include "cut.h"
+#include "deviation.h"
 #include "edge_limit.h"
 #include "tessera/parallel.h"
 #include "phase_timer.h"
@@ -34,6 +36,7 @@ namespace {
 constexpr size_t kClusterVertices = 255;  // meshoptimizer's meshlet limit (build_clusters keeps to it too)
 constexpr size_t kGroupSize = 16;         // clusters per group (partitions come out between about 8 and 32)
 constexpr double kStuckRatio = 0.85;      // a group that keeps more than this share of its triangles is stuck
+constexpr size_t kCarriedPoints = 32;     // source points a cluster carries up to measure its parents by (deviation.h)
 constexpr double kSeamRetryError = 0.25;  // a group whose simplification strays this share of its diameter retries without normal seams
 constexpr int kPinRounds = 16;            // retries of one simplification step that made too long an edge
 // Vertex locks: a group border (shared with another group: crack-free), or pinned to split an edge too long.
@@ -129,6 +132,7 @@ struct WorkCluster {
     uint32_t level = 0;
     int32_t parentGroup = -1;
     int32_t madeBy = -1;  // the group whose simplification made it
+    std::vector<SourcePoint> carried;  // source points nearest it that its level strays from most (deviation.h)
 };
 
 struct Group {
@@ -465,7 +469,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     std::vector<WorkCluster> clusters;
     std::vector<Group> groups;
     auto add_clusters = [&](std::vector<std::vector<uint32_t>> pieces, const Sphere* groupSphere, float groupError, uint32_t level,
-                            int32_t madeBy, std::vector<uint32_t>& created) {
+                            int32_t madeBy, std::vector<uint32_t>& created, std::vector<std::vector<SourcePoint>> carried = {}) {
         std::vector<Sphere> own(groupSphere ? 0 : pieces.size());  // level 0's, on every core
         parallel_for(own.size(), [&](size_t i) { own[i] = vertex_sphere(local, pieces[i].data(), pieces[i].size()); });
         for (size_t i = 0; i < pieces.size(); ++i) {
@@ -475,6 +479,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             c.lodError = groupError;
             c.level = level;
             c.madeBy = madeBy;
+            if (i < carried.size()) c.carried = std::move(carried[i]);
             created.push_back(uint32_t(clusters.size()));
             clusters.push_back(std::move(c));
         }
@@ -642,6 +647,43 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
         }
         return welded;
     };
+    // The largest edge of a triangle of the `count` corners at `out` that samples across a UV border, whichever
+    // simplification made it (meshoptimizer's, with seams kept, makes some too): its corners' wedges in different
+    // islands of the source (uvIsland), or a corner on the far side of a seam inside the chart (a sphere's wrap: its
+    // position has another wedge in the island, nearer in UV to the other corners by half). Such a triangle's size is
+    // the error it makes. `stretched`: also an edge whose UVs stretch more than twice what the source's edges at its
+    // ends do (restore_uv_islands' test for the corners it picked; elsewhere a coarse level's edges near a sphere's poles
+    // stretch that much without crossing anything).
+    auto border_sampling_error = [&](const uint32_t* out, size_t count, bool stretched) {
+        std::call_once(uvIslandsMade, make_uv_islands);
+        auto uv_of = [&](uint32_t v) { return &attributes[v * attributeCount + uvAttribute]; };
+        auto far_side = [&](const uint32_t* corners, int k, uint32_t island) {
+            const auto wedges = sourceWedges.find(positionId[corners[k]]);
+            if (wedges == sourceWedges.end()) return false;
+            const float* a = uv_of(corners[(k + 1) % 3]);
+            const float* b = uv_of(corners[(k + 2) % 3]);
+            const float middle[2] = {0.5f * (a[0] + b[0]), 0.5f * (a[1] + b[1])};
+            const double own = uv_distance2(uv_of(corners[k]), middle);
+            for (uint32_t w : wedges->second)
+                if (uvIsland[attributeOf[w]] == island && 4.0 * uv_distance2(uv_of(w), middle) < own) return true;
+            return false;
+        };
+        float worst = 0;
+        for (size_t t = 0; t < count; t += 3) {
+            const uint32_t island = uvIsland[attributeOf[out[t]]];
+            bool consistent = uvIsland[attributeOf[out[t + 1]]] == island && uvIsland[attributeOf[out[t + 2]]] == island;
+            for (int k = 0; k < 3 && consistent; ++k) {
+                const uint32_t a = out[t + k], b = out[t + (k + 1) % 3];
+                const double stretch = 2.0 * std::max(uvStretch[attributeOf[a]], uvStretch[attributeOf[b]]);
+                consistent = stretched ? uv_distance2(uv_of(a), uv_of(b)) <= stretch * stretch * distance2(&local[3 * a], &local[3 * b]) + 1e-12
+                                       : !far_side(&out[t], k, island);
+            }
+            if (!consistent)
+                for (int k = 0; k < 3; ++k)
+                    worst = std::max(worst, float(std::sqrt(distance2(&local[3 * out[t + k]], &local[3 * out[t + (k + 1) % 3]]))));
+        }
+        return worst;
+    };
     // After a simplification of `indices` with every wedge welded: gives each corner of the `count` corners at `out`
     // back a wedge of its position in one UV island of the source (uvIsland), the island that most of its triangle's
     // corners have a wedge in (ties: the first island). Where a position has several wedges in that island (a seam
@@ -680,7 +722,6 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             }
             return best;
         };
-        float worst = 0;
         for (size_t t = 0; t < count; t += 3) {
             uint32_t island = UINT32_MAX;
             int most = 0;
@@ -704,19 +745,8 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
                 if (!anchor) anchor = uv_of(chosen[k]);
                 out[t + k] = chosen[k];
             }
-            // Consistent only with a wedge of one island at each corner, and each edge's UV length within twice what its
-            // ends' source edges stretch (the two sides of a seam inside a chart, held by different corners, are not).
-            bool consistent = most == 3;
-            for (int k = 0; k < 3 && consistent; ++k) {
-                const uint32_t a = out[t + k], b = out[t + (k + 1) % 3];
-                const double stretch = 2.0 * std::max(uvStretch[attributeOf[a]], uvStretch[attributeOf[b]]);
-                consistent = uv_distance2(uv_of(a), uv_of(b)) <= stretch * stretch * distance2(&local[3 * a], &local[3 * b]) + 1e-12;
-            }
-            if (!consistent)
-                for (int k = 0; k < 3; ++k)
-                    worst = std::max(worst, float(std::sqrt(distance2(&local[3 * out[t + k]], &local[3 * out[t + (k + 1) % 3]]))));
         }
-        return worst;
+        return border_sampling_error(out, count, true);
     };
     std::vector<unsigned char> lock(vertexCount, 0);
     std::vector<int32_t> firstGroup(vertexCount, -1);
@@ -778,8 +808,13 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             std::vector<std::vector<uint32_t>> pieces;
             Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
             std::vector<FittedAttributes> fitted;  // its interior kept vertices' fitted normals and channel
+            float measured = 0;  // how far its triangles lie from the source points measured (deviation.h)
+            std::vector<std::vector<SourcePoint>> carried;  // per piece, the source points it carries up
         };
         std::vector<Result> results(groupCount);
+        // Which group kept, and which measured, each interior vertex (deviation.h): a group's interior vertices are its
+        // own, so the groups mark them in parallel without a race (border vertices, locked, are kept and not marked).
+        std::vector<uint32_t> keptBy(roundVertices, UINT32_MAX), measuredBy(roundVertices, UINT32_MAX);
         phases.mark("round: locks");
         // The values vertices are drawn with (fit_attributes' targets and starting point).
         const VertexTable drawnNormals{mesh.normals.data(), uint32_t(vertexCount), fittedNormals.data(), drawnOf.data(), 3};
@@ -886,6 +921,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
                     retry_welded(welded, [&](size_t count) { return restore_uv_islands(merged, simplified.data(), count); });
                 }
             }
+            if (hasUvs) error = std::max(error, border_sampling_error(simplified.data(), kept, false));
             // Dropping whole free parts makes no new edge.
             if (kept > target) kept = drop_free_components(simplified, kept, target, local, positionId, lock, error);
             if (kept == 0 || stuck(kept)) return;  // stuck (vanishing too: keep a root)
@@ -909,6 +945,31 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             result.simplified = true;
             result.error = error;
             result.pieces = split_into_clusters(simplified, position);
+            // The group's distance from the source: measured at its input vertices that simplification removed and
+            // at the points its children carried up; each new cluster carries up those nearest it that stray most.
+            auto interior = [&](uint32_t v) { return v < roundVertices && lock[v] != kBorderLock; };
+            for (uint32_t v : simplified)
+                if (interior(v)) keptBy[v] = uint32_t(g);
+            std::vector<SourcePoint> points;
+            for (uint32_t v : merged)
+                if (interior(v) && keptBy[v] != uint32_t(g) && measuredBy[v] != uint32_t(g)) {
+                    measuredBy[v] = uint32_t(g);
+                    points.push_back({{local[3 * v], local[3 * v + 1], local[3 * v + 2]}, 0.0f});
+                }
+            for (uint32_t c : members[g]) points.insert(points.end(), clusters[c].carried.begin(), clusters[c].carried.end());
+            std::vector<float> triangleCorners;
+            std::vector<uint32_t> pieceOf;
+            for (size_t piece = 0; piece < result.pieces.size(); ++piece)
+                for (uint32_t v : result.pieces[piece]) {
+                    const float* p = position(v);
+                    triangleCorners.insert(triangleCorners.end(), p, p + 3);
+                    if (triangleCorners.size() % 9 == 0) pieceOf.push_back(uint32_t(piece));
+                }
+            std::vector<float> inputCorners;
+            for (uint32_t v : merged) inputCorners.insert(inputCorners.end(), &local[3 * v], &local[3 * v] + 3);
+            Deviation deviation = measure_deviation(triangleCorners, pieceOf, result.pieces.size(), points, kCarriedPoints, inputCorners);
+            result.measured = std::max(deviation.largest, deviation.strayed);
+            result.carried = std::move(deviation.kept);
         });
 
         phases.mark("round: simplify+split");
@@ -930,9 +991,13 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
                 childLevel = std::max(childLevel, clusters[c].level);
                 clusters[c].parentGroup = int32_t(groups.size());
             }
-            // Monotone by construction: the parent's error adds its own to the largest child's, and its sphere
-            // encloses every child's.
-            const Group group{enclose(childSpheres), childError + results[g].error};
+            // Monotone by construction: the parent's error is at least the largest child's, and its sphere encloses
+            // every child's. Its own: the distance measured from the source (deviation.h), or the simplifier's error
+            // where that is larger (it weighs normals, colours and texture coordinates; the seam and Preserve Area
+            // terms above are in it). Not their sum: summed level by level, errors claimed 1.5-2.3x the distance from
+            // the source at coarse levels, and the cut drew twice the triangles a pixel of error needs
+            // (docs/benchmarks.md, session 34).
+            const Group group{enclose(childSpheres), std::max({childError, results[g].error, results[g].measured})};
             groups.push_back(group);
             const uint32_t groupIndex = uint32_t(groups.size() - 1);
             auto add_fit = [&](uint32_t vertex, const float* normal, const float* channel) {  // drawn so from this group's clusters on
@@ -972,7 +1037,8 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
                 for (auto& piece : results[g].pieces)
                     for (uint32_t& v : piece)
                         if (v >= roundVertices) v += shift;
-            add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, int32_t(groups.size() - 1), next);
+            add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, int32_t(groups.size() - 1), next,
+                         std::move(results[g].carried));
         }
         for (const auto& list : distinct)
             for (uint32_t p : list) {

@@ -289,8 +289,8 @@ BuiltMesh build_mesh(PreparedMesh&& mesh, const BuildSettings& settings = {});
 // Clusters are stored in pages of at most kPageBytes (before compression too); the children of one group never
 // straddle pages (a parent refines by loading one page), and root clusters (no parent) fill pages of their own that
 // stay resident.
-constexpr uint32_t kPageFormatVersion = 6;  // 4: the constant vertex channel has 4 components; 5: clusters keep their cone and mean
-                                            // triangle area; 6: and their longest edge
+constexpr uint32_t kPageFormatVersion = 7;  // 4: the constant vertex channel has 4 components; 5: clusters keep their cone and mean
+                                            // triangle area; 6: and their longest edge; 7: group errors measured (deviation.h)
 // Bumped whenever the builder makes a different DAG from the same input and settings (simplifier weights, grouping,
 // error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
 constexpr uint32_t kBuilderRevision = 8;  // 3: triangles within a cluster in strip order (encoding.cpp); 4: the seam retry (dag.cpp);

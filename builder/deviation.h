@@ -1,0 +1,43 @@
+// Internal to the builder: how far a simplified group strays from the source surface, measured at sample points.
+//
+// A group's error is its distance from the source surface, measured, not an estimate summed level by level (summed,
+// the errors claimed 1.5-2.3x the distance at coarse levels; docs/benchmarks.md, session 34). Measured both ways:
+// - from the source: the group's input vertices that simplification removed (source vertices: it only removes them)
+//   and the source points its children carried up from finer levels, those that strayed most there (SourcePoint), to
+//   the simplified triangles;
+// - to the source: the simplified edges' midpoints to the group's input triangles (where a simplified edge stands
+//   off the surface while every source point lies near some simplified triangle: a fold).
+// Each distance is to the nearest triangle a grid cell around the point lists: never less than the true distance to
+// those triangles. Sampled, it can fall short of the exact distance between the samples, and the second way measures
+// against the level below, not the source: on the bumpy test sphere the claims came within 0.80-1.19x of the exact
+// distance of the cut from the source (the sum: 0.51-2.29x).
+#ifndef TESSERA_BUILDER_DEVIATION_H
+#define TESSERA_BUILDER_DEVIATION_H
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace tessera {
+
+// A source point carried up the DAG by the cluster it lies nearest to, with its distance to that cluster's level.
+struct SourcePoint {
+    float position[3];
+    float distance;
+};
+
+struct Deviation {
+    float largest = 0;                           // the largest distance of any point measured
+    float strayed = 0;                           // the largest distance of a simplified edge's midpoint from the input
+    std::vector<std::vector<SourcePoint>> kept;  // per piece: the points nearest its triangles that strayed most
+};
+
+// `corners`: 9 floats per simplified triangle; `pieceOf`: the cluster (piece) each triangle went into, `pieces` of them;
+// `points`: the source points to measure; `inputCorners`: 9 floats per triangle of the group's input. Each piece keeps
+// at most `keepPerPiece` of its points, the farthest first (those on its surface, distance 0, never).
+Deviation measure_deviation(const std::vector<float>& corners, const std::vector<uint32_t>& pieceOf, size_t pieces,
+                            const std::vector<SourcePoint>& points, size_t keepPerPiece, const std::vector<float>& inputCorners);
+
+}  // namespace tessera
+
+#endif
