@@ -123,14 +123,19 @@ public:
                 if (d <= enough) return {d, t};
             }
         }
-        // The point's own cell; where it lists none (a point farther than half a cell from every triangle), the shells
-        // of cells around it, one at a time, until one lists a triangle.
-        const int largest = std::max({dims_[0], dims_[1], dims_[2]});
-        for (int r = 0; r < largest && best.first == INFINITY; ++r)
+        // The point's own cell; where it lists none (a point farther than half a cell from every triangle), the two
+        // shells of cells around it; where they list none either (a point far off), every triangle.
+        for (int r = 0; r <= 2 && best.first == INFINITY; ++r)
             for (int z = std::max(at[2] - r, 0); z <= std::min(at[2] + r, dims_[2] - 1); ++z)
                 for (int y = std::max(at[1] - r, 0); y <= std::min(at[1] + r, dims_[1] - 1); ++y)
                     for (int x = std::max(at[0] - r, 0); x <= std::min(at[0] + r, dims_[0] - 1); ++x)
                         if (std::max({std::abs(x - at[0]), std::abs(y - at[1]), std::abs(z - at[2])}) == r) test_cell(x, y, z);
+        if (best.first == INFINITY)
+            for (uint32_t t = 0; t < triangles_; ++t) {
+                const float* v = &corners_[9 * t];
+                const float d = distance2_to_triangle(p, v, v + 3, v + 6);
+                if (d < best.first) best = {d, t};
+            }
         return best;
     }
 

@@ -1,0 +1,149 @@
+// A group's measured distance from the source (builder/deviation.cpp) against brute force: every point's distance to
+// every triangle, by the test's own nearest-point code.
+#include "deviation.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <random>
+
+using namespace tessera;
+
+namespace {
+
+// The squared distance from p to the segment ab.
+double segment_distance2(const double* p, const double* a, const double* b) {
+    double ab[3], ap[3];
+    for (int k = 0; k < 3; ++k) ab[k] = b[k] - a[k], ap[k] = p[k] - a[k];
+    const double length2 = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
+    const double t = length2 > 0 ? std::clamp((ap[0] * ab[0] + ap[1] * ab[1] + ap[2] * ab[2]) / length2, 0.0, 1.0) : 0.0;
+    double d2 = 0;
+    for (int k = 0; k < 3; ++k) d2 += (ap[k] - t * ab[k]) * (ap[k] - t * ab[k]);
+    return d2;
+}
+
+// The distance from p to the triangle abc: to its plane where p projects inside it, else to its nearest edge.
+double triangle_distance(const float* pf, const float* af, const float* bf, const float* cf) {
+    double p[3], a[3], b[3], c[3];
+    for (int k = 0; k < 3; ++k) p[k] = pf[k], a[k] = af[k], b[k] = bf[k], c[k] = cf[k];
+    double best = std::min({segment_distance2(p, a, b), segment_distance2(p, b, c), segment_distance2(p, c, a)});
+    const double e0[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e1[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    const double n[3] = {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2], e0[0] * e1[1] - e0[1] * e1[0]};
+    const double n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+    if (n2 > 0) {
+        const double h = ((p[0] - a[0]) * n[0] + (p[1] - a[1]) * n[1] + (p[2] - a[2]) * n[2]) / n2;
+        const double q[3] = {p[0] - h * n[0], p[1] - h * n[1], p[2] - h * n[2]};
+        auto side = [&](const double* u, const double* v) {  // q on the inner side of the edge uv
+            const double uv[3] = {v[0] - u[0], v[1] - u[1], v[2] - u[2]}, uq[3] = {q[0] - u[0], q[1] - u[1], q[2] - u[2]};
+            const double x[3] = {uv[1] * uq[2] - uv[2] * uq[1], uv[2] * uq[0] - uv[0] * uq[2], uv[0] * uq[1] - uv[1] * uq[0]};
+            return x[0] * n[0] + x[1] * n[1] + x[2] * n[2] >= 0;
+        };
+        if (side(a, b) && side(b, c) && side(c, a)) best = std::min(best, h * h * n2);
+    }
+    return std::sqrt(best);
+}
+
+// A bumpy strip of triangles (nx by ny quads, 0.1 apart), two pieces split at its middle column.
+struct Strip {
+    std::vector<float> corners;
+    std::vector<uint32_t> pieceOf;
+};
+Strip strip(int nx, int ny, std::mt19937& rng) {
+    std::uniform_real_distribution<float> bump(-0.02f, 0.02f);
+    std::vector<std::array<float, 3>> grid;
+    for (int y = 0; y <= ny; ++y)
+        for (int x = 0; x <= nx; ++x) grid.push_back({0.1f * x, 0.1f * y, bump(rng)});
+    Strip s;
+    for (int y = 0; y < ny; ++y)
+        for (int x = 0; x < nx; ++x) {
+            const int a = y * (nx + 1) + x, b = a + 1, c = a + nx + 1, d = c + 1;
+            for (const std::array<int, 3>& t : {std::array<int, 3>{a, b, d}, {a, d, c}}) {
+                for (int k : t) s.corners.insert(s.corners.end(), grid[k].begin(), grid[k].end());
+                s.pieceOf.push_back(x < nx / 2 ? 0 : 1);
+            }
+        }
+    return s;
+}
+
+}  // namespace
+
+TEST(Deviation, NoLessThanTheTrueDistanceAndCloseToIt) {
+    // Points near the surface, points far off (no cell near them lists a triangle), on a square patch and on a long
+    // thin strip (a grid of one cell across); with and without the input surface (the other way).
+    std::mt19937 rng(7);
+    for (const auto& [nx, ny] : {std::pair{20, 20}, std::pair{400, 1}}) {
+        SCOPED_TRACE(nx);
+        const Strip simplified = strip(nx, ny, rng), input = strip(nx, ny, rng);
+        std::uniform_real_distribution<float> across(0.0f, 0.1f * nx), along(0.0f, 0.1f * ny), height(-0.05f, 0.05f);
+        std::vector<SourcePoint> points;
+        for (int i = 0; i < 400; ++i) points.push_back({{across(rng), along(rng), height(rng)}, 0});
+        for (int i = 0; i < 20; ++i) points.push_back({{across(rng), along(rng), 3.0f + height(rng)}, 0});  // far off
+        const Deviation d = measure_deviation(simplified.corners, simplified.pieceOf, 2, points, 8, input.corners);
+        double largest = 0, strayed = 0;
+        for (const SourcePoint& p : points) {
+            double nearest = INFINITY;
+            for (size_t t = 0; t < simplified.pieceOf.size(); ++t)
+                nearest = std::min(nearest, triangle_distance(p.position, &simplified.corners[9 * t], &simplified.corners[9 * t + 3],
+                                                              &simplified.corners[9 * t + 6]));
+            largest = std::max(largest, nearest);
+        }
+        EXPECT_GE(d.largest, largest * (1 - 1e-5));
+        EXPECT_LE(d.largest, largest * 1.01) << "the farthest point measures its true distance";
+        // The other way: each simplified edge's midpoint to the input triangles.
+        for (size_t t = 0; t < simplified.pieceOf.size(); ++t)
+            for (int e = 0; e < 3; ++e) {
+                const float* a = &simplified.corners[9 * t + 3 * e];
+                const float* b = &simplified.corners[9 * t + 3 * ((e + 1) % 3)];
+                const float m[3] = {0.5f * (a[0] + b[0]), 0.5f * (a[1] + b[1]), 0.5f * (a[2] + b[2])};
+                double nearest = INFINITY;
+                for (size_t u = 0; u < input.pieceOf.size(); ++u)
+                    nearest = std::min(nearest, triangle_distance(m, &input.corners[9 * u], &input.corners[9 * u + 3], &input.corners[9 * u + 6]));
+                strayed = std::max(strayed, nearest);
+            }
+        EXPECT_GE(d.strayed, strayed * (1 - 1e-5));
+        EXPECT_LE(d.strayed, strayed * 1.01);
+        // Each piece keeps at most 8 points, the farthest it has first, none at distance 0.
+        for (const auto& kept : d.kept) {
+            EXPECT_LE(kept.size(), 8u);
+            for (const SourcePoint& p : kept) EXPECT_GT(p.distance, 0.0f);
+        }
+        EXPECT_FALSE(d.kept[0].empty() || d.kept[1].empty());
+    }
+}
+
+TEST(Deviation, PointsOnTheSurfaceMeasureNothing) {
+    // The simplified triangles' own corners lie at distance 0 and are kept by no piece; an empty group measures 0.
+    std::mt19937 rng(3);
+    const Strip s = strip(10, 10, rng);
+    std::vector<SourcePoint> points;
+    for (size_t i = 0; i < s.corners.size(); i += 3) points.push_back({{s.corners[i], s.corners[i + 1], s.corners[i + 2]}, 0});
+    const Deviation d = measure_deviation(s.corners, s.pieceOf, 2, points, 8, s.corners);
+    EXPECT_EQ(d.largest, 0.0f);
+    EXPECT_LT(d.strayed, 1e-6f);
+    EXPECT_TRUE(d.kept[0].empty() && d.kept[1].empty());
+    const Deviation none = measure_deviation({}, {}, 0, points, 8, {});
+    EXPECT_EQ(none.largest, 0.0f);
+}
+
+TEST(Deviation, PointsFarFromEveryTriangleFindTheNearest) {
+    // Two patches at opposite corners of their box: points in the empty middle lie in cells that list no triangle, and
+    // neither do the cells around them; they measure every triangle.
+    std::mt19937 rng(5);
+    Strip a = strip(6, 6, rng);
+    const Strip b = strip(6, 6, rng);
+    for (size_t i = 0; i < b.corners.size(); ++i) a.corners.push_back(b.corners[i] + 5.0f);
+    a.pieceOf.insert(a.pieceOf.end(), b.pieceOf.size(), 1);
+    std::fill(a.pieceOf.begin(), a.pieceOf.begin() + b.pieceOf.size(), 0);
+    const std::vector<SourcePoint> points = {{{2.5f, 2.6f, 2.4f}, 0}, {{4.0f, 1.0f, 3.0f}, 0}};
+    const Deviation d = measure_deviation(a.corners, a.pieceOf, 2, points, 8, {});
+    double largest = 0;
+    for (const SourcePoint& p : points) {
+        double nearest = INFINITY;
+        for (size_t t = 0; t < a.pieceOf.size(); ++t)
+            nearest = std::min(nearest, triangle_distance(p.position, &a.corners[9 * t], &a.corners[9 * t + 3], &a.corners[9 * t + 6]));
+        largest = std::max(largest, nearest);
+    }
+    EXPECT_NEAR(d.largest, largest, 1e-5 * largest);
+}
