@@ -808,7 +808,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             std::vector<std::vector<uint32_t>> pieces;
             Dilation dilation;  // its new vertices are numbered from roundVertices until recorded
             std::vector<FittedAttributes> fitted;  // its interior kept vertices' fitted normals and channel
-            float measured = 0;  // how far its triangles lie from the source points measured (deviation.h)
+            float measured = 0;  // its measured distance from the source (deviation.h)
             std::vector<std::vector<SourcePoint>> carried;  // per piece, the source points it carries up
         };
         std::vector<Result> results(groupCount);
@@ -945,8 +945,9 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             result.simplified = true;
             result.error = error;
             result.pieces = split_into_clusters(simplified, position);
-            // The group's distance from the source: measured at its input vertices that simplification removed and
-            // at the points its children carried up; each new cluster carries up those nearest it that stray most.
+            // The group's distance from the source (deviation.h): from its input vertices that simplification removed
+            // and the points its children carried up to its triangles, and from its edges' midpoints to its input
+            // triangles; each new cluster carries up the points nearest it that stray most.
             auto interior = [&](uint32_t v) { return v < roundVertices && lock[v] != kBorderLock; };
             for (uint32_t v : simplified)
                 if (interior(v)) keptBy[v] = uint32_t(g);
