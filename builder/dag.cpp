@@ -576,6 +576,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     // never do): triangles joined through shared vertices, and through wedges of one position with the same texture
     // coordinates (normal or colour seams inside an island). Each vertex's island is named by its smallest vertex.
     auto uv_distance2 = [](const float* a, const float* b) { return double(a[0] - b[0]) * (a[0] - b[0]) + double(a[1] - b[1]) * (a[1] - b[1]); };
+    auto uv_of = [&](uint32_t v) { return &attributes[v * attributeCount + uvAttribute]; };
     std::vector<uint32_t> uvIsland;
     std::unordered_map<uint32_t, std::vector<uint32_t>> sourceWedges;  // position -> its source wedges, where it has several
     std::vector<float> uvStretch;  // per source vertex: the most UV length per unit of length along its source edges
@@ -656,7 +657,6 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     // stretch that much without crossing anything).
     auto border_sampling_error = [&](const uint32_t* out, size_t count, bool stretched) {
         std::call_once(uvIslandsMade, make_uv_islands);
-        auto uv_of = [&](uint32_t v) { return &attributes[v * attributeCount + uvAttribute]; };
         auto far_side = [&](const uint32_t* corners, int k, uint32_t island) {
             const auto wedges = sourceWedges.find(positionId[corners[k]]);
             if (wedges == sourceWedges.end()) return false;
@@ -694,7 +694,6 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     auto restore_uv_islands = [&](const std::vector<uint32_t>& indices, uint32_t* out, size_t count) {
         std::call_once(uvIslandsMade, make_uv_islands);
         auto island_of = [&](uint32_t v) { return uvIsland[attributeOf[v]]; };
-        auto uv_of = [&](uint32_t v) { return &attributes[v * attributeCount + uvAttribute]; };
         // position -> its wedges (one per UV and material): the group's, then the source's others
         std::unordered_map<uint32_t, std::vector<uint32_t>> wedges;
         for (uint32_t v : weld_seams(indices, true, false)) {
@@ -752,6 +751,8 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     std::vector<int32_t> firstGroup(vertexCount, -1);
     std::vector<unsigned char> shared(vertexCount, 0);
     std::vector<uint32_t> roundPosition;  // a position's number in the round's partition input
+    std::vector<uint32_t> keptBy, measuredBy;  // per vertex, the last group (by stamp) that kept or measured it
+    uint32_t stamps = 0;                       // groups numbered so far, over all rounds
     while (pending.size() > 1) {
         // Group the pending clusters by shared positions.
         const size_t roundVertices = local.size() / 3;  // vertices added this round are numbered from here
@@ -812,9 +813,13 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             std::vector<std::vector<SourcePoint>> carried;  // per piece, the source points it carries up
         };
         std::vector<Result> results(groupCount);
-        // Which group kept, and which measured, each interior vertex (deviation.h): a group's interior vertices are its
-        // own, so the groups mark them in parallel without a race (border vertices, locked, are kept and not marked).
-        std::vector<uint32_t> keptBy(roundVertices, UINT32_MAX), measuredBy(roundVertices, UINT32_MAX);
+        // Which group kept, and which measured, each interior vertex (deviation.h), by its number across rounds, so the
+        // marks are never cleared: a group's interior vertices are its own, so the groups mark them in parallel without
+        // a race (border vertices, locked, are kept and not marked).
+        keptBy.resize(roundVertices, UINT32_MAX);
+        measuredBy.resize(roundVertices, UINT32_MAX);
+        const uint32_t firstStamp = stamps;
+        stamps += uint32_t(groupCount);
         phases.mark("round: locks");
         // The values vertices are drawn with (fit_attributes' targets and starting point).
         const VertexTable drawnNormals{mesh.normals.data(), uint32_t(vertexCount), fittedNormals.data(), drawnOf.data(), 3};
@@ -949,12 +954,13 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             // and the points its children carried up to its triangles, and from its edges' midpoints to its input
             // triangles; each new cluster carries up the points nearest it that stray most.
             auto interior = [&](uint32_t v) { return v < roundVertices && lock[v] != kBorderLock; };
+            const uint32_t stamp = firstStamp + uint32_t(g);
             for (uint32_t v : simplified)
-                if (interior(v)) keptBy[v] = uint32_t(g);
+                if (interior(v)) keptBy[v] = stamp;
             std::vector<SourcePoint> points;
             for (uint32_t v : merged)
-                if (interior(v) && keptBy[v] != uint32_t(g) && measuredBy[v] != uint32_t(g)) {
-                    measuredBy[v] = uint32_t(g);
+                if (interior(v) && keptBy[v] != stamp && measuredBy[v] != stamp) {
+                    measuredBy[v] = stamp;
                     points.push_back({{local[3 * v], local[3 * v + 1], local[3 * v + 2]}, 0.0f});
                 }
             for (uint32_t c : members[g]) points.insert(points.end(), clusters[c].carried.begin(), clusters[c].carried.end());

@@ -66,7 +66,7 @@ public:
         const float extent = std::max({hi_[0] - lo_[0], hi_[1] - lo_[1], hi_[2] - lo_[2]});
         cell_ = std::max(0.5f * float(edges / (3.0 * double(std::max<size_t>(triangles_, 1)))), extent * 1e-6f);
         if (!(cell_ > 0)) cell_ = 1;  // every corner at one point
-        for (;;) {  // at most about four cells per triangle
+        for (;;) {  // at most about 16 cells per triangle
             size_t cells = 1;
             for (int k = 0; k < 3; ++k) {
                 dims_[k] = std::max(1, int(std::ceil((hi_[k] - lo_[k]) / cell_)));
@@ -86,56 +86,45 @@ public:
         for (size_t t = 0; t < triangles_; ++t) for_cells(t, [&](size_t c) { listed_[next[c]++] = uint32_t(t); });
     }
 
-    // The squared distance from p to the nearest triangle of its cell (of every triangle where its cell lists none),
-    // and that triangle: at least the distance to the nearest triangle of all.
-    // `enough`: a squared distance within which any triangle will do (the search stops at the first).
+    // The squared distance from p to the nearest triangle its cell lists (of the two shells of cells around it where
+    // its cell lists none, of every triangle where they list none either), and that triangle: never less than the
+    // distance to the nearest triangle of all. `enough`: a squared distance within which any triangle will do (the
+    // search stops at the first).
     std::pair<float, uint32_t> nearest(const float* p, float enough = -1) const {
         const int at[3] = {cell_of(p[0], 0), cell_of(p[1], 1), cell_of(p[2], 2)};
-        std::pair<float, uint32_t> best{INFINITY, 0};
-        float bestDistance = INFINITY;
-        auto test_cell = [&](int x, int y, int z) {
-            const size_t c = (size_t(z) * dims_[1] + y) * dims_[0] + x;
-            for (uint32_t i = start_[c]; i < start_[c + 1] && best.first > enough; ++i) {
-                const uint32_t t = listed_[i];
-                const float* sphere = &spheres_[4 * t];  // no nearer than the triangle's sphere: skip it cheaply
-                const float reach = bestDistance + sphere[3];
-                if (distance2(p, sphere) > reach * reach) continue;
-                const float* v = &corners_[9 * t];
-                const float d = distance2_to_triangle(p, v, v + 3, v + 6);
-                if (d < best.first) {
-                    best = {d, t};
-                    bestDistance = std::sqrt(d);
-                }
-            }
+        // Triangle t's squared distance, or infinity where its sphere lies farther than `within` (skipped cheaply).
+        auto within_reach = [&](uint32_t t, float within) {
+            const float* sphere = &spheres_[4 * t];
+            const float reach = within + sphere[3];
+            if (distance2(p, sphere) > reach * reach) return INFINITY;
+            const float* v = &corners_[9 * t];
+            return distance2_to_triangle(p, v, v + 3, v + 6);
         };
-        // First, where any triangle within `enough` will do, only those whose spheres reach that near (most points
-        // find one: their full search is never made).
+        // First, where any triangle within `enough` will do, only those of the point's cell whose spheres reach that
+        // near (most points find one: their full search is never made).
         if (enough > 0) {
             const size_t c = (size_t(at[2]) * dims_[1] + at[1]) * dims_[0] + at[0];
-            const float near = std::sqrt(enough);
-            for (uint32_t i = start_[c]; i < start_[c + 1]; ++i) {
-                const uint32_t t = listed_[i];
-                const float* sphere = &spheres_[4 * t];
-                const float reach = near + sphere[3];
-                if (distance2(p, sphere) > reach * reach) continue;
-                const float* v = &corners_[9 * t];
-                const float d = distance2_to_triangle(p, v, v + 3, v + 6);
-                if (d <= enough) return {d, t};
-            }
+            for (uint32_t i = start_[c]; i < start_[c + 1]; ++i)
+                if (const float d = within_reach(listed_[i], std::sqrt(enough)); d <= enough) return {d, listed_[i]};
         }
-        // The point's own cell; where it lists none (a point farther than half a cell from every triangle), the two
-        // shells of cells around it; where they list none either (a point far off), every triangle.
+        std::pair<float, uint32_t> best{INFINITY, 0};
+        float bestDistance = INFINITY;
+        auto test = [&](uint32_t t) {
+            if (const float d = within_reach(t, bestDistance); d < best.first) {
+                best = {d, t};
+                bestDistance = std::sqrt(d);
+            }
+        };
         for (int r = 0; r <= 2 && best.first == INFINITY; ++r)
             for (int z = std::max(at[2] - r, 0); z <= std::min(at[2] + r, dims_[2] - 1); ++z)
                 for (int y = std::max(at[1] - r, 0); y <= std::min(at[1] + r, dims_[1] - 1); ++y)
-                    for (int x = std::max(at[0] - r, 0); x <= std::min(at[0] + r, dims_[0] - 1); ++x)
-                        if (std::max({std::abs(x - at[0]), std::abs(y - at[1]), std::abs(z - at[2])}) == r) test_cell(x, y, z);
-        if (best.first == INFINITY)
-            for (uint32_t t = 0; t < triangles_; ++t) {
-                const float* v = &corners_[9 * t];
-                const float d = distance2_to_triangle(p, v, v + 3, v + 6);
-                if (d < best.first) best = {d, t};
-            }
+                    for (int x = std::max(at[0] - r, 0); x <= std::min(at[0] + r, dims_[0] - 1); ++x) {
+                        if (std::max({std::abs(x - at[0]), std::abs(y - at[1]), std::abs(z - at[2])}) != r) continue;
+                        const size_t c = (size_t(z) * dims_[1] + y) * dims_[0] + x;
+                        for (uint32_t i = start_[c]; i < start_[c + 1] && best.first > enough; ++i) test(listed_[i]);
+                    }
+        if (best.first == INFINITY)  // none listed near: every triangle
+            for (uint32_t t = 0; t < triangles_; ++t) test(t);
         return best;
     }
 

@@ -306,4 +306,40 @@ inline void expect_crack_free_cuts(const BuiltMesh& m, int cuts = 40) {
     EXPECT_GT(mixed, 0) << "some cuts should mix levels, or the test proves little";
 }
 
+// The point of triangle abc nearest to p, as barycentric weights (of a, b, c); returns the squared distance. By
+// projecting onto the triangle's plane, else onto the nearest of its edges (the test's own, not the builder's code).
+inline double nearest_on_triangle(const float* p, const float* a, const float* b, const float* c, double w[3]) {
+    auto sub = [](const float* x, const float* y) { return std::array<double, 3>{double(x[0]) - y[0], double(x[1]) - y[1], double(x[2]) - y[2]}; };
+    auto dot = [](const std::array<double, 3>& x, const std::array<double, 3>& y) { return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]; };
+    const auto e0 = sub(b, a), e1 = sub(c, a), d = sub(p, a);
+    const double a00 = dot(e0, e0), a01 = dot(e0, e1), a11 = dot(e1, e1), b0 = dot(e0, d), b1 = dot(e1, d);
+    const double det = a00 * a11 - a01 * a01;
+    double best = INFINITY;
+    auto consider = [&](double u, double v) {  // weights of b and c
+        std::array<double, 3> q;
+        for (int k = 0; k < 3; ++k) q[k] = d[k] - u * e0[k] - v * e1[k];
+        const double dist = dot(q, q);
+        if (dist < best) {
+            best = dist;
+            w[0] = 1 - u - v;
+            w[1] = u;
+            w[2] = v;
+        }
+    };
+    if (det > 0) {
+        const double u = (a11 * b0 - a01 * b1) / det, v = (a00 * b1 - a01 * b0) / det;
+        if (u >= 0 && v >= 0 && u + v <= 1) consider(u, v);
+    }
+    auto clamp01 = [](double x) { return std::min(1.0, std::max(0.0, x)); };
+    if (a00 > 0) consider(clamp01(b0 / a00), 0);  // edge ab
+    if (a11 > 0) consider(0, clamp01(b1 / a11));  // edge ac
+    const auto e2 = sub(c, b), dp = sub(p, b);
+    if (dot(e2, e2) > 0) {  // edge bc
+        const double t = clamp01(dot(e2, dp) / dot(e2, e2));
+        consider(1 - t, t);
+    }
+    consider(0, 0);
+    return best;
+}
+
 }  // namespace dagtest

@@ -298,40 +298,31 @@ TEST(Dag, MaterialSlotsSurviveEveryLevel) {
 }
 
 namespace {
-// The point of triangle abc nearest to p, as barycentric weights (of a, b, c); returns the squared distance. By
-// projecting onto the triangle's plane, else onto the nearest of its edges (the test's own, not the builder's code).
-double nearest_on_triangle(const float* p, const float* a, const float* b, const float* c, double w[3]) {
-    auto sub = [](const float* x, const float* y) { return std::array<double, 3>{double(x[0]) - y[0], double(x[1]) - y[1], double(x[2]) - y[2]}; };
-    auto dot = [](const std::array<double, 3>& x, const std::array<double, 3>& y) { return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]; };
-    const auto e0 = sub(b, a), e1 = sub(c, a), d = sub(p, a);
-    const double a00 = dot(e0, e0), a01 = dot(e0, e1), a11 = dot(e1, e1), b0 = dot(e0, d), b1 = dot(e1, d);
-    const double det = a00 * a11 - a01 * a01;
-    double best = INFINITY;
-    auto consider = [&](double u, double v) {  // weights of b and c
-        std::array<double, 3> q;
-        for (int k = 0; k < 3; ++k) q[k] = d[k] - u * e0[k] - v * e1[k];
-        const double dist = dot(q, q);
-        if (dist < best) {
-            best = dist;
-            w[0] = 1 - u - v;
-            w[1] = u;
-            w[2] = v;
+
+// The triangles of the clusters of one level of `m`, as corner pointers, and the largest error among those clusters.
+std::pair<std::vector<std::array<const float*, 3>>, float> level_triangles(const BuiltMesh& m, uint32_t level) {
+    std::vector<std::array<const float*, 3>> out;
+    float error = 0;
+    for (const Cluster& c : m.clusters)
+        for (uint32_t t = 0; c.level == level && t < c.triangleCount; ++t) {
+            const uint32_t packed = m.triangles[c.triangleOffset + t];
+            std::array<const float*, 3> corners;
+            for (int k = 0; k < 3; ++k) corners[k] = &m.positions[3 * size_t(c.vertexOffset + ((packed >> (8 * k)) & 0xff))];
+            out.push_back(corners);
+            error = std::max(error, c.lodError);
         }
-    };
-    if (det > 0) {
-        const double u = (a11 * b0 - a01 * b1) / det, v = (a00 * b1 - a01 * b0) / det;
-        if (u >= 0 && v >= 0 && u + v <= 1) consider(u, v);
+    return {out, error};
+}
+
+// The largest of the points' distances to their nearest triangles of `surface`.
+double farthest(const std::vector<const float*>& points, const std::vector<std::array<const float*, 3>>& surface) {
+    double worst = 0, w[3];
+    for (const float* p : points) {
+        double best = INFINITY;
+        for (const auto& t : surface) best = std::min(best, nearest_on_triangle(p, t[0], t[1], t[2], w));
+        worst = std::max(worst, best);
     }
-    auto clamp01 = [](double x) { return std::min(1.0, std::max(0.0, x)); };
-    if (a00 > 0) consider(clamp01(b0 / a00), 0);  // edge ab
-    if (a11 > 0) consider(0, clamp01(b1 / a11));  // edge ac
-    const auto e2 = sub(c, b), dp = sub(p, b);
-    if (dot(e2, e2) > 0) {  // edge bc
-        const double t = clamp01(dot(e2, dp) / dot(e2, e2));
-        consider(1 - t, t);
-    }
-    consider(0, 0);
-    return best;
+    return std::sqrt(worst);
 }
 
 // A vertex's drawn normal (xyz, 0) or vertex channel (rgba).
@@ -460,21 +451,9 @@ TEST(Dag, TextureCoordinatesCostLittleGeometricError) {
     auto distance_at = [](const BuiltMesh& m, uint64_t triangles) {  // of the finest level with at most that many
         uint32_t level = 0;
         while (level + 1 < m.levels.size() && m.levels[level].triangles > triangles) ++level;
-        std::vector<std::array<const float*, 3>> cut;
-        for (const Cluster& c : m.clusters)
-            for (uint32_t t = 0; c.level == level && t < c.triangleCount; ++t) {
-                const uint32_t packed = m.triangles[c.triangleOffset + t];
-                std::array<const float*, 3> corners;
-                for (int k = 0; k < 3; ++k) corners[k] = &m.positions[3 * size_t(c.vertexOffset + ((packed >> (8 * k)) & 0xff))];
-                cut.push_back(corners);
-            }
-        double worst = 0, w[3];
-        for (uint32_t v = 0; v < m.leafVertices; v += 7) {
-            double best = INFINITY;
-            for (const auto& t : cut) best = std::min(best, nearest_on_triangle(&m.positions[3 * size_t(v)], t[0], t[1], t[2], w));
-            worst = std::max(worst, best);
-        }
-        return std::sqrt(worst);
+        std::vector<const float*> points;
+        for (uint32_t v = 0; v < m.leafVertices; v += 7) points.push_back(&m.positions[3 * size_t(v)]);
+        return farthest(points, level_triangles(m, level).first);
     };
     for (uint64_t triangles : {5000u, 1500u}) {
         SCOPED_TRACE(triangles);
@@ -488,32 +467,10 @@ TEST(Dag, ErrorsAreTheCutsDistanceFromTheSource) {
     // Summed level by level, as they were, the errors claimed 1.9x the distance at level 4 (docs/benchmarks.md, session
     // 34).
     const BuiltMesh m = icosphere(4).build();
-    auto triangles_of = [&](auto keep) {
-        std::vector<std::array<const float*, 3>> out;
-        float error = 0;
-        for (const Cluster& c : m.clusters)
-            for (uint32_t t = 0; keep(c) && t < c.triangleCount; ++t) {
-                const uint32_t packed = m.triangles[c.triangleOffset + t];
-                std::array<const float*, 3> corners;
-                for (int k = 0; k < 3; ++k) corners[k] = &m.positions[3 * size_t(c.vertexOffset + ((packed >> (8 * k)) & 0xff))];
-                out.push_back(corners);
-                error = std::max(error, c.lodError);
-            }
-        return std::pair(out, error);
-    };
-    const auto source = triangles_of([](const Cluster& c) { return c.level == 0; }).first;
-    auto farthest = [](const std::vector<const float*>& points, const std::vector<std::array<const float*, 3>>& surface) {
-        double worst = 0, w[3];
-        for (const float* p : points) {
-            double best = INFINITY;
-            for (const auto& t : surface) best = std::min(best, nearest_on_triangle(p, t[0], t[1], t[2], w));
-            worst = std::max(worst, best);
-        }
-        return std::sqrt(worst);
-    };
+    const auto source = level_triangles(m, 0).first;
     for (size_t level = 2; level + 1 < m.levels.size(); level += 2) {
         SCOPED_TRACE(level);
-        const auto [cut, claimed] = triangles_of([&](const Cluster& c) { return c.level == level; });
+        const auto [cut, claimed] = level_triangles(m, uint32_t(level));
         // Every other source vertex; on each cut triangle, the points of barycentric weights (1, 1, 2) / 4 and their
         // turns (inside, near the corners) and the centre.
         std::vector<const float*> sourcePoints, cutPoints;

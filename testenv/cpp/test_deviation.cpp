@@ -1,5 +1,6 @@
 // A group's measured distance from the source (builder/deviation.cpp) against brute force: every point's distance to
-// every triangle, by the test's own nearest-point code.
+// every triangle, by the tests' own nearest-point code.
+#include "dag_fixtures.h"
 #include "deviation.h"
 
 #include <gtest/gtest.h>
@@ -13,36 +14,10 @@ using namespace tessera;
 
 namespace {
 
-// The squared distance from p to the segment ab.
-double segment_distance2(const double* p, const double* a, const double* b) {
-    double ab[3], ap[3];
-    for (int k = 0; k < 3; ++k) ab[k] = b[k] - a[k], ap[k] = p[k] - a[k];
-    const double length2 = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
-    const double t = length2 > 0 ? std::clamp((ap[0] * ab[0] + ap[1] * ab[1] + ap[2] * ab[2]) / length2, 0.0, 1.0) : 0.0;
-    double d2 = 0;
-    for (int k = 0; k < 3; ++k) d2 += (ap[k] - t * ab[k]) * (ap[k] - t * ab[k]);
-    return d2;
-}
-
-// The distance from p to the triangle abc: to its plane where p projects inside it, else to its nearest edge.
-double triangle_distance(const float* pf, const float* af, const float* bf, const float* cf) {
-    double p[3], a[3], b[3], c[3];
-    for (int k = 0; k < 3; ++k) p[k] = pf[k], a[k] = af[k], b[k] = bf[k], c[k] = cf[k];
-    double best = std::min({segment_distance2(p, a, b), segment_distance2(p, b, c), segment_distance2(p, c, a)});
-    const double e0[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e1[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-    const double n[3] = {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2], e0[0] * e1[1] - e0[1] * e1[0]};
-    const double n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
-    if (n2 > 0) {
-        const double h = ((p[0] - a[0]) * n[0] + (p[1] - a[1]) * n[1] + (p[2] - a[2]) * n[2]) / n2;
-        const double q[3] = {p[0] - h * n[0], p[1] - h * n[1], p[2] - h * n[2]};
-        auto side = [&](const double* u, const double* v) {  // q on the inner side of the edge uv
-            const double uv[3] = {v[0] - u[0], v[1] - u[1], v[2] - u[2]}, uq[3] = {q[0] - u[0], q[1] - u[1], q[2] - u[2]};
-            const double x[3] = {uv[1] * uq[2] - uv[2] * uq[1], uv[2] * uq[0] - uv[0] * uq[2], uv[0] * uq[1] - uv[1] * uq[0]};
-            return x[0] * n[0] + x[1] * n[1] + x[2] * n[2] >= 0;
-        };
-        if (side(a, b) && side(b, c) && side(c, a)) best = std::min(best, h * h * n2);
-    }
-    return std::sqrt(best);
+// The distance from p to the triangle abc (the tests' own nearest point, dag_fixtures.h).
+double triangle_distance(const float* p, const float* a, const float* b, const float* c) {
+    double w[3];
+    return std::sqrt(dagtest::nearest_on_triangle(p, a, b, c, w));
 }
 
 // A bumpy strip of triangles (nx by ny quads, 0.1 apart), two pieces split at its middle column.
