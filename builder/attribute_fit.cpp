@@ -75,7 +75,7 @@ struct Triangle {
 }  // namespace
 
 std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input, const uint32_t* output, size_t outputCount,
-                                             const std::vector<float>& positions, const std::vector<uint32_t>& positionId,
+                                             const GroupPositions& group, const std::vector<float>& positions,
                                              const std::vector<unsigned char>& lock, const VertexTable& normals, const VertexTable* channel) {
     std::vector<FittedAttributes> fitted;
     const int valueCount = channel ? kMaxValues : kNormal;
@@ -88,70 +88,28 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
             for (int k = 0; k < kChannel; ++k) to[kNormal + k] = c[k];
         }
     };
-    if (outputCount == 0 || input.empty()) return fitted;
-    // The group's positions, numbered in order of first use: an open-addressing table by position id, kept at most
-    // half full (a closed mesh has about half as many positions as triangles; a soup, up to three per triangle).
-    size_t capacity = 16;
-    while (capacity < input.size() / 3) capacity *= 2;
-    std::vector<std::pair<uint32_t, uint32_t>> table(capacity, {kNone, kNone});  // (position id, slot)
-    auto find = [&](uint32_t id) -> std::pair<uint32_t, uint32_t>& {
-        size_t at = (id * 2654435761u) & (capacity - 1);
-        while (table[at].first != kNone && table[at].first != id) at = (at + 1) & (capacity - 1);
-        return table[at];
-    };
-    auto insert = [&](uint32_t id, uint32_t slot) {
-        if (2 * (slot + 1) > capacity) {  // grow: twice the capacity, every entry placed again
-            std::vector<std::pair<uint32_t, uint32_t>> old(2 * capacity, {kNone, kNone});
-            old.swap(table);
-            capacity *= 2;
-            for (const auto& entry : old)
-                if (entry.first != kNone) find(entry.first) = entry;
-        }
-        find(id) = {id, slot};
-    };
+    if (outputCount == 0 || input.empty() || !group.outputInInput) return fitted;  // (the simplifier only removes)
     // Per slot, its first vertex's position and drawn values are copied once: the mesh's arrays are read at random.
-    std::vector<uint32_t> vertexOf;  // slot -> its first vertex
-    std::vector<char> seam;          // slot -> several vertices at the position
-    std::vector<double> weight;      // slot -> area of its triangles
-    std::vector<std::array<float, 3>> point;
-    std::vector<std::array<double, kMaxValues>> valueDrawn;
-    std::vector<uint32_t> corners(input.size());
-    for (size_t i = 0; i < input.size(); ++i) {
-        const uint32_t v = input[i];
-        uint32_t slot = find(positionId[v]).second;  // kNone: a position not met yet
-        if (slot == kNone) {
-            slot = uint32_t(vertexOf.size());
-            insert(positionId[v], slot);
-            vertexOf.push_back(v);
-            seam.push_back(0);
-            weight.push_back(0);
-            point.push_back({positions[3 * size_t(v)], positions[3 * size_t(v) + 1], positions[3 * size_t(v) + 2]});
-            valueDrawn.emplace_back();
-            drawn(v, valueDrawn.back().data());
-        } else if (vertexOf[slot] != v) {
-            seam[slot] = 1;
-        }
-        corners[i] = slot;
+    const std::vector<uint32_t>& corners = group.corners;
+    const std::vector<uint32_t>& outputCorners = group.outputCorners;
+    const std::vector<uint32_t>& vertexOf = group.vertexOf;
+    const std::vector<char>& seam = group.seam;
+    const size_t slots = group.slots();
+    std::vector<double> weight(slots, 0.0);  // slot -> area of its triangles
+    std::vector<std::array<float, 3>> point(slots);
+    std::vector<std::array<double, kMaxValues>> valueDrawn(slots);
+    for (size_t slot = 0; slot < slots; ++slot) {
+        const size_t v = vertexOf[slot];
+        point[slot] = {positions[3 * v], positions[3 * v + 1], positions[3 * v + 2]};
+        drawn(uint32_t(v), valueDrawn[slot].data());
     }
     for (size_t i = 0; i < input.size(); i += 3) {
         const double area = triangle_area(point[corners[i]].data(), point[corners[i + 1]].data(), point[corners[i + 2]].data());
         for (int k = 0; k < 3; ++k) weight[corners[i + k]] += area;
     }
-    const size_t slots = vertexOf.size();
-    std::vector<uint32_t> outputCorners(outputCount);
-    for (size_t i = 0; i < outputCount; ++i) outputCorners[i] = find(positionId[output[i]]).second;
-    // The simplifier only removes: every output position is an input one (otherwise, fit nothing).
-    if (std::find(outputCorners.begin(), outputCorners.end(), kNone) != outputCorners.end()) return fitted;
-
     // Each position's nearest kept position over the input's edges (breadth first), and the output triangles around it.
-    Rows neighbours, fan;
-    neighbours.build(slots, [&](auto add) {
-        for (size_t i = 0; i < corners.size(); i += 3)
-            for (int k = 0; k < 3; ++k) {
-                add(corners[i + k], corners[i + (k + 1) % 3]);
-                add(corners[i + (k + 1) % 3], corners[i + k]);
-            }
-    });
+    const Rows& neighbours = group.neighbours;
+    Rows fan;
     fan.build(slots, [&](auto add) {
         for (size_t i = 0; i < outputCount; ++i) add(outputCorners[i], uint32_t(i / 3 * 3));
     });

@@ -6,6 +6,8 @@
 // the simplified surface. Positions, and so the DAG's geometry and errors, do not change.
 #pragma once
 
+#include "group_positions.h"
+
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -33,14 +35,14 @@ struct FittedAttributes {
     std::array<float, 4> channel;  // within the range of the group's input values (unused without a channel)
 };
 
-// `input`: the group's triangles before simplification, `output` after (vertex ids, a subset of the input's).
-// `positionId`: vertices at one position share an id; a position with several vertices in the group (a seam) keeps its
-// values, as does a locked vertex (`lock` non-zero: shared with another group, whose clusters draw it too).
+// `input`: the group's triangles before simplification, `output` after (vertex ids, a subset of the input's), `group`
+// their positions (vertices at one position share a slot); a position with several vertices in the group (a seam) keeps
+// its values, as does a locked vertex (`lock` non-zero: shared with another group, whose clusters draw it too).
 // `normals`, `channel` (4 wide; null where the mesh has none): the values each vertex is drawn with. The input's are
 // the targets (the finer level's, themselves fitted above the source), the output's the starting point. Returns the
 // output's vertices whose fitted values differ from those drawn.
 std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input, const uint32_t* output, size_t outputCount,
-                                             const std::vector<float>& positions, const std::vector<uint32_t>& positionId,
+                                             const GroupPositions& group, const std::vector<float>& positions,
                                              const std::vector<unsigned char>& lock, const VertexTable& normals, const VertexTable* channel);
 
 }  // namespace tessera

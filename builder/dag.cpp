@@ -937,7 +937,8 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             Result& result = results[g];
             // Normals and vertex channel fitted to the group's input (attribute_fit.h), on the simplified surface before
             // Preserve Area moves its open borders (a moved copy is drawn with its source's values).
-            result.fitted = fit_attributes(merged, simplified.data(), simplified.size(), local, positionId, lock, drawnNormals,
+            const GroupPositions groupPositions(merged, simplified.data(), simplified.size(), positionId);
+            result.fitted = fit_attributes(merged, simplified.data(), simplified.size(), groupPositions, local, lock, drawnNormals,
                                            hasColors ? &drawnChannels : nullptr);
             if (settings.preserveArea) {
                 double area = 0;
@@ -972,10 +973,13 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
                     triangleCorners.insert(triangleCorners.end(), p, p + 3);
                     if (triangleCorners.size() % 9 == 0) pieceOf.push_back(uint32_t(piece));
                 }
-            std::vector<float> inputCorners;
-            for (uint32_t v : merged) inputCorners.insert(inputCorners.end(), &local[3 * v], &local[3 * v] + 3);
-            Deviation deviation = measure_deviation(triangleCorners, pieceOf, result.pieces.size(), points, kCarriedPoints, inputCorners);
-            result.measured = std::max(deviation.largest, deviation.strayed);
+            Deviation deviation = measure_deviation(triangleCorners, pieceOf, result.pieces.size(), points, kCarriedPoints);
+            // The simplified edges' midpoints from the input, where they stray further than the group's error so far
+            // (its own, its children's, the first way's); before Preserve Area moved the open borders (its
+            // displacement is in the error already).
+            float known = std::max(error, deviation.largest);
+            for (uint32_t c : members[g]) known = std::max(known, clusters[c].lodError);
+            result.measured = measure_stray(groupPositions, local, known);
             result.carried = std::move(deviation.kept);
         });
 

@@ -1,6 +1,8 @@
 // How far a simplified group strays from the source surface, measured at source points (deviation.h).
 #include "deviation.h"
 
+#include "rows.h"
+
 #include <algorithm>
 #include <cmath>
 
@@ -156,7 +158,7 @@ private:
 }  // namespace
 
 Deviation measure_deviation(const std::vector<float>& corners, const std::vector<uint32_t>& pieceOf, size_t pieces,
-                            const std::vector<SourcePoint>& points, size_t keepPerPiece, const std::vector<float>& inputCorners) {
+                            const std::vector<SourcePoint>& points, size_t keepPerPiece) {
     Deviation out;
     out.kept.resize(pieces);
     if (corners.empty()) return out;
@@ -180,23 +182,76 @@ Deviation measure_deviation(const std::vector<float>& corners, const std::vector
         }
         out.kept[piece] = std::move(list);
     }
-    // The other way: the simplified edges' midpoints from the group's input surface, where a simplified edge stands
-    // off it though every source point lies near some simplified triangle (a fold). Each edge once: from the triangle
-    // that runs it from its lexicographically smaller end (its twin runs it the other way; a group border, run once,
-    // is locked and lies on the input anyway).
-    if (!inputCorners.empty()) {
-        const TriangleGrid input(inputCorners);
-        for (size_t t = 0; t < corners.size() / 9; ++t)
-            for (int e = 0; e < 3; ++e) {
-                const float* a = &corners[9 * t + 3 * e];
-                const float* b = &corners[9 * t + 3 * ((e + 1) % 3)];
-                if (!std::lexicographical_compare(a, a + 3, b, b + 3)) continue;
-                const float midpoint[3] = {0.5f * (a[0] + b[0]), 0.5f * (a[1] + b[1]), 0.5f * (a[2] + b[2])};
-                // only a midpoint farther than the largest so far changes it: the first triangle within that will do
-                out.strayed = std::max(out.strayed, std::sqrt(input.nearest(midpoint, out.strayed * out.strayed).first));
-            }
-    }
     return out;
+}
+
+float measure_stray(const GroupPositions& group, const std::vector<float>& positions, float floor) {
+    if (!group.outputInInput) return 0;  // the simplifier only removes: not reached
+    const std::vector<uint32_t>& input = group.corners;
+    const std::vector<uint32_t>& output = group.outputCorners;
+    auto point = [&](uint32_t slot) { return &positions[3 * size_t(group.vertexOf[slot])]; };
+    Rows fan;  // per slot, the input triangles around it (their first corners)
+    fan.build(group.slots(), [&](auto add) {
+        for (size_t i = 0; i < input.size(); ++i) add(input[i], uint32_t(i / 3 * 3));
+    });
+    float strayed = floor;
+    std::vector<uint32_t> slotStamp(group.slots(), 0), triangleStamp(input.size() / 3, 0), scratch;
+    uint32_t stamp = 0;
+    for (size_t t = 0; t < output.size(); t += 3)
+        for (int e = 0; e < 3; ++e) {
+            // Each edge once: from the triangle that runs it from its smaller slot (its twin runs it the other way; a
+            // group border, run once, is locked and lies on the input anyway).
+            const uint32_t a = output[t + e], b = output[t + (e + 1) % 3];
+            if (!(a < b)) continue;
+            const float* pa = point(a);
+            const float* pb = point(b);
+            const float midpoint[3] = {0.5f * (pa[0] + pb[0]), 0.5f * (pa[1] + pb[1]), 0.5f * (pa[2] + pb[2])};
+            // Only a midpoint farther than the largest so far changes it: the first triangle within that will do, among
+            // the input triangles around the edge's ends.
+            const float enough = strayed * strayed;
+            float best = INFINITY;
+            auto test = [&](uint32_t u) {
+                const float d = distance2_to_triangle(midpoint, point(input[u]), point(input[u + 1]), point(input[u + 2]));
+                best = std::min(best, d);
+                return d;
+            };
+            // An input edge: its midpoint lies on the input. Else the midpoint lies mostly near a removed vertex between
+            // the ends (the simplifier collapsed it into one of them): the input triangles around their common
+            // neighbours first.
+            ++stamp;
+            const Rows& neighbours = group.neighbours;
+            for (uint32_t k = neighbours.start[b]; k < neighbours.start[b + 1]; ++k) slotStamp[neighbours.items[k]] = stamp;
+            if (slotStamp[a] == stamp) continue;
+            for (uint32_t k = neighbours.start[a]; k < neighbours.start[a + 1] && best > enough; ++k) {
+                const uint32_t between = neighbours.items[k];
+                if (slotStamp[between] != stamp) continue;
+                slotStamp[between] = 0;  // each once
+                for (uint32_t i = fan.start[between]; i < fan.start[between + 1] && best > enough; ++i) test(fan.items[i]);
+            }
+            if (best <= enough) continue;
+            // Else the input between the ends: the edge's midpoint can lie a ring or two of input triangles from both.
+            // Breadth first over the input from the ends, through the triangles within a ball around the midpoint
+            // that holds both ends and every triangle nearer than those found so far.
+            const float radius2 = std::max(best, distance2(midpoint, pa) * 1.0001f);
+            ++stamp;
+            std::vector<uint32_t>& queue = scratch;
+            queue.assign({a, b});
+            slotStamp[a] = slotStamp[b] = stamp;
+            for (size_t head = 0; head < queue.size() && best > enough; ++head)
+                for (uint32_t k = fan.start[queue[head]]; k < fan.start[queue[head] + 1]; ++k) {
+                    const uint32_t u = fan.items[k];
+                    if (triangleStamp[u / 3] == stamp) continue;
+                    triangleStamp[u / 3] = stamp;
+                    if (test(u) > radius2) continue;
+                    for (int j = 0; j < 3; ++j)
+                        if (slotStamp[input[u + j]] != stamp) {
+                            slotStamp[input[u + j]] = stamp;
+                            queue.push_back(input[u + j]);
+                        }
+                }
+            strayed = std::max(strayed, std::sqrt(best));
+        }
+    return strayed;
 }
 
 }  // namespace tessera

@@ -7,12 +7,17 @@
 //   the simplified triangles;
 // - to the source: the simplified edges' midpoints to the group's input triangles (where a simplified edge stands
 //   off the surface while every source point lies near some simplified triangle: a fold).
-// Each distance is to the nearest triangle a grid cell around the point lists: never less than the true distance to
-// those triangles. Sampled, it can fall short of the exact distance between the samples, and the second way measures
-// against the level below, not the source: on the bumpy test sphere the claims came within 0.80-1.19x of the exact
-// distance of the cut from the source (the sum: 0.51-2.29x).
+// The first way's distance is to the nearest triangle a grid cell around the point lists, the second's to the nearest
+// input triangle a walk over the input's surface from the edge's ends finds: each a distance to a real triangle, so never
+// less than the true distance to those triangles. (A grid for the second way cost a fifth of the build: the input has
+// twice the triangles, and a simplified edge's ends are input vertices, so its nearest input triangles lie around them.)
+// Sampled, it can fall short of the exact distance between the samples, and the second way measures against the level
+// below, not the source: on the bumpy test sphere the claims came within 0.80-1.19x of the exact distance of the cut
+// from the source (the sum: 0.51-2.29x).
 #ifndef TESSERA_BUILDER_DEVIATION_H
 #define TESSERA_BUILDER_DEVIATION_H
+
+#include "group_positions.h"
 
 #include <cstddef>
 #include <cstdint>
@@ -28,15 +33,20 @@ struct SourcePoint {
 
 struct Deviation {
     float largest = 0;                           // the largest distance of any point measured
-    float strayed = 0;                           // the largest distance of a simplified edge's midpoint from the input
     std::vector<std::vector<SourcePoint>> kept;  // per piece: the points nearest its triangles that strayed most
 };
 
-// `corners`: 9 floats per simplified triangle; `pieceOf`: the cluster (piece) each triangle went into, `pieces` of them;
-// `points`: the source points to measure; `inputCorners`: 9 floats per triangle of the group's input. Each piece keeps
-// at most `keepPerPiece` of its points, the farthest first (those on its surface, distance 0, never).
+// From the source: `corners`: 9 floats per simplified triangle; `pieceOf`: the cluster (piece) each triangle went
+// into, `pieces` of them; `points`: the source points to measure. Each piece keeps at most `keepPerPiece` of its
+// points, the farthest first (those on its surface, distance 0, never).
 Deviation measure_deviation(const std::vector<float>& corners, const std::vector<uint32_t>& pieceOf, size_t pieces,
-                            const std::vector<SourcePoint>& points, size_t keepPerPiece, const std::vector<float>& inputCorners);
+                            const std::vector<SourcePoint>& points, size_t keepPerPiece);
+
+// To the source: the largest distance of a simplified edge's midpoint from the group's input triangles (`group`: the
+// input and the simplified triangles over their positions; `positions`: 3 floats per vertex), or `floor` where none
+// lies farther: an error known already (the first way's, say), which every midpoint within it cannot change, so those
+// are settled by the first input triangle that near.
+float measure_stray(const GroupPositions& group, const std::vector<float>& positions, float floor = 0);
 
 }  // namespace tessera
 
