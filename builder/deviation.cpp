@@ -215,19 +215,24 @@ float measure_stray(const GroupPositions& group, const std::vector<float>& posit
                 best = std::min(best, d);
                 return d;
             };
-            // An input edge: its midpoint lies on the input. Else the midpoint lies mostly near a removed vertex between
-            // the ends (the simplifier collapsed it into one of them): the input triangles around their common
-            // neighbours first.
-            ++stamp;
+            // An input edge: its midpoint lies on the input. Else the simplifier collapsed the input vertices between
+            // the ends into them: a walk from one end over the input's vertices, each step to the neighbour nearest the
+            // midpoint, reaches the one nearest it, and the input triangles around that one come first.
             const Rows& neighbours = group.neighbours;
-            for (uint32_t k = neighbours.start[b]; k < neighbours.start[b + 1]; ++k) slotStamp[neighbours.items[k]] = stamp;
-            if (slotStamp[a] == stamp) continue;
-            for (uint32_t k = neighbours.start[a]; k < neighbours.start[a + 1] && best > enough; ++k) {
-                const uint32_t between = neighbours.items[k];
-                if (slotStamp[between] != stamp) continue;
-                slotStamp[between] = 0;  // each once
-                for (uint32_t i = fan.start[between]; i < fan.start[between + 1] && best > enough; ++i) test(fan.items[i]);
+            bool inputEdge = false;
+            for (uint32_t k = neighbours.start[a]; k < neighbours.start[a + 1] && !inputEdge; ++k) inputEdge = neighbours.items[k] == b;
+            if (inputEdge) continue;
+            uint32_t nearest = a;
+            for (float nearestDistance = distance2(point(a), midpoint);;) {
+                const uint32_t from = nearest;
+                for (uint32_t k = neighbours.start[from]; k < neighbours.start[from + 1]; ++k)
+                    if (const float d = distance2(point(neighbours.items[k]), midpoint); d < nearestDistance) {
+                        nearestDistance = d;
+                        nearest = neighbours.items[k];
+                    }
+                if (nearest == from) break;
             }
+            for (uint32_t k = fan.start[nearest]; k < fan.start[nearest + 1] && best > enough; ++k) test(fan.items[k]);
             if (best <= enough) continue;
             // Else the input between the ends: the edge's midpoint can lie a ring or two of input triangles from both.
             // Breadth first over the input from the ends, through the triangles within a ball around the midpoint
@@ -238,7 +243,7 @@ float measure_stray(const GroupPositions& group, const std::vector<float>& posit
             queue.assign({a, b});
             slotStamp[a] = slotStamp[b] = stamp;
             for (size_t head = 0; head < queue.size() && best > enough; ++head)
-                for (uint32_t k = fan.start[queue[head]]; k < fan.start[queue[head] + 1]; ++k) {
+                for (uint32_t k = fan.start[queue[head]]; k < fan.start[queue[head] + 1] && best > enough; ++k) {
                     const uint32_t u = fan.items[k];
                     if (triangleStamp[u / 3] == stamp) continue;
                     triangleStamp[u / 3] = stamp;
