@@ -107,24 +107,9 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
         const double area = triangle_area(point[corners[i]].data(), point[corners[i + 1]].data(), point[corners[i + 2]].data());
         for (int k = 0; k < 3; ++k) weight[corners[i + k]] += area;
     }
-    // Each position's nearest kept position over the input's edges (breadth first), and the output triangles around it.
-    const Rows& neighbours = group.neighbours;
-    Rows fan;
-    fan.build(slots, [&](auto add) {
-        for (size_t i = 0; i < outputCount; ++i) add(outputCorners[i], uint32_t(i / 3 * 3));
-    });
-    std::vector<uint32_t> nearestKept(slots, kNone), queue;
-    for (uint32_t slot : outputCorners)
-        if (nearestKept[slot] == kNone) {
-            nearestKept[slot] = slot;
-            queue.push_back(slot);
-        }
-    for (size_t head = 0; head < queue.size(); ++head)
-        for (uint32_t k = neighbours.start[queue[head]]; k < neighbours.start[queue[head] + 1]; ++k)
-            if (nearestKept[neighbours.items[k]] == kNone) {
-                nearestKept[neighbours.items[k]] = nearestKept[queue[head]];
-                queue.push_back(neighbours.items[k]);
-            }
+    // Each position's nearest kept position over the input's edges, and the output triangles around it.
+    const Rows& fan = group.outputFan;
+    const std::vector<uint32_t>& nearestKept = group.nearestKept;
 
     // The unknowns: output vertices alone at their position and not locked.
     std::vector<uint32_t> unknownOf(slots, kNone), unknownVertex, unknownSlot;

@@ -20,6 +20,7 @@
 #include <meshoptimizer.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cfloat>
 #include <cmath>
@@ -204,6 +205,21 @@ size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t
     return write;
 }
 
+
+// Per triangle of `indices` (3 vertices each), the piece split_into_clusters put it in (it keeps each triangle's corners
+// in their order): both lists of triangles sorted by their corners and matched.
+std::vector<uint32_t> piece_of_triangles(const std::vector<uint32_t>& indices, const std::vector<std::vector<uint32_t>>& pieces) {
+    using Keyed = std::pair<std::array<uint32_t, 3>, uint32_t>;  // (corners, triangle or piece)
+    std::vector<Keyed> triangles, placed;
+    for (uint32_t i = 0; i < indices.size(); i += 3) triangles.push_back({{indices[i], indices[i + 1], indices[i + 2]}, i / 3});
+    for (uint32_t piece = 0; piece < pieces.size(); ++piece)
+        for (size_t i = 0; i < pieces[piece].size(); i += 3) placed.push_back({{pieces[piece][i], pieces[piece][i + 1], pieces[piece][i + 2]}, piece});
+    std::sort(triangles.begin(), triangles.end());
+    std::sort(placed.begin(), placed.end());
+    std::vector<uint32_t> pieceOf(triangles.size(), 0);
+    for (size_t i = 0; i < triangles.size() && i < placed.size(); ++i) pieceOf[triangles[i].second] = placed[i].second;
+    return pieceOf;
+}
 
 // Splits triangles into spatially compact clusters (at most 128 triangles and 255 vertices). The triangles'
 // vertices are first compacted, so the cost follows the triangles given, not the whole mesh.
@@ -962,18 +978,13 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             for (uint32_t v : merged)
                 if (interior(v) && keptBy[v] != stamp && measuredBy[v] != stamp) {
                     measuredBy[v] = stamp;
-                    points.push_back({{local[3 * v], local[3 * v + 1], local[3 * v + 2]}, 0.0f});
+                    points.push_back({{local[3 * v], local[3 * v + 1], local[3 * v + 2]}, 0.0f, v});
                 }
             for (uint32_t c : members[g]) points.insert(points.end(), clusters[c].carried.begin(), clusters[c].carried.end());
             std::vector<float> triangleCorners;
-            std::vector<uint32_t> pieceOf;
-            for (size_t piece = 0; piece < result.pieces.size(); ++piece)
-                for (uint32_t v : result.pieces[piece]) {
-                    const float* p = position(v);
-                    triangleCorners.insert(triangleCorners.end(), p, p + 3);
-                    if (triangleCorners.size() % 9 == 0) pieceOf.push_back(uint32_t(piece));
-                }
-            Deviation deviation = measure_deviation(triangleCorners, pieceOf, result.pieces.size(), points, kCarriedPoints);
+            for (uint32_t v : simplified) triangleCorners.insert(triangleCorners.end(), position(v), position(v) + 3);
+            Deviation deviation = measure_deviation(groupPositions, triangleCorners, simplified.data(), piece_of_triangles(simplified, result.pieces),
+                                                          result.pieces.size(), points, positionId, kCarriedPoints);
             // The simplified edges' midpoints from the input, where they stray further than the group's error so far
             // (its own, its children's, the first way's); before Preserve Area moved the open borders (its
             // displacement is in the error already).
@@ -1044,10 +1055,14 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
                 firstGroup.push_back(-1);
                 shared.push_back(0);
             }
-            if (shift)
+            if (shift) {
                 for (auto& piece : results[g].pieces)
                     for (uint32_t& v : piece)
                         if (v >= roundVertices) v += shift;
+                for (auto& carried : results[g].carried)
+                    for (SourcePoint& point : carried)
+                        if (point.anchor >= roundVertices) point.anchor += shift;
+            }
             add_clusters(std::move(results[g].pieces), &group.sphere, group.error, childLevel + 1, int32_t(groups.size() - 1), next,
                          std::move(results[g].carried));
         }

@@ -9,6 +9,8 @@
 namespace tessera {
 namespace {
 
+constexpr int kWalkSteps = 4;  // steps of a source point's walk over the simplified triangles (measure_deviation)
+
 float dot3(const float* a, const float* b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
 float distance2(const float* a, const float* b) {
@@ -47,131 +49,85 @@ float distance2_to_triangle(const float* p, const float* a, const float* b, cons
     return at(vb / sum, vc / sum);
 }
 
-// Triangles listed by the cells of a uniform grid, a cell about half a mean edge across (larger where the box would
-// need more than 16 cells a triangle); each triangle in every cell its box, widened by half a cell, touches, so that a
-// point within half a cell of a triangle finds it in its own cell.
-class TriangleGrid {
-public:
-    explicit TriangleGrid(const std::vector<float>& corners) : corners_(corners), triangles_(corners.size() / 9), spheres_(4 * triangles_) {
-        double edges = 0;
-        for (size_t t = 0; t < triangles_; ++t) {
-            const float* v = &corners[9 * t];
-            for (int k = 0; k < 9; ++k) {
-                lo_[k % 3] = std::min(lo_[k % 3], v[k]);
-                hi_[k % 3] = std::max(hi_[k % 3], v[k]);
-            }
-            edges += std::sqrt(distance2(v, v + 3)) + std::sqrt(distance2(v + 3, v + 6)) + std::sqrt(distance2(v + 6, v));
-            float* sphere = &spheres_[4 * t];
-            for (int k = 0; k < 3; ++k) sphere[k] = (v[k] + v[3 + k] + v[6 + k]) / 3.0f;
-            sphere[3] = std::sqrt(std::max({distance2(sphere, v), distance2(sphere, v + 3), distance2(sphere, v + 6)})) * 1.0001f;
-        }
-        const float extent = std::max({hi_[0] - lo_[0], hi_[1] - lo_[1], hi_[2] - lo_[2]});
-        cell_ = std::max(0.5f * float(edges / (3.0 * double(std::max<size_t>(triangles_, 1)))), extent * 1e-6f);
-        if (!(cell_ > 0)) cell_ = 1;  // every corner at one point
-        for (;;) {  // at most about 16 cells per triangle
-            size_t cells = 1;
-            for (int k = 0; k < 3; ++k) {
-                dims_[k] = std::max(1, int(std::ceil((hi_[k] - lo_[k]) / cell_)));
-                cells *= size_t(dims_[k]);
-            }
-            if (cells <= 16 * triangles_ + 64) break;
-            cell_ *= 1.5f;
-        }
-        inverseCell_ = 1.0f / cell_;
-        const size_t cellCount = size_t(dims_[0]) * size_t(dims_[1]) * size_t(dims_[2]);
-        // The triangles by cell: counted, then placed (a counting sort).
-        start_.assign(cellCount + 1, 0);
-        for (size_t t = 0; t < triangles_; ++t) for_cells(t, [&](size_t c) { ++start_[c + 1]; });
-        for (size_t c = 0; c < cellCount; ++c) start_[c + 1] += start_[c];
-        listed_.resize(start_[cellCount]);
-        std::vector<uint32_t> next(start_.begin(), start_.end() - 1);
-        for (size_t t = 0; t < triangles_; ++t) for_cells(t, [&](size_t c) { listed_[next[c]++] = uint32_t(t); });
-    }
-
-    // The squared distance from p to the nearest triangle its cell lists (of the two shells of cells around it where
-    // its cell lists none, of every triangle where they list none either), and that triangle: never less than the
-    // distance to the nearest triangle of all. `enough`: a squared distance within which any triangle will do (the
-    // search stops at the first).
-    std::pair<float, uint32_t> nearest(const float* p, float enough = -1) const {
-        const int at[3] = {cell_of(p[0], 0), cell_of(p[1], 1), cell_of(p[2], 2)};
-        // Triangle t's squared distance, or infinity where its sphere lies farther than `within` (skipped cheaply).
-        auto within_reach = [&](uint32_t t, float within) {
-            const float* sphere = &spheres_[4 * t];
-            const float reach = within + sphere[3];
-            if (distance2(p, sphere) > reach * reach) return INFINITY;
-            const float* v = &corners_[9 * t];
-            return distance2_to_triangle(p, v, v + 3, v + 6);
-        };
-        // First, where any triangle within `enough` will do, only those of the point's cell whose spheres reach that
-        // near (most points find one: their full search is never made).
-        if (enough > 0) {
-            const size_t c = (size_t(at[2]) * dims_[1] + at[1]) * dims_[0] + at[0];
-            for (uint32_t i = start_[c]; i < start_[c + 1]; ++i)
-                if (const float d = within_reach(listed_[i], std::sqrt(enough)); d <= enough) return {d, listed_[i]};
-        }
-        std::pair<float, uint32_t> best{INFINITY, 0};
-        float bestDistance = INFINITY;
-        auto test = [&](uint32_t t) {
-            if (const float d = within_reach(t, bestDistance); d < best.first) {
-                best = {d, t};
-                bestDistance = std::sqrt(d);
-            }
-        };
-        for (int r = 0; r <= 2 && best.first == INFINITY; ++r)
-            for (int z = std::max(at[2] - r, 0); z <= std::min(at[2] + r, dims_[2] - 1); ++z)
-                for (int y = std::max(at[1] - r, 0); y <= std::min(at[1] + r, dims_[1] - 1); ++y)
-                    for (int x = std::max(at[0] - r, 0); x <= std::min(at[0] + r, dims_[0] - 1); ++x) {
-                        if (std::max({std::abs(x - at[0]), std::abs(y - at[1]), std::abs(z - at[2])}) != r) continue;
-                        const size_t c = (size_t(z) * dims_[1] + y) * dims_[0] + x;
-                        for (uint32_t i = start_[c]; i < start_[c + 1] && best.first > enough; ++i) test(listed_[i]);
-                    }
-        if (best.first == INFINITY)  // none listed near: every triangle
-            for (uint32_t t = 0; t < triangles_; ++t) test(t);
-        return best;
-    }
-
-private:
-    int cell_of(float x, int k) const { return int(std::clamp(std::floor((x - lo_[k]) * inverseCell_), 0.0f, float(dims_[k] - 1))); }
-    template <typename Visit>
-    void for_cells(size_t t, Visit visit) const {
-        const float* v = &corners_[9 * t];
-        const float pad = 0.5f * cell_;
-        int first[3], last[3];
-        for (int k = 0; k < 3; ++k) {
-            first[k] = cell_of(std::min({v[k], v[3 + k], v[6 + k]}) - pad, k);
-            last[k] = cell_of(std::max({v[k], v[3 + k], v[6 + k]}) + pad, k);
-        }
-        for (int z = first[2]; z <= last[2]; ++z)
-            for (int y = first[1]; y <= last[1]; ++y)
-                for (int x = first[0]; x <= last[0]; ++x) visit((size_t(z) * dims_[1] + y) * dims_[0] + x);
-    }
-
-    const std::vector<float>& corners_;
-    size_t triangles_;
-    std::vector<float> spheres_;  // per triangle: centre and radius of a sphere holding it
-    float lo_[3] = {INFINITY, INFINITY, INFINITY}, hi_[3] = {-INFINITY, -INFINITY, -INFINITY};
-    float cell_ = 1, inverseCell_ = 1;
-    int dims_[3] = {1, 1, 1};
-    std::vector<uint32_t> start_, listed_;
-};
-
 }  // namespace
 
-Deviation measure_deviation(const std::vector<float>& corners, const std::vector<uint32_t>& pieceOf, size_t pieces,
-                            const std::vector<SourcePoint>& points, size_t keepPerPiece) {
+Deviation measure_deviation(const GroupPositions& group, const std::vector<float>& corners, const uint32_t* outputVertices,
+                            const std::vector<uint32_t>& pieceOf, size_t pieces, const std::vector<SourcePoint>& points,
+                            const std::vector<uint32_t>& positionId, size_t keepPerPiece) {
     Deviation out;
     out.kept.resize(pieces);
-    if (corners.empty()) return out;
-    // The simplified surface from the source points: each point's distance to it, kept by the piece nearest.
-    const TriangleGrid simplified(corners);
+    const size_t triangles = corners.size() / 9;
+    if (triangles == 0) return out;
+    const Rows& fan = group.outputFan;
+    std::vector<uint32_t> triangleStamp(triangles, 0), slotStamp(group.slots(), 0), queue;
+    uint32_t stamp = 0;
     std::vector<std::vector<SourcePoint>> near(pieces);
     for (const SourcePoint& point : points) {
+        const float* p = point.position;
         // A point within the largest distance so far does not change it: the first triangle that near will do (its
         // distance, an upper bound, ranks it among its piece's points).
-        const auto [d2, nearest] = simplified.nearest(point.position, out.largest * out.largest);
-        const float distance = std::sqrt(d2);
+        const float enough = out.largest * out.largest;
+        float best = INFINITY;
+        uint32_t nearest = 0;
+        auto test = [&](uint32_t t) {
+            const float* v = &corners[9 * size_t(t)];
+            const float d = distance2_to_triangle(p, v, v + 3, v + 6);
+            if (d < best) {
+                best = d;
+                nearest = t;
+            }
+            return d;
+        };
+        // The simplified triangles around the kept position nearest the point's anchor over the input's edges, then
+        // a walk: the triangles around the nearest one's corners, while that finds a nearer one.
+        const uint32_t anchor = group.outputInInput && point.anchor < positionId.size() ? group.slot_of(positionId[point.anchor]) : GroupPositions::kNone;
+        const uint32_t kept = anchor == GroupPositions::kNone ? GroupPositions::kNone : group.nearestKept[anchor];
+        if (kept == GroupPositions::kNone) {  // not on the group's surface: every triangle
+            for (uint32_t t = 0; t < triangles && best > enough; ++t) test(t);
+        } else {
+            for (uint32_t k = fan.start[kept]; k < fan.start[kept + 1] && best > enough; ++k) test(fan.items[k] / 3);
+            for (int step = 0; step < kWalkSteps && best > enough; ++step) {
+                const uint32_t from = nearest;
+                for (int j = 0; j < 3; ++j) {
+                    const uint32_t corner = group.outputCorners[3 * from + j];
+                    for (uint32_t k = fan.start[corner]; k < fan.start[corner + 1] && best > enough; ++k) test(fan.items[k] / 3);
+                }
+                if (nearest == from) break;
+            }
+            // Where it would raise the largest: the walk may have stopped at a triangle that is only nearest around it.
+            // Breadth first over the simplified triangles from the kept position, through those within a ball around the
+            // point as far again past that position as the nearest so far (so that the surface between them stays in
+            // it where the point lies far off the surface, above a fold, say).
+            if (best > enough && fan.start[kept] < fan.start[kept + 1]) {
+                const uint32_t first = fan.items[fan.start[kept]];
+                int at = 0;
+                while (at < 2 && group.outputCorners[first + at] != kept) ++at;
+                const float radius = std::sqrt(distance2(p, &corners[3 * (size_t(first) + at)])) + std::sqrt(best);
+                const float radius2 = radius * radius * 1.0001f;
+                ++stamp;
+                queue.assign({kept});
+                slotStamp[kept] = stamp;
+                for (size_t head = 0; head < queue.size() && best > enough; ++head)
+                    for (uint32_t k = fan.start[queue[head]]; k < fan.start[queue[head] + 1] && best > enough; ++k) {
+                        const uint32_t t = fan.items[k] / 3;
+                        if (triangleStamp[t] == stamp) continue;
+                        triangleStamp[t] = stamp;
+                        if (test(t) > radius2) continue;
+                        for (int j = 0; j < 3; ++j)
+                            if (const uint32_t corner = group.outputCorners[3 * t + j]; slotStamp[corner] != stamp) {
+                                slotStamp[corner] = stamp;
+                                queue.push_back(corner);
+                            }
+                    }
+            }
+        }
+        const float distance = std::sqrt(best);
         out.largest = std::max(out.largest, distance);
-        if (distance > 0) near[pieceOf[nearest]].push_back({{point.position[0], point.position[1], point.position[2]}, distance});
+        if (!(distance > 0)) continue;
+        // Carried up by the nearest triangle's piece, anchored at that triangle's corner nearest the point.
+        const float* v = &corners[9 * size_t(nearest)];
+        const int corner = distance2(p, v) <= std::min(distance2(p, v + 3), distance2(p, v + 6)) ? 0 : distance2(p, v + 3) <= distance2(p, v + 6) ? 1 : 2;
+        near[pieceOf[nearest]].push_back({{p[0], p[1], p[2]}, distance, outputVertices[3 * size_t(nearest) + corner]});
     }
     for (size_t piece = 0; piece < pieces; ++piece) {
         std::vector<SourcePoint>& list = near[piece];

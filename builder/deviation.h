@@ -7,13 +7,16 @@
 //   the simplified triangles;
 // - to the source: the simplified edges' midpoints to the group's input triangles (where a simplified edge stands
 //   off the surface while every source point lies near some simplified triangle: a fold).
-// The first way's distance is to the nearest triangle a grid cell around the point lists, the second's to the nearest
-// input triangle a walk over the input's surface from the edge's ends finds: each a distance to a real triangle, so never
-// less than the true distance to those triangles. (A grid for the second way cost a fifth of the build: the input has
-// twice the triangles, and a simplified edge's ends are input vertices, so its nearest input triangles lie around them.)
-// Sampled, it can fall short of the exact distance between the samples, and the second way measures against the level
-// below, not the source: on the bumpy test sphere the claims came within 0.80-1.19x of the exact distance of the cut
-// from the source (the sum: 0.51-2.29x).
+// Both search over the group's surface (group_positions.h), not space: the simplifier keeps a subset of the input's
+// vertices, so a point's nearest triangles lie around the kept vertex nearest it over the input's edges (the first
+// way), and an edge's midpoint's around the input vertex between its ends (the second). A walk from there towards
+// nearer triangles settles a point, and where the point could raise the largest distance so far, every triangle within
+// a ball around it is searched, breadth first from there: each distance is to a real triangle, never less than the true
+// distance to those triangles, and the largest is the exact one where the surface in that ball is connected. (Uniform
+// grids over the triangles, used before, cost a quarter of the build; session 35.) Sampled, it can fall short of the
+// exact distance between the samples, and the second way measures against the level below, not the source: on the
+// bumpy test sphere the claims came within 0.80-1.19x of the exact distance of the cut from the source (the sum:
+// 0.51-2.29x).
 #ifndef TESSERA_BUILDER_DEVIATION_H
 #define TESSERA_BUILDER_DEVIATION_H
 
@@ -25,10 +28,12 @@
 
 namespace tessera {
 
-// A source point carried up the DAG by the cluster it lies nearest to, with its distance to that cluster's level.
+// A source point carried up the DAG by the cluster it lies nearest to, with its distance to that cluster's level and
+// the cluster's vertex nearest it (where the search over the next level's surface starts).
 struct SourcePoint {
     float position[3];
     float distance;
+    uint32_t anchor;  // a vertex of the mesh
 };
 
 struct Deviation {
@@ -36,11 +41,16 @@ struct Deviation {
     std::vector<std::vector<SourcePoint>> kept;  // per piece: the points nearest its triangles that strayed most
 };
 
-// From the source: `corners`: 9 floats per simplified triangle; `pieceOf`: the cluster (piece) each triangle went
-// into, `pieces` of them; `points`: the source points to measure. Each piece keeps at most `keepPerPiece` of its
-// points, the farthest first (those on its surface, distance 0, never).
-Deviation measure_deviation(const std::vector<float>& corners, const std::vector<uint32_t>& pieceOf, size_t pieces,
-                            const std::vector<SourcePoint>& points, size_t keepPerPiece);
+// From the source: `group`: the group's input and simplified triangles over their positions (a point's search starts
+// at its anchor's position and walks over the simplified triangles); `corners`: 9 floats per simplified triangle, where
+// it is drawn (Preserve Area may have moved its open borders), and `outputVertices` its corners' vertices (3 per
+// triangle), both in the group's output order; `pieceOf`: the cluster (piece) each triangle went into, `pieces` of
+// them; `points`: the source points to measure; `positionId`: vertices at one position share an id. Each piece keeps
+// at most `keepPerPiece` of its points, the farthest first (those on its surface, distance 0, never), anchored at the
+// corner of their nearest triangle nearest them.
+Deviation measure_deviation(const GroupPositions& group, const std::vector<float>& corners, const uint32_t* outputVertices,
+                            const std::vector<uint32_t>& pieceOf, size_t pieces, const std::vector<SourcePoint>& points,
+                            const std::vector<uint32_t>& positionId, size_t keepPerPiece);
 
 // To the source: the largest distance of a simplified edge's midpoint from the group's input triangles (`group`: the
 // input and the simplified triangles over their positions; `positions`: 3 floats per vertex), or `floor` where none

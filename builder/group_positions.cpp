@@ -52,6 +52,25 @@ GroupPositions::GroupPositions(const std::vector<uint32_t>& input, const uint32_
     outputCorners.resize(outputCount);
     for (size_t i = 0; i < outputCount; ++i) outputCorners[i] = find(positionId[output[i]]).second;
     outputInInput = std::find(outputCorners.begin(), outputCorners.end(), kNone) == outputCorners.end();
+    if (!outputInInput) return;
+    outputFan.build(slots(), [&](auto add) {
+        for (size_t i = 0; i < outputCorners.size(); ++i) add(outputCorners[i], uint32_t(i / 3 * 3));
+    });
+    nearestKept.assign(slots(), kNone);
+    std::vector<uint32_t> queue;
+    for (uint32_t slot : outputCorners)
+        if (nearestKept[slot] == kNone) {
+            nearestKept[slot] = slot;
+            queue.push_back(slot);
+        }
+    for (size_t head = 0; head < queue.size(); ++head)
+        for (uint32_t k = neighbours.start[queue[head]]; k < neighbours.start[queue[head] + 1]; ++k)
+            if (nearestKept[neighbours.items[k]] == kNone) {
+                nearestKept[neighbours.items[k]] = nearestKept[queue[head]];
+                queue.push_back(neighbours.items[k]);
+            }
 }
+
+uint32_t GroupPositions::slot_of(uint32_t positionId) const { return find(positionId).second; }
 
 }  // namespace tessera

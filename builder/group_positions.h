@@ -24,15 +24,22 @@ struct GroupPositions {
     std::vector<uint32_t> vertexOf;       // per slot, its first vertex in the input
     std::vector<char> seam;               // per slot: the input has several vertices there
     Rows neighbours;                      // per slot, the slots it shares an input edge with (each once per triangle)
+    // Where the output describes: per slot, the output triangles around it (their first corners in outputCorners), and
+    // its nearest output slot over the input's edges (breadth first; kNone where none is connected to it).
+    Rows outputFan;
+    std::vector<uint32_t> nearestKept;
     // The simplifier only removes: every output position is an input one. Where not, nothing here describes the output.
     bool outputInInput = true;
 
     size_t slots() const { return vertexOf.size(); }
+    // The slot of a position id, kNone where the input has none there.
+    uint32_t slot_of(uint32_t positionId) const;
 
 private:
     // Open addressing by position id, at most half full: (position id, slot).
     std::vector<std::pair<uint32_t, uint32_t>> table_;
     std::pair<uint32_t, uint32_t>& find(uint32_t id);
+    const std::pair<uint32_t, uint32_t>& find(uint32_t id) const { return const_cast<GroupPositions*>(this)->find(id); }
     void insert(uint32_t id, uint32_t slot);
 };
 

@@ -1,6 +1,7 @@
 // A group's measured distance from the source (builder/deviation.cpp) against brute force: every point's distance to
 // every triangle, by the tests' own nearest-point code; both ways (source points to the simplified triangles, simplified
-// edges' midpoints to the input).
+// edges' midpoints to the input), on simplified sheets: the input a bumpy grid, the output a grid over every few of its
+// vertices, as the simplifier keeps a subset.
 #include "dag_fixtures.h"
 #include "deviation.h"
 
@@ -20,63 +21,6 @@ double triangle_distance(const float* p, const float* a, const float* b, const f
     double w[3];
     return std::sqrt(dagtest::nearest_on_triangle(p, a, b, c, w));
 }
-
-// A bumpy strip of triangles (nx by ny quads, 0.1 apart), two pieces split at its middle column.
-struct Strip {
-    std::vector<float> corners;
-    std::vector<uint32_t> pieceOf;
-};
-Strip strip(int nx, int ny, std::mt19937& rng) {
-    std::uniform_real_distribution<float> bump(-0.02f, 0.02f);
-    std::vector<std::array<float, 3>> grid;
-    for (int y = 0; y <= ny; ++y)
-        for (int x = 0; x <= nx; ++x) grid.push_back({0.1f * x, 0.1f * y, bump(rng)});
-    Strip s;
-    for (int y = 0; y < ny; ++y)
-        for (int x = 0; x < nx; ++x) {
-            const int a = y * (nx + 1) + x, b = a + 1, c = a + nx + 1, d = c + 1;
-            for (const std::array<int, 3>& t : {std::array<int, 3>{a, b, d}, {a, d, c}}) {
-                for (int k : t) s.corners.insert(s.corners.end(), grid[k].begin(), grid[k].end());
-                s.pieceOf.push_back(x < nx / 2 ? 0 : 1);
-            }
-        }
-    return s;
-}
-
-}  // namespace
-
-TEST(Deviation, NoLessThanTheTrueDistanceAndCloseToIt) {
-    // Points near the surface, points far off (no cell near them lists a triangle), on a square patch and on a long
-    // thin strip (a grid of one cell across).
-    std::mt19937 rng(7);
-    for (const auto& [nx, ny] : {std::pair{20, 20}, std::pair{400, 1}}) {
-        SCOPED_TRACE(nx);
-        const Strip simplified = strip(nx, ny, rng);
-        std::uniform_real_distribution<float> across(0.0f, 0.1f * nx), along(0.0f, 0.1f * ny), height(-0.05f, 0.05f);
-        std::vector<SourcePoint> points;
-        for (int i = 0; i < 400; ++i) points.push_back({{across(rng), along(rng), height(rng)}, 0});
-        for (int i = 0; i < 20; ++i) points.push_back({{across(rng), along(rng), 3.0f + height(rng)}, 0});  // far off
-        const Deviation d = measure_deviation(simplified.corners, simplified.pieceOf, 2, points, 8);
-        double largest = 0;
-        for (const SourcePoint& p : points) {
-            double nearest = INFINITY;
-            for (size_t t = 0; t < simplified.pieceOf.size(); ++t)
-                nearest = std::min(nearest, triangle_distance(p.position, &simplified.corners[9 * t], &simplified.corners[9 * t + 3],
-                                                              &simplified.corners[9 * t + 6]));
-            largest = std::max(largest, nearest);
-        }
-        EXPECT_GE(d.largest, largest * (1 - 1e-5));
-        EXPECT_LE(d.largest, largest * 1.01) << "the farthest point measures its true distance";
-        // Each piece keeps at most 8 points, the farthest it has first, none at distance 0.
-        for (const auto& kept : d.kept) {
-            EXPECT_LE(kept.size(), 8u);
-            for (const SourcePoint& p : kept) EXPECT_GT(p.distance, 0.0f);
-        }
-        EXPECT_FALSE(d.kept[0].empty() || d.kept[1].empty());
-    }
-}
-
-namespace {
 
 // A bumpy sheet of (n + 1)^2 vertices 0.1 apart, `fold` of its rows bent up steeply at one end, and its simplification
 // as the simplifier makes one: triangles over every `stride`-th vertex (a subset of the input's vertices).
@@ -122,7 +66,118 @@ double brute_stray(const Sheet& s) {
     return strayed;
 }
 
+
+// The simplified triangles' corners (9 floats each), and each triangle's piece: the sheet's output split at x = 1.
+struct Output {
+    std::vector<float> corners;
+    std::vector<uint32_t> pieceOf;
+};
+Output output_of(const Sheet& s) {
+    Output o;
+    for (size_t t = 0; t < s.output.size(); t += 3) {
+        for (int k = 0; k < 3; ++k) o.corners.insert(o.corners.end(), &s.positions[3 * s.output[t + k]], &s.positions[3 * s.output[t + k]] + 3);
+        o.pieceOf.push_back(o.corners[o.corners.size() - 9] < 1.0f ? 0 : 1);
+    }
+    return o;
+}
+
+// The distance from p to the nearest simplified triangle.
+double brute_distance(const Output& o, const float* p) {
+    double nearest = INFINITY;
+    for (size_t t = 0; t < o.pieceOf.size(); ++t)
+        nearest = std::min(nearest, triangle_distance(p, &o.corners[9 * t], &o.corners[9 * t + 3], &o.corners[9 * t + 6]));
+    return nearest;
+}
+
+// The source points of a simplified sheet: the input vertices the output dropped (anchored at themselves), points above
+// and below the input's triangles anchored at a corner of theirs (as the level below carries them), and points far off.
+std::vector<SourcePoint> source_points(const Sheet& s, std::mt19937& rng) {
+    std::vector<char> kept(s.positionId.size(), 0);
+    for (uint32_t v : s.output) kept[v] = 1;
+    std::vector<SourcePoint> points;
+    for (uint32_t v = 0; v < kept.size(); ++v)
+        if (!kept[v]) points.push_back({{s.positions[3 * v], s.positions[3 * v + 1], s.positions[3 * v + 2]}, 0, v});
+    std::uniform_int_distribution<size_t> triangle(0, s.input.size() / 3 - 1);
+    std::uniform_real_distribution<float> weight(0.0f, 1.0f), height(-0.05f, 0.05f);
+    for (int i = 0; i < 300; ++i) {
+        const size_t t = 3 * triangle(rng);
+        float a = weight(rng), b = weight(rng) * (1 - a);
+        const float w[3] = {a, b, 1 - a - b};
+        SourcePoint p{{0, 0, 0}, 0, s.input[t + i % 3]};
+        for (int k = 0; k < 3; ++k)
+            for (int j = 0; j < 3; ++j) p.position[k] += w[j] * s.positions[3 * s.input[t + j] + k];
+        p.position[2] += i < 280 ? height(rng) : 3.0f;  // the last ones far off
+        points.push_back(p);
+    }
+    return points;
+}
+
 }  // namespace
+
+TEST(Deviation, NoLessThanTheTrueDistanceAndCloseToIt) {
+    // The source points of simplified sheets (edges over 2, 3 and 5 input edges, so most points lie a ring or more from
+    // the nearest kept vertex; bumps and a steep rise) against brute force.
+    std::mt19937 rng(7);
+    for (int stride : {2, 3, 5}) {
+        SCOPED_TRACE(stride);
+        const Sheet s = sheet(30, stride, rng);
+        const GroupPositions group(s.input, s.output.data(), s.output.size(), s.positionId);
+        const Output o = output_of(s);
+        const std::vector<SourcePoint> points = source_points(s, rng);
+        const Deviation d = measure_deviation(group, o.corners, s.output.data(), o.pieceOf, 2, points, s.positionId, 8);
+        double largest = 0;
+        for (const SourcePoint& p : points) largest = std::max(largest, brute_distance(o, p.position));
+        EXPECT_GT(largest, 2.9);
+        EXPECT_GE(d.largest, largest * (1 - 1e-5));
+        EXPECT_LE(d.largest, largest * 1.001) << "the farthest point measures its true distance";
+        // Without the far points, the farthest is one of those near the surface: found as well.
+        const std::vector<SourcePoint> near(points.begin(), points.end() - 20);
+        double nearLargest = 0;
+        for (const SourcePoint& p : near) nearLargest = std::max(nearLargest, brute_distance(o, p.position));
+        const Deviation dn = measure_deviation(group, o.corners, s.output.data(), o.pieceOf, 2, near, s.positionId, 8);
+        EXPECT_GE(dn.largest, nearLargest * (1 - 1e-5));
+        EXPECT_LE(dn.largest, nearLargest * 1.001);
+        // Each piece keeps at most 8 points, none at distance 0, each no nearer than it truly is and anchored at one of
+        // the output's vertices (where the next level's search starts).
+        for (const auto& kept : d.kept) {
+            EXPECT_EQ(kept.size(), 8u);
+            for (const SourcePoint& p : kept) {
+                EXPECT_GT(p.distance, 0.0f);
+                EXPECT_GE(p.distance, brute_distance(o, p.position) * (1 - 1e-5));
+                EXPECT_NE(std::find(s.output.begin(), s.output.end(), p.anchor), s.output.end());
+            }
+        }
+    }
+}
+
+TEST(Deviation, PointsOnTheSurfaceMeasureNothing) {
+    // The simplified triangles' own corners lie at distance 0 and are kept by no piece; an empty group measures 0.
+    std::mt19937 rng(3);
+    const Sheet s = sheet(10, 2, rng);
+    const GroupPositions group(s.input, s.output.data(), s.output.size(), s.positionId);
+    const Output o = output_of(s);
+    std::vector<SourcePoint> points;
+    for (uint32_t v : s.output) points.push_back({{s.positions[3 * v], s.positions[3 * v + 1], s.positions[3 * v + 2]}, 0, v});
+    const Deviation d = measure_deviation(group, o.corners, s.output.data(), o.pieceOf, 2, points, s.positionId, 8);
+    EXPECT_EQ(d.largest, 0.0f);
+    EXPECT_TRUE(d.kept[0].empty() && d.kept[1].empty());
+    const Deviation none = measure_deviation(group, {}, nullptr, {}, 0, points, s.positionId, 8);
+    EXPECT_EQ(none.largest, 0.0f);
+}
+
+TEST(Deviation, PointsAnchoredOffTheGroupMeasureEveryTriangle) {
+    // An anchor the group does not hold (a vertex of another part of the mesh): the point is measured against every
+    // triangle, and finds its nearest.
+    std::mt19937 rng(5);
+    const Sheet s = sheet(12, 3, rng);
+    const GroupPositions group(s.input, s.output.data(), s.output.size(), s.positionId);
+    const Output o = output_of(s);
+    std::vector<uint32_t> positionId = s.positionId;
+    positionId.push_back(uint32_t(positionId.size()));  // a vertex no triangle of the group uses
+    const std::vector<SourcePoint> points = {{{0.55f, 0.62f, 0.4f}, 0, uint32_t(positionId.size() - 1)}};
+    const Deviation d = measure_deviation(group, o.corners, s.output.data(), o.pieceOf, 2, points, positionId, 8);
+    EXPECT_NEAR(d.largest, brute_distance(o, points[0].position), 1e-6);
+}
 
 TEST(Deviation, SimplifiedEdgesStrayAsFarAsBruteForceFinds) {
     // Simplified edges spanning 2, 3 and 5 input edges (their midpoints one ring or more from both ends), over bumps and
@@ -151,36 +206,3 @@ TEST(Deviation, EdgesOfTheInputDoNotStray) {
     EXPECT_EQ(measure_stray(group, s.positions), 0.0f);
 }
 
-TEST(Deviation, PointsOnTheSurfaceMeasureNothing) {
-    // The simplified triangles' own corners lie at distance 0 and are kept by no piece; an empty group measures 0.
-    std::mt19937 rng(3);
-    const Strip s = strip(10, 10, rng);
-    std::vector<SourcePoint> points;
-    for (size_t i = 0; i < s.corners.size(); i += 3) points.push_back({{s.corners[i], s.corners[i + 1], s.corners[i + 2]}, 0});
-    const Deviation d = measure_deviation(s.corners, s.pieceOf, 2, points, 8);
-    EXPECT_EQ(d.largest, 0.0f);
-    EXPECT_TRUE(d.kept[0].empty() && d.kept[1].empty());
-    const Deviation none = measure_deviation({}, {}, 0, points, 8);
-    EXPECT_EQ(none.largest, 0.0f);
-}
-
-TEST(Deviation, PointsFarFromEveryTriangleFindTheNearest) {
-    // Two patches at opposite corners of their box: points in the empty middle lie in cells that list no triangle, and
-    // neither do the cells around them; they measure every triangle.
-    std::mt19937 rng(5);
-    Strip a = strip(6, 6, rng);
-    const Strip b = strip(6, 6, rng);
-    for (size_t i = 0; i < b.corners.size(); ++i) a.corners.push_back(b.corners[i] + 5.0f);
-    a.pieceOf.insert(a.pieceOf.end(), b.pieceOf.size(), 1);
-    std::fill(a.pieceOf.begin(), a.pieceOf.begin() + b.pieceOf.size(), 0);
-    const std::vector<SourcePoint> points = {{{2.5f, 2.6f, 2.4f}, 0}, {{4.0f, 1.0f, 3.0f}, 0}};
-    const Deviation d = measure_deviation(a.corners, a.pieceOf, 2, points, 8);
-    double largest = 0;
-    for (const SourcePoint& p : points) {
-        double nearest = INFINITY;
-        for (size_t t = 0; t < a.pieceOf.size(); ++t)
-            nearest = std::min(nearest, triangle_distance(p.position, &a.corners[9 * t], &a.corners[9 * t + 3], &a.corners[9 * t + 6]));
-        largest = std::max(largest, nearest);
-    }
-    EXPECT_NEAR(d.largest, largest, 1e-5 * largest);
-}
