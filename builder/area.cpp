@@ -20,11 +20,57 @@ V3 load(const float* p) { return {p[0], p[1], p[2]}; }
 
 uint64_t edge_key(uint32_t a, uint32_t b) { return a < b ? uint64_t(a) << 32 | b : uint64_t(b) << 32 | a; }
 
+// Per triangle, its connected part (triangles that share a position, transitively), numbered from 0 in order of first
+// triangle; `parts` the count.
+std::vector<uint32_t> connected_parts(const std::vector<uint32_t>& indices, const std::vector<uint32_t>& positionId, uint32_t& parts) {
+    const size_t triangles = indices.size() / 3;
+    std::vector<uint32_t> root(triangles);
+    for (size_t t = 0; t < triangles; ++t) root[t] = uint32_t(t);
+    auto find = [&](uint32_t t) {
+        while (root[t] != t) t = root[t] = root[root[t]];
+        return t;
+    };
+    std::unordered_map<uint32_t, uint32_t> firstAt;  // position id -> a triangle there
+    for (size_t i = 0; i < indices.size(); ++i) {
+        const auto [it, inserted] = firstAt.try_emplace(positionId[indices[i]], uint32_t(i / 3));
+        if (inserted) continue;
+        const uint32_t a = find(it->second), b = find(uint32_t(i / 3));
+        if (a != b) root[std::max(a, b)] = std::min(a, b);
+    }
+    std::vector<uint32_t> part(triangles), number(triangles, UINT32_MAX);
+    parts = 0;
+    for (size_t t = 0; t < triangles; ++t) {
+        uint32_t& n = number[find(uint32_t(t))];
+        if (n == UINT32_MAX) n = parts++;
+        part[t] = n;
+    }
+    return part;
+}
+
+// The covered area (area.h) of triangles whose corner i lies at corner(i), in parts `part` (per triangle).
+template <typename Corner>
+double covered_area_of(size_t triangles, const std::vector<uint32_t>& part, uint32_t parts, Corner corner) {
+    std::vector<V3> vectorArea(parts);
+    for (size_t t = 0; t < triangles; ++t) {
+        const V3 p0 = corner(3 * t), n = cross(corner(3 * t + 1) - p0, corner(3 * t + 2) - p0);
+        vectorArea[part[t]] = vectorArea[part[t]] + n * 0.5;
+    }
+    double sum = 0;
+    for (const V3& a : vectorArea) sum += std::sqrt(dot(a, a));
+    return sum;
+}
+
 }  // namespace
 
 double triangle_area(const float* a, const float* b, const float* c) {
     const V3 n = cross(load(b) - load(a), load(c) - load(a));
     return 0.5 * std::sqrt(dot(n, n));
+}
+
+double covered_area(const std::vector<uint32_t>& indices, const std::vector<float>& positions, const std::vector<uint32_t>& positionId) {
+    uint32_t parts = 0;
+    const std::vector<uint32_t> part = connected_parts(indices, positionId, parts);
+    return covered_area_of(indices.size() / 3, part, parts, [&](size_t i) { return load(&positions[3 * size_t(indices[i])]); });
 }
 
 Dilation dilate_open_borders(std::vector<uint32_t>& indices, const std::vector<float>& positions, const std::vector<uint32_t>& positionId,
@@ -78,15 +124,10 @@ Dilation dilate_open_borders(std::vector<uint32_t>& indices, const std::vector<f
         offset[i] = o;
         moves[i] = true;
     }
+    uint32_t parts = 0;
+    const std::vector<uint32_t> part = connected_parts(indices, positionId, parts);
     auto area = [&](double d) {
-        double sum = 0;
-        for (size_t t = 0; t < indices.size(); t += 3) {
-            V3 p[3];
-            for (int k = 0; k < 3; ++k) p[k] = load(&positions[3 * indices[t + k]]) + offset[t + k] * d;
-            const V3 n = cross(p[1] - p[0], p[2] - p[0]);
-            sum += 0.5 * std::sqrt(dot(n, n));
-        }
-        return sum;
+        return covered_area_of(indices.size() / 3, part, parts, [&](size_t i) { return load(&positions[3 * size_t(indices[i])]) + offset[i] * d; });
     };
     const double start = area(0);
     if (start >= targetArea * (1 - 1e-3)) return out;

@@ -957,9 +957,8 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             result.fitted = fit_attributes(merged, simplified.data(), simplified.size(), groupPositions, local, lock, drawnNormals,
                                            hasColors ? &drawnChannels : nullptr);
             if (settings.preserveArea) {
-                double area = 0;
-                for (size_t i = 0; i < merged.size(); i += 3) area += triangle_area(&local[3 * merged[i]], &local[3 * merged[i + 1]], &local[3 * merged[i + 2]]);
-                result.dilation = dilate_open_borders(simplified, local, positionId, lock, area, diameter / 4, step, uint32_t(roundVertices));
+                result.dilation = dilate_open_borders(simplified, local, positionId, lock, covered_area(merged, local, positionId), diameter / 4, step,
+                                                      uint32_t(roundVertices));
                 error += result.dilation.displacement;  // the moved border strays that much further from the children
             }
             const std::vector<float>& moved = result.dilation.positions;

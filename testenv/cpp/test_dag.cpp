@@ -520,8 +520,7 @@ TEST(Dag, PreserveAreaLevelsShowTheSurfacesValuesToo) {
         moved += !source.count(bits);
     }
     EXPECT_GT(moved, 0u) << "Preserve Area moved the open border";
-    // Level 2's dilation already strays about as far as the coarsest level does (errors are distances from the source,
-    // and a moved border stays moved): levels 2 and up share one error, so level 1 (6166 triangles) is the cut between.
+    // The cut of at most 7000 triangles: level 1 (6166 triangles).
     expect_fits_follow_the_surface(m, {7000}, false, true);
     expect_fits_follow_the_surface(m, {7000}, true, true);
 }

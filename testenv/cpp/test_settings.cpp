@@ -99,12 +99,18 @@ Source card_field(int count, int cells) {
     return s;
 }
 
-// A gently bumpy sheet with a square hole in every 8 x 8 block of quads (a quarter of it missing).
+// A gently bumpy round sheet with a hole in every 8 x 8 block of quads (a quarter of it missing): a square grid mapped
+// onto a disc, so that its outline is a circle, which coarser levels cut into fewer, shorter chords (covering less:
+// what Preserve Area restores; the bumps they flatten cover the same).
 Source perforated_sheet(int n) {
     Source s;
     s.name = "/Sheet";
     for (int y = 0; y <= n; ++y)
-        for (int x = 0; x <= n; ++x) s.points.insert(s.points.end(), {float(x) / n, float(y) / n, 0.02f * std::sin(x * 0.3f) * std::cos(y * 0.2f)});
+        for (int x = 0; x <= n; ++x) {
+            const float u = 2.0f * x / n - 1.0f, v = 2.0f * y / n - 1.0f;
+            s.points.insert(s.points.end(), {u * std::sqrt(1.0f - 0.5f * v * v), v * std::sqrt(1.0f - 0.5f * u * u),
+                                             0.02f * std::sin(x * 0.3f) * std::cos(y * 0.2f)});
+        }
     for (int y = 0; y < n; ++y)
         for (int x = 0; x < n; ++x) {
             if (x % 8 >= 2 && x % 8 < 6 && y % 8 >= 2 && y % 8 < 6) continue;
@@ -266,6 +272,30 @@ TEST(PreserveArea, OpenSheetStaysCrackFreeWhereBordersMove) {
     EXPECT_GT(moved, 0u) << "some groups lost area and moved their open borders (or the test proves nothing)";
     expect_monotone(m);
     expect_crack_free_cuts(m, 40);
+}
+
+TEST(PreserveArea, FlattenedBumpsAskForNoDilation) {
+    // A bumpy square sheet: coarser levels flatten its bumps, which shrinks its surface but not what it covers (its
+    // straight outline stays). Measured as surface area, Preserve Area pushed its borders out at every level, and the
+    // moved borders raised the levels' errors up to the dilation's cap; measured as covered area, it keeps them.
+    Source sheet;
+    sheet.name = "/BumpySheet";
+    const int n = 96;
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x)
+            sheet.points.insert(sheet.points.end(), {float(x) / n, float(y) / n, 0.03f * std::sin(x * 0.5f) * std::cos(y * 0.4f)});
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+            const int a = y * (n + 1) + x;
+            sheet.counts.push_back(4);
+            sheet.indices.insert(sheet.indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+        }
+    BuildSettings on;
+    on.preserveArea = true;
+    const BuiltMesh with = sheet.build(on), without = sheet.build();
+    ASSERT_EQ(with.levels.size(), without.levels.size());
+    for (size_t level = 1; level < with.levels.size(); ++level)
+        EXPECT_LE(with.levels[level].maxError, 1.1f * without.levels[level].maxError) << "level " << level;
 }
 
 TEST(PreserveArea, ClosedMeshesHaveNoBorderToMove) {
