@@ -219,9 +219,10 @@ struct VertexState {
 }  // namespace
 
 bool build_clusters(const uint32_t* indices, size_t indexCount, const float* positions, size_t vertexCount, size_t maxVertices, size_t maxTriangles,
-                    std::vector<std::vector<uint32_t>>& clusters) {
+                    std::vector<std::vector<uint32_t>>& clusters, std::vector<uint32_t>* clusterOfTriangle) {
     clusters.clear();
     const size_t triangles = indexCount / 3;
+    if (clusterOfTriangle) clusterOfTriangle->assign(triangles, 0);
     if (triangles == 0) return true;
     if (triangles >= (1u << 24) || indexCount >= UINT32_MAX) return false;  // counts must fit VertexState (clusters.h)
     maxVertices = std::min<size_t>(maxVertices, kNotInCluster);  // a vertex's place in its cluster must fit below kNotInCluster
@@ -439,6 +440,7 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
                 clusterVertices.push_back(corner[k]);
             }
         corners.insert(corners.end(), corner, corner + 3);
+        if (clusterOfTriangle) (*clusterOfTriangle)[next] = uint32_t(clusters.size());  // the open cluster's number
         ++clusterTriangles;
         taken[next] = 1;
         if (listed[next] != kNone) unlist(next);

@@ -19,7 +19,8 @@ namespace tessera {
 // symmetric about its centre, a regular grid), meshoptimizer's k-d tree order decides: the same tree is then built
 // to ask it. Returns false, leaving `clusters` empty, only for a mesh of no area (meshoptimizer's scores are not
 // numbers there) or of 2^24 triangles or more (its counts are packed): the caller then uses meshoptimizer.
+// `clusterOfTriangle`, where given, receives each triangle's cluster.
 bool build_clusters(const uint32_t* indices, size_t indexCount, const float* positions, size_t vertexCount, size_t maxVertices, size_t maxTriangles,
-                    std::vector<std::vector<uint32_t>>& clusters);
+                    std::vector<std::vector<uint32_t>>& clusters, std::vector<uint32_t>* clusterOfTriangle = nullptr);
 
 }  // namespace tessera

@@ -206,8 +206,8 @@ size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t
 }
 
 
-// Per triangle of `indices` (3 vertices each), the piece split_into_clusters put it in (it keeps each triangle's corners
-// in their order): both lists of triangles sorted by their corners and matched.
+// Per triangle of `indices` (3 vertices each), the piece `pieces` hold it in (each triangle's corners in their order):
+// both lists of triangles sorted by their corners and matched. For meshoptimizer's clusters, which do not say.
 std::vector<uint32_t> piece_of_triangles(const std::vector<uint32_t>& indices, const std::vector<std::vector<uint32_t>>& pieces) {
     using Keyed = std::pair<std::array<uint32_t, 3>, uint32_t>;  // (corners, triangle or piece)
     std::vector<Keyed> triangles, placed;
@@ -223,9 +223,9 @@ std::vector<uint32_t> piece_of_triangles(const std::vector<uint32_t>& indices, c
 
 // Splits triangles into spatially compact clusters (at most 128 triangles and 255 vertices). The triangles'
 // vertices are first compacted, so the cost follows the triangles given, not the whole mesh.
-// `position(v)` gives vertex v's xyz.
+// `position(v)` gives vertex v's xyz; `pieceOf`, where given, receives each triangle's piece.
 template <typename PositionOf>
-std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, PositionOf position) {
+std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, PositionOf position, std::vector<uint32_t>* pieceOf = nullptr) {
     // Local numbers found through a table (sorting every index and searching for each cost a fifth of the build):
     // direct when the vertex numbers span little more than the indices (a small mesh in one piece), else open
     // addressing at most half full (Morton chunks and groups of large meshes).
@@ -264,7 +264,8 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
     // Our builder gives meshoptimizer's clusters (the same, triangle for triangle) at half the cost; meshoptimizer
     // itself only for what ours leaves to it (a mesh of no area, clusters.h).
     std::vector<std::vector<uint32_t>> pieces;
-    if (build_clusters(localIndices.data(), localIndices.size(), compact.data(), vertices.size(), kClusterVertices, kClusterMaxTriangles, pieces)) {
+    if (build_clusters(localIndices.data(), localIndices.size(), compact.data(), vertices.size(), kClusterVertices, kClusterMaxTriangles, pieces,
+                       pieceOf)) {
         for (auto& piece : pieces)
             for (uint32_t& v : piece) v = vertices[v];
         return pieces;
@@ -282,6 +283,7 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
         for (size_t i = 0; i < pieces[m].size(); ++i)
             pieces[m][i] = vertices[meshletVertices[meshlet.vertex_offset + meshletTriangles[meshlet.triangle_offset + i]]];
     }
+    if (pieceOf) *pieceOf = piece_of_triangles(indices, pieces);
     return pieces;
 }
 
@@ -965,7 +967,8 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             auto position = [&](uint32_t v) { return v < roundVertices ? &local[3 * v] : &moved[3 * (v - roundVertices)]; };
             result.simplified = true;
             result.error = error;
-            result.pieces = split_into_clusters(simplified, position);
+            std::vector<uint32_t> pieceOf;  // per triangle of `simplified`
+            result.pieces = split_into_clusters(simplified, position, &pieceOf);
             // The group's distance from the source (deviation.h): from its input vertices that simplification removed
             // and the points its children carried up to its triangles, and from its edges' midpoints to its input
             // triangles; each new cluster carries up the points nearest it that stray most.
@@ -982,7 +985,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             for (uint32_t c : members[g]) points.insert(points.end(), clusters[c].carried.begin(), clusters[c].carried.end());
             std::vector<float> triangleCorners;
             for (uint32_t v : simplified) triangleCorners.insert(triangleCorners.end(), position(v), position(v) + 3);
-            Deviation deviation = measure_deviation(groupPositions, triangleCorners, simplified.data(), piece_of_triangles(simplified, result.pieces),
+            Deviation deviation = measure_deviation(groupPositions, triangleCorners, simplified.data(), pieceOf,
                                                           result.pieces.size(), points, positionId, kCarriedPoints);
             // The simplified edges' midpoints from the input, where they stray further than the group's error so far
             // (its own, its children's, the first way's); before Preserve Area moved the open borders (its

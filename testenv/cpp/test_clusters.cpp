@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <map>
 #include <random>
+#include <set>
 
 using namespace tessera;
 using namespace dagtest;
@@ -37,11 +38,27 @@ std::vector<std::vector<uint32_t>> meshoptimizer_clusters(const PreparedMesh& m,
 bool expect_same_clusters(const Source& source, size_t maxVertices = 255, size_t maxTriangles = 128) {
     const PreparedMesh m = prepare_mesh(polygon_view(source.name, source.points, source.counts, source.indices));
     std::vector<std::vector<uint32_t>> ours;
-    const bool answered = build_clusters(m.indices.data(), m.indices.size(), m.positions.data(), m.positions.size() / 3, maxVertices, maxTriangles, ours);
+    std::vector<uint32_t> clusterOf;
+    const bool answered =
+        build_clusters(m.indices.data(), m.indices.size(), m.positions.data(), m.positions.size() / 3, maxVertices, maxTriangles, ours, &clusterOf);
     if (!answered) {
         EXPECT_TRUE(ours.empty()) << source.name;
         return false;
     }
+    // Each triangle's cluster, as it says, holds that triangle (its corners in their order), and the clusters hold
+    // each triangle once.
+    EXPECT_EQ(clusterOf.size(), m.indices.size() / 3) << source.name;
+    std::vector<std::multiset<std::array<uint32_t, 3>>> held(ours.size());
+    for (size_t c = 0; c < ours.size(); ++c)
+        for (size_t i = 0; i < ours[c].size(); i += 3) held[c].insert({ours[c][i], ours[c][i + 1], ours[c][i + 2]});
+    size_t misplaced = 0;
+    for (size_t t = 0; t < clusterOf.size(); ++t) {
+        auto* in = clusterOf[t] < held.size() ? &held[clusterOf[t]] : nullptr;
+        const auto it = in ? in->find({m.indices[3 * t], m.indices[3 * t + 1], m.indices[3 * t + 2]}) : held[0].end();
+        if (!in || it == in->end()) ++misplaced;
+        else in->erase(it);
+    }
+    EXPECT_EQ(misplaced, 0u) << source.name << ": triangles not in the cluster said to hold them";
     const auto theirs = meshoptimizer_clusters(m, maxVertices, maxTriangles);
     EXPECT_EQ(ours.size(), theirs.size()) << source.name;
     size_t first = 0;  // the first cluster that differs
