@@ -985,8 +985,8 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             for (uint32_t c : members[g]) points.insert(points.end(), clusters[c].carried.begin(), clusters[c].carried.end());
             std::vector<float> triangleCorners;
             for (uint32_t v : simplified) triangleCorners.insert(triangleCorners.end(), position(v), position(v) + 3);
-            Deviation deviation = measure_deviation(groupPositions, triangleCorners, simplified.data(), pieceOf,
-                                                          result.pieces.size(), points, positionId, kCarriedPoints);
+            Deviation deviation = measure_deviation(groupPositions, triangleCorners, simplified.data(), pieceOf, result.pieces.size(), points,
+                                                    positionId, kCarriedPoints);
             // The simplified edges' midpoints from the input, where they stray further than the group's error so far
             // (its own, its children's, the first way's); before Preserve Area moved the open borders (its
             // displacement is in the error already).

@@ -1,6 +1,6 @@
-// Internal to the builder: a simplified group's positions numbered in order of first use (slots), the topology that
-// fitting its attributes (attribute_fit.h) and measuring its strayed edges (deviation.h) walk. Vertices at one position
-// (the wedges of a seam) share a slot, so that a seam does not cut the surface in two.
+// Internal to the builder: a simplified group's positions numbered in order of first use (slots), and the topology that
+// fitting its attributes (attribute_fit.h) and measuring its distance from the source (deviation.h) walk. Vertices at
+// one position (the wedges of a seam) share a slot, so that a seam does not cut the surface in two.
 #pragma once
 
 #include "rows.h"
@@ -24,12 +24,11 @@ struct GroupPositions {
     std::vector<uint32_t> vertexOf;       // per slot, its first vertex in the input
     std::vector<char> seam;               // per slot: the input has several vertices there
     Rows neighbours;                      // per slot, the slots it shares an input edge with (each once per triangle)
-    // Where the output describes: per slot, the output triangles around it (their first corners in outputCorners), and
-    // its nearest output slot over the input's edges (breadth first; kNone where none is connected to it).
-    Rows outputFan;
-    std::vector<uint32_t> nearestKept;
-    // The simplifier only removes: every output position is an input one. Where not, nothing here describes the output.
+    // The simplifier only removes: every output position is an input one. Where not, the two below are left empty.
     bool outputInInput = true;
+    Rows outputFan;                       // per slot, the output triangles around it (their first corners in outputCorners)
+    std::vector<uint32_t> nearestKept;    // per slot, its nearest output slot over the input's edges (breadth first; kNone
+                                          // where none is connected to it)
 
     size_t slots() const { return vertexOf.size(); }
     // The slot of a position id, kNone where the input has none there.
