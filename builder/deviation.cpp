@@ -162,8 +162,8 @@ float measure_stray(const GroupPositions& group, const std::vector<float>& posit
             const float* pa = point(a);
             const float* pb = point(b);
             const float midpoint[3] = {0.5f * (pa[0] + pb[0]), 0.5f * (pa[1] + pb[1]), 0.5f * (pa[2] + pb[2])};
-            // Only a midpoint farther than the largest so far changes it: the first triangle within that will do, among
-            // the input triangles around the edge's ends.
+            // Only a midpoint farther than the largest so far (at least the floor) changes it: the first triangle
+            // within that will do.
             const float enough = strayed * strayed;
             float best = INFINITY;
             auto test = [&](uint32_t u) {
