@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <initializer_list>
 
 namespace tessera {
 namespace {
@@ -49,6 +50,36 @@ float distance2_to_triangle(const float* p, const float* a, const float* b, cons
     return at(vb / sum, vc / sum);
 }
 
+// Breadth first over a group's triangles (`corners`: 3 slots per triangle; `fan`: per slot, the first corners of the
+// triangles around it) from the slots `start`, through the triangles within a ball: `test(firstCorner)` measures a
+// triangle (its squared distance from the ball's centre) and the search goes on past it where that is within
+// `radius2`, until `settled()`. Each triangle and slot once per search (marked with a new stamp in `BallSearch`).
+struct BallSearch {
+    std::vector<uint32_t> slotStamp, triangleStamp, queue;
+    uint32_t stamp = 0;
+    BallSearch(size_t slots, size_t triangles) : slotStamp(slots, 0), triangleStamp(triangles, 0) {}
+
+    template <typename Test, typename Settled>
+    void run(const Rows& fan, const std::vector<uint32_t>& corners, std::initializer_list<uint32_t> start, float radius2, Test test,
+             Settled settled) {
+        ++stamp;
+        queue.assign(start);
+        for (uint32_t slot : start) slotStamp[slot] = stamp;
+        for (size_t head = 0; head < queue.size() && !settled(); ++head)
+            for (uint32_t k = fan.start[queue[head]]; k < fan.start[queue[head] + 1] && !settled(); ++k) {
+                const uint32_t first = fan.items[k];
+                if (triangleStamp[first / 3] == stamp) continue;
+                triangleStamp[first / 3] = stamp;
+                if (test(first) > radius2) continue;
+                for (int j = 0; j < 3; ++j)
+                    if (slotStamp[corners[first + j]] != stamp) {
+                        slotStamp[corners[first + j]] = stamp;
+                        queue.push_back(corners[first + j]);
+                    }
+            }
+    }
+};
+
 }  // namespace
 
 Deviation measure_deviation(const GroupPositions& group, const std::vector<float>& corners, const uint32_t* outputVertices,
@@ -59,8 +90,7 @@ Deviation measure_deviation(const GroupPositions& group, const std::vector<float
     const size_t triangles = corners.size() / 9;
     if (triangles == 0) return out;
     const Rows& fan = group.outputFan;
-    std::vector<uint32_t> triangleStamp(triangles, 0), slotStamp(group.slots(), 0), queue;
-    uint32_t stamp = 0;
+    BallSearch ball(group.slots(), triangles);
     std::vector<std::vector<SourcePoint>> near(pieces);
     for (const SourcePoint& point : points) {
         const float* p = point.position;
@@ -99,26 +129,12 @@ Deviation measure_deviation(const GroupPositions& group, const std::vector<float
             // point as far again past that position as the nearest so far (so that the surface between them stays in
             // it where the point lies far off the surface, above a fold, say).
             if (best > enough && fan.start[kept] < fan.start[kept + 1]) {
-                const uint32_t first = fan.items[fan.start[kept]];
+                const uint32_t around = fan.items[fan.start[kept]];  // a triangle at the kept position: its corner there
                 int at = 0;
-                while (at < 2 && group.outputCorners[first + at] != kept) ++at;
-                const float radius = std::sqrt(distance2(p, &corners[3 * (size_t(first) + at)])) + std::sqrt(best);
-                const float radius2 = radius * radius * 1.0001f;
-                ++stamp;
-                queue.assign({kept});
-                slotStamp[kept] = stamp;
-                for (size_t head = 0; head < queue.size() && best > enough; ++head)
-                    for (uint32_t k = fan.start[queue[head]]; k < fan.start[queue[head] + 1] && best > enough; ++k) {
-                        const uint32_t t = fan.items[k] / 3;
-                        if (triangleStamp[t] == stamp) continue;
-                        triangleStamp[t] = stamp;
-                        if (test(t) > radius2) continue;
-                        for (int j = 0; j < 3; ++j)
-                            if (const uint32_t corner = group.outputCorners[3 * t + j]; slotStamp[corner] != stamp) {
-                                slotStamp[corner] = stamp;
-                                queue.push_back(corner);
-                            }
-                    }
+                while (at < 2 && group.outputCorners[around + at] != kept) ++at;
+                const float radius = std::sqrt(distance2(p, &corners[3 * (size_t(around) + at)])) + std::sqrt(best);
+                ball.run(fan, group.outputCorners, {kept}, radius * radius * 1.0001f, [&](uint32_t first) { return test(first / 3); },
+                         [&] { return best <= enough; });
             }
         }
         const float distance = std::sqrt(best);
@@ -151,8 +167,7 @@ float measure_stray(const GroupPositions& group, const std::vector<float>& posit
         for (size_t i = 0; i < input.size(); ++i) add(input[i], uint32_t(i / 3 * 3));
     });
     float strayed = floor;
-    std::vector<uint32_t> slotStamp(group.slots(), 0), triangleStamp(input.size() / 3, 0), scratch;
-    uint32_t stamp = 0;
+    BallSearch ball(group.slots(), input.size() / 3);
     for (size_t t = 0; t < output.size(); t += 3)
         for (int e = 0; e < 3; ++e) {
             // Each edge once: from the triangle that runs it from its smaller slot (its twin runs it the other way; a
@@ -194,22 +209,7 @@ float measure_stray(const GroupPositions& group, const std::vector<float>& posit
             // Breadth first over the input from the ends, through the triangles within a ball around the midpoint
             // that holds both ends and every triangle nearer than those found so far.
             const float radius2 = std::max(best, distance2(midpoint, pa) * 1.0001f);
-            ++stamp;
-            std::vector<uint32_t>& queue = scratch;
-            queue.assign({a, b});
-            slotStamp[a] = slotStamp[b] = stamp;
-            for (size_t head = 0; head < queue.size() && best > enough; ++head)
-                for (uint32_t k = fan.start[queue[head]]; k < fan.start[queue[head] + 1] && best > enough; ++k) {
-                    const uint32_t u = fan.items[k];
-                    if (triangleStamp[u / 3] == stamp) continue;
-                    triangleStamp[u / 3] = stamp;
-                    if (test(u) > radius2) continue;
-                    for (int j = 0; j < 3; ++j)
-                        if (slotStamp[input[u + j]] != stamp) {
-                            slotStamp[input[u + j]] = stamp;
-                            queue.push_back(input[u + j]);
-                        }
-                }
+            ball.run(fan, input, {a, b}, radius2, test, [&] { return best <= enough; });
             strayed = std::max(strayed, std::sqrt(best));
         }
     return strayed;

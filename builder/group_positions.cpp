@@ -5,11 +5,11 @@
 
 namespace tessera {
 
-std::pair<uint32_t, uint32_t>& GroupPositions::find(uint32_t id) {
+size_t GroupPositions::place_of(uint32_t id) const {
     const size_t mask = table_.size() - 1;
     size_t at = (id * 2654435761u) & mask;
     while (table_[at].first != kNone && table_[at].first != id) at = (at + 1) & mask;
-    return table_[at];
+    return at;
 }
 
 void GroupPositions::insert(uint32_t id, uint32_t slot) {
@@ -71,6 +71,6 @@ GroupPositions::GroupPositions(const std::vector<uint32_t>& input, const uint32_
             }
 }
 
-uint32_t GroupPositions::slot_of(uint32_t positionId) const { return find(positionId).second; }
+uint32_t GroupPositions::slot_of(uint32_t positionId) const { return table_[place_of(positionId)].second; }
 
 }  // namespace tessera

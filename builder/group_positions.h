@@ -37,8 +37,8 @@ struct GroupPositions {
 private:
     // Open addressing by position id, at most half full: (position id, slot).
     std::vector<std::pair<uint32_t, uint32_t>> table_;
-    std::pair<uint32_t, uint32_t>& find(uint32_t id);
-    const std::pair<uint32_t, uint32_t>& find(uint32_t id) const { return const_cast<GroupPositions*>(this)->find(id); }
+    size_t place_of(uint32_t id) const;  // its entry, or the empty one where it would go
+    std::pair<uint32_t, uint32_t>& find(uint32_t id) { return table_[place_of(id)]; }
     void insert(uint32_t id, uint32_t slot);
 };
 

@@ -46,16 +46,29 @@ def _in_child(target, *args):
     return outcome
 
 
+# The displaced sphere's bumps: (amplitude, theta frequency, theta phase, phi frequency) of each octave, each
+# amplitude * sin(frequency * theta + phase) * cos(frequency * phi).
+_BUMPS = ((0.04, 9, 0.0, 13), (0.01, 41, 3.0, 37))
+
+
 def displaced_radius(theta, phi):
     """The displaced sphere's surface: its radius at polar angle theta and azimuth phi (radians)."""
-    return 1.0 + 0.04 * np.sin(9 * theta) * np.cos(13 * phi) + 0.01 * np.sin(41 * theta + 3) * np.cos(37 * phi)
+    radius = 1.0
+    for a, f, c, g in _BUMPS:
+        radius = radius + a * np.sin(f * theta + c) * np.cos(g * phi)
+    return radius
+
+
+def _displaced_radius_slopes(theta, phi):
+    """The radius's derivatives by theta and by phi."""
+    return (sum(a * f * np.cos(f * theta + c) * np.cos(g * phi) for a, f, c, g in _BUMPS),
+            sum(-a * g * np.sin(f * theta + c) * np.sin(g * phi) for a, f, c, g in _BUMPS))
 
 
 def displaced_sphere(n: int):
     """A closed sphere of 4 n^2 triangles with a few octaves of bumps: a stand-in for a dense scan."""
     theta, phi = np.meshgrid(np.linspace(0, np.pi, n + 1), np.linspace(0, 2 * np.pi, 2 * n, endpoint=False), indexing="ij")
-    r = displaced_radius(theta, phi)
-    points = np.stack([r * np.sin(theta) * np.cos(phi), r * np.sin(theta) * np.sin(phi), r * np.cos(theta)], -1).reshape(-1, 3)
+    points = _displaced_point(theta, phi).reshape(-1, 3)
     i, j = np.meshgrid(np.arange(n), np.arange(2 * n), indexing="ij")
     a, b = i * 2 * n + j, i * 2 * n + (j + 1) % (2 * n)
     quads = np.stack([a, a + 2 * n, b + 2 * n, b], -1).reshape(-1, 4).astype(np.int32)
@@ -71,7 +84,7 @@ def _displaced_point(theta, phi):
 def _nearest_surface_distance(points, reach):
     """Each point's distance to the nearest point of the displaced sphere's surface, searched over the surface's (theta,
     phi) within `reach` of it (each point's radial distance: its radial projection lies on the surface, so the nearest
-    point lies no farther), on a 15 x 15 lattice narrowed four times around its best sample."""
+    point lies no farther): a 15 x 15 lattice, then four more, each a quarter as wide around the best sample so far."""
     rho = np.linalg.norm(points, axis=1)
     theta = np.arccos(np.clip(points[:, 2] / rho, -1.0, 1.0))
     phi = np.arctan2(points[:, 1], points[:, 0])
@@ -110,8 +123,7 @@ def displaced_sphere_deviation(positions, indices, exact_points: int = 256):
     phi = np.arctan2(points[:, 1], points[:, 0]) % (2 * np.pi)
     radial = np.abs(radius - displaced_radius(theta, phi))
     # The gradient of |p| - r(theta, phi): (1, -r_theta / |p|, -r_phi / (|p| sin theta)) in the spherical frame.
-    r_theta = 0.36 * np.cos(9 * theta) * np.cos(13 * phi) + 0.41 * np.cos(41 * theta + 3) * np.cos(37 * phi)
-    r_phi = -0.52 * np.sin(9 * theta) * np.sin(13 * phi) - 0.37 * np.sin(41 * theta + 3) * np.sin(37 * phi)
+    r_theta, r_phi = _displaced_radius_slopes(theta, phi)
     first_order = radial / np.sqrt(1.0 + (r_theta / radius) ** 2 + (r_phi / (radius * np.sin(theta))) ** 2)
     farthest = np.union1d(np.argsort(radial)[-exact_points:], np.argsort(first_order)[-exact_points:])
     largest = _nearest_surface_distance(points[farthest], radial[farthest]).max() if len(farthest) else 0.0

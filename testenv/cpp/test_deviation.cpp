@@ -127,9 +127,7 @@ TEST(Deviation, NoLessThanTheTrueDistanceAndCloseToIt) {
     std::mt19937 rng(7);
     for (int stride : {2, 3, 5}) {
         SCOPED_TRACE(stride);
-        const SheetGroup sg(30, stride, rng);
-        const Sheet& s = sg.s;
-        const GroupPositions& group = sg.group;
+        const auto& [s, group] = SheetGroup(30, stride, rng);
         const Output o = output_of(s);
         const std::vector<SourcePoint> points = source_points(s, rng);
         const Deviation d = measure_deviation(group, o.corners, s.output.data(), o.pieceOf, 2, points, s.positionId, 8);
@@ -161,9 +159,7 @@ TEST(Deviation, NoLessThanTheTrueDistanceAndCloseToIt) {
 TEST(Deviation, PointsOnTheSurfaceMeasureNothing) {
     // The simplified triangles' own corners lie at distance 0 and are kept by no piece; an empty group measures 0.
     std::mt19937 rng(3);
-    const SheetGroup sg(10, 2, rng);
-    const Sheet& s = sg.s;
-    const GroupPositions& group = sg.group;
+    const auto& [s, group] = SheetGroup(10, 2, rng);
     const Output o = output_of(s);
     std::vector<SourcePoint> points;
     for (uint32_t v : s.output) points.push_back({{s.positions[3 * v], s.positions[3 * v + 1], s.positions[3 * v + 2]}, 0, v});
@@ -178,9 +174,7 @@ TEST(Deviation, PointsAnchoredOffTheGroupMeasureEveryTriangle) {
     // An anchor the group does not hold (a vertex of another part of the mesh): the point is measured against every
     // triangle, and finds its nearest.
     std::mt19937 rng(5);
-    const SheetGroup sg(12, 3, rng);
-    const Sheet& s = sg.s;
-    const GroupPositions& group = sg.group;
+    const auto& [s, group] = SheetGroup(12, 3, rng);
     const Output o = output_of(s);
     std::vector<uint32_t> positionId = s.positionId;
     positionId.push_back(uint32_t(positionId.size()));  // a vertex no triangle of the group uses
@@ -195,9 +189,7 @@ TEST(Deviation, SimplifiedEdgesStrayAsFarAsBruteForceFinds) {
     std::mt19937 rng(11);
     for (int stride : {2, 3, 5}) {
         SCOPED_TRACE(stride);
-        const SheetGroup sg(30, stride, rng);
-        const Sheet& s = sg.s;
-        const GroupPositions& group = sg.group;
+        const auto& [s, group] = SheetGroup(30, stride, rng);
         const double expected = brute_stray(s);
         const float strayed = measure_stray(group, s.positions);
         EXPECT_GT(expected, 0.005);
@@ -212,9 +204,7 @@ TEST(Deviation, SimplifiedEdgesStrayAsFarAsBruteForceFinds) {
 TEST(Deviation, EdgesOfTheInputDoNotStray) {
     // The input itself as the simplified group: every edge is an input edge, every midpoint on the input.
     std::mt19937 rng(13);
-    const SheetGroup sg(12, 1, rng);
-    const Sheet& s = sg.s;
-    const GroupPositions& group = sg.group;
+    const auto& [s, group] = SheetGroup(12, 1, rng);
     EXPECT_EQ(measure_stray(group, s.positions), 0.0f);
 }
 
