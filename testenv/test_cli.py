@@ -265,7 +265,7 @@ def test_bench_raster_measures_both_rasterizers_per_triangle_size(tmp_path):
     records = json.loads((cache / "raster_split.json").read_text())
     assert list(records) == [rows[0]["device_key"]] and f"recorded for {rows[0]['device_key']}" in done.stdout
     assert records[rows[0]["device_key"]]["area_px"] == raster_split.crossover(rows)
-    assert [r["area_px"] for r in rows] == [1, 2, 4, 8, 16, 32, 64, 128, 256]
+    assert [r["area_px"] for r in rows] == [1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048]
     assert all(r["software_ms"] > 0 and r["hardware_ms"] > 0 and r["faster"] in ("software", "hardware") for r in rows)
     # Triangles of one pixel fill the frame about once: twice as many triangles as pixels, all through software raster.
     assert 0.5 * 96 * 54 < rows[0]["triangles"] / 2 < 2 * 96 * 54 and rows[0]["software_share"] > 0.9

@@ -839,7 +839,9 @@ def render(args) -> int:
 
 
 # The raster split: grids of triangles of one size each, drawn by each rasterizer alone.
-RASTER_AREAS = (1, 2, 4, 8, 16, 32, 64, 128, 256)  # pixels per triangle; the largest outgrow the compute rasterizer's cluster radius
+# Pixels per triangle. The largest have edges beyond TS_SW_MAX_EDGE_PIXELS and go to hardware raster whatever is asked
+# (their SW share tells); up to 2048 px so that a device whose compute rasterizer wins at 256 still finds its crossover.
+RASTER_AREAS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048)
 RASTER_COLUMNS = [("area_px", "px per triangle"), ("triangles", "triangles"), ("software_share", "SW share"),
                   ("software_ms", "SW GPU ms"), ("hardware_ms", "HW GPU ms"), ("faster", "faster")]
 
@@ -907,7 +909,7 @@ def _raster_case(queue, stages, resolution, frames, device):
 
 def raster(args) -> int:
     """The triangle size below which the compute rasterizer beats hardware raster on this device (RenderSettings::
-    softwareRasterArea, 90 px by default, was measured this way on lavapipe); `--record` keeps it for the device's
+    softwareRasterArea, 256 px by default, was measured this way on lavapipe and an H100); `--record` keeps it for the device's
     sessions (tessera.raster_split)."""
     from pathlib import Path
 
@@ -928,8 +930,8 @@ def raster(args) -> int:
     print(" | ".join(title for _, title in RASTER_COLUMNS))
     for row in outcome:
         print(" | ".join(str(row[key]) for key, _ in RASTER_COLUMNS))
-    # Only sizes the compute rasterizer really drew count: past them its clusters outgrow TS_SW_MAX_RADIUS_PIXELS and
-    # go to hardware raster even when software is asked for.
+    # Only sizes the compute rasterizer really drew count: past them its triangles' edges outgrow TS_SW_MAX_EDGE_PIXELS
+    # and go to hardware raster even when software is asked for.
     print(f"device: {outcome[0]['device']}, {outcome[0]['resolution']}, median of {args.frames} frames after one warm-up")
     split = raster_split.crossover(outcome)
     if split is None:

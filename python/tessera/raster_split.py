@@ -16,7 +16,9 @@ import os
 import platform
 from pathlib import Path
 
-DEFAULT_AREA = 90.0  # RenderSettings::softwareRasterArea: measured on lavapipe on a 2-core AMD EPYC host (session 28)
+# RenderSettings::softwareRasterArea: the largest size at which neither measured device lost with compute raster
+# (session 36: lavapipe on a 2-core AMD EPYC host won through 512 px, an H100 through 128 and tied at 256).
+DEFAULT_AREA = 256.0
 RECORD_FILE = "raster_split.json"
 # A measured size counts only where the compute rasterizer really drew most of the triangles when asked to (larger
 # clusters go to hardware raster whatever is asked).

@@ -219,8 +219,10 @@ struct RenderSettings {
     RasterMode raster = RasterMode::Auto;
     RasterVertices rasterVertices = RasterVertices::Auto;
     // Auto mode: clusters whose triangles are estimated to cover less than this many pixels each go to the compute
-    // rasterizer. Measured per device (docs/benchmarks.md: about 90 on lavapipe on a 2-core AMD EPYC host).
-    float softwareRasterArea = 90.0f;
+    // rasterizer. Measured per device (`tessera bench raster --record`); this default is the largest size at which
+    // neither measured device lost with it (docs/benchmarks.md, session 36: lavapipe on a 2-core AMD EPYC host won
+    // with compute raster through 512 px, an H100 through 128 and tied at 256).
+    float softwareRasterArea = 256.0f;
     // Occlusion culling, which changes counts and time, never the image. Clusters whose triangles all face away from
     // the camera are culled (normal cones; single-sided instances whose transform keeps angles). Two-pass HZB
     // culling: instances and clusters hidden behind what the previous frame drew are deferred, then tested against a
