@@ -130,6 +130,10 @@ std::vector<std::string> missing_features(VkPhysicalDevice device) {
     constexpr uint32_t storageBuffers = TS_MOST_AOVS + 1;
     need(limits.maxPerStageDescriptorStorageBuffers >= storageBuffers && limits.maxDescriptorSetStorageBuffers >= storageBuffers,
          std::to_string(storageBuffers) + " storage buffers per shader stage");
+    // Every pass sees the frame's streams through uniform texel buffer views (shared.h TS_VIEW_*), sampled-image
+    // descriptors by the limits' count.
+    need(limits.maxPerStageDescriptorSampledImages >= TS_VIEW_COUNT && limits.maxDescriptorSetSampledImages >= TS_VIEW_COUNT,
+         std::to_string(TS_VIEW_COUNT) + " texel buffer views per shader stage");
     return missing;
 }
 

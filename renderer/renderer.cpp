@@ -415,7 +415,7 @@ struct Renderer::Impl {
     std::array<double, 3> relativeTo{NAN, NAN, NAN};  // camera position the uploaded origins are relative to
     uint64_t geometryVersion = 0, instancesVersion = 0, materialsVersion = 0;
     // Frame resources.
-    Buffer frame, drawState, visibleClusters, visibility, aovOutput, readback;
+    Buffer frame, drawState, visibleClusters, visibleRecords, visibility, aovOutput, readback;
     // An image of several pixel samples: their colours summed on a GPU (samples.comp.glsl; made for the image), on the
     // host beside a CPU device; $TESSERA_SAMPLE_SUMS (device, host) chooses, for tests and measurements.
     Buffer sampleSums[2];
@@ -588,7 +588,8 @@ struct Renderer::Impl {
                  {patches, VK_FORMAT_R32G32B32A32_UINT, 16, whole(patches, 16)},
                  {patchPoints, VK_FORMAT_R32_UINT, 4, whole(patchPoints, 4)},
                  {materials, VK_FORMAT_R32G32B32A32_UINT, 16, whole(materials, 16)},
-                 {materialTables, VK_FORMAT_R32_UINT, 4, whole(materialTables, 4)}}};
+                 {materialTables, VK_FORMAT_R32_UINT, 4, whole(materialTables, 4)},
+                 {visibleRecords, VK_FORMAT_R32G32B32A32_UINT, 16, uint64_t(4) * TS_VIS_MAX_VISIBLE_CLUSTERS}}};  // as the visible list
     }
 
     // Whether a frame of `pixels` can read every stream through a view on this device.
@@ -1356,6 +1357,7 @@ struct Renderer::Impl {
         if (!drawState.handle) drawState = device.create_buffer(sizeof(gpu::GpuDrawState), MemoryUse::Device, VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT);
         if (!visibleClusters.handle || visibleClusters.size < uint64_t(capacity) * 8) {
             visibleClusters = device.create_buffer(uint64_t(capacity) * 8, MemoryUse::Device);
+            visibleRecords = device.create_buffer(uint64_t(capacity) * sizeof(gpu::GpuVisibleRecord), MemoryUse::Device);
             hardwareList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
             softwareList = device.create_buffer(uint64_t(capacity) * 4, MemoryUse::Device);
             deferredClusters = Buffer{};  // sized with the visible list, made on first use
@@ -1810,6 +1812,7 @@ std::vector<Image> Renderer::render_sample(GpuScene& scene, const CameraDesc& ca
         f.materials = s.materials.address;
         f.materialTables = s.materialTables.address;
         f.visibleClusters = s.visibleClusters.address;
+        f.visibleRecords = s.visibleRecords.address;
         f.hardwareList = s.hardwareList.address;
         f.softwareList = s.softwareList.address;
         f.drawState = s.drawState.address;

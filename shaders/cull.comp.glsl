@@ -112,6 +112,7 @@ void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterInd
         atomicAdd(draw.state.tessClustersDrawn, 1u);
         if (slot >= frame.counts.y) return;
         VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex, clusterIndex);
+        store_visible_record(frame, slot, instance, cluster);
         uint k = atomicAdd(draw.state.tessClusters, 1u);
         SlotListRef(frame.tessellationList).data[k] = slot;
         atomicMax(draw.state.tessGroupsX, min(k + 1u, 65535u));
@@ -123,6 +124,7 @@ void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterInd
     else atomicAdd(draw.state.hwTriangles, cluster.triangleCount);
     if (slot >= frame.counts.y) return;
     VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex | (software ? TS_VISIBLE_SOFTWARE : 0u), clusterIndex);
+    store_visible_record(frame, slot, instance, cluster);
     if (software) {
         // Clusters of certainly small triangles from the front of the software list, the others from its back: each end
         // has its own variant of the compute rasterizer. Both ends together hold at most the slots stored this pass, so

@@ -21,6 +21,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Ma
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer FloatRef { float data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer UintRef { uint data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer VisibleClusterRef { uvec2 data[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) buffer VisibleRecordRef { GpuVisibleRecord data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer SlotListRef { uint data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer CounterRef { uint data[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer BinRef { GpuBin data[]; };
@@ -86,6 +87,7 @@ layout(set = 0, binding = TS_VIEW_PATCHES) uniform usamplerBuffer patchTexels;
 layout(set = 0, binding = TS_VIEW_PATCH_POINTS) uniform usamplerBuffer patchPointTexels;
 layout(set = 0, binding = TS_VIEW_MATERIALS) uniform usamplerBuffer materialTexels;
 layout(set = 0, binding = TS_VIEW_MATERIAL_TABLES) uniform usamplerBuffer materialTableTexels;
+layout(set = 0, binding = TS_VIEW_VISIBLE_RECORDS) uniform usamplerBuffer visibleRecordTexels;
 
 GpuCluster load_cluster(GpuFrame frame, uint index) {
     if (!TEXEL_VIEWS) return ClusterRef(frame.clusters).data[index];
@@ -440,6 +442,44 @@ Payload decode_payload(GpuFrame frame, uint payload) {
 // The instance and cluster behind a visible-cluster slot (TS_VISIBLE_SOFTWARE left in x).
 uvec2 visible_cluster(GpuFrame frame, uint slot) {
     return TEXEL_VIEWS ? texelFetch(visibleClusterTexels, int(slot)).xy : VisibleClusterRef(frame.visibleClusters).data[slot];
+}
+
+// The cull's record of a visible cluster (shared.h GpuVisibleRecord), written beside its visible-cluster entry.
+void store_visible_record(GpuFrame frame, uint slot, Instance instance, GpuCluster cluster) {
+    GpuVisibleRecord record;
+    for (int k = 0; k < 3; ++k) record.rows[k] = vec4(instance.rows[k].xyz, instance.translation[k]);
+    record.vertexOffset = cluster.vertexOffset;
+    record.triangleOffset = cluster.triangleOffset;
+    record.flags = instance.flags;
+    record.meshIndex = instance.meshIndex;
+    VisibleRecordRef(frame.visibleRecords).data[slot] = record;
+}
+
+GpuVisibleRecord load_visible_record(GpuFrame frame, uint slot) {
+    if (!TEXEL_VIEWS) return VisibleRecordRef(frame.visibleRecords).data[slot];
+    int at = int(4u * slot);
+    uvec4 t3 = texelFetch(visibleRecordTexels, at + 3);
+    GpuVisibleRecord record;
+    for (int k = 0; k < 3; ++k) record.rows[k] = uintBitsToFloat(texelFetch(visibleRecordTexels, at + k));
+    record.vertexOffset = t3.x;
+    record.triangleOffset = t3.y;
+    record.flags = t3.z;
+    record.meshIndex = t3.w;
+    return record;
+}
+
+// The instance a record describes: its transform, flags and mesh (not its prim, material or displacement bounds,
+// which the passes reading records load from the instance itself where they need them).
+Instance record_instance(GpuVisibleRecord record) {
+    Instance instance;
+    instance.rows = record.rows;
+    instance.translation = vec3(record.rows[0].w, record.rows[1].w, record.rows[2].w);
+    instance.meshIndex = record.meshIndex;
+    instance.primId = 0u;
+    instance.materialIndex = 0u;
+    instance.flags = record.flags;
+    instance.displacementBounds = 0u;
+    return instance;
 }
 
 // How far a displaced instance's surface may move from its mesh (mesh units: times instance_scale in the world); 0

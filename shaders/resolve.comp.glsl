@@ -131,15 +131,26 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, inout PixelOutputs o) 
     uvec2 visible = visible_cluster(frame, payload.slot);
     bool software = (visible.x & TS_VISIBLE_SOFTWARE) != 0u;
     visible.x &= ~TS_VISIBLE_SOFTWARE;
+    // The instance and cluster in full, for what the record leaves out (ids, visualizations, a pixel's own material);
+    // a variant that writes none of those drops these loads (the compiler removes a fetch whose value goes unused).
     Instance instance = load_instance(frame, visible.x);
     GpuCluster cluster = load_cluster(frame, visible.y);
+    // A cluster's own triangle is rebuilt from the cull's record of its cluster: the transform, flags and mesh, and the
+    // cluster's vertex and triangle offsets, in 4 fetches (shared.h GpuVisibleRecord).
+    Instance geometry = instance;
+    if (PIXELS == TS_BIN_TRIANGLES) {
+        GpuVisibleRecord record = load_visible_record(frame, payload.slot);
+        geometry = record_instance(record);
+        cluster.vertexOffset = record.vertexOffset;
+        cluster.triangleOffset = record.triangleOffset;
+    }
     o.primId = uvec4(instance.primId, 0u, 0u, 0u);
     o.instanceId = uvec4(visible.x, 0u, 0u, 0u);
     o.clusterId = uvec4(visible.y, 0u, 0u, 0u);
     o.triangleId = uvec4(cluster.triangleOffset + triangle, 0u, 0u, 0u);
     if (!PAST_IDS) return;
 
-    GpuMesh mesh = load_mesh(frame, instance.meshIndex);
+    GpuMesh mesh = load_mesh(frame, geometry.meshIndex);
     // The pixel's ray and where it meets the triangle's plane (the rasterizers' masks use the same code); for a
     // micro-triangle of a displaced surface, the micro-triangle rebuilt as the patch raster made it.
     PixelTriangle hitTriangle;
@@ -162,7 +173,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, inout PixelOutputs o) 
         cornerUv = m.uv;
         sourceBary = m.t.bary.x * m.w[0] + m.t.bary.y * m.w[1] + m.t.bary.z * m.w[2];
     } else {
-        hitTriangle = pixel_triangle(frame, instance, cluster, triangle, pixel);
+        hitTriangle = pixel_triangle(frame, geometry, cluster, triangle, pixel);
         sourceBary = hitTriangle.bary;
         if (mesh.uvOffset != TS_NO_STREAM)
             cornerUv = vec2[3](vertex_uv(frame, mesh, hitTriangle.v0), vertex_uv(frame, mesh, hitTriangle.v1), vertex_uv(frame, mesh, hitTriangle.v2));
@@ -182,7 +193,7 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, inout PixelOutputs o) 
     if (!diced) {
         // The inverse transpose up to a positive scale (normalized below): the cofactor matrix, its sign the
         // determinant's. Three cross products instead of a general inverse per pixel.
-        mat3 toWorld = transpose(mat3(instance.rows[0].xyz, instance.rows[1].xyz, instance.rows[2].xyz));
+        mat3 toWorld = transpose(mat3(geometry.rows[0].xyz, geometry.rows[1].xyz, geometry.rows[2].xyz));
         vec3 a = toWorld[0], b = toWorld[1], c = toWorld[2];
         mat3 normalMatrix = mat3(cross(b, c), cross(c, a), cross(a, b)) * (dot(a, cross(b, c)) < 0.0 ? -1.0 : 1.0);
         vec3 objectNormal = bary.x * decode_octahedral(vertex_normal_bits(frame, v0)) + bary.y * decode_octahedral(vertex_normal_bits(frame, v1)) +

@@ -349,7 +349,8 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 #define TS_VIEW_PATCH_POINTS 20      // the compute patch rasterizer's kept points, float bits: R32UI
 #define TS_VIEW_MATERIALS 21         // GpuMaterial: 7 RGBA32UI texels each
 #define TS_VIEW_MATERIAL_TABLES 22   // uint per entry (slot -> material, and each table's displacement bound): R32UI
-#define TS_VIEW_COUNT 22
+#define TS_VIEW_VISIBLE_RECORDS 23   // GpuVisibleRecord per visible-cluster slot: 4 RGBA32UI texels each
+#define TS_VIEW_COUNT 23
 // The AOV output as storage buffers (std430, four words per pixel), one binding per slice (AOV of the frame): slice k
 // at TS_BINDING_OUTPUT + k. Resolve stores each AOV's pixels into its own, the background and pixel samples the
 // colour's (slice 0), and classify keeps its (bin, place) pairs in slice 0's. On a CPU device importing its images each
@@ -357,7 +358,7 @@ using address = uint64_t;  // a VkDeviceAddress (buffer_reference in GLSL)
 // of a storage buffer in one loop over the lanes, but through an address in one loop per component (a screen-filling
 // resolve's stores 4x dearer). The variants with TS_SPEC_OUTPUT_BINDING use them; the others, for frames whose slice
 // outgrows the device's maxStorageBufferRange, go through GpuFrame.aovOutput.
-#define TS_BINDING_OUTPUT 23
+#define TS_BINDING_OUTPUT 24
 // The visibility buffer as a storage buffer (one 64-bit word per pixel), for the rasterizers' atomic max in the same
 // variants (TS_SPEC_OUTPUT_BINDING: a pixel's visibility word is half its output texel, so it fits wherever a slice
 // does). lavapipe runs an atomic through an address with every operand taken apart lane by lane (the address of each
@@ -495,6 +496,19 @@ struct GpuInstanceBatch {
     uint pad0, pad1, pad2;
 };
 TS_CHECK_SIZE(GpuInstanceBatch, 64);
+
+// What resolve needs of a visible cluster to rebuild one of its triangles at a pixel, written by the cull beside the
+// visible-cluster entry from what it has loaded anyway: 4 texel fetches per pixel where the instance, its batch and the
+// cluster took 9 (on lavapipe each fetch of a per-pixel index is a loop over the lanes: the 1 px sphere's resolve
+// 0.9x, docs/benchmarks.md, session 36). What else a pass needs (ids, visualizations) it still loads the long way.
+struct GpuVisibleRecord {
+    vec4 rows[3];          // xyz: the instance's rows (Instance.rows); w: its translation relative to the camera
+    uint vertexOffset;     // the cluster's
+    uint triangleOffset;
+    uint flags;            // the instance's (Instance.flags)
+    uint meshIndex;
+};
+TS_CHECK_SIZE(GpuVisibleRecord, 64);
 
 // A drawn copy of a mesh: rows of its 3x4 mesh->world matrix; w holds the translation relative to its batch's origin.
 struct GpuInstance {
@@ -713,6 +727,7 @@ struct GpuFrame {
     address materials;       // GpuMaterial[]
     address materialTables;  // uint[]: per instance with material slots, slot -> material (pixel_material in frame.h)
     address visibleClusters; // uvec2[capacity]: (instance | TS_VISIBLE_SOFTWARE, cluster)
+    address visibleRecords;  // GpuVisibleRecord[capacity]: beside each visible cluster, what resolve rebuilds it from
     address hardwareList;    // uint[capacity]: visible-cluster slots for hardware raster
     address softwareList;    // uint[capacity]: visible-cluster slots for the compute rasterizer (small-triangle clusters
                              // from the front, the others from the back)
@@ -743,7 +758,7 @@ struct GpuFrame {
     address samplesBefore;   // u64vec2[width * height]: a sum's float bits, rgba
     address samplesAfter;
 };
-TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 6 + 16 * 1 + 16 * 6 + 16 * 9 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 39);
+TS_CHECK_SIZE(GpuFrame, 16 * 4 * 2 + 16 * 6 + 16 * 1 + 16 * 6 + 16 * 9 + 96 * TS_MAX_LIGHTS + 16 * 8 + 8 * 40);
 
 // The order in which a dispatch's workgroups take its work. lavapipe (Mesa's compute thread pool) hands each of its
 // threads one run of consecutive workgroups, the dispatch's count over its threads: where the work is uneven along that
