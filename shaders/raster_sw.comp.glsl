@@ -98,9 +98,11 @@ void main() {
     if (k >= count) return;  // the whole workgroup: no barrier is skipped by some threads only
     k = spread_index(k, count);  // the list's clusters spread over lavapipe's threads (shared.h)
     uint slot = SlotListRef(frame.softwareList).data[LARGE_TRIANGLES ? frame.counts.y - 1u - k : k];
-    uvec2 visible = visible_cluster(frame, slot);
-    Instance instance = load_instance(frame, visible.x & ~TS_VISIBLE_SOFTWARE);
-    GpuCluster cluster = load_cluster(frame, visible.y);
+    // The transform and flags from the cull's record of the cluster (shared.h GpuVisibleRecord), the cluster's counts
+    // from the cluster itself.
+    GpuVisibleRecord record = load_visible_record(frame, slot);
+    Instance instance = record_instance(record);
+    GpuCluster cluster = load_cluster(frame, visible_cluster(frame, slot).y);
     vec3 translation = camera_relative_translation(instance);
 
     // The packed corners' origin: the cluster's first vertex, the same arithmetic in every thread.
