@@ -909,8 +909,8 @@ def _raster_case(queue, stages, resolution, frames, device):
 
 def raster(args) -> int:
     """The triangle size below which the compute rasterizer beats hardware raster on this device (RenderSettings::
-    softwareRasterArea, 256 px by default, was measured this way on lavapipe and an H100); `--record` keeps it for the device's
-    sessions (tessera.raster_split)."""
+    softwareRasterArea, 256 px by default, was measured this way on lavapipe and an H100); `--record` keeps it for the
+    device's sessions (tessera.raster_split)."""
     from pathlib import Path
 
     width, height = args.resolution
