@@ -286,10 +286,11 @@ void shade(GpuFrame frame, uvec2 pixel, uint payloadBits, inout PixelOutputs o) 
     vec3 toEye = -direction;
     vec3 color = emission;
     // Each light from main()'s copy of the frame's (frameLights). Distant lights first, then the others, each loop with
-    // only its kind's code (no shadowing yet).
-    for (uint i = 0u; i < DISTANT_LIGHTS; ++i)
+    // only its kind's code (no shadowing yet). Unrolled, so that the copy is indexed by constants (a local array indexed
+    // by a variable would live in scratch memory).
+    [[unroll]] for (uint i = 0u; i < DISTANT_LIGHTS; ++i)
         color += distant_light_contribution(frameLights[i], n, toEye, albedo, f0, roughness);
-    for (uint i = DISTANT_LIGHTS; i < ALL_LIGHTS; ++i)
+    [[unroll]] for (uint i = DISTANT_LIGHTS; i < ALL_LIGHTS; ++i)
         color += other_light_contribution(frame, frameLights[i], hit, n, toEye, albedo, f0, roughness, occlusion, AREA_LIGHTS);
     o.color = floatBitsToUint(vec4(color, 1.0));
 }
