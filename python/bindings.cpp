@@ -631,6 +631,7 @@ NB_MODULE(_tessera, m) {
         "path"_a, "Reads an image as float32 RGBA (height, width, 4).");
 
     m.attr("MOST_PIXEL_SAMPLES") = kMostPixelSamples;
+    m.attr("DEFAULT_SOFTWARE_RASTER_AREA") = RenderSettings{}.softwareRasterArea;
     m.def(
         "pixel_sample_offset", [](uint32_t index, const std::string& filter) { return pixel_sample_offset(index, pixel_filter_from(filter)); },
         "index"_a, "filter"_a = "box",

@@ -111,8 +111,7 @@ void draw_cluster(GpuFrame frame, uint step, uint instanceIndex, uint clusterInd
     if (tessellated(frame, instance, center, radius, scale)) {
         atomicAdd(draw.state.tessClustersDrawn, 1u);
         if (slot >= frame.counts.y) return;
-        VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex, clusterIndex);
-        store_visible_record(frame, slot, instance, cluster);
+        VisibleClusterRef(frame.visibleClusters).data[slot] = uvec2(instanceIndex, clusterIndex);  // no record: it is diced
         uint k = atomicAdd(draw.state.tessClusters, 1u);
         SlotListRef(frame.tessellationList).data[k] = slot;
         atomicMax(draw.state.tessGroupsX, min(k + 1u, 65535u));

@@ -500,7 +500,8 @@ TS_CHECK_SIZE(GpuInstanceBatch, 64);
 // What resolve needs of a visible cluster to rebuild one of its triangles at a pixel, written by the cull beside the
 // visible-cluster entry from what it has loaded anyway: 4 texel fetches per pixel where the instance, its batch and the
 // cluster took 9 (on lavapipe each fetch of a per-pixel index is a loop over the lanes: the 1 px sphere's resolve
-// 0.9x, docs/benchmarks.md, session 36). What else a pass needs (ids, visualizations) it still loads the long way.
+// 0.9x, docs/benchmarks.md, session 36). What else a pass needs (ids, visualizations) it still loads the long way. Only
+// clusters drawn as their own triangles have one: a diced cluster's pixels are micro-triangles, rebuilt from patches.
 struct GpuVisibleRecord {
     vec4 rows[3];          // xyz: the instance's rows (Instance.rows); w: its translation relative to the camera
     uint vertexOffset;     // the cluster's

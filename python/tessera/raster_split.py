@@ -16,9 +16,10 @@ import os
 import platform
 from pathlib import Path
 
-# RenderSettings::softwareRasterArea: the largest size at which neither measured device lost with compute raster
-# (session 36: lavapipe on a 2-core AMD EPYC host won through 512 px, an H100 through 128 and tied at 256).
-DEFAULT_AREA = 256.0
+from . import _tessera
+
+# RenderSettings::softwareRasterArea (renderer.h says why it is what it is).
+DEFAULT_AREA = float(_tessera.DEFAULT_SOFTWARE_RASTER_AREA)
 RECORD_FILE = "raster_split.json"
 # A measured size counts only where the compute rasterizer really drew most of the triangles when asked to (larger
 # clusters go to hardware raster whatever is asked).
