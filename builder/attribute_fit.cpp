@@ -72,18 +72,18 @@ struct Triangle {
     }
 };
 
-}  // namespace
-
-std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input, const uint32_t* output, size_t outputCount,
-                                             const GroupPositions& group, const std::vector<float>& positions,
-                                             const std::vector<unsigned char>& lock, const VertexTable& normals, const VertexTable* channel) {
+// fit_attributes for `valueCount` values per vertex (the normal, and the channel where there is one): a constant, so
+// that a mesh without a channel neither stores nor sweeps its four unused values.
+template <int valueCount>
+std::vector<FittedAttributes> fit(const std::vector<uint32_t>& input, const uint32_t* output, size_t outputCount, const GroupPositions& group,
+                                  const std::vector<float>& positions, const std::vector<unsigned char>& lock, const VertexTable& normals,
+                                  const VertexTable* channel) {
     std::vector<FittedAttributes> fitted;
-    const int valueCount = channel ? kMaxValues : kNormal;
     // The values vertex v is drawn with, into `to`.
     auto drawn = [&](uint32_t v, double* to) {
         const float* n = normals(v);
         for (int k = 0; k < kNormal; ++k) to[k] = n[k];
-        if (channel) {
+        if constexpr (valueCount > kNormal) {
             const float* c = (*channel)(v);
             for (int k = 0; k < kChannel; ++k) to[kNormal + k] = c[k];
         }
@@ -97,7 +97,7 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
     const size_t slots = group.slots();
     std::vector<double> weight(slots, 0.0);  // slot -> area of its triangles
     std::vector<std::array<float, 3>> point(slots);
-    std::vector<std::array<double, kMaxValues>> valueDrawn(slots);
+    std::vector<std::array<double, valueCount>> valueDrawn(slots);
     for (size_t slot = 0; slot < slots; ++slot) {
         const size_t v = vertexOf[slot];
         point[slot] = {positions[3 * v], positions[3 * v + 1], positions[3 * v + 2]};
@@ -126,7 +126,7 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
     // interpolated one).
     struct Sample {
         uint32_t triangle;
-        double weight, barycentric[3], residual[kMaxValues];
+        double weight, barycentric[3], residual[valueCount];
     };
     std::vector<Triangle> triangles;
     triangles.reserve(outputCount / 3);
@@ -172,7 +172,7 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
         for (int k = 0; k < valueCount; ++k) best.residual[k] = valueDrawn[slot][k];
         for (int j = 0; j < 3; ++j) {
             const uint32_t corner = output[best.triangle + j], cornerSlot = outputCorners[best.triangle + j];
-            double own[kMaxValues];
+            double own[valueCount];
             const double* values = valueDrawn[cornerSlot].data();
             if (vertexOf[cornerSlot] != corner) {  // another wedge at the position: its own values
                 drawn(corner, own);
@@ -191,11 +191,11 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
                 if (unknown != kNone && output[samples[s].triangle + j] == unknownVertex[unknown]) add(unknown, s * 3 + uint32_t(j));
             }
     });
-    std::vector<std::array<double, kMaxValues>> value(unknownVertex.size());
+    std::vector<std::array<double, valueCount>> value(unknownVertex.size());
     for (size_t u = 0; u < unknownVertex.size(); ++u) value[u] = valueDrawn[unknownSlot[u]];
     for (int sweep = 0; sweep < kSweeps; ++sweep)
         for (size_t u = 0; u < unknownVertex.size(); ++u) {
-            double step[kMaxValues] = {}, denominator = 0;
+            double step[valueCount] = {}, denominator = 0;
             for (uint32_t k = reach.start[u]; k < reach.start[u + 1]; ++k) {
                 const Sample& s = samples[reach.items[k] / 3];
                 const double b = s.barycentric[reach.items[k] % 3];
@@ -214,7 +214,7 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
             }
         }
     // The channel stays within the range of the group's input (least squares may overshoot it: no negative colour).
-    std::array<double, kMaxValues> lowest, highest;
+    std::array<double, valueCount> lowest, highest;
     lowest.fill(INFINITY);
     highest.fill(-INFINITY);
     for (const auto& v : valueDrawn)
@@ -223,7 +223,7 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
             highest[k] = std::max(highest[k], v[k]);
         }
     for (size_t u = 0; u < unknownVertex.size(); ++u) {
-        const std::array<double, kMaxValues>& now = valueDrawn[unknownSlot[u]];
+        const std::array<double, valueCount>& now = valueDrawn[unknownSlot[u]];
         FittedAttributes f{unknownVertex[u], {float(now[0]), float(now[1]), float(now[2])}, {}};
         bool changed = false;
         const double length = std::sqrt(value[u][0] * value[u][0] + value[u][1] * value[u][1] + value[u][2] * value[u][2]);
@@ -238,6 +238,15 @@ std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input,
         if (changed) fitted.push_back(f);
     }
     return fitted;
+}
+
+}  // namespace
+
+std::vector<FittedAttributes> fit_attributes(const std::vector<uint32_t>& input, const uint32_t* output, size_t outputCount,
+                                             const GroupPositions& group, const std::vector<float>& positions,
+                                             const std::vector<unsigned char>& lock, const VertexTable& normals, const VertexTable* channel) {
+    return channel ? fit<kMaxValues>(input, output, outputCount, group, positions, lock, normals, channel)
+                   : fit<kNormal>(input, output, outputCount, group, positions, lock, normals, channel);
 }
 
 }  // namespace tessera

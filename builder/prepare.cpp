@@ -336,6 +336,15 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
         return it->second;
     };
 
+    {  // (growing by doubling would copy the largest arrays of a dense mesh several times over)
+        size_t triangles = 0;
+        for (int32_t count : mesh.faceVertexCounts) triangles += count > 2 ? size_t(count) - 2 : 0;
+        out.indices.reserve(3 * triangles);
+        out.sourceFaces.reserve(triangles);
+        if (materialSlots) out.triangleMaterials.reserve(triangles);
+        for (auto* stream : {&vertexNormal, &vertexColor, &vertexUv}) stream->reserve(pointCount);
+        vertexPoint.reserve(pointCount);
+    }
     size_t faceStart = 0;
     for (size_t face = 0; face < mesh.faceVertexCounts.size(); ++face) {
         const size_t count = size_t(mesh.faceVertexCounts[face]);
