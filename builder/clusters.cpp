@@ -292,9 +292,26 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
     // vertex with the cluster, so it adds at most two: priorities 0-4), each with its centroid side by side: only the
     // best non-empty priority is scanned. A triangle's priority depends only on its corners, so it changes only when
     // a triangle sharing a corner is taken, and is moved then.
+    // (Its arrays only grow, and `size` says how much of them is in use: one capacity check per candidate listed, where
+    // four vectors' push_back made four.)
     struct Bucket {
+        uint32_t size = 0;
         std::vector<uint32_t> triangle;
         std::vector<float> x, y, z;
+        void push(uint32_t t, const float* centroid) {
+            if (size == triangle.size()) {
+                const size_t capacity = std::max<size_t>(64, 2 * triangle.size());
+                triangle.resize(capacity);
+                x.resize(capacity);
+                y.resize(capacity);
+                z.resize(capacity);
+            }
+            triangle[size] = t;
+            x[size] = centroid[0];
+            y[size] = centroid[1];
+            z[size] = centroid[2];
+            ++size;
+        }
     };
     constexpr uint32_t kPriorities = 5;
     Bucket buckets[kPriorities];
@@ -303,32 +320,25 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
     size_t candidates = 0;
     auto list = [&](uint32_t t, uint32_t priority) {
         Bucket& b = buckets[priority];
-        listed[t] = uint32_t(b.triangle.size()) << 3 | priority;
-        b.triangle.push_back(t);
-        b.x.push_back(centroids[3 * size_t(t)]);
-        b.y.push_back(centroids[3 * size_t(t) + 1]);
-        b.z.push_back(centroids[3 * size_t(t) + 2]);
+        listed[t] = b.size << 3 | priority;
+        b.push(t, &centroids[3 * size_t(t)]);
         ++candidates;
     };
     auto unlist = [&](uint32_t t) {
         const uint32_t at = listed[t] >> 3;
         Bucket& b = buckets[listed[t] & 7];
-        const uint32_t moved = b.triangle.back();
+        const uint32_t last = --b.size, moved = b.triangle[last];
         b.triangle[at] = moved;
-        b.x[at] = b.x.back();
-        b.y[at] = b.y.back();
-        b.z[at] = b.z.back();
+        b.x[at] = b.x[last];
+        b.y[at] = b.y[last];
+        b.z[at] = b.z[last];
         listed[moved] = at << 3 | (listed[t] & 7);
-        b.triangle.pop_back();
-        b.x.pop_back();
-        b.y.pop_back();
-        b.z.pop_back();
         listed[t] = kNone;
         --candidates;
     };
     auto best_bucket = [&]() -> const Bucket& {
         uint32_t p = 0;
-        while (buckets[p].triangle.empty()) ++p;
+        while (buckets[p].size == 0) ++p;
         return buckets[p];
     };
     // Where meshoptimizer's scan (the cluster's vertices in order, each one's live triangles in list order) first
@@ -369,7 +379,7 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
     // By distance to the cluster's mean centroid (meshoptimizer's score 1 + distance / expected radius).
     auto nearest_candidate = [&](const float* center) {
         const Bucket& b = best_bucket();
-        scores.resize(b.triangle.size());
+        scores.resize(b.size);
         for (size_t i = 0; i < scores.size(); ++i) {
             const float dx = b.x[i] - center[0], dy = b.y[i] - center[1], dz = b.z[i] - center[2];
             scores[i] = 1 + std::sqrt(dx * dx + dy * dy + dz * dz) / expectedRadius;
@@ -379,7 +389,7 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
     // By how many triangles its corners have left (for the first triangle of the next cluster).
     auto loneliest_candidate = [&]() {
         const Bucket& b = best_bucket();
-        scores.resize(b.triangle.size());
+        scores.resize(b.size);
         for (size_t i = 0; i < scores.size(); ++i) {
             const uint32_t* c = &indices[3 * size_t(b.triangle[i])];
             scores[i] = float(vertex[c[0]].live + vertex[c[1]].live + vertex[c[2]].live - 3);
@@ -421,17 +431,13 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
             clusters.push_back(corners);
             corners.clear();
             for (Bucket& b : buckets) {
-                for (uint32_t t : b.triangle) listed[t] = kNone;
-                b.triangle.clear();
-                b.x.clear();
-                b.y.clear();
-                b.z.clear();
+                for (uint32_t i = 0; i < b.size; ++i) listed[b.triangle[i]] = kNone;
+                b.size = 0;
             }
             candidates = 0;
             sum[0] = sum[1] = sum[2] = 0;
             clusterTriangles = 0;
         }
-        size_t joined = clusterVertices.size();
         bool joinedNow[3] = {false, false, false};
         for (int k = 0; k < 3; ++k)
             if (vertex[corner[k]].slot == kNotInCluster) {
@@ -454,25 +460,22 @@ bool build_clusters(const uint32_t* indices, size_t indexCount, const float* pos
                     break;
                 }
         }
-        // The triangles around vertices that just joined become candidates.
-        for (; joined < clusterVertices.size(); ++joined) {
-            const uint32_t v = clusterVertices[joined];
-            for (uint32_t i = 0; i < vertex[v].live; ++i) {
-                const uint32_t t = around[vertex[v].first + i];
-                if (listed[t] == kNone) list(t, priority_of(t));
-            }
-        }
-        // Only the triangles around this one's corners can change priority, and only where the corner just joined or
-        // is left with one or two triangles (the priorities test for those counts).
+        // The triangles around vertices that just joined become candidates, and only the triangles around this one's
+        // corners can change priority, only where the corner just joined or is left with one or two triangles (the
+        // priorities test for those counts). One pass over those corners does both: where a candidate is listed in a
+        // bucket does not matter (ties go by meshoptimizer's scan order, scan_position).
         for (int k = 0; k < 3; ++k) {
             const uint32_t v = corner[k];
             if (vertex[v].live > 2 && !joinedNow[k]) continue;
             for (uint32_t i = 0; i < vertex[v].live; ++i) {
                 const uint32_t t = around[vertex[v].first + i];
                 const uint32_t priority = priority_of(t);
-                if ((listed[t] & 7) == priority) continue;
-                unlist(t);
-                list(t, priority);
+                if (listed[t] == kNone) {
+                    list(t, priority);
+                } else if ((listed[t] & 7) != priority) {
+                    unlist(t);
+                    list(t, priority);
+                }
             }
         }
         for (int k = 0; k < 3; ++k) sum[k] += centroids[3 * size_t(next) + k];
