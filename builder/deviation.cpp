@@ -92,8 +92,12 @@ Deviation measure_deviation(const GroupPositions& group, const std::vector<float
     const Rows& fan = group.outputFan;
     BallSearch ball(group.slots(), triangles);
     std::vector<std::vector<SourcePoint>> near(pieces);
+    // The walk meets a triangle once per corner it shares with the nearest so far: each is measured once per point.
+    std::vector<uint32_t> walked(triangles, 0);
+    uint32_t pointStamp = 0;
     for (const SourcePoint& point : points) {
         const float* p = point.position;
+        ++pointStamp;
         // A point within the largest distance so far does not change it: the first triangle that near will do (its
         // distance, an upper bound, ranks it among its piece's points).
         const float enough = out.largest * out.largest;
@@ -108,6 +112,11 @@ Deviation measure_deviation(const GroupPositions& group, const std::vector<float
             }
             return d;
         };
+        auto walk_test = [&](uint32_t t) {
+            if (walked[t] == pointStamp) return;
+            walked[t] = pointStamp;
+            test(t);
+        };
         // The simplified triangles around the kept position nearest the point's anchor over the input's edges, then
         // a walk: the triangles around the nearest one's corners, while that finds a nearer one.
         const uint32_t anchor = group.outputInInput && point.anchor < positionId.size() ? group.slot_of(positionId[point.anchor]) : GroupPositions::kNone;
@@ -115,12 +124,12 @@ Deviation measure_deviation(const GroupPositions& group, const std::vector<float
         if (kept == GroupPositions::kNone) {  // not on the group's surface: every triangle
             for (uint32_t t = 0; t < triangles && best > enough; ++t) test(t);
         } else {
-            for (uint32_t k = fan.start[kept]; k < fan.start[kept + 1] && best > enough; ++k) test(fan.items[k] / 3);
+            for (uint32_t k = fan.start[kept]; k < fan.start[kept + 1] && best > enough; ++k) walk_test(fan.items[k] / 3);
             for (int step = 0; step < kWalkSteps && best > enough; ++step) {
                 const uint32_t from = nearest;
                 for (int j = 0; j < 3; ++j) {
                     const uint32_t corner = group.outputCorners[3 * from + j];
-                    for (uint32_t k = fan.start[corner]; k < fan.start[corner + 1] && best > enough; ++k) test(fan.items[k] / 3);
+                    for (uint32_t k = fan.start[corner]; k < fan.start[corner + 1] && best > enough; ++k) walk_test(fan.items[k] / 3);
                 }
                 if (nearest == from) break;
             }
