@@ -1137,7 +1137,8 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
         }
     });
     // Offsets in order, then the triangles copied into place on every core (one copy, no growth: at 10 M source
-    // triangles the streams are hundreds of MB).
+    // triangles the streams are hundreds of MB; a Stream's resize leaves them unset, so that their pages are first
+    // touched there, on every core, too).
     uint32_t vertexTotal = 0, triangleTotal = 0;
     out.clusters.reserve(order.size());
     for (size_t i = 0; i < order.size(); ++i) {
