@@ -976,14 +976,39 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             // triangles; each new cluster carries up the points nearest it that stray most.
             auto interior = [&](uint32_t v) { return v < roundVertices && lock[v] != kBorderLock; };
             const uint32_t stamp = firstStamp + uint32_t(g);
-            for (uint32_t v : simplified)
-                if (interior(v)) keptBy[v] = stamp;
             std::vector<SourcePoint> points;
-            for (uint32_t v : merged)
+            auto measure_vertex = [&](uint32_t v) {
                 if (interior(v) && keptBy[v] != stamp && measuredBy[v] != stamp) {
                     measuredBy[v] = stamp;
                     points.push_back({{local[3 * v], local[3 * v + 1], local[3 * v + 2]}, 0.0f, v});
                 }
+            };
+            if (groupPositions.outputInInput && moved.empty()) {
+                // Over the group's positions: one alone at its position is kept iff the output has triangles there, and
+                // is met first where its position is (slots are numbered by first use), so the points come in the same
+                // order; only the wedges of a seam need the marks by vertex.
+                const std::vector<uint32_t>& slotOf = groupPositions.corners;
+                const std::vector<char>& seam = groupPositions.seam;
+                const Rows& fan = groupPositions.outputFan;
+                for (size_t i = 0; i < simplified.size(); ++i)
+                    if (seam[groupPositions.outputCorners[i]] && interior(simplified[i])) keptBy[simplified[i]] = stamp;
+                uint32_t slotsMet = 0;
+                for (size_t i = 0; i < merged.size(); ++i) {
+                    const uint32_t slot = slotOf[i];
+                    if (seam[slot]) {
+                        slotsMet += slot == slotsMet;
+                        measure_vertex(merged[i]);
+                    } else if (slot == slotsMet) {
+                        ++slotsMet;
+                        const uint32_t v = merged[i];
+                        if (fan.start[slot] == fan.start[slot + 1] && interior(v)) points.push_back({{local[3 * v], local[3 * v + 1], local[3 * v + 2]}, 0.0f, v});
+                    }
+                }
+            } else {
+                for (uint32_t v : simplified)
+                    if (interior(v)) keptBy[v] = stamp;
+                for (uint32_t v : merged) measure_vertex(v);
+            }
             for (uint32_t c : members[g]) points.insert(points.end(), clusters[c].carried.begin(), clusters[c].carried.end());
             std::vector<float> triangleCorners;
             for (uint32_t v : simplified) triangleCorners.insert(triangleCorners.end(), position(v), position(v) + 3);
