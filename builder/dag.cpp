@@ -206,6 +206,12 @@ size_t drop_free_components(std::vector<uint32_t>& indices, size_t count, size_t
 }
 
 
+// Frees a vector's memory (clear() keeps it).
+template <class T>
+void release(std::vector<T>& v) {
+    std::vector<T>().swap(v);
+}
+
 // Per triangle of `indices` (3 vertices each), the piece `pieces` hold it in (each triangle's corners in their order):
 // both lists of triangles sorted by their corners and matched. For meshoptimizer's clusters, which do not say.
 std::vector<uint32_t> piece_of_triangles(const std::vector<uint32_t>& indices, const std::vector<std::vector<uint32_t>>& pieces) {
@@ -223,20 +229,22 @@ std::vector<uint32_t> piece_of_triangles(const std::vector<uint32_t>& indices, c
 
 // Splits triangles into spatially compact clusters (at most 128 triangles and 255 vertices). The triangles'
 // vertices are first compacted, so the cost follows the triangles given, not the whole mesh.
-// `position(v)` gives vertex v's xyz; `pieceOf`, where given, receives each triangle's piece.
-template <typename PositionOf>
-std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, PositionOf position, std::vector<uint32_t>* pieceOf = nullptr) {
+// `cornerCount` corners, 3 per triangle, read as `corner(i)` (level 0's chunks read the mesh's triangles in Morton
+// order through it, rather than copies); `position(v)` gives vertex v's xyz; `pieceOf`, where given, receives each
+// triangle's piece.
+template <typename CornerOf, typename PositionOf>
+std::vector<std::vector<uint32_t>> split_into_clusters(size_t cornerCount, CornerOf corner, PositionOf position, std::vector<uint32_t>* pieceOf = nullptr) {
     // Local numbers found through a table (sorting every index and searching for each cost a fifth of the build):
     // direct when the vertex numbers span little more than the indices (a small mesh in one piece), else open
     // addressing at most half full (Morton chunks and groups of large meshes).
     uint32_t first = UINT32_MAX, last = 0;
-    for (uint32_t v : indices) {
-        first = std::min(first, v);
-        last = std::max(last, v);
+    for (size_t i = 0; i < cornerCount; ++i) {
+        first = std::min(first, corner(i));
+        last = std::max(last, corner(i));
     }
-    const bool direct = size_t(last - first) < 2 * indices.size();
+    const bool direct = size_t(last - first) < 2 * cornerCount;
     size_t slots = 16;
-    while (!direct && slots < 2 * indices.size()) slots *= 2;
+    while (!direct && slots < 2 * cornerCount) slots *= 2;
     std::vector<std::pair<uint32_t, uint32_t>> table(direct ? size_t(last - first) + 1 : slots, {UINT32_MAX, 0});  // (vertex, local)
     auto entry = [&](uint32_t v) -> std::pair<uint32_t, uint32_t>& {
         if (direct) return table[v - first];
@@ -246,16 +254,17 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
     };
     // Numbered by first use (neighbours in the triangle order are near in memory); the clusters do not depend on
     // the numbering, only on the triangle order.
-    std::vector<uint32_t> vertices, localIndices(indices.size());
+    std::vector<uint32_t> vertices, localIndices(cornerCount);
     std::vector<float> compact;
-    vertices.reserve(indices.size() / 2 + 3);
-    compact.reserve(3 * (indices.size() / 2 + 3));
-    for (size_t i = 0; i < indices.size(); ++i) {
-        auto& e = entry(indices[i]);
+    vertices.reserve(cornerCount / 2 + 3);
+    compact.reserve(3 * (cornerCount / 2 + 3));
+    for (size_t i = 0; i < cornerCount; ++i) {
+        const uint32_t v = corner(i);
+        auto& e = entry(v);
         if (e.first == UINT32_MAX) {
-            e = {indices[i], uint32_t(vertices.size())};
-            vertices.push_back(indices[i]);
-            compact.insert(compact.end(), position(indices[i]), position(indices[i]) + 3);
+            e = {v, uint32_t(vertices.size())};
+            vertices.push_back(v);
+            compact.insert(compact.end(), position(v), position(v) + 3);
         }
         localIndices[i] = e.second;
     }
@@ -270,7 +279,7 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
             for (uint32_t& v : piece) v = vertices[v];
         return pieces;
     }
-    const size_t maxClusters = meshopt_buildMeshletsBound(indices.size(), kClusterVertices, kClusterMaxTriangles);
+    const size_t maxClusters = meshopt_buildMeshletsBound(cornerCount, kClusterVertices, kClusterMaxTriangles);
     std::vector<meshopt_Meshlet> meshlets(maxClusters);
     std::vector<unsigned int> meshletVertices(maxClusters * kClusterVertices);
     std::vector<unsigned char> meshletTriangles(maxClusters * kClusterMaxTriangles * 3);
@@ -283,8 +292,17 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
         for (size_t i = 0; i < pieces[m].size(); ++i)
             pieces[m][i] = vertices[meshletVertices[meshlet.vertex_offset + meshletTriangles[meshlet.triangle_offset + i]]];
     }
-    if (pieceOf) *pieceOf = piece_of_triangles(indices, pieces);
+    if (pieceOf) {
+        std::vector<uint32_t> indices(cornerCount);
+        for (size_t i = 0; i < cornerCount; ++i) indices[i] = corner(i);
+        *pieceOf = piece_of_triangles(indices, pieces);
+    }
     return pieces;
+}
+
+template <typename PositionOf>
+std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_t>& indices, PositionOf position, std::vector<uint32_t>* pieceOf = nullptr) {
+    return split_into_clusters(indices.size(), [&](size_t i) { return indices[i]; }, position, pieceOf);
 }
 
 // Cluster-local vertex numbers by first use: returns the corners renumbered, and the mesh vertices in that order in
@@ -352,23 +370,21 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
             const size_t begin = pair * 2 * width, middle = std::min(triangles, begin + width), end = std::min(triangles, begin + 2 * width);
             std::inplace_merge(order.begin() + begin, order.begin() + middle, order.begin() + end);
         });
+    // The triangles in Morton order, without their codes (the build's memory peaks while level 0 clusters).
+    std::vector<uint32_t> sorted(triangles);
+    parallel_blocks(triangles, kChunkTriangles, [&](size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) sorted[i] = order[i].second;
+    });
+    release(order);
     std::vector<std::vector<std::vector<uint32_t>>> pieces(chunks);
     parallel_for(chunks, [&](size_t c) {
-        std::vector<uint32_t> chunk;
-        for (size_t i = c * kChunkTriangles; i < std::min(triangles, (c + 1) * kChunkTriangles); ++i)
-            chunk.insert(chunk.end(), &indices[3 * order[i].second], &indices[3 * order[i].second] + 3);
-        pieces[c] = split_into_clusters(chunk, position);
+        const size_t begin = c * kChunkTriangles, end = std::min(triangles, (c + 1) * kChunkTriangles);
+        pieces[c] = split_into_clusters(3 * (end - begin), [&](size_t i) { return indices[3 * sorted[begin + i / 3] + i % 3]; }, position);
     });
     std::vector<std::vector<uint32_t>> all;
     for (auto& chunk : pieces)
         for (auto& piece : chunk) all.push_back(std::move(piece));
     return all;
-}
-
-// Frees a vector's memory (clear() keeps it).
-template <class T>
-void release(std::vector<T>& v) {
-    std::vector<T>().swap(v);
 }
 
 // build_mesh, which empties `spent`'s arrays (the same object as `mesh`, or null) as soon as it is done with them:
