@@ -2,6 +2,7 @@
 #include "phase_timer.h"
 #include "tessera/builder.h"
 
+#include "morton_order.h"
 #include "subdivide.h"
 #include "tessera/parallel.h"
 #include "weld.h"
@@ -124,9 +125,8 @@ void channel_bits(const PrimvarLookup& primvar, int64_t index, uint32_t (&bits)[
     std::memcpy(bits, c.data(), sizeof(bits));
 }
 
-}  // namespace
-
-PreparedMesh prepare_mesh(const MeshView& mesh) {
+// prepare_mesh, with the vertices numbered by first use in the triangles' order.
+PreparedMesh prepare_in_input_order(const MeshView& mesh) {
     PhaseTimer phases;
     PreparedMesh out;
     auto& warnings = out.warnings;
@@ -242,7 +242,7 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
             if (!refined.uvIndices.empty()) view.uvs = {Interpolation::FaceVarying, 2, refined.uvs, refined.uvIndices};
             else if (mesh.uvs.interpolation == Interpolation::Constant) view.uvs = mesh.uvs;
             view.faceMaterials = refined.faceMaterials;
-            PreparedMesh result = prepare_mesh(view);
+            PreparedMesh result = prepare_in_input_order(view);
             std::vector<std::string> notes;
             if (dropped) notes.push_back(dropped_faces_warning(dropped, firstBad, firstReason));
             if (nonFinitePoints) notes.push_back(name + ": " + std::to_string(nonFinitePoints) + " point(s) are NaN or infinite");
@@ -459,6 +459,54 @@ PreparedMesh prepare_mesh(const MeshView& mesh) {
     out.triangleMaterials.shrink_to_fit();
     out.sourceFaces.shrink_to_fit();
     phases.mark("prepare: vertex streams");
+    return out;
+}
+
+// Renumbers the vertices along a Morton curve through their positions (the triangles keep their order), so that the
+// builder, which walks the surface region by region, reads its per-vertex arrays nearly in order whatever order the
+// input came in: the 10 M-triangle bumpy sphere with its faces shuffled built 1.4x slower than in its grid's order.
+// A mesh of up to 2^16 vertices keeps the input's order: its arrays stay in the caches either way.
+void order_vertices_spatially(PreparedMesh& mesh) {
+    const size_t count = mesh.positions.size() / 3;
+    constexpr size_t kBlock = 65536;
+    if (count <= kBlock) return;
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < mesh.positions.size(); i += 3)
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], mesh.positions[i + k]);
+            hi[k] = std::max(hi[k], mesh.positions[i + k]);
+        }
+    const float extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-30f});
+    const std::vector<std::pair<uint32_t, uint32_t>> order =
+        morton_sort(count, [&](size_t v, float* p) { std::copy_n(&mesh.positions[3 * v], 3, p); }, lo, extent, kBlock);
+    std::vector<uint32_t> newNumber(count);
+    parallel_blocks(count, kBlock, [&](size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) newNumber[order[i].second] = uint32_t(i);
+    });
+    auto reorder = [&](std::vector<float>& values, size_t width) {
+        if (values.empty()) return;
+        std::vector<float> moved(values.size());
+        parallel_blocks(count, kBlock, [&](size_t begin, size_t end) {
+            for (size_t i = begin; i < end; ++i) std::copy_n(&values[width * order[i].second], width, &moved[width * i]);
+        });
+        values.swap(moved);
+    };
+    reorder(mesh.positions, 3);
+    reorder(mesh.normals, 3);
+    reorder(mesh.colors, kChannelComponents);
+    reorder(mesh.uvs, 2);
+    parallel_blocks(mesh.indices.size(), kBlock, [&](size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) mesh.indices[i] = newNumber[mesh.indices[i]];
+    });
+}
+
+}  // namespace
+
+PreparedMesh prepare_mesh(const MeshView& mesh) {
+    PreparedMesh out = prepare_in_input_order(mesh);
+    PhaseTimer phases;
+    order_vertices_spatially(out);
+    phases.mark("prepare: spatial order");
     return out;
 }
 
