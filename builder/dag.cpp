@@ -4,6 +4,7 @@
 // distance from the source (deviation.h), at least the largest of its children's, and its sphere encloses its
 // children's (monotone).
 #include "tessera/builder.h"
+#include "tessera/morton.h"
 
 #include "area.h"
 #include "attribute_fit.h"
@@ -11,7 +12,6 @@
 #include "cut.h"
 #include "deviation.h"
 #include "edge_limit.h"
-#include "morton_order.h"
 #include "tessera/parallel.h"
 #include "phase_timer.h"
 #include "rows.h"
@@ -351,12 +351,25 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
             hi[k] = std::max(hi[k], positions[i + k]);
         }
     const float extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-30f});
+    // (Morton code of the centroid, triangle), coded and sorted in blocks on every core, then merged: the order is
+    // total (triangle numbers differ), so it does not depend on the blocks.
+    std::vector<std::pair<uint32_t, uint32_t>> order(triangles);
     const size_t chunks = (triangles + kChunkTriangles - 1) / kChunkTriangles;
-    auto centroid = [&](size_t t, float* c) {
-        for (int k = 0; k < 3; ++k)
-            c[k] = (positions[3 * indices[3 * t] + k] + positions[3 * indices[3 * t + 1] + k] + positions[3 * indices[3 * t + 2] + k]) / 3;
-    };
-    std::vector<std::pair<uint32_t, uint32_t>> order = morton_sort(triangles, centroid, lo, extent, kChunkTriangles);
+    parallel_for(chunks, [&](size_t c) {
+        const size_t end = std::min(triangles, (c + 1) * kChunkTriangles);
+        for (size_t t = c * kChunkTriangles; t < end; ++t) {
+            float centroid[3];
+            for (int k = 0; k < 3; ++k)
+                centroid[k] = (positions[3 * indices[3 * t] + k] + positions[3 * indices[3 * t + 1] + k] + positions[3 * indices[3 * t + 2] + k]) / 3;
+            order[t] = {morton_code(centroid, lo, extent), uint32_t(t)};
+        }
+        std::sort(order.begin() + c * kChunkTriangles, order.begin() + end);
+    });
+    for (size_t width = kChunkTriangles; width < triangles; width *= 2)  // pairs of sorted runs, merged on every core
+        parallel_for((triangles + 2 * width - 1) / (2 * width), [&](size_t pair) {
+            const size_t begin = pair * 2 * width, middle = std::min(triangles, begin + width), end = std::min(triangles, begin + 2 * width);
+            std::inplace_merge(order.begin() + begin, order.begin() + middle, order.begin() + end);
+        });
     // The triangles in Morton order, without their codes (the build's memory peaks while level 0 clusters).
     std::vector<uint32_t> sorted(triangles);
     parallel_blocks(triangles, kChunkTriangles, [&](size_t begin, size_t end) {
