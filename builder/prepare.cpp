@@ -464,10 +464,10 @@ PreparedMesh prepare_in_input_order(const MeshView& mesh) {
 }
 
 // Renumbers the vertices cell by cell along a Morton curve (about four vertices a cell over the mesh's box; in a cell,
-// in their order; the triangles keep theirs), so that the builder, which walks the surface region by region, reads its per-vertex
-// arrays nearly in order whatever order the input came in: the 10 M-triangle bumpy sphere with its faces shuffled built
-// 1.4x slower than in its grid's order. A mesh of up to 2^16 vertices keeps the input's order: its arrays stay in the
-// caches either way.
+// in their order; the triangles keep theirs), so that the builder, which walks the surface region by region, reads its
+// per-vertex arrays nearly in order whatever order the input came in: the 10 M-triangle bumpy sphere with its faces
+// shuffled built 1.4x slower than in its grid's order. A mesh of up to 2^16 vertices keeps the input's order: its
+// arrays stay in the caches either way.
 void order_vertices_spatially(PreparedMesh& mesh) {
     const size_t count = mesh.positions.size() / 3;
     constexpr size_t kBlock = 65536;

@@ -110,7 +110,9 @@ struct PreparedMesh {
 
 // Validates and triangulates. Bad faces (out-of-range indices, fewer than 3 vertices, non-finite points)
 // are dropped with a warning; a mesh with nothing left to draw, or whose arrays do not fit together,
-// throws MeshError naming the mesh and the problem.
+// throws MeshError naming the mesh and the problem. Triangles come in the faces' order; vertices are numbered by first
+// use, or, in a mesh of more than 2^16 vertices, cell by cell along a Morton curve through their positions (the build
+// then reads its per-vertex arrays nearly in order, whatever order the input came in).
 PreparedMesh prepare_mesh(const MeshView& mesh);
 
 // Static displacement (a material's tessera:displacement:bake, Nanite's build-time tessellation): the mesh is diced
