@@ -5,6 +5,8 @@
 
 #include "test_meshes.h"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <random>
 #include <map>
@@ -219,6 +221,61 @@ TEST(Prepare, DuplicatePositionsWeldUnlessTheirValuesDiffer) {
     for (size_t i = 0; i < 8; ++i) flat[3 * i + 2] = 1;
     v.normals = {Interpolation::Vertex, 3, flat, {}};
     EXPECT_EQ(prepare_mesh(v).positions.size() / 3, 6u);
+}
+
+// A mesh of more than 2^16 vertices comes out of preparation with its vertices numbered along the surface (the build
+// reads its per-vertex arrays in that order), whatever order its points and faces were authored in; every triangle
+// keeps its face's corners, values included, and the faces' order.
+TEST(Prepare, LargeMeshVerticesAreNumberedAlongTheSurface) {
+    constexpr int n = 300;  // (n + 1)^2 = 90 601 points
+    std::vector<int> pointAt((n + 1) * (n + 1));
+    for (size_t i = 0; i < pointAt.size(); ++i) pointAt[i] = int(i);
+    std::mt19937 random(3);
+    std::shuffle(pointAt.begin(), pointAt.end(), random);  // grid point -> its number in the authored arrays
+    std::vector<float> points(3 * pointAt.size()), colors(3 * pointAt.size()), uvs(2 * pointAt.size());
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x) {
+            const int p = pointAt[y * (n + 1) + x];
+            const float u = float(x) / n, w = float(y) / n;
+            std::copy_n(std::array<float, 3>{u, w, 0.1f * std::sin(9 * u) * std::cos(7 * w)}.data(), 3, &points[3 * p]);
+            std::copy_n(std::array<float, 3>{u, w, 1 - u}.data(), 3, &colors[3 * p]);
+            std::copy_n(std::array<float, 2>{u, w}.data(), 2, &uvs[2 * p]);
+        }
+    std::vector<int> faceOrder(n * n);
+    for (size_t f = 0; f < faceOrder.size(); ++f) faceOrder[f] = int(f);
+    std::shuffle(faceOrder.begin(), faceOrder.end(), random);
+    std::vector<int32_t> counts(n * n, 4), indices;
+    for (int f : faceOrder) {
+        const int x = f % n, y = f / n;
+        for (int corner : {y * (n + 1) + x, y * (n + 1) + x + 1, (y + 1) * (n + 1) + x + 1, (y + 1) * (n + 1) + x}) indices.push_back(pointAt[corner]);
+    }
+    MeshView v = polygon_view("/Scattered", points, counts, indices);
+    v.displayColor = {Interpolation::Vertex, 3, colors, {}};
+    v.uvs = {Interpolation::Vertex, 2, uvs, {}};
+    const PreparedMesh m = prepare_mesh(v);
+    ASSERT_EQ(m.positions.size() / 3, pointAt.size());
+    ASSERT_EQ(m.indices.size(), size_t(6 * n * n));
+    for (size_t t = 0; t < m.indices.size() / 3; ++t) {
+        const uint32_t face = m.sourceFaces[t];
+        ASSERT_EQ(face, t / 2) << "triangles keep the faces' order";
+        const int fan[2][3] = {{0, 1, 2}, {0, 2, 3}};
+        for (int k = 0; k < 3; ++k) {
+            const uint32_t vertex = m.indices[3 * t + k];
+            const int32_t point = indices[4 * face + fan[t % 2][k]];
+            for (int c = 0; c < 3; ++c) ASSERT_EQ(m.positions[3 * vertex + c], points[3 * point + c]);
+            for (int c = 0; c < 3; ++c) ASSERT_EQ(m.colors[4 * vertex + c], colors[3 * point + c]);
+            for (int c = 0; c < 2; ++c) ASSERT_EQ(m.uvs[2 * vertex + c], uvs[2 * point + c]);
+        }
+    }
+    // Consecutive vertices lie near each other: on average within a few grid steps (authored, they were a third of the
+    // grid apart).
+    auto mean_step = [](const float* p, size_t count) {
+        double sum = 0;
+        for (size_t i = 1; i < count; ++i) sum += std::hypot(p[3 * i] - p[3 * i - 3], p[3 * i + 1] - p[3 * i - 2]);
+        return sum / double(count - 1);
+    };
+    EXPECT_GT(mean_step(points.data(), pointAt.size()), 0.3);
+    EXPECT_LT(mean_step(m.positions.data(), pointAt.size()), 4.0 / n);
 }
 
 namespace {
