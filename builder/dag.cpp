@@ -239,8 +239,9 @@ std::vector<std::vector<uint32_t>> split_into_clusters(size_t cornerCount, Corne
     // addressing at most half full (Morton chunks and groups of large meshes).
     uint32_t first = UINT32_MAX, last = 0;
     for (size_t i = 0; i < cornerCount; ++i) {
-        first = std::min(first, corner(i));
-        last = std::max(last, corner(i));
+        const uint32_t v = corner(i);
+        first = std::min(first, v);
+        last = std::max(last, v);
     }
     const bool direct = size_t(last - first) < 2 * cornerCount;
     size_t slots = 16;
@@ -344,13 +345,8 @@ std::vector<std::vector<uint32_t>> split_level_zero(const std::vector<uint32_t>&
     const size_t kChunkTriangles = triangles > 131072 ? 65536 : (triangles + 1) / 2;
     auto position = [&](uint32_t v) { return &positions[3 * v]; };
     if (triangles <= 32768) return split_into_clusters(indices, position);
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < positions.size(); i += 3)
-        for (int k = 0; k < 3; ++k) {
-            lo[k] = std::min(lo[k], positions[i + k]);
-            hi[k] = std::max(hi[k], positions[i + k]);
-        }
-    const float extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-30f});
+    float lo[3];
+    const float extent = morton_cube(positions.size() / 3, [&](size_t v, float* p) { std::copy_n(&positions[3 * v], 3, p); }, lo);
     // (Morton code of the centroid, triangle), coded and sorted in blocks on every core, then merged: the order is
     // total (triangle numbers differ), so it does not depend on the blocks.
     std::vector<std::pair<uint32_t, uint32_t>> order(triangles);

@@ -473,13 +473,8 @@ void order_vertices_spatially(PreparedMesh& mesh) {
     constexpr size_t kBlock = 65536;
     if (count <= kBlock) return;
     const int cellBits = std::min(30, int(std::bit_width(count / 4)));  // of the 30-bit code
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < mesh.positions.size(); i += 3)
-        for (int k = 0; k < 3; ++k) {
-            lo[k] = std::min(lo[k], mesh.positions[i + k]);
-            hi[k] = std::max(hi[k], mesh.positions[i + k]);
-        }
-    const float extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-30f});
+    float lo[3];
+    const float extent = morton_cube(count, [&](size_t v, float* p) { std::copy_n(&mesh.positions[3 * v], 3, p); }, lo);
     std::vector<uint32_t> cell(count);
     parallel_blocks(count, kBlock, [&](size_t begin, size_t end) {
         for (size_t v = begin; v < end; ++v) cell[v] = morton_code(&mesh.positions[3 * v], lo, extent) >> (30 - cellBits);

@@ -34,15 +34,17 @@ gpu::vec4 enclosing(const std::vector<Sphere>& spheres) {
 void append_cut_blocks(const gpu::GpuCluster* clusters, uint32_t count, uint32_t firstInMesh, std::vector<gpu::GpuCutBlock>& blocks,
                        std::vector<uint32_t>& blockClusters) {
     // Morton codes of the culling spheres' centres, on a 1024^3 grid over the cube around them.
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (uint32_t i = 0; i < count; ++i) {
-        const float p[3] = {clusters[i].sphere.x, clusters[i].sphere.y, clusters[i].sphere.z};
-        for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], p[k]), hi[k] = std::max(hi[k], p[k]);
-    }
-    const float extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-30f});
+    auto centre = [&](size_t i, float* p) {
+        p[0] = clusters[i].sphere.x;
+        p[1] = clusters[i].sphere.y;
+        p[2] = clusters[i].sphere.z;
+    };
+    float lo[3];
+    const float extent = morton_cube(count, centre, lo);
     std::vector<std::pair<uint32_t, uint32_t>> order(count);  // (code, cluster in level)
     for (uint32_t i = 0; i < count; ++i) {
-        const float p[3] = {clusters[i].sphere.x, clusters[i].sphere.y, clusters[i].sphere.z};
+        float p[3];
+        centre(i, p);
         order[i] = {morton_code(p, lo, extent), i};
     }
     std::sort(order.begin(), order.end());  // ties by index: the same blocks every time
