@@ -278,6 +278,128 @@ TEST(Prepare, LargeMeshVerticesAreNumberedAlongTheSurface) {
     EXPECT_LT(mean_step(m.positions.data(), pointAt.size()), 4.0 / n);
 }
 
+// A mesh of more than 2^16 points whose primvars all vary per point is triangulated on every core, its vertices
+// numbered in spatial order directly; any other goes through the general path (a vertex per point and attribute
+// values, numbered by first use, then reordered). Both must give the same mesh, bit for bit, with the same warnings:
+// here the same surface with its normals authored per corner (the same values) takes the general path. The mesh has
+// what the paths treat apart: holes, invalid faces (too few corners, an index out of range, a non-finite point),
+// welded duplicate points, faces with collapsed corners, triangles and pentagons among its quads, unused points (far
+// off: they must not widen the box the spatial order is taken in), normals too short to use (the smooth fallback),
+// left-handed winding and faces in a scattered order. Also a mesh that uses few of its many points (numbered by first
+// use on both paths), and one with no drawable face (the same error).
+TEST(Prepare, LargeMeshOnEveryCoreMatchesTheGeneralPath) {
+    constexpr int n = 300;  // (n + 1)^2 = 90 601 grid points
+    const int gridPoints = (n + 1) * (n + 1);
+    std::mt19937 random(11);
+    std::vector<float> points, normals, colors, uvs;
+    auto add_point = [&](std::array<float, 3> p, std::array<float, 3> normal, float u, float w) {
+        points.insert(points.end(), p.begin(), p.end());
+        normals.insert(normals.end(), normal.begin(), normal.end());
+        colors.insert(colors.end(), {u, w, 1 - u});
+        uvs.insert(uvs.end(), {u, w});
+    };
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x) {
+            const float u = float(x) / n, w = float(y) / n;
+            const bool bad = (x * 7 + y * 13) % 29 == 0;  // zero length: the smooth normal instead
+            add_point({u, w, 0.1f * std::sin(9 * u) * std::cos(7 * w)}, bad ? std::array<float, 3>{0, 0, 0} : std::array<float, 3>{0.1f * u, 0.2f, 1}, u, w);
+        }
+    std::vector<std::vector<int32_t>> faces;
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+            const int a = y * (n + 1) + x;
+            faces.push_back({a, a + 1, a + n + 2, a + n + 1});
+        }
+    // Duplicates of grid points (welded to them) used by some faces instead.
+    for (int k = 0; k < 500; ++k) {
+        const int original = int(random() % uint32_t(gridPoints)), copy = int(points.size() / 3);
+        add_point({points[3 * original], points[3 * original + 1], points[3 * original + 2]},
+                  {normals[3 * original], normals[3 * original + 1], normals[3 * original + 2]}, colors[3 * original], colors[3 * original + 1]);
+        for (auto& face : faces)
+            if (face[0] == original) face[0] = copy;
+        faces.push_back({original, copy, (original + 1) % gridPoints});  // two corners weld to one point: dropped
+    }
+    for (int k = 0; k < 200; ++k) {  // triangles and pentagons over the grid
+        const int a = int(random() % uint32_t(gridPoints - n - 3));
+        faces.push_back({a, a + 1, a + n + 2});
+        faces.push_back({a, a + 1, a + 2, a + n + 3, a + n + 1});
+    }
+    const int nanPoint = int(points.size() / 3);
+    add_point({NAN, 0, 0}, {0, 0, 1}, 0, 0);
+    faces.push_back({0, 1});                      // too few corners
+    faces.push_back({0, 1, gridPoints * 10});     // an index out of range
+    faces.push_back({0, 1, nanPoint});            // a non-finite point
+    for (int k = 0; k < 1000; ++k) add_point({1000.0f + float(k), -500, 7}, {0, 1, 0}, 0, 0);  // used by no face
+    std::shuffle(faces.begin(), faces.end(), random);
+    std::vector<int32_t> counts, indices, holes;
+    for (size_t f = 0; f < faces.size(); ++f) {
+        counts.push_back(int32_t(faces[f].size()));
+        indices.insert(indices.end(), faces[f].begin(), faces[f].end());
+        if (f % 997 == 5) holes.push_back(int32_t(f));
+    }
+    std::vector<float> cornerNormals;
+    for (int32_t p : indices)
+        for (int k = 0; k < 3; ++k) cornerNormals.push_back(p >= 0 && size_t(p) < points.size() / 3 ? normals[3 * p + k] : 0.0f);
+
+    auto both_paths = [&](const std::vector<int32_t>& faceCounts, const std::vector<int32_t>& faceIndices, const std::vector<float>& perCorner,
+                          size_t expectVertices) {
+        MeshView perPoint = polygon_view("/Big", points, faceCounts, faceIndices);
+        perPoint.leftHanded = true;
+        perPoint.holeIndices = holes;
+        perPoint.displayColor = {Interpolation::Vertex, 3, colors, {}};
+        perPoint.uvs = {Interpolation::Vertex, 2, uvs, {}};
+        perPoint.normals = {Interpolation::Vertex, 3, normals, {}};
+        MeshView general = perPoint;
+        general.normals = {Interpolation::FaceVarying, 3, perCorner, {}};
+        const PreparedMesh a = prepare_mesh(perPoint), b = prepare_mesh(general);
+        EXPECT_EQ(a.positions.size() / 3, expectVertices);
+        EXPECT_EQ(a.positions, b.positions);
+        EXPECT_EQ(a.normals, b.normals);
+        EXPECT_EQ(a.colors, b.colors);
+        EXPECT_EQ(a.uvs, b.uvs);
+        EXPECT_EQ(a.indices, b.indices);
+        EXPECT_EQ(a.sourceFaces, b.sourceFaces);
+        EXPECT_EQ(a.warnings, b.warnings);
+        return a;
+    };
+    const PreparedMesh big = both_paths(counts, indices, cornerNormals, size_t(gridPoints));
+    ASSERT_EQ(big.warnings.size(), 2u);
+    EXPECT_NE(big.warnings[0].find("dropped 3 invalid face(s)"), std::string::npos) << big.warnings[0];
+    EXPECT_NE(big.warnings[1].find("1 point(s) are NaN"), std::string::npos) << big.warnings[1];
+    bool smoothUsed = false;  // some vertex took its smooth normal (not the authored 0.1u, 0.2, 1 direction)
+    for (size_t v = 0; v < big.normals.size() / 3; ++v) smoothUsed |= std::abs(big.normals[3 * v + 1] * 5 - big.normals[3 * v + 2]) > 1e-3f;
+    EXPECT_TRUE(smoothUsed);
+
+    // The faces of one corner of the grid: a few thousand of its points used.
+    std::vector<int32_t> fewCounts, fewIndices;
+    std::vector<float> fewCorners;
+    for (size_t f = 0, at = 0; f < counts.size(); at += size_t(counts[f]), ++f) {
+        bool near = true;
+        for (size_t c = at; c < at + size_t(counts[f]); ++c) near &= indices[c] >= 0 && indices[c] < gridPoints && indices[c] % (n + 1) < 40 && indices[c] / (n + 1) < 40;
+        if (!near) continue;
+        fewCounts.push_back(counts[f]);
+        fewIndices.insert(fewIndices.end(), indices.begin() + at, indices.begin() + at + counts[f]);
+        fewCorners.insert(fewCorners.end(), cornerNormals.begin() + 3 * at, cornerNormals.begin() + 3 * (at + counts[f]));
+    }
+    both_paths(fewCounts, fewIndices, fewCorners, 40 * 40);
+
+    // No drawable face: the same error on both paths.
+    const std::vector<int32_t> badCounts{3, 2}, badIndices{0, 1, gridPoints * 10, 4, 5};
+    const std::vector<float> badCorners(3 * badIndices.size(), 1.0f);
+    std::string errors[2];
+    for (int path = 0; path < 2; ++path) {
+        MeshView v = polygon_view("/Big", points, badCounts, badIndices);
+        if (path) v.normals = {Interpolation::FaceVarying, 3, badCorners, {}};
+        try {
+            prepare_mesh(v);
+        } catch (const MeshError& e) {
+            errors[path] = e.what();
+        }
+    }
+    EXPECT_NE(errors[0].find("no drawable faces (every face is invalid: "), std::string::npos) << errors[0];
+    EXPECT_EQ(errors[0], errors[1]);
+}
+
 namespace {
 // A cube cage from -1 to 1, refined `level` times with `scheme` (none: as authored).
 MeshView cube_cage(std::vector<float>& points, std::vector<int32_t>& counts, std::vector<int32_t>& indices,
