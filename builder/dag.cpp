@@ -269,7 +269,7 @@ std::vector<std::vector<uint32_t>> split_into_clusters(size_t cornerCount, Corne
         }
         localIndices[i] = e.second;
     }
-    table = {};  // freed before clustering: the build's memory peaks there (level 0)
+    release(table);  // freed before clustering: the build's memory peaks there (level 0)
 
     // Our builder gives meshoptimizer's clusters (the same, triangle for triangle) at half the cost; meshoptimizer
     // itself only for what ours leaves to it (a mesh of no area, clusters.h).
@@ -534,7 +534,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
         });
         std::vector<std::pair<uint32_t, uint32_t>> repeats;
         for (const auto& block : blockRepeats) repeats.insert(repeats.end(), block.begin(), block.end());
-        blockRepeats = {};
+        release(blockRepeats);
         std::stable_sort(repeats.begin(), repeats.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
         std::vector<uint32_t> reps;
         for (size_t i = 0; i < repeats.size();) {
@@ -1191,7 +1191,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     out.triangles.resize(triangleTotal);
     parallel_for(order.size(), [&](size_t i) {
         std::copy(clusterTriangles[i].begin(), clusterTriangles[i].end(), out.triangles.begin() + emitted[i].triangleOffset);
-        clusterTriangles[i] = {};
+        release(clusterTriangles[i]);
     });
     phases.mark("emit: order clusters");
     out.positions.resize(3 * size_t(vertexTotal));
@@ -1236,7 +1236,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             if (hasUvs) std::copy_n(&uvs[2 * a], 2, &out.uvs[2 * size_t(at)]);
             ++at;
         }
-        clusterVertices[i] = {};
+        release(clusterVertices[i]);
     });
 
     // Each cluster's normal cone, mean triangle area and longest edge, from its placed triangles (the page file keeps them).
