@@ -3,6 +3,8 @@
 
 #include <meshoptimizer.h>
 
+#include <map>
+
 using namespace tessera;
 using namespace dagtest;
 
@@ -95,6 +97,74 @@ TEST(Dag, Deterministic) {
     EXPECT_EQ(std::memcmp(a.clusters.data(), b.clusters.data(), a.clusters.size() * sizeof(Cluster)), 0);
 }
 
+
+// The mesh cache keys on kBuilderRevision (builder.h) so that a cache filled by an older builder never serves its DAGs:
+// the revision must change whenever the output does. This pins the page bytes of meshes that take the builder's main
+// paths (level 0 in two halves, hard edges, texture-coordinate islands, a vertex channel, a non-manifold sheet,
+// Preserve Area on a soup) to a hash per page format and builder revision. The meshes are made with exact arithmetic
+// only (no libm function whose last bit may differ between CPUs); the build is deterministic whatever the cores.
+TEST(Dag, OutputChangesComeWithABuilderRevision) {
+    // A sheet bent by a polynomial, coloured in checks per point, two texture-coordinate islands (x below and above
+    // 0.5), and fins standing on a row of its edges (three faces to an edge).
+    Source sheet;
+    sheet.name = "/Sheet";
+    constexpr int n = 90;
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x) {
+            const float u = float(x) / n, v = float(y) / n;
+            sheet.points.insert(sheet.points.end(), {u, v, 0.3f * u * (1 - u) * v * (1 - v) + 0.01f * float((x * 7 + y * 3) % 5)});
+            sheet.pointColors.insert(sheet.pointColors.end(), {float((x / 6 + y / 6) % 2), v, 0.25f});
+        }
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+            const int a = y * (n + 1) + x;
+            sheet.counts.push_back(4);
+            sheet.indices.insert(sheet.indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+            const float island = x < n / 2 ? 0.0f : 2.0f;
+            for (int corner : {a, a + 1, a + n + 2, a + n + 1})
+                sheet.uvs.insert(sheet.uvs.end(), {island + float(corner % (n + 1)) / n, float(corner / (n + 1)) / n});
+        }
+    for (int x = 3; x < n - 3; x += 4) {
+        const int a = (n / 3) * (n + 1) + x, top = int(sheet.points.size() / 3);
+        sheet.points.insert(sheet.points.end(), {float(x) / n, float(n / 3) / n, 0.2f, float(x + 1) / n, float(n / 3) / n, 0.2f});
+        sheet.pointColors.insert(sheet.pointColors.end(), {1, 1, 1, 1, 1, 1});
+        sheet.counts.push_back(4);
+        sheet.indices.insert(sheet.indices.end(), {a, a + 1, top + 1, top});
+        for (int k = 0; k < 4; ++k) sheet.uvs.insert(sheet.uvs.end(), {4.0f + float(k % 2), float(k / 2)});
+    }
+    // Foliage: small quads scattered by a linear congruential generator, each turned about y.
+    Source soup;
+    soup.name = "/Soup";
+    uint32_t state = 12345;
+    auto next = [&] { return float((state = state * 1664525u + 1013904223u) >> 8) / float(1u << 24); };
+    for (int i = 0; i < 3000; ++i) {
+        const float x = 10 * next(), y = 10 * next(), z = 10 * next(), c = next() - 0.5f, d = next() - 0.5f;
+        const float scale = 0.05f / std::sqrt(c * c + d * d + 1e-6f), dx = c * scale, dz = d * scale;
+        const int base = int(soup.points.size() / 3);
+        soup.points.insert(soup.points.end(), {x - dx, y, z - dz, x + dx, y, z + dz, x + dx, y + 0.1f, z + dz, x - dx, y + 0.1f, z - dz});
+        soup.counts.push_back(4);
+        soup.indices.insert(soup.indices.end(), {base, base + 1, base + 2, base + 3});
+    }
+    BuildSettings preserveArea;
+    preserveArea.preserveArea = true;
+    uint64_t hash = 1469598103934665603ull;  // FNV-1a over the page files in turn
+    auto add = [&](const BuiltMesh& mesh) {
+        for (uint8_t byte : encode_pages(mesh)) hash = (hash ^ byte) * 1099511628211ull;
+    };
+    add(flat_shaded(icosphere(6), 0.02).build());  // 81 920 triangles: level 0 in two halves; hard edges everywhere
+    add(sheet.build());
+    add(soup.build(preserveArea));
+    // Per (page format version, builder revision): the hash of this revision's output. When the output changes, bump
+    // kBuilderRevision with a note of what changed and add its hash here.
+    const std::map<std::pair<uint32_t, uint32_t>, uint64_t> recorded = {
+        {{7, 11}, 0xf0321ed160c434d7ull},
+    };
+    const auto found = recorded.find({kPageFormatVersion, kBuilderRevision});
+    ASSERT_NE(found, recorded.end()) << "no hash recorded for page format " << kPageFormatVersion << ", builder revision " << kBuilderRevision
+                                     << ": add {{" << kPageFormatVersion << ", " << kBuilderRevision << "}, 0x" << std::hex << hash << "ull}";
+    EXPECT_EQ(found->second, hash) << "the builder's output changed: bump kBuilderRevision (builder.h), say what changed, and record 0x" << std::hex
+                                   << hash << " for it here";
+}
 
 // build_mesh of a mesh it may empty (an rvalue: the cache's and the Python builds) frees the mesh's arrays as it is
 // done with them, and builds the very same mesh as from a mesh it must leave whole (the same page file, byte for byte).
