@@ -11,7 +11,6 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
-#include <unordered_map>
 
 namespace tessera {
 namespace {
@@ -94,14 +93,6 @@ struct CornerKey {
     uint32_t uv[2];
     uint32_t material;
     bool operator==(const CornerKey&) const = default;
-};
-struct CornerKeyHash {
-    size_t operator()(const CornerKey& k) const {
-        uint64_t h = k.point * 0x9E3779B97F4A7C15ull;
-        for (uint32_t v : {k.normal[0], k.normal[1], k.normal[2], k.color[0], k.color[1], k.color[2], k.color[3], k.uv[0], k.uv[1], k.material})
-            h = (h ^ v) * 0x100000001B3ull;
-        return size_t(h ^ (h >> 29));
-    }
 };
 template <size_t N>
 void value_bits(const PrimvarLookup& primvar, int64_t index, uint32_t (&bits)[N]) {
@@ -279,8 +270,6 @@ void fill_vertex_streams(PreparedMesh& out, const MeshView& mesh, const Sources&
     }
 }
 
-void order_vertices_spatially(PreparedMesh& mesh);
-
 // prepare_mesh.
 PreparedMesh prepare_triangles(const MeshView& mesh) {
     PhaseTimer phases;
@@ -431,7 +420,6 @@ PreparedMesh prepare_triangles(const MeshView& mesh) {
     if (uvs.active() && uvs.components() != 2) throw MeshError(name + ": texture coordinates must have 2 components");
 
     // Triangulate (a fan per polygon, as Hydra does) and split vertices at attribute seams.
-    std::unordered_map<CornerKey, uint32_t, CornerKeyHash> vertexOf;
     std::vector<uint32_t> vertexPoint;
     std::vector<int64_t> vertexNormal, vertexColor, vertexUv;
     size_t droppedFaces = 0, firstBadFace = SIZE_MAX;
@@ -453,150 +441,153 @@ PreparedMesh prepare_triangles(const MeshView& mesh) {
         if (canonical[p] != p)
             pointVertices = same_values(normals, normals.active(), p, canonical[p]) && same_values(colors, vertexColors, p, canonical[p]) &&
                             same_values(uvs, uvs.active(), p, canonical[p]);
-    if (pointVertices && pointCount > kSpatialOrderFrom) {
-        // A vertex is just its welded point: the faces are triangulated on every core, in blocks whose triangles are
-        // then written at their block's place. Only the numbering by first use stays on one core, and the spatial order
-        // is taken over the points directly (the same numbers as order_vertices_spatially gives, without moving the
-        // streams). All on one core, a 10 M-triangle mesh whose faces came in a scattered order spent 2 s here.
-        const size_t faces = mesh.faceVertexCounts.size(), blocks = (faces + kBlock - 1) / kBlock;
-        std::vector<size_t> blockStart(blocks + 1, 0);  // the block's first corner
-        parallel_for(blocks, [&](size_t b) {
-            for (size_t face = b * kBlock; face < std::min(faces, (b + 1) * kBlock); ++face) blockStart[b + 1] += size_t(mesh.faceVertexCounts[face]);
-        });
-        for (size_t b = 0; b < blocks; ++b) blockStart[b + 1] += blockStart[b];
-        struct Block {
-            std::vector<uint32_t> points, faces;  // its triangles' welded points, 3 each, and their faces
-            size_t dropped = 0, firstBad = SIZE_MAX;
-            const char* reason = nullptr;
+    // Triangulated on every core: the faces in blocks, each keeping its triangles in order (their corners' welded
+    // points and, where a vertex is more than its point, the corners themselves), counted, then numbered into
+    // vertices by first use and written at their block's place. The numbering is the one loop on one core (a number
+    // depends on every earlier triangle). All on one core, a 10 M-triangle mesh spent 0.25 s here, 2 s with its faces
+    // in a scattered order, and 3.7 s with face-varying texture coordinates.
+    if (mesh.faceVertexIndices.size() >= UINT32_MAX) throw MeshError(name + ": more than 2^32 face vertex indices");
+    const size_t faces = mesh.faceVertexCounts.size(), blocks = (faces + kBlock - 1) / kBlock;
+    std::vector<size_t> blockStart(blocks + 1, 0);  // the block's first corner
+    parallel_for(blocks, [&](size_t b) {
+        for (size_t face = b * kBlock; face < std::min(faces, (b + 1) * kBlock); ++face) blockStart[b + 1] += size_t(mesh.faceVertexCounts[face]);
+    });
+    for (size_t b = 0; b < blocks; ++b) blockStart[b + 1] += blockStart[b];
+    struct Block {
+        std::vector<uint32_t> points, corners, faces;  // per kept triangle: 3 welded points, 3 corners (unless pointVertices), its face
+        size_t dropped = 0, firstBad = SIZE_MAX;
+        const char* reason = nullptr;
+    };
+    std::vector<Block> block(blocks);
+    parallel_for(blocks, [&](size_t b) {
+        Block& mine = block[b];
+        size_t start = blockStart[b];
+        const size_t end = std::min(faces, (b + 1) * kBlock);
+        // The points of the face kPrefetch faces on are fetched meanwhile: faces in a scattered order read them at
+        // random, and waiting for each in turn took most of this loop's time.
+        constexpr size_t kPrefetch = 16;
+        size_t aheadFace = b * kBlock, aheadStart = start;
+        auto fetch_ahead = [&] {
+            if (aheadFace >= end) return;
+            for (size_t c = aheadStart; c < aheadStart + size_t(mesh.faceVertexCounts[aheadFace]); ++c) {
+                const size_t p = size_t(uint32_t(mesh.faceVertexIndices[c]));
+                if (p >= pointCount) continue;
+                __builtin_prefetch(&canonical[p]);
+                __builtin_prefetch(&pointFinite[p]);
+                __builtin_prefetch(&mesh.points[3 * p]);
+            }
+            aheadStart += size_t(mesh.faceVertexCounts[aheadFace++]);
         };
-        std::vector<Block> block(blocks);
-        parallel_for(blocks, [&](size_t b) {
-            Block& mine = block[b];
-            size_t start = blockStart[b];
-            const size_t end = std::min(faces, (b + 1) * kBlock);
-            // The points of the face kPrefetch faces on are fetched meanwhile: faces in a scattered order read them
-            // at random, and waiting for each in turn took most of this loop's time.
-            constexpr size_t kPrefetch = 16;
-            size_t aheadFace = b * kBlock, aheadStart = start;
-            auto fetch_ahead = [&] {
-                if (aheadFace >= end) return;
-                for (size_t c = aheadStart; c < aheadStart + size_t(mesh.faceVertexCounts[aheadFace]); ++c) {
-                    const size_t p = size_t(uint32_t(mesh.faceVertexIndices[c]));
-                    if (p >= pointCount) continue;
-                    __builtin_prefetch(&canonical[p]);
-                    __builtin_prefetch(&pointFinite[p]);
-                    __builtin_prefetch(&mesh.points[3 * p]);
-                }
-                aheadStart += size_t(mesh.faceVertexCounts[aheadFace++]);
-            };
-            for (size_t i = 0; i < kPrefetch; ++i) fetch_ahead();
-            for (size_t face = b * kBlock; face < end; ++face) {
-                fetch_ahead();
-                const size_t count = size_t(mesh.faceVertexCounts[face]);
-                const size_t first = start;
-                start += count;
-                if (isHole[face]) continue;
-                if (const char* bad = face_problem(first, count)) {
-                    if (mine.dropped++ == 0) mine.firstBad = face, mine.reason = bad;
-                    continue;
-                }
-                fan_triangles(mesh, canonical, first, count, [&](size_t c0, size_t c1, size_t c2) {
-                    for (size_t c : {c0, c1, c2}) mine.points.push_back(canonical[mesh.faceVertexIndices[c]]);
-                    mine.faces.push_back(uint32_t(face));
-                });
-            }
-        });
-        std::vector<size_t> blockTriangles(blocks + 1, 0);
-        for (size_t b = 0; b < blocks; ++b) {
-            blockTriangles[b + 1] = blockTriangles[b] + block[b].faces.size();
-            if (block[b].dropped && droppedFaces == 0) firstBadFace = block[b].firstBad, firstBadReason = block[b].reason;
-            droppedFaces += block[b].dropped;
-        }
-        std::vector<uint32_t> vertexOfPoint(pointCount, UINT32_MAX);
-        vertexPoint.reserve(pointCount);
-        for (const Block& b : block)
-            for (size_t i = 0; i < b.points.size(); ++i) {
-                if (i + 32 < b.points.size()) __builtin_prefetch(&vertexOfPoint[b.points[i + 32]]);
-                if (uint32_t& number = vertexOfPoint[b.points[i]]; number == UINT32_MAX) {
-                    number = uint32_t(vertexPoint.size());
-                    vertexPoint.push_back(b.points[i]);
-                }
-            }
-        if (vertexPoint.size() > kSpatialOrderFrom) {
-            const std::vector<uint32_t> order = spatial_order(vertexPoint.size(), [&](size_t v, float* xyz) { std::copy_n(&mesh.points[3 * size_t(vertexPoint[v])], 3, xyz); });
-            std::vector<uint32_t> inOrder(order.size());
-            for (size_t v = 0; v < order.size(); ++v) vertexOfPoint[inOrder[v] = vertexPoint[order[v]]] = uint32_t(v);
-            vertexPoint.swap(inOrder);
-        }
-        out.indices.resize(3 * blockTriangles[blocks]);
-        out.sourceFaces.resize(blockTriangles[blocks]);
-        parallel_for(blocks, [&](size_t b) {
-            for (size_t i = 0; i < block[b].points.size(); ++i) out.indices[3 * blockTriangles[b] + i] = vertexOfPoint[block[b].points[i]];
-            std::copy(block[b].faces.begin(), block[b].faces.end(), out.sourceFaces.begin() + blockTriangles[b]);
-            block[b] = {};
-        });
-    } else {
-        std::vector<uint32_t> vertexOfPoint(pointVertices ? pointCount : 0, UINT32_MAX);
-        auto corner_vertex = [&](size_t face, size_t corner) {
-            const uint32_t p = uint32_t(mesh.faceVertexIndices[corner]);
-            if (pointVertices) {
-                uint32_t& v = vertexOfPoint[canonical[p]];
-                if (v == UINT32_MAX) {
-                    v = uint32_t(vertexPoint.size());
-                    vertexPoint.push_back(canonical[p]);
-                }
-                return v;
-            }
-            const int64_t normal = normals.value_index(face, corner, p), color = vertexColors ? colors.value_index(face, corner, p) : -1;
-            const int64_t uv = uvs.value_index(face, corner, p);
-            CornerKey key{canonical[p], {}, {}, {}, materialSlots ? uint32_t(faceMaterials[face]) : 0u};
-            value_bits(normals, normal, key.normal);
-            channel_bits(colors, color, key.color);
-            value_bits(uvs, uv, key.uv);
-            auto [it, inserted] = vertexOf.try_emplace(key, uint32_t(vertexPoint.size()));
-            if (inserted) {
-                vertexPoint.push_back(canonical[p]);
-                vertexNormal.push_back(normal);
-                vertexColor.push_back(color);
-                vertexUv.push_back(uv);
-            }
-            return it->second;
-        };
-        {  // (growing by doubling would copy the largest arrays of a dense mesh several times over)
-            size_t triangles = 0;
-            for (int32_t count : mesh.faceVertexCounts) triangles += count > 2 ? size_t(count) - 2 : 0;
-            out.indices.reserve(3 * triangles);
-            out.sourceFaces.reserve(triangles);
-            if (materialSlots) out.triangleMaterials.reserve(triangles);
-            for (auto* stream : {&vertexNormal, &vertexColor, &vertexUv}) stream->reserve(pointVertices ? 0 : pointCount);
-            vertexPoint.reserve(pointCount);
-        }
-        size_t faceStart = 0;
-        for (size_t face = 0; face < mesh.faceVertexCounts.size(); ++face) {
+        for (size_t i = 0; i < kPrefetch; ++i) fetch_ahead();
+        for (size_t face = b * kBlock; face < end; ++face) {
+            fetch_ahead();
             const size_t count = size_t(mesh.faceVertexCounts[face]);
-            const size_t start = faceStart;
-            faceStart += count;
+            const size_t first = start;
+            start += count;
             if (isHole[face]) continue;
-            if (const char* bad = face_problem(start, count)) {
-                if (droppedFaces++ == 0) {
-                    firstBadFace = face;
-                    firstBadReason = bad;
-                }
+            if (const char* bad = face_problem(first, count)) {
+                if (mine.dropped++ == 0) mine.firstBad = face, mine.reason = bad;
                 continue;
             }
-            fan_triangles(mesh, canonical, start, count, [&](size_t c0, size_t c1, size_t c2) {
-                for (size_t c : {c0, c1, c2}) out.indices.push_back(corner_vertex(face, c));
-                out.sourceFaces.push_back(uint32_t(face));
-                if (materialSlots) out.triangleMaterials.push_back(uint8_t(faceMaterials[face]));
+            fan_triangles(mesh, canonical, first, count, [&](size_t c0, size_t c1, size_t c2) {
+                for (size_t c : {c0, c1, c2}) {
+                    mine.points.push_back(canonical[mesh.faceVertexIndices[c]]);
+                    if (!pointVertices) mine.corners.push_back(uint32_t(c));
+                }
+                mine.faces.push_back(uint32_t(face));
             });
         }
+    });
+    std::vector<size_t> blockTriangles(blocks + 1, 0);
+    for (size_t b = 0; b < blocks; ++b) {
+        blockTriangles[b + 1] = blockTriangles[b] + block[b].faces.size();
+        if (block[b].dropped && droppedFaces == 0) firstBadFace = block[b].firstBad, firstBadReason = block[b].reason;
+        droppedFaces += block[b].dropped;
     }
+    out.indices.resize(3 * blockTriangles[blocks]);
+    if (pointVertices) {  // a vertex per point
+        std::vector<uint32_t> vertexOfPoint(pointCount, UINT32_MAX);
+        vertexPoint.reserve(pointCount);
+        for (size_t b = 0; b < blocks; ++b) {
+            const std::vector<uint32_t>& points = block[b].points;
+            uint32_t* written = &out.indices[3 * blockTriangles[b]];
+            for (size_t i = 0; i < points.size(); ++i) {
+                if (i + 32 < points.size()) __builtin_prefetch(&vertexOfPoint[points[i + 32]]);
+                uint32_t& number = vertexOfPoint[points[i]];
+                if (number == UINT32_MAX) {
+                    number = uint32_t(vertexPoint.size());
+                    vertexPoint.push_back(points[i]);
+                }
+                written[i] = number;
+            }
+        }
+    } else {  // a vertex per point and attribute values (CornerKey): each point's vertices in a list, searched in turn
+        std::vector<uint32_t> wedgeAt(pointCount, UINT32_MAX), nextWedge;  // per point, a vertex; per vertex, the next at its point
+        std::vector<CornerKey> keyOf;                                      // per vertex
+        for (auto* stream : {&vertexNormal, &vertexColor, &vertexUv}) stream->reserve(pointCount);
+        for (size_t b = 0; b < blocks; ++b) {
+            const Block& mine = block[b];
+            uint32_t* written = &out.indices[3 * blockTriangles[b]];
+            for (size_t i = 0; i < mine.points.size(); ++i) {
+                const size_t face = mine.faces[i / 3], corner = mine.corners[i];
+                const uint32_t point = mine.points[i], authored = uint32_t(mesh.faceVertexIndices[corner]);
+                const int64_t normal = normals.value_index(face, corner, authored), color = vertexColors ? colors.value_index(face, corner, authored) : -1;
+                const int64_t uv = uvs.value_index(face, corner, authored);
+                CornerKey key{point, {}, {}, {}, materialSlots ? uint32_t(faceMaterials[face]) : 0u};
+                value_bits(normals, normal, key.normal);
+                channel_bits(colors, color, key.color);
+                value_bits(uvs, uv, key.uv);
+                uint32_t vertex = wedgeAt[point];
+                while (vertex != UINT32_MAX && !(keyOf[vertex] == key)) vertex = nextWedge[vertex];
+                if (vertex == UINT32_MAX) {
+                    vertex = uint32_t(vertexPoint.size());
+                    keyOf.push_back(key);
+                    nextWedge.push_back(wedgeAt[point]);
+                    wedgeAt[point] = vertex;
+                    vertexPoint.push_back(point);
+                    vertexNormal.push_back(normal);
+                    vertexColor.push_back(color);
+                    vertexUv.push_back(uv);
+                }
+                written[i] = vertex;
+            }
+        }
+    }
+    out.sourceFaces.resize(blockTriangles[blocks]);
+    if (materialSlots) out.triangleMaterials.resize(blockTriangles[blocks]);
+    parallel_for(blocks, [&](size_t b) {
+        std::copy(block[b].faces.begin(), block[b].faces.end(), out.sourceFaces.begin() + blockTriangles[b]);
+        if (materialSlots)
+            for (size_t t = 0; t < block[b].faces.size(); ++t) out.triangleMaterials[blockTriangles[b] + t] = uint8_t(faceMaterials[block[b].faces[t]]);
+        block[b] = {};
+    });
     if (droppedFaces) warnings.push_back(dropped_faces_warning(droppedFaces, firstBadFace, firstBadReason.c_str()));
     if (nonFinitePoints)
         warnings.push_back(name + ": " + std::to_string(nonFinitePoints) + " point(s) are NaN or infinite");
     if (out.indices.empty())
         throw MeshError(name + ": no drawable faces" + (droppedFaces ? " (every face is invalid: " + firstBadReason + ")" : ""));
     phases.mark("prepare: triangulate");
+
+    // A mesh of more than 2^16 vertices: renumbered in spatial order (spatial_order over the vertices' positions, in a
+    // cell by first use), so that the builder, which walks the surface region by region, reads its per-vertex arrays
+    // nearly in order whatever order the input came in (the 10 M-triangle bumpy sphere with its faces shuffled built
+    // 1.4x slower than in its grid's order). A smaller mesh's arrays stay in the caches either way.
+    if (vertexPoint.size() > kSpatialOrderFrom) {
+        const std::vector<uint32_t> order = spatial_order(vertexPoint.size(), [&](size_t v, float* xyz) { std::copy_n(&mesh.points[3 * size_t(vertexPoint[v])], 3, xyz); });
+        std::vector<uint32_t> newNumber(order.size());
+        for (size_t i = 0; i < order.size(); ++i) newNumber[order[i]] = uint32_t(i);
+        auto reorder = [&](auto& values) {
+            if (values.empty()) return;
+            std::remove_reference_t<decltype(values)> moved(values.size());
+            for (size_t i = 0; i < order.size(); ++i) moved[i] = values[order[i]];
+            values.swap(moved);
+        };
+        reorder(vertexPoint), reorder(vertexNormal), reorder(vertexColor), reorder(vertexUv);
+        parallel_blocks(out.indices.size(), kBlock, [&](size_t begin, size_t end) {
+            for (size_t i = begin; i < end; ++i) out.indices[i] = newNumber[out.indices[i]];
+        });
+        phases.mark("prepare: spatial order");
+    }
 
     // Vertex streams. A vertex that is its point takes the point's values (a welded point's are the same bits as the
     // point's it was welded to, or the weld would not be taken), others those their corner key found.
@@ -611,45 +602,8 @@ PreparedMesh prepare_triangles(const MeshView& mesh) {
         fill_vertex_streams(out, mesh, VertexSources{vertexPoint, false, listed(vertexNormal), listed(vertexColor), listed(vertexUv)}, normals,
                             vertexColors ? &colors : nullptr, uvs);
     }
-    // Arrays that grew by doubling would hold up to twice their size through the whole build.
-    out.positions.shrink_to_fit();
-    out.normals.shrink_to_fit();
-    out.indices.shrink_to_fit();
-    out.triangleMaterials.shrink_to_fit();
-    out.sourceFaces.shrink_to_fit();
     phases.mark("prepare: vertex streams");
-    if (!(pointVertices && pointCount > kSpatialOrderFrom)) {
-        order_vertices_spatially(out);
-        phases.mark("prepare: spatial order");
-    }
     return out;
-}
-
-// Renumbers the vertices cell by cell along a Morton curve (spatial_order), so that the builder, which walks the
-// surface region by region, reads its per-vertex arrays nearly in order whatever order the input came in: the
-// 10 M-triangle bumpy sphere with its faces shuffled built 1.4x slower than in its grid's order. A mesh of up to 2^16
-// vertices keeps the input's order: its arrays stay in the caches either way.
-void order_vertices_spatially(PreparedMesh& mesh) {
-    const size_t count = mesh.positions.size() / 3;
-    if (count <= kSpatialOrderFrom) return;
-    const std::vector<uint32_t> order = spatial_order(count, [&](size_t v, float* p) { std::copy_n(&mesh.positions[3 * v], 3, p); });
-    std::vector<uint32_t> newNumber(count);
-    for (size_t i = 0; i < count; ++i) newNumber[order[i]] = uint32_t(i);
-    auto reorder = [&](std::vector<float>& values, size_t width) {
-        if (values.empty()) return;
-        std::vector<float> moved(values.size());
-        parallel_blocks(count, kBlock, [&](size_t begin, size_t end) {
-            for (size_t i = begin; i < end; ++i) std::copy_n(&values[width * order[i]], width, &moved[width * i]);
-        });
-        values.swap(moved);
-    };
-    reorder(mesh.positions, 3);
-    reorder(mesh.normals, 3);
-    reorder(mesh.colors, kChannelComponents);
-    reorder(mesh.uvs, 2);
-    parallel_blocks(mesh.indices.size(), kBlock, [&](size_t begin, size_t end) {
-        for (size_t i = begin; i < end; ++i) mesh.indices[i] = newNumber[mesh.indices[i]];
-    });
 }
 
 }  // namespace

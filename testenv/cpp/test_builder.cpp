@@ -278,16 +278,16 @@ TEST(Prepare, LargeMeshVerticesAreNumberedAlongTheSurface) {
     EXPECT_LT(mean_step(m.positions.data(), pointAt.size()), 4.0 / n);
 }
 
-// A mesh of more than 2^16 points whose primvars all vary per point is triangulated on every core, its vertices
-// numbered in spatial order directly; any other goes through the general path (a vertex per point and attribute
-// values, numbered by first use, then reordered). Both must give the same mesh, bit for bit, with the same warnings:
-// here the same surface with its normals authored per corner (the same values) takes the general path. The mesh has
-// what the paths treat apart: holes, invalid faces (too few corners, an index out of range, a non-finite point),
+// A mesh whose primvars all vary per point (or not at all) makes a vertex of each point its triangles use; any other
+// a vertex of each point and attribute values a corner has (a seam splits a point). Both then number their vertices
+// by first use and, past 2^16, in spatial order. The same surface must give the same mesh either way, bit for bit,
+// with the same warnings: here with its normals authored per point, and per corner (the same values). The mesh has
+// what triangulation treats apart: holes, invalid faces (too few corners, an index out of range, a non-finite point),
 // welded duplicate points, faces with collapsed corners, triangles and pentagons among its quads, unused points (far
 // off: they must not widen the box the spatial order is taken in), normals too short to use (the smooth fallback),
 // left-handed winding and faces in a scattered order. Also a mesh that uses few of its many points (numbered by first
-// use on both paths), and one with no drawable face (the same error).
-TEST(Prepare, LargeMeshOnEveryCoreMatchesTheGeneralPath) {
+// use only), and one with no drawable face (the same error).
+TEST(Prepare, VerticesPerPointMatchVerticesPerCorner) {
     constexpr int n = 300;  // (n + 1)^2 = 90 601 grid points
     const int gridPoints = (n + 1) * (n + 1);
     std::mt19937 random(11);
