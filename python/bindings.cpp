@@ -815,13 +815,19 @@ NB_MODULE(_tessera, m) {
 
     m.def(
         "build_mesh",
-        [](Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices, const std::string& name, const nb::kwargs& kwargs) {
+        [](Array1<float> points, Array1<int32_t> counts, Array1<int32_t> indices, const std::string& name, std::optional<Array1<float>> uvs,
+           const std::string& uvInterpolation, const nb::kwargs& kwargs) {
             const BuildSettings settings = settings_from(kwargs);
             MeshView view;
             view.name = name;
             view.points = {points.data(), points.shape(0)};
             view.faceVertexCounts = {counts.data(), counts.shape(0)};
             view.faceVertexIndices = {indices.data(), indices.shape(0)};
+            if (uvs) {
+                view.uvs = {interpolation_from(uvInterpolation), 2, span_of(uvs), {}};
+                if (view.uvs.interpolation == Interpolation::None)
+                    throw nb::value_error(("uv_interpolation '" + uvInterpolation + "' is not constant, uniform, vertex, varying or faceVarying").c_str());
+            }
             PreparedMesh prepared;
             BuiltMesh built;
             PageLayout layout;
@@ -875,8 +881,9 @@ NB_MODULE(_tessera, m) {
             d["decode_seconds"] = decodeSeconds;
             return d;
         },
-        "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "name"_a = "mesh", "kwargs"_a,
-        "Prepares a mesh and builds its cluster DAG with the build settings given as keywords (see tessera.build_mesh); "
+        "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "name"_a = "mesh", "uvs"_a = nb::none(), "uv_interpolation"_a = "faceVarying",
+        "kwargs"_a,
+        "Prepares a mesh (with texture coordinates, 2 floats per element of their interpolation, where given) and builds its cluster DAG with the build settings given as keywords (see tessera.build_mesh); "
         "returns the DAG's statistics (levels, clusters, groups, triangles and error per level, in-memory bytes, page file "
         "bytes, and the seconds its page file takes to decode) and the fallback mesh.");
 }

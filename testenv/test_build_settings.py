@@ -10,7 +10,7 @@ import pytest
 
 import tessera
 from conftest import TESTENV
-from tessera.bench import displaced_sphere, displaced_sphere_deviation
+from tessera.bench import displaced_sphere, displaced_sphere_deviation, lat_long_uvs
 
 
 def card_field(count, seed=3):
@@ -45,6 +45,30 @@ def test_defaults_are_nanites_and_the_fallback_comes_back():
     assert fallback["relative_error"] >= 0.01, "the first cut at 1 % of the mesh size"
     assert fallback["triangles"] < stats["source_triangles"]
     assert np.abs(np.linalg.norm(positions, axis=1) - 1).max() < 0.1, "object space: on the unit sphere, give or take its bumps"
+
+
+def test_texture_coordinates_come_through_build_mesh():
+    points, counts, indices = displaced_sphere(60)
+    plain = tessera.build_mesh(points, counts, indices)
+    stats = tessera.build_mesh(points, counts, indices, "/Sphere", uvs=lat_long_uvs(60))
+    assert stats["warnings"] == []
+    uvs, positions = stats["fallback"]["uvs"], stats["fallback"]["positions"]
+    assert uvs is not None and uvs.shape == (len(positions), 2)
+    assert uvs.min() >= 0 and uvs.max() <= 1
+    # Each fallback vertex keeps its place on the chart: v follows the polar angle (the bumps move points radially only).
+    polar = np.arccos(np.clip(positions[:, 2] / np.linalg.norm(positions, axis=1), -1, 1)) / np.pi
+    assert np.abs(uvs[:, 1] - polar).max() < 0.02
+    # The wrap seam splits vertices there: u = 0 and u = 1 both occur, and the pages hold the coordinates.
+    assert (uvs[:, 0] < 1e-6).any() and (uvs[:, 0] > 1 - 1e-6).any()
+    assert stats["disk_bytes"] > plain["disk_bytes"]
+    # Per point, too; a wrong count is a warning naming the mesh, and the mesh builds without them.
+    per_point = tessera.build_mesh(points, counts, indices, "/Sphere", uvs=points.reshape(-1, 3)[:, :2] * 0.5 + 0.5, uv_interpolation="vertex")
+    assert per_point["warnings"] == [] and per_point["fallback"]["uvs"] is not None
+    short = tessera.build_mesh(points, counts, indices, "/Sphere", uvs=np.zeros((10, 2)))
+    assert short["warnings"] == ["/Sphere: texture coordinates has 10 elements but its interpolation needs 28800; ignored"]
+    assert short["fallback"]["uvs"] is None
+    with pytest.raises(ValueError, match="uv_interpolation 'perCorner'"):
+        tessera.build_mesh(points, counts, indices, uvs=lat_long_uvs(60), uv_interpolation="perCorner")
 
 
 def test_the_fallbacks_error_bound_holds_against_the_surface():

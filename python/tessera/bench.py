@@ -75,6 +75,15 @@ def displaced_sphere(n: int):
     return points.astype(np.float32).reshape(-1), np.full(len(quads), 4, np.int32), quads.reshape(-1)
 
 
+def lat_long_uvs(n: int):
+    """displaced_sphere(n)'s texture coordinates, face-varying (a row per face vertex) as a DCC exports a sphere's: u
+    along the azimuth, v along the polar angle, with a seam where u wraps from 1 back to 0."""
+    i, j = np.meshgrid(np.arange(n), np.arange(2 * n), indexing="ij")
+    u = np.stack([j, j, j + 1, j + 1], -1) / (2 * n)
+    v = np.stack([i, i + 1, i + 1, i], -1) / n
+    return np.stack([u, v], -1).astype(np.float32).reshape(-1)
+
+
 def _displaced_point(theta, phi):
     """The displaced sphere's surface point at polar angle theta and azimuth phi (radians), last axis xyz."""
     r = displaced_radius(theta, phi)
@@ -265,6 +274,9 @@ def default_meshes():
             meshes.append(("stanford-bunny (69k)", lambda b=bunny: obj_mesh(str(b)), False))
             break
     meshes.append(("displaced sphere 1M", lambda: displaced_sphere(500), True))
+    # The same with face-varying texture coordinates, as most USD meshes come: their seam splits vertices, and the
+    # simplifier weighs them.
+    meshes.append(("displaced sphere 1M, face-varying UVs", lambda: (*displaced_sphere(500), "mesh", lat_long_uvs(500)), True))
     meshes.append(("displaced sphere 10M", lambda: displaced_sphere(1581), True))
     return meshes
 

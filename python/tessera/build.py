@@ -10,6 +10,8 @@ BuildSettings = _tessera.BuildSettings
 
 
 def build_mesh(points, face_vertex_counts, face_vertex_indices, name: str = "mesh", *,
+               uvs=None,
+               uv_interpolation: str = "faceVarying",
                preserve_area: bool = False,
                trim_relative_error: float = 0.0,
                keep_triangle_percent: float = 100.0,
@@ -18,6 +20,10 @@ def build_mesh(points, face_vertex_counts, face_vertex_indices, name: str = "mes
                fallback_triangle_percent: float = 100.0,
                max_edge_length_factor: float = 0.0) -> dict:
     """Prepares a polygon mesh (USD's points, faceVertexCounts, faceVertexIndices) and builds its cluster DAG.
+
+    ``uvs``: texture coordinates (primvars:st), an (N, 2) array with one row per element of ``uv_interpolation``
+    (USD's: "faceVarying", one per face vertex, by default; "vertex", one per point; "uniform", one per face;
+    "constant"), or None. They are simplified with the mesh (seams kept) and stored in its pages.
 
     Settings (Nanite's names and defaults; relative errors are in percent of the mesh size, its bounding-box diagonal):
 
@@ -42,7 +48,9 @@ def build_mesh(points, face_vertex_counts, face_vertex_indices, name: str = "mes
     points = np.ascontiguousarray(points, dtype=np.float32).reshape(-1)
     counts = np.ascontiguousarray(face_vertex_counts, dtype=np.int32).reshape(-1)
     indices = np.ascontiguousarray(face_vertex_indices, dtype=np.int32).reshape(-1)
-    return _tessera.build_mesh(points, counts, indices, name, preserve_area=preserve_area,
+    if uvs is not None:
+        uvs = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1)
+    return _tessera.build_mesh(points, counts, indices, name, uvs, uv_interpolation, preserve_area=preserve_area,
                                trim_relative_error=trim_relative_error, keep_triangle_percent=keep_triangle_percent,
                                position_precision=position_precision, fallback_relative_error=fallback_relative_error,
                                fallback_triangle_percent=fallback_triangle_percent,
