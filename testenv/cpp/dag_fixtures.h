@@ -152,6 +152,40 @@ inline Source grid(int n, bool checkerColors = false, bool fins = false) {
     return s;
 }
 
+// A bumpy latitude-longitude sphere of n x 2n quads, mapped as modelling packages map one: texture coordinates per
+// face corner, u along the azimuth and v along the polar angle, a seam where u wraps, and at a pole each face its own
+// u. `weldedPoles`: each pole is one point; else a pole is 2n points whose radius follows the azimuth (as the bench's
+// displaced sphere has them). `grid`: positions rounded to multiples of it (0: not), so that a libm's last bit cannot
+// move them.
+inline Source lat_long_sphere(int n, bool weldedPoles, double grid = 0) {
+    Source s;
+    s.name = "/LatLong";
+    auto round = [&](double x) { return float(grid > 0 ? std::round(x / grid) * grid : x); };
+    std::vector<int> pointAt((n + 1) * 2 * n);
+    for (int i = 0; i <= n; ++i)
+        for (int j = 0; j < 2 * n; ++j) {
+            const bool pole = i == 0 || i == n;
+            if (pole && weldedPoles && j > 0) {
+                pointAt[i * 2 * n + j] = pointAt[i * 2 * n];
+                continue;
+            }
+            const double theta = M_PI * i / n, phi = M_PI * j / n;
+            const double r = 1.0 + 0.03 * std::sin(5 * theta) * std::cos(7 * phi) + (weldedPoles ? 0.0 : 0.004 * std::cos(3 * phi));
+            pointAt[i * 2 * n + j] = int(s.points.size() / 3);
+            s.points.insert(s.points.end(), {round(r * std::sin(theta) * std::cos(phi)), round(r * std::sin(theta) * std::sin(phi)), round(r * std::cos(theta))});
+        }
+    for (int i = 0; i < n; ++i)
+        for (int j = 0; j < 2 * n; ++j) {
+            const int corners[4][2] = {{i, j}, {i + 1, j}, {i + 1, j + 1}, {i, j + 1}};
+            s.counts.push_back(4);
+            for (const auto& c : corners) {
+                s.indices.push_back(pointAt[c[0] * 2 * n + c[1] % (2 * n)]);
+                s.uvs.insert(s.uvs.end(), {float(c[1]) / float(2 * n), float(c[0]) / float(n)});
+            }
+        }
+    return s;
+}
+
 inline Source quad_soup(int count) {  // foliage-like: disjoint small quads
     Source s;
     s.name = "/Soup";
