@@ -37,6 +37,7 @@ namespace {
 constexpr size_t kClusterVertices = 255;  // meshoptimizer's meshlet limit (build_clusters keeps to it too)
 constexpr size_t kGroupSize = 16;         // clusters per group (partitions come out between about 8 and 32)
 constexpr double kStuckRatio = 0.85;      // a group that keeps more than this share of its triangles is stuck
+constexpr double kSliverLength = 100;      // a triangle this many times longer than wide is a sliver (sampling_size)
 constexpr size_t kCarriedPoints = 32;     // source points a cluster carries up to measure its parents by (deviation.h)
 constexpr double kSeamRetryError = 0.25;  // a group whose simplification strays this share of its diameter retries without normal seams
 constexpr int kPinRounds = 16;            // retries of one simplification step that made too long an edge
@@ -67,6 +68,20 @@ Sphere enclose(const std::vector<Sphere>& spheres) {
 }
 
 // Smallest sphere centred on the box centre that holds the vertices.
+// The size of a triangle that samples texture across a border: its longest edge, or for a sliver a hundred times its
+// width (twice its area over that edge), whichever is less. What it shows wrongly is a strip that wide: a sliver
+// between points of a pole made of several points at one place (a sphere's, mapped per face) is no wider than their
+// distance, and counted by its length it claimed 1.5 % of the sphere's size at its first level.
+double sampling_size(const float* a, const float* b, const float* c) {
+    const double ab[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]}, ac[3] = {double(c[0]) - a[0], double(c[1]) - a[1], double(c[2]) - a[2]};
+    const double bc[3] = {ac[0] - ab[0], ac[1] - ab[1], ac[2] - ab[2]};
+    const double cross[3] = {ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2], ab[0] * ac[1] - ab[1] * ac[0]};
+    auto length = [](const double* v) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); };
+    const double longest = std::max({length(ab), length(ac), length(bc)});
+    const double width = longest > 0 ? length(cross) / longest : 0.0;
+    return std::min(longest, kSliverLength * width);
+}
+
 // The two halves of a vertex sphere over the points point(i), i in [begin, end): their box (grown into lo, hi), and
 // the largest distance from a centre. Minima, maxima and the largest distance do not depend on how the range is split.
 // (In float, then widened: the same bounds, as float to double is exact and keeps the order, at a third of the cost.)
@@ -690,8 +705,8 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     // The largest edge of a triangle of the `count` corners at `out` that samples across a UV border, whichever
     // simplification made it (meshoptimizer's, with seams kept, makes some too): its corners' wedges in different
     // islands of the source (uvIsland), or a corner on the far side of a seam inside the chart (a sphere's wrap: its
-    // position has another wedge in the island, nearer in UV to the other corners by half). Such a triangle's size is
-    // the error it makes. `stretched`: also an edge whose UVs stretch more than twice what the source's edges at its
+    // position has another wedge in the island, nearer in UV to the other corners by half). Such a triangle's size
+    // (sampling_size) is the error it makes. `stretched`: also an edge whose UVs stretch more than twice what the source's edges at its
     // ends do (restore_uv_islands' test for the corners it picked; elsewhere a coarse level's edges near a sphere's poles
     // stretch that much without crossing anything).
     auto border_sampling_error = [&](const uint32_t* out, size_t count, bool stretched) {
@@ -721,9 +736,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
                 consistent = stretched ? uv_distance2(uv_of(a), uv_of(b)) <= stretch * stretch * distance2(&local[3 * a], &local[3 * b]) + 1e-12
                                        : !far_side(&out[t], k, island);
             }
-            if (!consistent)
-                for (int k = 0; k < 3; ++k)
-                    worst = std::max(worst, float(std::sqrt(distance2(&local[3 * out[t + k]], &local[3 * out[t + (k + 1) % 3]]))));
+            if (!consistent) worst = std::max(worst, float(sampling_size(&local[3 * out[t]], &local[3 * out[t + 1]], &local[3 * out[t + 2]])));
         }
         return worst;
     };
