@@ -883,7 +883,8 @@ NB_MODULE(_tessera, m) {
         },
         "points"_a, "face_vertex_counts"_a, "face_vertex_indices"_a, "name"_a = "mesh", "uvs"_a = nb::none(), "uv_interpolation"_a = "faceVarying",
         "kwargs"_a,
-        "Prepares a mesh (with texture coordinates, 2 floats per element of their interpolation, where given) and builds its cluster DAG with the build settings given as keywords (see tessera.build_mesh); "
+        "Prepares a mesh (with texture coordinates, 2 floats per element of their interpolation, where given) and builds its "
+        "cluster DAG with the build settings given as keywords (see tessera.build_mesh); "
         "returns the DAG's statistics (levels, clusters, groups, triangles and error per level, in-memory bytes, page file "
         "bytes, and the seconds its page file takes to decode) and the fallback mesh.");
 }
