@@ -1199,6 +1199,15 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     out.groups = plan.groups;
     out.leafError = measure(nodes, leafCut).error;
     phases.mark("cuts");
+    // What only the rounds needed goes before the emit, whose streams are the build's last large allocations: the
+    // source points clusters carried, the source triangles, the simplifier's attributes, the welds, locks and marks,
+    // the UV islands. (The 1 M-triangle sphere with face-varying texture coordinates peaked at 196 B/tri there.)
+    parallel_for(clusters.size(), [&](size_t i) { release(clusters[i].carried); });
+    release(sourceIndices), release(attributes), release(positionId), release(weld), release(drawnOf);
+    release(lock), release(firstGroup), release(shared), release(roundPosition), release(keptBy), release(measuredBy);
+    release(uvIsland), release(uvStretch), release(severalWedges);
+    sourceWedges = {};
+    welder = {};
 
     // Emit: cluster-local vertex streams and 8-bit triangles, level 0 first (clusters were created in level order
     // per round; a stable sort by level keeps that order within a level), each cluster in page order. Trimmed
