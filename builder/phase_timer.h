@@ -1,6 +1,7 @@
 // Internal to the builder: with TESSERA_BUILD_PHASES=1, each phase of a build prints its wall and CPU seconds to
-// stderr, and an estimate of the CPU seconds that ran on the calling thread alone (the serial part, which more cores
-// do not shorten). Off, a timer costs one getenv.
+// stderr, an estimate of the CPU seconds that ran on the calling thread alone (the serial part, which more cores do
+// not shorten), and the process's resident memory at its end and at its peak so far (Linux's VmRSS and VmHWM; what
+// malloc keeps after a free stays resident). Off, a timer costs one getenv.
 #pragma once
 
 #include "tessera/parallel.h"
@@ -24,7 +25,14 @@ public:
         // The calling thread does the serial part and its 1/n share of the parallel part: serial = (n t - c) / (n - 1).
         const double n = double(core_count()), own = thread - thread_, all = cpu - cpu_;
         const double serial = n > 1 ? std::max(0.0, (n * own - all) / (n - 1)) : all;
-        std::fprintf(stderr, "phase %-24s wall %7.3f s  cpu %7.3f s  serial ~%6.3f s\n", name, wall - wall_, all, serial);
+        long residentKiB = 0, peakKiB = 0;
+        if (FILE* status = std::fopen("/proc/self/status", "r")) {
+            char line[256];
+            while (std::fgets(line, sizeof line, status)) std::sscanf(line, "VmRSS: %ld", &residentKiB), std::sscanf(line, "VmHWM: %ld", &peakKiB);
+            std::fclose(status);
+        }
+        std::fprintf(stderr, "phase %-24s wall %7.3f s  cpu %7.3f s  serial ~%6.3f s  resident %6ld MiB  peak %6ld MiB\n", name, wall - wall_, all,
+                     serial, residentKiB / 1024, peakKiB / 1024);
         wall_ = wall, cpu_ = cpu, thread_ = thread;
     }
 
