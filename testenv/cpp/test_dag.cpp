@@ -101,7 +101,7 @@ TEST(Dag, Deterministic) {
 // The mesh cache keys on kBuilderRevision (builder.h) so that a cache filled by an older builder never serves its DAGs:
 // the revision must change whenever the output does. This pins the page bytes of meshes that take the builder's main
 // paths (level 0 in two halves, hard edges, texture-coordinate islands, a vertex channel, a non-manifold sheet,
-// Preserve Area on a soup, poles mapped per face) to a hash per page format and builder revision. The meshes are made
+// Preserve Area on a soup, material slots, the edge length limit, trimming, poles mapped per face) to a hash per page format and builder revision. The meshes are made
 // with exact arithmetic only, or rounded to a grid, so that no libm function's last bit (which may differ between
 // CPUs) can move them; the build is deterministic whatever the cores.
 TEST(Dag, OutputChangesComeWithABuilderRevision) {
@@ -155,6 +155,18 @@ TEST(Dag, OutputChangesComeWithABuilderRevision) {
     add(flat_shaded(icosphere(6), 0.02).build());  // 81 920 triangles: level 0 in two halves; hard edges everywhere
     add(sheet.build());
     add(soup.build(preserveArea));
+    // The sheet again, its faces in two material slots (a band across it), with every setting away from its default:
+    // the edge length limit, trimming by error and by triangles, a coarser fallback.
+    Source slotted = sheet;
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) slotted.faceMaterials.push_back(y > n / 3 && y < n / 2 ? 1 : 0);
+    slotted.faceMaterials.resize(slotted.counts.size(), 0);  // the fins
+    BuildSettings settings;
+    settings.maxEdgeLengthFactor = 4;
+    settings.trimRelativeError = 0.05f;
+    settings.keepTrianglePercent = 60;
+    settings.fallbackRelativeError = 2;
+    add(slotted.build(settings));
     add(lat_long_sphere(24, true, 1.0 / 4096).build());   // a wedge per face at its poles: re-wedged corners
     add(lat_long_sphere(60, false, 1.0 / 65536).build());  // and poles of several points: slivers there
     // Per (page format version, builder revision): the hash of this revision's output. When the output changes, bump
@@ -162,7 +174,7 @@ TEST(Dag, OutputChangesComeWithABuilderRevision) {
     const std::map<std::pair<uint32_t, uint32_t>, uint64_t> recorded = {
         {{7, 11}, 0xf0321ed160c434d7ull},
         {{7, 12}, 0x69293855b469806bull},
-        {{7, 13}, 0xe24c8b9d639994a2ull},
+        {{7, 13}, 0x1e15ac0e6c51e4c9ull},
     };
     const auto found = recorded.find({kPageFormatVersion, kBuilderRevision});
     ASSERT_NE(found, recorded.end()) << "no hash recorded for page format " << kPageFormatVersion << ", builder revision " << kBuilderRevision
