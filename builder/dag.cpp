@@ -70,7 +70,8 @@ Sphere enclose(const std::vector<Sphere>& spheres) {
 // The size of a triangle that samples texture across a border: its longest edge, or for a sliver a hundred times its
 // width (twice its area over that edge), whichever is less. What it shows wrongly is a strip that wide: a sliver
 // between points of a pole made of several points at one place (a sphere's, mapped per face) is no wider than their
-// distance, and counted by its length it claimed 1.5 % of the sphere's size at its first level.
+// distance, and counted by its length it claimed 1.5 % of the sphere's size at its first level. A triangle with two
+// corners at one position (simplifying along a seam leaves such) has no width: it samples nothing.
 double sampling_size(const float* a, const float* b, const float* c) {
     const double ab[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]};
     const double ac[3] = {double(c[0]) - a[0], double(c[1]) - a[1], double(c[2]) - a[2]};
@@ -725,10 +726,6 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
         };
         float worst = 0;
         for (size_t t = 0; t < count; t += 3) {
-            // Two corners at one position: no area, nothing sampled (simplifying along a seam leaves such triangles).
-            if (positionId[out[t]] == positionId[out[t + 1]] || positionId[out[t + 1]] == positionId[out[t + 2]] ||
-                positionId[out[t]] == positionId[out[t + 2]])
-                continue;
             const uint32_t island = uvIsland[attributeOf[out[t]]];
             bool consistent = uvIsland[attributeOf[out[t + 1]]] == island && uvIsland[attributeOf[out[t + 2]]] == island;
             for (int k = 0; k < 3 && consistent; ++k) {
