@@ -202,8 +202,10 @@ float measure_stray(const GroupPositions& group, const std::vector<float>& posit
             bool inputEdge = false;
             for (uint32_t k = neighbours.start[a]; k < neighbours.start[a + 1] && !inputEdge; ++k) inputEdge = neighbours.items[k] == b;
             if (inputEdge) continue;
+            // An input vertex within the largest so far settles it as well: every triangle around it is as near.
             uint32_t nearest = a;
-            for (float nearestDistance = distance2(point(a), midpoint);;) {
+            float nearestDistance = distance2(point(a), midpoint);
+            while (nearestDistance > enough) {
                 const uint32_t from = nearest;
                 for (uint32_t k = neighbours.start[from]; k < neighbours.start[from + 1]; ++k)
                     if (const float d = distance2(point(neighbours.items[k]), midpoint); d < nearestDistance) {
@@ -212,6 +214,7 @@ float measure_stray(const GroupPositions& group, const std::vector<float>& posit
                     }
                 if (nearest == from) break;
             }
+            if (nearestDistance <= enough) continue;
             for (uint32_t k = fan.start[nearest]; k < fan.start[nearest + 1] && best > enough; ++k) test(fan.items[k]);
             if (best <= enough) continue;
             // Else the input between the ends: the edge's midpoint can lie a ring or two of input triangles from both.
