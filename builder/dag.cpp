@@ -847,6 +847,11 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     std::vector<uint32_t> roundPosition;  // a position's number in the round's partition input
     std::vector<uint32_t> keptBy, measuredBy;  // per vertex, the last group (by stamp) that kept or measured it
     uint32_t stamps = 0;                       // groups numbered so far, over all rounds
+    // Where a round's time goes, group by group (TESSERA_BUILD_PHASES=1): gathering its triangles, simplifying (with
+    // the seam retries), fitting attributes (with its positions' topology), Preserve Area and re-splitting, measuring
+    // from the source and to it.
+    enum GroupStep : size_t { kGatherStep, kSimplifyStep, kFitStep, kSplitStep, kDeviationStep, kStrayStep, kGroupSteps };
+    StepTotals<kGroupSteps> groupSteps({"gather", "simplify", "fit", "split", "deviation", "stray"});
     while (pending.size() > 1) {
         // Group the pending clusters by shared positions.
         const size_t roundVertices = local.size() / 3;  // vertices added this round are numbered from here
@@ -919,6 +924,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
         const VertexTable drawnNormals{mesh.normals.data(), uint32_t(vertexCount), fittedNormals.data(), drawnOf.data(), 3};
         const VertexTable drawnChannels{mesh.colors.data(), uint32_t(vertexCount), fittedChannels.data(), drawnOf.data(), kChannelComponents};
         parallel_for(groupCount, [&](size_t g) {
+            StepTotals<kGroupSteps>::Lap lap(groupSteps);
             std::vector<uint32_t> merged;
             for (uint32_t c : members[g]) merged.insert(merged.end(), clusters[c].indices.begin(), clusters[c].indices.end());
             std::vector<uint32_t> simplified(merged.size());
@@ -977,6 +983,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
                 std::copy(current.begin(), current.end(), simplified.begin());
                 return current.size();
             };
+            lap.lap(kGatherStep);
             size_t kept = simplify_group(merged, error);
             // Normal and colour seams (wedges of one position that differ only in their normals, by more than the grid
             // weld's 30 degrees, or in their colours) let the simplifier collapse only along them. Where that left the
@@ -1022,6 +1029,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             }
             // Dropping whole free parts makes no new edge.
             if (kept > target) kept = drop_free_components(simplified, kept, target, local, positionId, lock, error);
+            lap.lap(kSimplifyStep);
             if (kept == 0 || stuck(kept)) return;  // stuck (vanishing too: keep a root)
             // The simplified surface is made of the group's own vertices, so it cannot stray further than the group's
             // extent; the simplifier's attribute terms can report more on slivers. Clamp to the group's diameter.
@@ -1033,6 +1041,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             const GroupPositions groupPositions(merged, simplified.data(), simplified.size(), positionId);
             result.fitted = fit_attributes(merged, simplified.data(), simplified.size(), groupPositions, local, lock, drawnNormals,
                                            hasColors ? &drawnChannels : nullptr);
+            lap.lap(kFitStep);
             if (settings.preserveArea) {
                 result.dilation = dilate_open_borders(simplified, local, positionId, lock, covered_area(merged, local, positionId), diameter / 4, step,
                                                       uint32_t(roundVertices));
@@ -1044,6 +1053,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             result.error = error;
             std::vector<uint32_t> pieceOf;  // per triangle of `simplified`
             result.pieces = split_into_clusters(simplified, position, &pieceOf);
+            lap.lap(kSplitStep);
             // The group's distance from the source (deviation.h): from its input vertices that simplification removed
             // and the points its children carried up to its triangles, and from its edges' midpoints to its input
             // triangles; each new cluster carries up the points nearest it that stray most.
@@ -1090,10 +1100,12 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             // The simplified edges' midpoints from the input, where they stray further than the group's error so far
             // (its own, its children's, the first way's); before Preserve Area moved the open borders (its
             // displacement is in the error already).
+            lap.lap(kDeviationStep);
             float known = std::max(error, deviation.largest);
             for (uint32_t c : members[g]) known = std::max(known, clusters[c].lodError);
             result.measured = measure_stray(groupPositions, local, known);
             result.carried = std::move(deviation.kept);
+            lap.lap(kStrayStep);
         });
 
         phases.mark("round: simplify+split");
@@ -1195,6 +1207,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     const TrimPlan plan = plan_trim(nodes, groups.size(), leafCut);
     out.groups = plan.groups;
     out.leafError = measure(nodes, leafCut).error;
+    groupSteps.print("the rounds' groups");
     phases.mark("cuts");
     // What only the rounds needed goes before the emit, whose streams are the build's last large allocations: the
     // source points clusters carried, the source triangles, the simplifier's attributes, the welds, locks and marks,

@@ -1,11 +1,15 @@
 // Internal to the builder: with TESSERA_BUILD_PHASES=1, each phase of a build prints its wall and CPU seconds to
 // stderr, an estimate of the CPU seconds that ran on the calling thread alone (the serial part, which more cores do
 // not shorten), and the process's resident memory at its end and at its peak so far (Linux's VmRSS and VmHWM; what
-// malloc keeps after a free stays resident). Off, a timer costs one getenv.
+// malloc keeps after a free stays resident). Off, a timer costs one getenv. The rounds' per-group work is also split into
+// its steps (simplify, fit, split, ...): StepTotals sums each step's seconds over every group and thread, and prints the
+// totals once, after the last round.
 #pragma once
 
 #include "tessera/parallel.h"
 
+#include <array>
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -13,10 +17,15 @@
 
 namespace tessera {
 
+// Only "1" prints ("0" is off, as for the other switches; a build does not fail over a diagnostic's spelling).
+inline bool build_phases_enabled() {
+    const char* value = std::getenv("TESSERA_BUILD_PHASES");
+    return value && value[0] == '1' && value[1] == '\0';
+}
+
 class PhaseTimer {
 public:
-    // Only "1" prints ("0" is off, as for the other switches; a build does not fail over a diagnostic's spelling).
-    PhaseTimer() : enabled_(is_one(std::getenv("TESSERA_BUILD_PHASES"))) { now(wall_, cpu_, thread_); }
+    PhaseTimer() : enabled_(build_phases_enabled()) { now(wall_, cpu_, thread_); }
     // Prints the time since the last mark (or construction) under `name`.
     void mark(const char* name) {
         if (!enabled_) return;
@@ -37,7 +46,6 @@ public:
     }
 
 private:
-    static bool is_one(const char* value) { return value && value[0] == '1' && value[1] == '\0'; }
     void now(double& wall, double& cpu, double& thread) const {
         if (!enabled_) return;
         auto seconds = [](clockid_t clock) {
@@ -51,6 +59,44 @@ private:
     }
     bool enabled_;
     double wall_ = 0, cpu_ = 0, thread_ = 0;
+};
+
+// Seconds per step of work that runs as many tasks on every core (a round's groups), summed over the tasks. A task
+// times its steps with a Lap; the totals print once, with print(). Off, a lap reads no clock.
+template <size_t kSteps>
+class StepTotals {
+    using Clock = std::chrono::steady_clock;
+
+public:
+    explicit StepTotals(std::array<const char*, kSteps> names) : names_(names), enabled_(build_phases_enabled()) {}
+
+    // One task's clock: lap(step) counts the time since the last lap (or the start) to `step`.
+    class Lap {
+    public:
+        explicit Lap(StepTotals& totals) : totals_(totals), last_(totals.enabled_ ? Clock::now() : Clock::time_point()) {}
+        void lap(size_t step) {
+            if (!totals_.enabled_) return;
+            const Clock::time_point now = Clock::now();
+            totals_.nanoseconds_[step].fetch_add(std::chrono::duration_cast<std::chrono::nanoseconds>(now - last_).count(), std::memory_order_relaxed);
+            last_ = now;
+        }
+
+    private:
+        StepTotals& totals_;
+        Clock::time_point last_;
+    };
+
+    void print(const char* what) const {
+        if (!enabled_) return;
+        std::fprintf(stderr, "steps of %s (seconds summed over its tasks):", what);
+        for (size_t k = 0; k < kSteps; ++k) std::fprintf(stderr, " %s %.3f", names_[k], 1e-9 * double(nanoseconds_[k].load()));
+        std::fprintf(stderr, "\n");
+    }
+
+private:
+    std::array<const char*, kSteps> names_;
+    std::array<std::atomic<long long>, kSteps> nanoseconds_{};
+    bool enabled_;
 };
 
 }  // namespace tessera

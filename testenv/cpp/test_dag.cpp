@@ -4,6 +4,7 @@
 #include <meshoptimizer.h>
 
 #include <map>
+#include <sstream>
 
 using namespace tessera;
 using namespace dagtest;
@@ -715,4 +716,46 @@ TEST(Dag, NormalConesHoldEveryTriangleAndAreTight) {
     }
     EXPECT_GT(cones, 100u) << "clusters with a cone that culls";
     EXPECT_LT(looser, cones / 20) << "cones more than a step wider than meshoptimizer's: " << looser << " (tighter: " << tighter << ")";
+}
+
+// TESSERA_BUILD_PHASES=1 prints each phase, and once, after the rounds, the seconds of each step of their groups' work
+// summed over the groups; any other value prints nothing (phase_timer.h).
+TEST(Dag, BuildPhasesPrintTheRoundsStepsOnce) {
+    struct Restore {  // the variable as it was, however the test ends
+        std::string value;
+        bool had;
+        ~Restore() {
+            if (had) setenv("TESSERA_BUILD_PHASES", value.c_str(), 1);
+            else unsetenv("TESSERA_BUILD_PHASES");
+        }
+    };
+    const char* was = std::getenv("TESSERA_BUILD_PHASES");
+    const Restore restore{was ? was : "", was != nullptr};
+    const Source sphere = lat_long_sphere(40, true);  // 6400 quads: several rounds
+    auto printed = [&](const char* value) {
+        setenv("TESSERA_BUILD_PHASES", value, 1);
+        testing::internal::CaptureStderr();
+        sphere.build();
+        return testing::internal::GetCapturedStderr();
+    };
+    EXPECT_EQ(printed("0"), "");
+    EXPECT_EQ(printed("yes"), "");
+    const std::string out = printed("1");
+    EXPECT_NE(out.find("phase level0 clusters"), std::string::npos) << out;
+    EXPECT_NE(out.find("phase round: simplify+split"), std::string::npos) << out;
+    const std::string heading = "steps of the rounds' groups (seconds summed over its tasks):";
+    const size_t at = out.find(heading);
+    ASSERT_NE(at, std::string::npos) << out;
+    EXPECT_EQ(out.find(heading, at + 1), std::string::npos) << "printed once, not per round";
+    EXPECT_LT(at, out.find("phase cuts")) << "after the rounds, before the cuts";
+    std::istringstream line(out.substr(at + heading.size(), out.find('\n', at) - at - heading.size()));
+    std::map<std::string, double> seconds;
+    for (std::string name; line >> name;) line >> seconds[name];
+    const std::vector<std::string> steps = {"gather", "simplify", "fit", "split", "deviation", "stray"};
+    ASSERT_EQ(seconds.size(), steps.size()) << out;
+    for (const std::string& step : steps) {
+        ASSERT_TRUE(seconds.count(step)) << step << " missing: " << out;
+        EXPECT_GE(seconds[step], 0.0) << step;
+    }
+    EXPECT_GT(seconds["simplify"], 0.0) << "every group simplifies";
 }
