@@ -8,8 +8,10 @@
 #include "weld.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 
 namespace tessera {
@@ -119,6 +121,30 @@ void channel_bits(const PrimvarLookup& primvar, int64_t index, uint32_t (&bits)[
 
 constexpr size_t kBlock = 65536;      // loops over points, vertices and faces run on every core in blocks this size
 constexpr size_t kSpatialOrderFrom = 65536;  // vertices: a mesh of more is numbered in spatial order (prepare_mesh)
+
+// Throws MeshError where the vertices span more than kMaxMeshExtent along an axis: the builder's float arithmetic
+// (squared lengths of edges' cross products) overflows beyond it, where it would make clusters of nothing.
+void check_extent(const std::vector<float>& positions, const std::string& name) {
+    const size_t count = positions.size() / 3, blocks = (count + kBlock - 1) / kBlock;
+    std::vector<std::array<float, 6>> box(blocks);  // per block: lowest x, y, z, then highest
+    parallel_for(blocks, [&](size_t b) {
+        std::array<float, 6> bounds{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+        for (size_t v = b * kBlock; v < std::min(count, (b + 1) * kBlock); ++v)
+            for (int k = 0; k < 3; ++k) bounds[k] = std::min(bounds[k], positions[3 * v + k]), bounds[3 + k] = std::max(bounds[3 + k], positions[3 * v + k]);
+        box[b] = bounds;
+    });
+    double extent = 0;
+    for (int k = 0; k < 3; ++k) {
+        float lo = INFINITY, hi = -INFINITY;
+        for (const auto& bounds : box) lo = std::min(lo, bounds[k]), hi = std::max(hi, bounds[3 + k]);
+        extent = std::max(extent, double(hi) - double(lo));
+    }
+    if (extent > kMaxMeshExtent) {
+        char spans[32];
+        std::snprintf(spans, sizeof spans, "%.3g", extent);
+        throw MeshError(name + ": spans " + spans + " units; the builder takes meshes up to 2^31 (about 2.1e9) units across: scale it down or split it");
+    }
+}
 
 // Why a face cannot be drawn, or null.
 struct FaceCheck {
@@ -510,7 +536,7 @@ PreparedMesh prepare_triangles(const MeshView& mesh) {
         vertexPoint.reserve(pointCount);
         for (size_t b = 0; b < blocks; ++b) {
             const std::vector<uint32_t>& points = block[b].points;
-            uint32_t* written = &out.indices[3 * blockTriangles[b]];
+            uint32_t* written = out.indices.data() + 3 * blockTriangles[b];  // (no element to refer to when nothing is left)
             for (size_t i = 0; i < points.size(); ++i) {
                 if (i + 32 < points.size()) __builtin_prefetch(&vertexOfPoint[points[i + 32]]);
                 uint32_t& number = vertexOfPoint[points[i]];
@@ -527,7 +553,7 @@ PreparedMesh prepare_triangles(const MeshView& mesh) {
         for (auto* stream : {&vertexNormal, &vertexColor, &vertexUv}) stream->reserve(pointCount);
         for (size_t b = 0; b < blocks; ++b) {
             const Block& mine = block[b];
-            uint32_t* written = &out.indices[3 * blockTriangles[b]];
+            uint32_t* written = out.indices.data() + 3 * blockTriangles[b];  // (no element to refer to when nothing is left)
             for (size_t i = 0; i < mine.points.size(); ++i) {
                 const size_t face = mine.faces[i / 3], corner = mine.corners[i];
                 const uint32_t point = mine.points[i], authored = uint32_t(mesh.faceVertexIndices[corner]);
@@ -565,7 +591,8 @@ PreparedMesh prepare_triangles(const MeshView& mesh) {
     if (nonFinitePoints)
         warnings.push_back(name + ": " + std::to_string(nonFinitePoints) + " point(s) are NaN or infinite");
     if (out.indices.empty())
-        throw MeshError(name + ": no drawable faces" + (droppedFaces ? " (every face is invalid: " + firstBadReason + ")" : ""));
+        throw MeshError(name + ": no drawable faces" +
+                        (droppedFaces ? " (every face is invalid: " + firstBadReason + ")" : " (every triangle has no area at float precision)"));
     phases.mark("prepare: triangulate");
 
     // A mesh of more than 2^16 vertices: renumbered in spatial order (spatial_order over the vertices' positions, in a
@@ -603,6 +630,7 @@ PreparedMesh prepare_triangles(const MeshView& mesh) {
                             vertexColors ? &colors : nullptr, uvs);
     }
     phases.mark("prepare: vertex streams");
+    check_extent(out.positions, name);
     return out;
 }
 

@@ -108,9 +108,12 @@ struct PreparedMesh {
     std::vector<std::string> warnings; // dropped faces and the like, each naming the mesh
 };
 
+// The largest extent of a mesh along an axis, in its units: beyond it the builder's float arithmetic (squared lengths
+// of edges' cross products) overflows. A planet in centimetres (1.3e9) fits.
+constexpr double kMaxMeshExtent = 2147483648.0;  // 2^31
 // Validates and triangulates. Bad faces (out-of-range indices, fewer than 3 vertices, non-finite points)
-// are dropped with a warning; a mesh with nothing left to draw, or whose arrays do not fit together,
-// throws MeshError naming the mesh and the problem. Triangles come in the faces' order; vertices are numbered by first
+// are dropped with a warning; a mesh with nothing left to draw, whose arrays do not fit together, or that spans more
+// than kMaxMeshExtent, throws MeshError naming the mesh and the problem. Triangles come in the faces' order; vertices are numbered by first
 // use, or, in a mesh of more than 2^16 vertices, cell by cell along a Morton curve through their positions (the build
 // then reads its per-vertex arrays nearly in order, whatever order the input came in).
 PreparedMesh prepare_mesh(const MeshView& mesh);
