@@ -8,6 +8,7 @@
 
 #include "area.h"
 #include "attribute_fit.h"
+#include "cluster_codec.h"
 #include "clusters.h"
 #include "cut.h"
 #include "deviation.h"
@@ -331,7 +332,9 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
 // Cluster-local vertex numbers by first use: returns the corners renumbered, and the mesh vertices in that order in
 // `vertices` (a small open-addressing table: clusters have at most 256 vertices). The table is the thread's own, and
 // its slots are stamped with the call that filled them, so no call clears it.
-std::vector<uint32_t> number_by_first_use(const std::vector<uint32_t>& indices, std::vector<uint32_t>& vertices) {
+// `corner(number)` for each of `indices`, `fresh(v)` first for each vertex met first there.
+template <typename Corner, typename Fresh>
+void visit_first_uses(const std::vector<uint32_t>& indices, Corner corner, Fresh fresh) {
     constexpr uint32_t kSlots = 1024;
     struct Slot {
         uint32_t stamp, key, number;
@@ -342,19 +345,61 @@ std::vector<uint32_t> number_by_first_use(const std::vector<uint32_t>& indices, 
         slots.fill({});
         stamp = 1;
     }
-    std::vector<uint32_t> corners;
-    corners.reserve(indices.size());
-    vertices.clear();
+    uint32_t numbered = 0;
     for (uint32_t v : indices) {
         uint32_t slot = (v * 0x9E3779B1u) >> 22;
         while (slots[slot].stamp == stamp && slots[slot].key != v) slot = (slot + 1) % kSlots;
         if (slots[slot].stamp != stamp) {
-            slots[slot] = {stamp, v, uint32_t(vertices.size())};
-            vertices.push_back(v);
+            slots[slot] = {stamp, v, numbered++};
+            fresh(v);
         }
-        corners.push_back(slots[slot].number);
+        corner(slots[slot].number);
     }
+}
+
+std::vector<uint32_t> number_by_first_use(const std::vector<uint32_t>& indices, std::vector<uint32_t>& vertices) {
+    std::vector<uint32_t> corners;
+    corners.reserve(indices.size());
+    vertices.clear();
+    visit_first_uses(indices, [&](uint32_t number) { corners.push_back(number); }, [&](uint32_t v) { vertices.push_back(v); });
     return corners;
+}
+
+// A group's children are stored together in one page (pages.cpp): a group whose children could encode to more than a
+// page (UnitBytesBound: faceted meshes with texture coordinates and colours, every corner its own vertex) is split
+// into runs of its members, in their order, each within a page. Ordinary groups (80 vertices a cluster) bound at
+// under 100 KiB with every attribute and stay whole. `bytes[i]`: pending cluster i's bound taking it to have as many
+// vertices as it may (cheap, and enough for most meshes), `exact_bytes(i)` its bound with its vertices counted (for the
+// members of groups that the first bound does not clear). Returns the new group count.
+template <typename ExactBytes>
+size_t split_groups_beyond_a_page(std::vector<unsigned int>& partition, size_t groupCount, std::vector<size_t>& bytes, ExactBytes exact_bytes) {
+    constexpr size_t kBudget = kPageBytes - kPageStreamCount * 8 - UnitBytesBound::kUnitBytes;  // less the page's stream table
+    std::vector<size_t> groupBytes(groupCount, 0);
+    for (size_t i = 0; i < partition.size(); ++i) groupBytes[partition[i]] += bytes[i];
+    std::vector<size_t> doubtful;
+    for (size_t i = 0; i < partition.size(); ++i)
+        if (groupBytes[partition[i]] > kBudget) doubtful.push_back(i);
+    if (doubtful.empty()) return groupCount;
+    for (size_t i : doubtful) groupBytes[partition[i]] = 0;
+    parallel_for(doubtful.size(), [&](size_t k) { bytes[doubtful[k]] = exact_bytes(doubtful[k]); });
+    for (size_t i : doubtful) groupBytes[partition[i]] += bytes[i];
+    std::vector<size_t> runBytes(groupCount, 0);  // the run a group's members fill now: its group (the first) or the newest
+    std::vector<unsigned int> runOf(groupCount);
+    for (size_t g = 0; g < groupCount; ++g) runOf[g] = unsigned(g);
+    size_t groups = groupCount;
+    for (size_t i = 0; i < partition.size(); ++i) {
+        const unsigned int g = partition[i];
+        if (groupBytes[g] <= kBudget) continue;
+        // Runs of about equal bytes: a new one starts where this member would overfill the run or pass its share.
+        const size_t runs = (groupBytes[g] + kBudget - 1) / kBudget, share = (groupBytes[g] + runs - 1) / runs;
+        if (runBytes[g] > 0 && (runBytes[g] + bytes[i] > kBudget || runBytes[g] + bytes[i] / 2 > share)) {
+            runOf[g] = unsigned(groups++);
+            runBytes[g] = 0;
+        }
+        runBytes[g] += bytes[i];
+        partition[i] = runOf[g];
+    }
+    return groups;
 }
 
 // Level 0: the source in spatially compact clusters. A mesh of more than 32k triangles is first cut into
@@ -475,11 +520,13 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     // every grid point of the mesh's range exactly.
     const bool hasUvs = !mesh.uvs.empty();
     std::vector<float> uvs;
+    uint64_t largestUv = 0;  // the largest texture coordinate on that grid, in steps
     if (hasUvs) {
         float largest = 1.0f;
         for (float u : mesh.uvs) largest = std::max(largest, std::fabs(u));
         out.uvPrecision = std::max(-16, int(std::ceil(std::log2(double(largest)))) - 22);
         const double uvStep = std::ldexp(1.0, out.uvPrecision);
+        largestUv = uint64_t(std::ceil(double(largest) / uvStep)) + 1;
         uvs.resize(mesh.uvs.size());
         for (size_t i = 0; i < uvs.size(); ++i) uvs[i] = float(std::round(double(mesh.uvs[i]) / uvStep) * uvStep) + 0.0f;
     }
@@ -847,6 +894,12 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     std::vector<uint32_t> roundPosition;  // a position's number in the round's partition input
     std::vector<uint32_t> keptBy, measuredBy;  // per vertex, the last group (by stamp) that kept or measured it
     uint32_t stamps = 0;                       // groups numbered so far, over all rounds
+    // The grid coordinates' range (Preserve Area moves open borders by at most a quarter of a group's size: twice it).
+    double farthest = 0;
+    for (int k = 0; k < 3; ++k) farthest = std::max({farthest, std::fabs(lo[k] - out.origin[k]), std::fabs(hi[k] - out.origin[k])});
+    const uint64_t largestGrid = (uint64_t(std::ceil(farthest / step)) + 1) * (settings.preserveArea ? 2 : 1);
+    const UnitBytesBound unitBound{UnitBytesBound::residual_bits(largestGrid), hasUvs ? UnitBytesBound::residual_bits(largestUv) : 0, hasColors,
+                                   !vertexMaterial.empty()};
     // Where a round's time goes, group by group (TESSERA_BUILD_PHASES=1): gathering its triangles, simplifying (with
     // the seam retries), fitting attributes (with its positions' topology), Preserve Area and re-splitting, measuring
     // from the source and to it.
@@ -860,10 +913,13 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
         // Each cluster's distinct positions in order of first use (about a fifth of its corners): what the partition
         // and the border locks look at.
         std::vector<std::vector<uint32_t>> distinct(pending.size());
+        std::vector<size_t> unitBytes(pending.size());  // each cluster's UnitBytesBound, first with as many vertices as it may have
         parallel_for(pending.size(), [&](size_t i) {
-            std::vector<uint32_t> cornerPositions(clusters[pending[i]].indices.size());
-            for (size_t k = 0; k < cornerPositions.size(); ++k) cornerPositions[k] = positionId[clusters[pending[i]].indices[k]];
+            const std::vector<uint32_t>& indices = clusters[pending[i]].indices;
+            std::vector<uint32_t> cornerPositions(indices.size());
+            for (size_t k = 0; k < cornerPositions.size(); ++k) cornerPositions[k] = positionId[indices[k]];
             number_by_first_use(cornerPositions, distinct[i]);
+            unitBytes[i] = unitBound.cluster(uint32_t(std::min<size_t>(kClusterVertices, indices.size())), uint32_t(indices.size() / 3));
         });
         if (pending.size() > kGroupSize) {
             // The positions numbered for this round only: meshoptimizer's partitioner counts a position once per
@@ -883,6 +939,12 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
             for (const auto& list : distinct)
                 for (uint32_t p : list) roundPosition[p] = UINT32_MAX;
         }
+        groupCount = split_groups_beyond_a_page(partition, groupCount, unitBytes, [&](size_t i) {
+            const std::vector<uint32_t>& indices = clusters[pending[i]].indices;
+            uint32_t vertices = 0;
+            visit_first_uses(indices, [](uint32_t) {}, [&](uint32_t) { ++vertices; });
+            return unitBound.cluster(vertices, uint32_t(indices.size() / 3));
+        });
         std::vector<std::vector<uint32_t>> members(groupCount);
         for (size_t i = 0; i < pending.size(); ++i) members[partition[i]].push_back(pending[i]);
         phases.mark("round: partition");

@@ -1,6 +1,8 @@
 // The page file: exact round trip, page invariants, and clear errors for truncated, corrupt or foreign files.
 #include "tessera/builder.h"
 
+#include "cluster_codec.h"
+
 #include <gtest/gtest.h>
 
 #include "test_meshes.h"
@@ -272,6 +274,90 @@ TEST(Pages, GroupsNeverStraddlePagesAndRootsHaveTheirOwn) {
     const double bytesPerTriangle = double(file.size()) / double(built.sourceTriangles);
     EXPECT_LT(bytesPerTriangle, 14.0);  // with colours, which are stored as they are
     RecordProperty("bytes_per_input_triangle", std::to_string(bytesPerTriangle));
+}
+
+// Every page unit of `mesh` (the children of one group, or one root) encodes within UnitBytesBound, its ranges taken
+// from the mesh: the bound the builder splits groups by is an upper bound. Returns the largest unit's bytes.
+size_t expect_units_within_their_bound(const BuiltMesh& mesh) {
+    double farthest = 0, farthestUv = 0;
+    for (float p : mesh.positions) farthest = std::max(farthest, double(std::fabs(p)));
+    for (float u : mesh.uvs) farthestUv = std::max(farthestUv, double(std::fabs(u)));
+    UnitBytesBound bound{UnitBytesBound::residual_bits(uint64_t(std::ceil(farthest / mesh.positionStep)) + 1), 0, !mesh.colors.empty(),
+                         mesh.materialSlots > 1};
+    if (!mesh.uvs.empty()) bound.uvBits = UnitBytesBound::residual_bits(uint64_t(std::ceil(farthestUv / std::ldexp(1.0, mesh.uvPrecision))) + 1);
+    std::map<uint32_t, std::vector<uint32_t>> children;
+    std::vector<std::vector<uint32_t>> units;
+    for (uint32_t i = 0; i < mesh.clusters.size(); ++i)
+        if (mesh.clusters[i].parentGroup == kNoGroup) units.push_back({i});
+        else children[mesh.clusters[i].parentGroup].push_back(i);
+    for (auto& [parent, list] : children) units.push_back(list);
+    size_t largest = 0;
+    for (const std::vector<uint32_t>& unit : units) {
+        PageStreams streams;
+        encode_unit(mesh, unit, streams);
+        size_t bytes = 0, limit = UnitBytesBound::kUnitBytes;
+        for (const auto& stream : streams) bytes += stream.size();
+        for (uint32_t c : unit) limit += bound.cluster(mesh.clusters[c].vertexCount, mesh.clusters[c].triangleCount);
+        EXPECT_LE(bytes, limit) << "a unit of " << unit.size() << " clusters";
+        largest = std::max(largest, bytes);
+    }
+    return largest;
+}
+
+// A faceted, noisy mesh with a normal, a colour and texture coordinates per corner (a scan's raw export, say): every
+// corner is its own vertex, so clusters hold 255 vertices for 85 triangles, and the residuals are wide. A group of such
+// clusters encoded to more than a page (135 KiB in a fuzzed mesh): encode_pages threw, and a stage holding the mesh
+// failed to render. The builder now splits such groups (UnitBytesBound): every group's children fit a page, and the
+// file decodes.
+TEST(Pages, GroupsOfFacetedMeshesWithEveryAttributeFitAPage) {
+    const int n = 96;
+    std::vector<float> points, normals, colors, uvs;
+    std::vector<int32_t> counts, indices;
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<float> unit(0, 1);
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x) + 0.4f * unit(rng), float(y) + 0.4f * unit(rng), 30 * unit(rng)});
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+            const int a = y * (n + 1) + x;
+            counts.push_back(4);
+            indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
+            for (int k = 0; k < 4; ++k) {
+                normals.insert(normals.end(), {unit(rng) - 0.5f, unit(rng) - 0.5f, 1.0f});
+                colors.insert(colors.end(), {unit(rng), unit(rng), unit(rng)});
+                uvs.insert(uvs.end(), {4096 * unit(rng), 4096 * unit(rng)});
+            }
+        }
+    MeshView view = polygon_view("/Faceted", points, counts, indices);
+    view.normals = {Interpolation::FaceVarying, 3, normals, {}};
+    view.displayColor = {Interpolation::FaceVarying, 3, colors, {}};
+    view.uvs = {Interpolation::FaceVarying, 2, uvs, {}};
+    const BuiltMesh built = build_mesh(prepare_mesh(view));
+    size_t fullClusters = 0;
+    for (const Cluster& c : built.clusters) fullClusters += c.level == 0 && c.vertexCount >= 250;
+    ASSERT_GT(fullClusters, 50u) << "clusters of a vertex per corner";
+    PageLayout layout;
+    std::vector<uint8_t> file;
+    ASSERT_NO_THROW(file = encode_pages(built, &layout));
+    std::map<uint32_t, uint32_t> pageOfGroup;
+    std::map<uint32_t, size_t> unitSizes;
+    for (uint32_t p = 0; p < layout.pages; ++p)
+        for (uint32_t c : layout.pageClusters[p])
+            if (const uint32_t parent = built.clusters[c].parentGroup; parent != kNoGroup) {
+                auto [it, first] = pageOfGroup.try_emplace(parent, p);
+                EXPECT_EQ(it->second, p) << "the children of group " << parent << " straddle pages";
+                ++unitSizes[parent];
+            }
+    size_t largestUnit = 0;
+    for (const auto& [parent, size] : unitSizes) largestUnit = std::max(largestUnit, size);
+    EXPECT_GE(largestUnit, 6u) << "groups are split only as far as a page needs";
+    const BuiltMesh decoded = decode_pages(file, "faceted");
+    EXPECT_EQ(decoded.triangles, built.triangles);
+    EXPECT_EQ(decoded.uvs, built.uvs);
+    EXPECT_GT(expect_units_within_their_bound(built), size_t(kPageBytes / 2)) << "units that nearly fill a page";
+    // And on meshes of other kinds.
+    expect_units_within_their_bound(bumpy_grid(150, true, true));
+    expect_units_within_their_bound(bumpy_grid(150, false));
 }
 
 TEST(Pages, EveryTruncationIsAClearError) {

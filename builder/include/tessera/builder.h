@@ -323,13 +323,14 @@ constexpr uint32_t kPageFormatVersion = 7;  // 4: the constant vertex channel ha
                                             // triangle area; 6: and their longest edge; 7: group errors measured (deviation.h)
 // Bumped whenever the builder makes a different DAG from the same input and settings (simplifier weights, grouping,
 // error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
-constexpr uint32_t kBuilderRevision = 13;  // 3: triangles within a cluster in strip order (encoding.cpp); 4: the seam retry (dag.cpp);
+constexpr uint32_t kBuilderRevision = 14;  // 3: triangles within a cluster in strip order (encoding.cpp); 4: the seam retry (dag.cpp);
                                           // 5-7: fitted normals on coarse levels, then the vertex channel, then two sweeps (attribute_fit.cpp);
                                           // 8: fits with Preserve Area too; 9: edge midpoints measured over the input's surface (deviation.cpp);
                                           // 10: source points too; Preserve Area keeps the covered area (area.cpp);
                                           // 11: level 0 of a mesh of 32k-128k triangles in two Morton halves (dag.cpp);
                                           // 12: corners re-wedged toward their triangles, no-area triangles sample nothing (dag.cpp);
                                           // 13: a sliver sampling across a border counts a hundred times its width, not its length
+                                          // 14: a group whose children could encode to more than a page is split (dag.cpp)
 constexpr uint32_t kPageBytes = 128 * 1024;
 constexpr uint32_t kPageHeaderBytes = 160;  // the fixed-size header; the page table follows it
 
