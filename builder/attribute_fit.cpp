@@ -34,6 +34,23 @@ struct Triangle {
         abac = ab[0] * ac[0] + ab[1] * ac[1] + ab[2] * ac[2];
         acac = ac[0] * ac[0] + ac[1] * ac[1] + ac[2] * ac[2];
     }
+    // The point nearest p on the edges ab, ac and bc, as the weights of b and c (p relative to a: ap).
+    void nearest_on_edges(const float ap[3], float& u, float& v) const {
+        const float bc[3] = {ac[0] - ab[0], ac[1] - ab[1], ac[2] - ab[2]}, bp[3] = {ap[0] - ab[0], ap[1] - ab[1], ap[2] - ab[2]};
+        auto along = [](const float* from, const float* edge) {  // the parameter of the point of `edge` nearest (from: p - its start)
+            const float length2 = edge[0] * edge[0] + edge[1] * edge[1] + edge[2] * edge[2];
+            return length2 > 0 ? std::clamp((from[0] * edge[0] + from[1] * edge[1] + from[2] * edge[2]) / length2, 0.0f, 1.0f) : 0.0f;
+        };
+        auto off = [](const float* from, const float* edge, float t) {
+            const float q[3] = {from[0] - t * edge[0], from[1] - t * edge[1], from[2] - t * edge[2]};
+            return q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
+        };
+        const float tb = along(ap, ab), tc = along(ap, ac), tbc = along(bp, bc);
+        const float db = off(ap, ab, tb), dc = off(ap, ac, tc), dbc = off(bp, bc, tbc);
+        if (db <= dc && db <= dbc) u = tb, v = 0;
+        else if (dc <= dbc) u = 0, v = tc;
+        else u = 1 - tbc, v = tbc;
+    }
     // The point nearest p, as barycentric weights (of a, b, c); returns the squared distance. In float: the weights
     // only place a sample's values, and positions are floats already. Ericson, Real-Time Collision Detection, 5.1.5,
     // with the dot products of b - p and c - p derived from those of a - p.
@@ -48,17 +65,18 @@ struct Triangle {
             u = 1;
         } else if (d6 >= 0 && d5 <= d6) {
             v = 1;
-        } else if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        } else if (vc <= 0 && d1 >= 0 && d3 <= 0 && d1 - d3 > 0) {
             u = d1 / (d1 - d3);
-        } else if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        } else if (vb <= 0 && d2 >= 0 && d6 <= 0 && d2 - d6 > 0) {
             v = d2 / (d2 - d6);
-        } else if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) {
+        } else if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0 && (d4 - d3) + (d5 - d6) > 0) {
             v = (d4 - d3) / ((d4 - d3) + (d5 - d6));
             u = 1 - v;
-        } else {
-            const float denominator = va + vb + vc;
-            u = denominator != 0 ? vb / denominator : 0;
-            v = denominator != 0 ? vc / denominator : 0;
+        } else if (const float denominator = va + vb + vc; denominator > 0) {
+            u = vb / denominator;
+            v = vc / denominator;
+        } else {  // no area (two corners at one place, or three in a line): the nearest point of its edges
+            nearest_on_edges(ap, u, v);
         }
         weights[0] = 1 - u - v;
         weights[1] = u;

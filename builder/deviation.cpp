@@ -19,13 +19,25 @@ float distance2(const float* a, const float* b) {
     return dot3(d, d);
 }
 
+// Squared distance from p to the segment ab (a point where a and b coincide).
+float distance2_to_segment(const float* p, const float* a, const float* b) {
+    const float ab[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
+    const float length2 = dot3(ab, ab);
+    const float t = length2 > 0 ? std::clamp(dot3(ap, ab) / length2, 0.0f, 1.0f) : 0.0f;
+    const float q[3] = {ap[0] - t * ab[0], ap[1] - t * ab[1], ap[2] - t * ab[2]};
+    return dot3(q, q);
+}
+
 // Squared distance from p to the triangle abc: to the closest point, found by which of the triangle's Voronoi regions
-// (a corner, an edge, the face) holds p (Ericson, "Real-Time Collision Detection", 5.1.5). A triangle with no area
-// gives its nearest corner's distance, which is no less than the true one.
+// (a corner, an edge, the face) holds p (Ericson, "Real-Time Collision Detection", 5.1.5). A triangle of no area (two
+// corners at one place, as simplifying along seams leaves, or three in a line) is the segments between its corners:
+// the regions' divisions are 0 / 0 there (a NaN, which no comparison takes: a point with only such triangles near it
+// measured an infinite distance).
 float distance2_to_triangle(const float* p, const float* a, const float* b, const float* c) {
     const float ab[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, ac[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
     const float ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]}, bp[3] = {p[0] - b[0], p[1] - b[1], p[2] - b[2]};
     const float cp[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
+    auto segments = [&] { return std::min({distance2_to_segment(p, a, b), distance2_to_segment(p, b, c), distance2_to_segment(p, c, a)}); };
     const float d1 = dot3(ab, ap), d2 = dot3(ac, ap);
     if (d1 <= 0 && d2 <= 0) return dot3(ap, ap);
     const float d3 = dot3(ab, bp), d4 = dot3(ac, bp);
@@ -37,16 +49,17 @@ float distance2_to_triangle(const float* p, const float* a, const float* b, cons
         return dot3(q, q);
     };
     const float vc = d1 * d4 - d3 * d2;
-    if (vc <= 0 && d1 >= 0 && d3 <= 0) return at(d1 / (d1 - d3), 0);
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) return d1 - d3 > 0 ? at(d1 / (d1 - d3), 0) : segments();
     const float vb = d5 * d2 - d1 * d6;
-    if (vb <= 0 && d2 >= 0 && d6 <= 0) return at(0, d2 / (d2 - d6));
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) return d2 - d6 > 0 ? at(0, d2 / (d2 - d6)) : segments();
     const float va = d3 * d6 - d5 * d4;
     if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) {
+        if (!((d4 - d3) + (d5 - d6) > 0)) return segments();
         const float w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
         return at(1 - w, w);
     }
     const float sum = va + vb + vc;
-    if (!(sum > 0)) return std::min({dot3(ap, ap), dot3(bp, bp), dot3(cp, cp)});
+    if (!(sum > 0)) return segments();
     return at(vb / sum, vc / sum);
 }
 

@@ -177,6 +177,7 @@ TEST(Dag, OutputChangesComeWithABuilderRevision) {
         {{7, 12}, 0x69293855b469806bull},
         {{7, 13}, 0x1e15ac0e6c51e4c9ull},
         {{7, 14}, 0x1e15ac0e6c51e4c9ull},  // the same: its meshes' groups fit a page
+        {{7, 15}, 0x1e15ac0e6c51e4c9ull},  // the same: its meshes meet no triangle of no area there
     };
     const auto found = recorded.find({kPageFormatVersion, kBuilderRevision});
     ASSERT_NE(found, recorded.end()) << "no hash recorded for page format " << kPageFormatVersion << ", builder revision " << kBuilderRevision

@@ -208,3 +208,22 @@ TEST(Deviation, EdgesOfTheInputDoNotStray) {
     EXPECT_EQ(measure_stray(group, s.positions), 0.0f);
 }
 
+
+// A simplified triangle with two corners at one place (two wedges of a seam, say: simplifying along seams leaves such)
+// is the segment between its places: a point beside it measures its distance to that segment. The nearest-point code
+// divided 0 by 0 there, and a point whose only nearby triangles were such measured an infinite distance, which made
+// its group's error and every error above it infinite (found by a scratch fuzzer on duplicated, double-sided faces).
+TEST(Deviation, TrianglesWithTwoCornersAtOnePlaceMeasureAsTheSegmentTheyAre) {
+    const std::vector<float> positions = {0, 0, 0, 1, 0, 0, 0, 1, 0, 1, 1, 0, 0, 0, 0};  // vertex 4: a wedge of vertex 0
+    const std::vector<uint32_t> positionId = {0, 1, 2, 3, 0};
+    const std::vector<uint32_t> input = {0, 1, 2, 1, 3, 2, 4, 2, 1}, output = {0, 4, 3};
+    const GroupPositions group(input, output.data(), output.size(), positionId);
+    ASSERT_TRUE(group.outputInInput);
+    std::vector<float> corners;
+    for (uint32_t v : output) corners.insert(corners.end(), &positions[3 * v], &positions[3 * v] + 3);
+    const std::vector<SourcePoint> points = {{{0.5f, 0.5f, 0.2f}, 0, 1}, {{0.25f, 0.25f, -0.1f}, 0, 2}};
+    const Deviation d = measure_deviation(group, corners, output.data(), {0}, 1, points, positionId, 8);
+    EXPECT_NEAR(d.largest, 0.2f, 1e-6f);
+    ASSERT_EQ(d.kept[0].size(), 2u);
+    for (const SourcePoint& p : d.kept[0]) EXPECT_TRUE(std::isfinite(p.distance));
+}

@@ -126,7 +126,7 @@ struct DisplacementBake {
     float constant = 0.0f;                     // the height where `height` is empty
     std::function<float(float, float)> height; // the height at texture coordinates (s, t): a height map, read on the CPU
     uint32_t texels = 0;                       // the height map's larger side: edges are cut about one texel long
-    uint64_t maxTriangles = 4'000'000;         // the dicing coarsens until the result fits
+    uint64_t maxTriangles = 4'000'000;         // the dicing coarsens until the result fits (a mesh of more is not diced)
     std::string key;                           // identifies the height map and the values above (joins the cache key)
 };
 
@@ -323,7 +323,7 @@ constexpr uint32_t kPageFormatVersion = 7;  // 4: the constant vertex channel ha
                                             // triangle area; 6: and their longest edge; 7: group errors measured (deviation.h)
 // Bumped whenever the builder makes a different DAG from the same input and settings (simplifier weights, grouping,
 // error measure, ...): the mesh cache keys on it, so that no stale build is ever served.
-constexpr uint32_t kBuilderRevision = 14;  // 3: triangles within a cluster in strip order (encoding.cpp); 4: the seam retry (dag.cpp);
+constexpr uint32_t kBuilderRevision = 15;  // 3: triangles within a cluster in strip order (encoding.cpp); 4: the seam retry (dag.cpp);
                                           // 5-7: fitted normals on coarse levels, then the vertex channel, then two sweeps (attribute_fit.cpp);
                                           // 8: fits with Preserve Area too; 9: edge midpoints measured over the input's surface (deviation.cpp);
                                           // 10: source points too; Preserve Area keeps the covered area (area.cpp);
@@ -331,6 +331,7 @@ constexpr uint32_t kBuilderRevision = 14;  // 3: triangles within a cluster in s
                                           // 12: corners re-wedged toward their triangles, no-area triangles sample nothing (dag.cpp);
                                           // 13: a sliver sampling across a border counts a hundred times its width, not its length
                                           // 14: a group whose children could encode to more than a page is split (dag.cpp)
+                                          // 15: triangles of no area measure and fit as their edges (deviation.cpp, attribute_fit.cpp)
 constexpr uint32_t kPageBytes = 128 * 1024;
 constexpr uint32_t kPageHeaderBytes = 160;  // the fixed-size header; the page table follows it
 
