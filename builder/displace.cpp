@@ -70,7 +70,8 @@ PreparedMesh bake_displacement(const PreparedMesh& mesh, const DisplacementBake&
         if (!(seg > 0)) return 1;
         return uint32_t(std::clamp(std::ceil(length(a, b) / seg), 1.0, 64.0));
     };
-    // Coarser segments until the result fits the budget.
+    // Coarser segments until the result fits the budget, or no triangle is diced any more (a mesh of more triangles than
+    // the budget: its corners move, and it is not diced; coarsening on looked for a fit that cannot come, for ever).
     for (;;) {
         uint64_t total = 0;
         for (size_t t = 0; t < triangles && segment > 0; ++t) {
@@ -79,7 +80,7 @@ PreparedMesh bake_displacement(const PreparedMesh& mesh, const DisplacementBake&
                                          factor_of(P + 3 * v[2], P + 3 * v[0], segment)});
             total += uint64_t(n) * n;
         }
-        if (total <= bake.maxTriangles || !(segment > 0)) break;
+        if (total <= bake.maxTriangles || total <= triangles || !(segment > 0)) break;
         segment *= 1.25;
     }
 

@@ -955,3 +955,41 @@ TEST(Builder, RandomMeshesAreBuiltOrRefusedWithAMeshError) {
     EXPECT_GE(built, 24u) << "most of them are meshes to build";
     EXPECT_GE(refused, 2u) << "and some are not";
 }
+
+// A static displacement bake dices a mesh until it fits the bake's triangle budget. A mesh of more triangles than the
+// budget cannot fit whatever the dicing: the coarsening looked for a fit for ever (a 5 M-triangle scan under a baked
+// displacement material, at the 4 M default, hung its build; found by the scratch fuzzer). Such a mesh is not diced,
+// and its corners still move; a mesh within the budget is diced as before.
+TEST(Bake, AMeshOfMoreTrianglesThanTheBudgetIsDisplacedWithoutDicing) {
+    const int n = 40;
+    std::vector<float> points, uvs;
+    std::vector<int32_t> counts, indices;
+    for (int y = 0; y <= n; ++y)
+        for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x), float(y), 0.0f});
+    for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+            counts.push_back(4);
+            const int corners[4][2] = {{x, y}, {x + 1, y}, {x + 1, y + 1}, {x, y + 1}};
+            for (const auto& c : corners) {
+                indices.push_back(c[1] * (n + 1) + c[0]);
+                uvs.insert(uvs.end(), {float(c[0]) / n, float(c[1]) / n});
+            }
+        }
+    MeshView view = polygon_view("/Baked", points, counts, indices);
+    view.uvs = {Interpolation::FaceVarying, 2, uvs, {}};
+    const PreparedMesh mesh = prepare_mesh(view);
+    DisplacementBake bake;
+    bake.height = [](float s, float t) { return std::sin(6.0f * s) * std::cos(5.0f * t); };
+    bake.texels = 512;
+    bake.magnitude = 0.5f;
+    bake.maxTriangles = mesh.indices.size() / 3 / 2;  // half the mesh: no dicing fits
+    const PreparedMesh flat = bake_displacement(mesh, bake);
+    EXPECT_EQ(flat.indices.size(), mesh.indices.size()) << "not diced";
+    float highest = 0;
+    for (size_t v = 0; v < flat.positions.size() / 3; ++v) highest = std::max(highest, std::fabs(flat.positions[3 * v + 2]));
+    EXPECT_GT(highest, 0.3f) << "its corners move along their normals";
+    bake.maxTriangles = 20 * mesh.indices.size() / 3;
+    const PreparedMesh diced = bake_displacement(mesh, bake);
+    EXPECT_GT(diced.indices.size(), 4 * mesh.indices.size()) << "within the budget, diced";
+    EXPECT_LE(diced.indices.size() / 3, bake.maxTriangles);
+}
