@@ -99,14 +99,7 @@ TEST(Prepare, UnusableMeshThrowsNamingTheProblem) {
 // too small for float areas is refused with the reason.
 TEST(Prepare, MeshesBeyondTheFloatRangeAreRefusedNamingTheMesh) {
     auto grid = [](int n, double spacing, std::vector<float>& points, std::vector<int32_t>& counts, std::vector<int32_t>& indices) {
-        for (int y = 0; y <= n; ++y)
-            for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(spacing * x), float(spacing * y), 0.0f});
-        for (int y = 0; y < n; ++y)
-            for (int x = 0; x < n; ++x) {
-                const int a = y * (n + 1) + x;
-                counts.push_back(4);
-                indices.insert(indices.end(), {a, a + 1, a + n + 2, a + n + 1});
-            }
+        quad_grid(n, [&](int x, int y) { return std::array<double, 3>{spacing * x, spacing * y, 0.0}; }, [](int, int, int, int) {}, points, counts, indices);
     };
     auto message = [](const MeshView& view) -> std::string {
         try {
@@ -964,17 +957,8 @@ TEST(Bake, AMeshOfMoreTrianglesThanTheBudgetIsDisplacedWithoutDicing) {
     const int n = 40;
     std::vector<float> points, uvs;
     std::vector<int32_t> counts, indices;
-    for (int y = 0; y <= n; ++y)
-        for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x), float(y), 0.0f});
-    for (int y = 0; y < n; ++y)
-        for (int x = 0; x < n; ++x) {
-            counts.push_back(4);
-            const int corners[4][2] = {{x, y}, {x + 1, y}, {x + 1, y + 1}, {x, y + 1}};
-            for (const auto& c : corners) {
-                indices.push_back(c[1] * (n + 1) + c[0]);
-                uvs.insert(uvs.end(), {float(c[0]) / n, float(c[1]) / n});
-            }
-        }
+    quad_grid(n, [](int x, int y) { return std::array<float, 3>{float(x), float(y), 0.0f}; },
+              [&](int, int, int x, int y) { uvs.insert(uvs.end(), {float(x) / n, float(y) / n}); }, points, counts, indices);
     MeshView view = polygon_view("/Baked", points, counts, indices);
     view.uvs = {Interpolation::FaceVarying, 2, uvs, {}};
     const PreparedMesh mesh = prepare_mesh(view);

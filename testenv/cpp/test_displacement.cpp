@@ -9,6 +9,7 @@
 #include "test_meshes.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -19,20 +20,15 @@ namespace {
 
 // A bumpy n x n grid of quads whose texture coordinates jump across the middle column: two UV islands (a seam).
 BuiltMesh grid_with_seam(int n, std::vector<float>& points, std::vector<int32_t>& counts, std::vector<int32_t>& indices, std::vector<float>& uvs) {
-    for (int y = 0; y <= n; ++y)
-        for (int x = 0; x <= n; ++x) points.insert(points.end(), {float(x), float(y), 0.3f * std::sin(0.7f * x) * std::cos(0.5f * y)});
-    for (int y = 0; y < n; ++y)
-        for (int x = 0; x < n; ++x) {
-            counts.push_back(4);
-            const int corners[4][2] = {{x, y}, {x + 1, y}, {x + 1, y + 1}, {x, y + 1}};
-            for (const auto& c : corners) {
-                indices.push_back(c[1] * (n + 1) + c[0]);
-                // Left island: u in [0, 0.4]; right island: u in [0.55, 0.95] (the middle column has both).
-                const bool right = x >= n / 2;
-                const float u = right ? 0.55f + 0.4f * float(c[0] - n / 2) / float(n - n / 2) : 0.4f * float(c[0]) / float(n / 2);
-                uvs.insert(uvs.end(), {u, float(c[1]) / float(n)});
-            }
-        }
+    quad_grid(
+        n, [](int x, int y) { return std::array<float, 3>{float(x), float(y), 0.3f * std::sin(0.7f * x) * std::cos(0.5f * y)}; },
+        [&](int x, int, int cx, int cy) {
+            // Left island: u in [0, 0.4]; right island: u in [0.55, 0.95] (the middle column has both).
+            const bool right = x >= n / 2;
+            const float u = right ? 0.55f + 0.4f * float(cx - n / 2) / float(n - n / 2) : 0.4f * float(cx) / float(n / 2);
+            uvs.insert(uvs.end(), {u, float(cy) / float(n)});
+        },
+        points, counts, indices);
     MeshView v = polygon_view("/SeamGrid", points, counts, indices);
     v.uvs.interpolation = Interpolation::FaceVarying;
     v.uvs.components = 2;
