@@ -329,10 +329,9 @@ std::vector<std::vector<uint32_t>> split_into_clusters(const std::vector<uint32_
     return split_into_clusters(indices.size(), [&](size_t i) { return indices[i]; }, position, pieceOf);
 }
 
-// Cluster-local vertex numbers by first use: returns the corners renumbered, and the mesh vertices in that order in
-// `vertices` (a small open-addressing table: clusters have at most 256 vertices). The table is the thread's own, and
-// its slots are stamped with the call that filled them, so no call clears it.
-// `corner(number)` for each of `indices`, `fresh(v)` first for each vertex met first there.
+// The cluster-local number by first use of each of `indices`, to `corner(number)`, and `fresh(v)` first for each vertex
+// met first there (a small open-addressing table: clusters have at most 256 vertices). The table is the thread's own,
+// and its slots are stamped with the call that filled them, so no call clears it.
 template <typename Corner, typename Fresh>
 void visit_first_uses(const std::vector<uint32_t>& indices, Corner corner, Fresh fresh) {
     constexpr uint32_t kSlots = 1024;
@@ -357,6 +356,8 @@ void visit_first_uses(const std::vector<uint32_t>& indices, Corner corner, Fresh
     }
 }
 
+// Cluster-local vertex numbers by first use: returns the corners renumbered, and the mesh vertices in that order in
+// `vertices`.
 std::vector<uint32_t> number_by_first_use(const std::vector<uint32_t>& indices, std::vector<uint32_t>& vertices) {
     std::vector<uint32_t> corners;
     corners.reserve(indices.size());
