@@ -525,7 +525,7 @@ BuiltMesh build(const PreparedMesh& mesh, PreparedMesh* spent, const BuildSettin
     if (hasUvs) {
         float largest = 1.0f;
         for (float u : mesh.uvs) largest = std::max(largest, std::fabs(u));
-        out.uvPrecision = std::max(-16, int(std::ceil(std::log2(double(largest)))) - 22);
+        out.uvPrecision = uv_grid_precision(largest);
         const double uvStep = std::ldexp(1.0, out.uvPrecision);
         largestUv = uint64_t(std::ceil(double(largest) / uvStep)) + 1;
         uvs.resize(mesh.uvs.size());

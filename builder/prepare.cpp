@@ -284,15 +284,25 @@ void fill_vertex_streams(PreparedMesh& out, const MeshView& mesh, const Sources&
     if (uvs.active()) {
         out.uvs.resize(2 * vertexCount);
         size_t nonFinite = 0;
+        float largest = 0;
         for (size_t v = 0; v < vertexCount; ++v) {
             const float* uv = uvs.value(source.uv(v));
             for (int k = 0; k < 2; ++k) {
                 const bool finite = std::isfinite(uv[k]);
                 nonFinite += !finite;
                 out.uvs[2 * v + k] = finite ? uv[k] : 0.0f;
+                largest = std::max(largest, std::fabs(out.uvs[2 * v + k]));
             }
         }
         if (nonFinite) out.warnings.push_back(mesh.name + ": " + std::to_string(nonFinite) + " texture coordinate(s) are NaN or infinite; set to 0");
+        // One value far out of place (1e30 among coordinates in [0, 1]) coarsens the grid every texture coordinate of
+        // the mesh is stored on, and with it all of them: said where the steps pass 1/256 of a texture.
+        if (const int precision = uv_grid_precision(largest); precision > -8) {
+            char reach[32];
+            std::snprintf(reach, sizeof reach, "%.3g", double(largest));
+            out.warnings.push_back(mesh.name + ": texture coordinates reach " + reach + ": they are stored on a grid of 2^" + std::to_string(precision) +
+                                   " texture widths, which blurs or collapses them (a value out of place?)");
+        }
     }
 }
 

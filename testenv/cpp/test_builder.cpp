@@ -138,6 +138,28 @@ TEST(Prepare, MeshesBeyondTheFloatRangeAreRefusedNamingTheMesh) {
     EXPECT_EQ(message(polygon_view("/World/Speck", points, counts, indices)), "/World/Speck: no drawable faces (every triangle has no area at float precision)");
 }
 
+// Texture coordinates are stored on one grid per mesh, as fine as their largest allows: one value far out of place
+// (1e30 among coordinates in [0, 1], from a broken export) made the grid 2^78 wide, and every coordinate of the mesh 0,
+// without a word. That is now a warning naming the mesh; coordinates of tiling textures (up to 1000 or so) are not.
+TEST(Prepare, TextureCoordinatesFarOutOfPlaceAreNamed) {
+    Quad q;
+    std::vector<float> uvs = {0, 0, 1, 0, 1, 1, 0, 1};
+    auto warnings_with = [&](float last) {
+        uvs.back() = last;
+        MeshView view = q.view("/World/Odd");
+        view.uvs = {Interpolation::FaceVarying, 2, uvs, {}};
+        std::string all;
+        for (const std::string& w : prepare_mesh(view).warnings) all += w + "\n";
+        return all;
+    };
+    EXPECT_EQ(warnings_with(1), "");
+    EXPECT_EQ(warnings_with(1000), "") << "a tiling texture's coordinates";
+    const std::string odd = warnings_with(1e30f);
+    EXPECT_NE(odd.find("/World/Odd: texture coordinates reach 1e+30: they are stored on a grid of 2^78 texture widths"), std::string::npos) << odd;
+    EXPECT_EQ(uv_grid_precision(1.0f), -16);
+    EXPECT_EQ(uv_grid_precision(1e30f), 78);
+}
+
 TEST(Prepare, FaceVaryingSeamsSplitVertices) {
     Quad q;  // two quads sharing an edge, with a colour seam along it
     q.points = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 2, 0, 0, 2, 1, 0};

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <array>
 #include <functional>
 #include <limits>
@@ -111,6 +112,10 @@ struct PreparedMesh {
 // The largest extent of a mesh along an axis, in its units: beyond it the builder's float arithmetic (squared lengths
 // of edges' cross products) overflows. A planet in centimetres (1.3e9) fits.
 constexpr double kMaxMeshExtent = 2147483648.0;  // 2^31
+// The grid texture coordinates are stored on (BuiltMesh::uvPrecision), from the largest of them in magnitude: 2^-16, a
+// quarter texel of a 16K texture, or coarser where they are so large that float holds no finer steps (22 bits below
+// their top one).
+inline int uv_grid_precision(float largest) { return std::max(-16, int(std::ceil(std::log2(double(std::max(largest, 1.0f))))) - 22); }
 // Validates and triangulates. Bad faces (out-of-range indices, fewer than 3 vertices, non-finite points)
 // are dropped with a warning; a mesh with nothing left to draw, whose arrays do not fit together, or that spans more
 // than kMaxMeshExtent, throws MeshError naming the mesh and the problem. Triangles come in the faces' order; vertices are numbered by first
