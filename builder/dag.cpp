@@ -16,6 +16,7 @@
 #include "tessera/parallel.h"
 #include "phase_timer.h"
 #include "rows.h"
+#include "vertex_box.h"
 #include "weld.h"
 
 #include <meshoptimizer.h>
@@ -84,22 +85,8 @@ double sampling_size(const float* a, const float* b, const float* c) {
     return std::min(longest, kSliverLength * width);
 }
 
-// Smallest sphere centred on the box centre that holds the vertices.
-// The two halves of a vertex sphere over the points point(i), i in [begin, end): their box (grown into lo, hi), and
-// the largest distance from a centre. Minima, maxima and the largest distance do not depend on how the range is split.
-// (In float, then widened once: the same bounds, as float to double is exact and keeps the order.)
-template <class Point>
-void grow_box(Point point, size_t begin, size_t end, double lo[3], double hi[3]) {
-    float low[3] = {INFINITY, INFINITY, INFINITY}, high[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = begin; i < end; ++i) {
-        const float* p = point(i);
-        for (int k = 0; k < 3; ++k) {
-            low[k] = std::min(low[k], p[k]);
-            high[k] = std::max(high[k], p[k]);
-        }
-    }
-    for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], double(low[k])), hi[k] = std::max(hi[k], double(high[k]));
-}
+// Smallest sphere centred on the box centre that holds the vertices: the box (vertex_box.h), then the largest
+// distance from its centre over the points point(i), i in [begin, end) (which does not depend on how a range is split).
 template <class Point>
 double farthest(Point point, size_t begin, size_t end, const Sphere& c) {
     double r = 0;
@@ -117,17 +104,6 @@ Sphere vertex_sphere(const std::vector<float>& positions, const uint32_t* vertic
     Sphere s{(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2, 0};
     s.r = farthest(point, 0, count, s);
     return s;
-}
-
-// The box of every vertex (grown into lo, hi), over blocks of `block` vertices on every core.
-void all_vertices_box(const std::vector<float>& positions, size_t block, double lo[3], double hi[3]) {
-    const size_t count = positions.size() / 3;
-    std::vector<std::array<double, 6>> boxes((count + block - 1) / block, {INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY});
-    parallel_blocks(count, block, [&](size_t begin, size_t end) {
-        grow_box([&](size_t i) { return &positions[3 * i]; }, begin, end, &boxes[begin / block][0], &boxes[begin / block][3]);
-    });
-    for (const auto& box : boxes)
-        for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], box[k]), hi[k] = std::max(hi[k], box[3 + k]);
 }
 
 // vertex_sphere of every vertex, the same sphere, over blocks of `block` vertices on every core.

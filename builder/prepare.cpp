@@ -5,6 +5,7 @@
 #include "subdivide.h"
 #include "tessera/morton.h"
 #include "tessera/parallel.h"
+#include "vertex_box.h"
 #include "weld.h"
 
 #include <algorithm>
@@ -125,20 +126,9 @@ constexpr size_t kSpatialOrderFrom = 65536;  // vertices: a mesh of more is numb
 // Throws MeshError where the vertices span more than kMaxMeshExtent along an axis: the builder's float arithmetic
 // (squared lengths of edges' cross products) overflows beyond it, where it would make clusters of nothing.
 void check_extent(const std::vector<float>& positions, const std::string& name) {
-    const size_t count = positions.size() / 3, blocks = (count + kBlock - 1) / kBlock;
-    std::vector<std::array<float, 6>> box(blocks);  // per block: lowest x, y, z, then highest
-    parallel_for(blocks, [&](size_t b) {
-        std::array<float, 6> bounds{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
-        for (size_t v = b * kBlock; v < std::min(count, (b + 1) * kBlock); ++v)
-            for (int k = 0; k < 3; ++k) bounds[k] = std::min(bounds[k], positions[3 * v + k]), bounds[3 + k] = std::max(bounds[3 + k], positions[3 * v + k]);
-        box[b] = bounds;
-    });
-    double extent = 0;
-    for (int k = 0; k < 3; ++k) {
-        float lo = INFINITY, hi = -INFINITY;
-        for (const auto& bounds : box) lo = std::min(lo, bounds[k]), hi = std::max(hi, bounds[3 + k]);
-        extent = std::max(extent, double(hi) - double(lo));
-    }
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    all_vertices_box(positions, kBlock, lo, hi);
+    const double extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
     if (extent > kMaxMeshExtent) {
         char spans[32];
         std::snprintf(spans, sizeof spans, "%.3g", extent);
